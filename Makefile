@@ -1,0 +1,29 @@
+# Two entry points: `make demo` (fit, export, validate, diagnose a shipped recording)
+# and `make test`. Each creates .venv and installs the project into it.
+PYTHON ?= python3.11
+VENV := .venv
+BIN := $(VENV)/bin
+OUT := out
+
+$(BIN)/duhem: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q ".[test]"
+	touch $(BIN)/duhem
+
+.PHONY: install demo test bench
+install: $(BIN)/duhem
+
+demo: install
+	mkdir -p $(OUT)
+	$(BIN)/duhem fit examples/demo.csv -o $(OUT)/demo.json --fmu $(OUT)/demo.fmu
+	$(BIN)/duhem validate $(OUT)/demo.fmu examples/demo.csv --plot $(OUT)/demo_validate.png
+	$(BIN)/duhem diagnose examples/diagnose/*.csv --report $(OUT)/diagnose --json $(OUT)/diagnose.json
+
+test: install
+	$(BIN)/python -m pytest -q
+
+bench: install
+	$(BIN)/python bench/reproduce_paper.py
+	$(BIN)/python bench/fmu_throughput.py
+	$(BIN)/python bench/real_data.py

@@ -1,0 +1,264 @@
+"""The one simulation kernel: exact flows of the semilinear Duhem models.
+
+Everything reduces to one primitive, the exact solution of the affine ODE
+
+    dx/ds = A x + B (p + r s) + E,      0 <= s <= S,                      (K)
+
+over one sample interval, where s is the interval's own independent variable:
+
+* rate-independent model, eqs (1)-(3): on an interval where u moves from u_k to
+  u_{k+1} the input is monotone, so by Proposition 1 x is a function of u with
+  dx/du = A± x + B± u + E± (A+ when u rises, A- when it falls).  With
+  s = u - u_k: S = u_{k+1} - u_k (negative on a falling interval), p = u_k, r = 1.
+  The result depends on the input samples only, not on their timing.
+* rate-dependent model, eq (18): the input is taken piecewise linear between
+  samples, so on an interval v = du/dt is constant and dx/dt = g(v)(A x + B u + E).
+  With s = g(v) tau: S = g(v) h, p = u_k, r = v / g(v) (r = 0 when g(v) = 0,
+  where nothing moves).
+
+(K) is solved in the eigenbasis A = V diag(lambda) V^-1 with the phi-functions
+phi1(z) = (e^z - 1)/z and phi2(z) = (e^z - 1 - z)/z^2:
+
+    w(S) = e^{lambda S} w(0) + S phi1(lambda S) c0 + S^2 phi2(lambda S) c1,
+
+c0 = V^-1 (B p + E), c1 = V^-1 B r.  Over many intervals with one A the scalar
+recurrences w_{k+1} = a_k w_k + f_k are summed in closed form (cumulative
+products as exponentials of cumulative sums), in chunks short enough that no
+exponential overflows.  When V is ill-conditioned (defective A, e.g. the
+Jordan blocks that a bilinear transform makes of a shift register) the kernel
+falls back to the matrix exponential of the augmented matrix
+[[A, B r, B p + E], [0, 0, 1], [0, 0, 0]] one interval at a time.
+
+This module needs only numpy: it is shipped inside the FMUs.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["AffineFlow", "expm", "phi1", "phi2", "simulate", "Simulation", "KernelError"]
+
+_COND_LIMIT = 1e6
+_CHUNK_SPAN = 300.0
+
+
+class KernelError(ValueError):
+    """Invalid input to the simulation kernel."""
+
+
+def phi1(z: np.ndarray) -> np.ndarray:
+    """(e^z - 1)/z, equal to 1 at z = 0; accurate for small |z|."""
+    z = np.asarray(z, dtype=complex)
+    small = np.abs(z) < 1e-8
+    zs = np.where(small, 1.0, z)
+    return np.where(small, 1.0 + z / 2, np.expm1(zs) / zs)
+
+
+def phi2(z: np.ndarray) -> np.ndarray:
+    """(e^z - 1 - z)/z^2, equal to 1/2 at z = 0; series for |z| < 0.5."""
+    z = np.asarray(z, dtype=complex)
+    small = np.abs(z) < 0.5
+    zs = np.where(small, 1.0, z)
+    direct = (np.expm1(zs) - zs) / (zs * zs)
+    series = np.zeros_like(z)
+    term = np.full_like(z, 0.5)
+    for k in range(3, 20):
+        series = series + term
+        term = term * z / k
+    return np.where(small, series, direct)
+
+
+def expm(M: np.ndarray) -> np.ndarray:
+    """Matrix exponential by scaling and squaring of a degree-18 Taylor series.
+
+    The matrix is scaled to 1-norm <= 0.5, where the truncation error is below
+    1e-20 relative; used only by the fallback path and by tests.
+    """
+    M = np.asarray(M, dtype=float)
+    norm = np.abs(M).sum(axis=0).max() if M.size else 0.0
+    s = max(0, int(np.ceil(np.log2(norm / 0.5)))) if norm > 0.5 else 0
+    X = M / (2.0 ** s)
+    result = np.eye(M.shape[0])
+    term = np.eye(M.shape[0])
+    for k in range(1, 19):
+        term = term @ X / k
+        result = result + term
+    for _ in range(s):
+        result = result @ result
+    return result
+
+
+class AffineFlow:
+    """Exact flow of (K) for one matrix A; see the module docstring.
+
+    Parameters
+    ----------
+    A : (n, n) array
+    B, E : (n,) arrays
+        The forcing directions of (K).
+    """
+
+    def __init__(self, A: np.ndarray, B: np.ndarray, E: np.ndarray):
+        self.A = np.asarray(A, dtype=float)
+        self.B = np.asarray(B, dtype=float)
+        self.E = np.asarray(E, dtype=float)
+        self.n = self.A.shape[0]
+        lam, V = np.linalg.eig(self.A)
+        cond = np.linalg.cond(V)
+        self.modal = bool(np.isfinite(cond) and cond < _COND_LIMIT)
+        if self.modal:
+            self.lam = lam
+            self.V = V
+            Vinv = np.linalg.inv(V)
+            self.beta = Vinv @ self.B
+            self.eps = Vinv @ self.E
+            self.Vinv = Vinv
+
+    def _augmented(self, p: float, r: float) -> np.ndarray:
+        n = self.n
+        M = np.zeros((n + 2, n + 2))
+        M[:n, :n] = self.A
+        M[:n, n] = self.B * r
+        M[:n, n + 1] = self.B * p + self.E
+        M[n, n + 1] = 1.0
+        return M
+
+    def step(self, x: np.ndarray, p: float, r: float, S: float) -> np.ndarray:
+        """x(S) of (K) from x(0) = x."""
+        if S == 0.0:
+            return np.array(x, dtype=float)
+        if not self.modal:
+            Z = expm(self._augmented(p, r) * S)
+            return Z[:self.n, :self.n] @ x + Z[:self.n, self.n + 1]
+        z = self.lam * S
+        w = np.exp(z) * (self.Vinv @ x) + S * phi1(z) * (self.beta * p + self.eps) \
+            + S * S * phi2(z) * (self.beta * r)
+        return (self.V @ w).real
+
+    def run(self, x0: np.ndarray, p: np.ndarray, r: np.ndarray, S: np.ndarray) -> np.ndarray:
+        """States after each of N intervals, shape (N, n), from x0 before the first."""
+        N = len(S)
+        if N == 0:
+            return np.zeros((0, self.n))
+        if not self.modal:
+            out = np.empty((N, self.n))
+            x = np.asarray(x0, dtype=float)
+            for k in range(N):
+                x = self.step(x, p[k], r[k], S[k])
+                out[k] = x
+            return out
+        z = np.outer(S, self.lam)
+        a = np.exp(z)
+        f = (S[:, None] * phi1(z)) * (np.outer(p, self.beta) + self.eps) \
+            + (S[:, None] ** 2 * phi2(z)) * np.outer(r, self.beta)
+        W = _linear_recurrence(self.Vinv @ np.asarray(x0, dtype=float), z, a, f)
+        return (W @ self.V.T).real
+
+
+def _linear_recurrence(w0: np.ndarray, z: np.ndarray, a: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Solve w_{k+1} = a_k w_k + f_k (a_k = e^{z_k}) for all k, vectorised.
+
+    Within a chunk, w_{k+1} = P_{k+1} (w_c + sum_{j<=k} f_j / P_{j+1}) with
+    P = exp(cumsum z) relative to the chunk's first state w_c; chunks are cut
+    so that |Re cumsum z| stays below 300 and no exponential overflows.  The
+    first step of every chunk is taken directly, so a single huge step is safe.
+    """
+    N = len(z)
+    span = np.cumsum(np.abs(z.real).max(axis=1))
+    chunk_id = np.floor(span / _CHUNK_SPAN).astype(np.int64)
+    starts = np.r_[0, np.flatnonzero(np.diff(chunk_id)) + 1]
+    ends = np.r_[starts[1:], N]
+    W = np.empty_like(f)
+    w = w0.astype(complex)
+    for s0, s1 in zip(starts, ends):
+        w = a[s0] * w + f[s0]
+        W[s0] = w
+        if s1 - s0 > 1:
+            L = np.cumsum(z[s0 + 1:s1], axis=0)
+            P = np.exp(L)
+            W[s0 + 1:s1] = P * (w + np.cumsum(f[s0 + 1:s1] * np.exp(-L), axis=0))
+            w = W[s1 - 1]
+    return W
+
+
+@dataclass
+class Simulation:
+    """Result of `simulate`: samples t, u; states x (N, n) and outputs y at each sample."""
+
+    t: np.ndarray
+    u: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+
+
+def _check_signal(name: str, a: np.ndarray) -> np.ndarray:
+    a = np.asarray(a, dtype=float).ravel()
+    bad = np.flatnonzero(~np.isfinite(a))
+    if bad.size:
+        raise KernelError(f"{name}[{bad[0]}] is {a[bad[0]]} (NaN or infinite)")
+    return a
+
+
+def interval_coefficients(model, t: np.ndarray, u: np.ndarray):
+    """Per-interval (branch, p, r, S) of (K) for a sampled input; see module docstring.
+
+    branch is +1 (u rises, or rate-dependent model), -1 (u falls); for the
+    rate-independent model a held input (du = 0) keeps the previous branch.
+    """
+    du = np.diff(u)
+    p = u[:-1]
+    if model.kind == "ri":
+        branch = np.sign(du)
+        idx = np.where(branch != 0, np.arange(len(du)), 0)
+        np.maximum.accumulate(idx, out=idx)
+        branch = np.where(branch[idx] == 0, 1.0, branch[idx])
+        return branch, p, np.ones_like(du), du
+    dt = np.diff(t)
+    bad = np.flatnonzero(dt <= 0)
+    if bad.size:
+        raise KernelError(f"time must increase: t[{bad[0] + 1}] = {t[bad[0] + 1]} "
+                          f"after t[{bad[0]}] = {t[bad[0]]}")
+    v = du / dt
+    gv = np.asarray(model.g(v), dtype=float)
+    bad = np.flatnonzero(~np.isfinite(gv))
+    if bad.size:
+        raise KernelError(f"g(du/dt) is not finite at slope {v[bad[0]]}")
+    safe = np.where(gv != 0, gv, 1.0)
+    r = np.where(gv != 0, v / safe, 0.0)
+    return np.ones_like(du), p, r, gv * dt
+
+
+def flows(model) -> dict:
+    """The AffineFlow objects of a model, keyed by branch (+1 / -1)."""
+    if model.kind == "ri":
+        return {1.0: AffineFlow(model.A_plus, model.B_plus, model.E_plus),
+                -1.0: AffineFlow(model.A_minus, model.B_minus, model.E_minus)}
+    f = AffineFlow(model.A, model.B, model.E)
+    return {1.0: f, -1.0: f}
+
+
+def simulate(model, t, u, x0=None, flow_cache: dict | None = None) -> Simulation:
+    """Simulate a semilinear Duhem model for the sampled input (t_k, u_k).
+
+    The input is piecewise linear between samples; the state is exact at every
+    sample (no time stepping).  The rate-independent result does not depend
+    on t.  `x0` defaults to the model's x0; y_k = C x_k + D u_k.
+    """
+    u = _check_signal("u", u)
+    t = _check_signal("t", t) if t is not None else np.arange(len(u), dtype=float)
+    if len(t) != len(u):
+        raise KernelError(f"t and u differ in length ({len(t)} and {len(u)})")
+    if len(u) == 0:
+        raise KernelError("empty input")
+    x0 = model.x0 if x0 is None else np.asarray(x0, dtype=float)
+    fl = flow_cache if flow_cache is not None else flows(model)
+    branch, p, r, S = interval_coefficients(model, t, u)
+    X = np.empty((len(u), model.order))
+    X[0] = x0
+    cuts = np.r_[0, np.flatnonzero(np.diff(branch)) + 1, len(S)]
+    for s0, s1 in zip(cuts[:-1], cuts[1:]):
+        if s1 > s0:
+            X[s0 + 1:s1 + 1] = fl[branch[s0]].run(X[s0], p[s0:s1], r[s0:s1], S[s0:s1])
+    y = X @ model.C + model.D * u
+    return Simulation(t=t, u=u, x=X, y=y)

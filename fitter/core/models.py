@@ -1,0 +1,266 @@
+"""Semilinear Duhem model objects and their versioned JSON form.
+
+Two kinds, after Oh & Bernstein (2007):
+
+* `RateIndependentModel`, eqs (1)-(2)::
+
+      dx/dt = du+/dt (A+ x + B+ u + E+) + du-/dt (A- x + B- u + E-)
+      y     = C x + D u,            x(0) = x0
+
+  with du+/dt = max(0, du/dt) and du-/dt = min(0, du/dt).
+
+* `RateDependentModel`, eqs (18)-(19), with an affine term E and a feedthrough
+  D added (both zero in the paper)::
+
+      dx/dt = g(du/dt) (A x + B u + E)
+      y     = C x + D u,            x(0) = x0
+
+`Signals` and `Experiment` carry what an FMU needs to describe itself (names,
+units, the default experiment of the data it was fitted on).  `fit_info` is a
+free-form record of how the model was identified.
+
+This module needs only numpy: it is shipped inside the FMUs.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .rates import RateFunction, as_rate, rate_from_dict
+
+__all__ = ["ModelFileError", "Signal", "Signals", "Experiment", "RateIndependentModel", "RateDependentModel",
+           "load_model", "save_model", "model_from_dict", "SCHEMA", "SCHEMA_VERSION"]
+
+SCHEMA = "duhem-model"
+SCHEMA_VERSION = 1
+
+
+class ModelFileError(ValueError):
+    """A model file or dictionary that does not describe a valid model."""
+
+
+@dataclass
+class Signal:
+    """Name, unit and description of the input or output."""
+
+    name: str
+    unit: str = ""
+    description: str = ""
+
+
+@dataclass
+class Signals:
+    input: Signal = field(default_factory=lambda: Signal("u", "", "hysteresis input"))
+    output: Signal = field(default_factory=lambda: Signal("y", "", "hysteresis output"))
+
+
+@dataclass
+class Experiment:
+    """Default experiment: the span and sample period of the fitted data."""
+
+    start_time: float = 0.0
+    stop_time: float = 1.0
+    step_size: float = 1e-2
+
+
+def _vec(name: str, value: Any, n: int) -> np.ndarray:
+    a = np.asarray(value, dtype=float)
+    if a.shape == (n, 1) or a.shape == (1, n):
+        a = a.ravel()
+    if a.shape != (n,):
+        raise ModelFileError(f"parameter {name}: expected shape ({n},), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ModelFileError(f"parameter {name}: contains NaN or infinity")
+    return a
+
+
+def _mat(name: str, value: Any, n: int) -> np.ndarray:
+    a = np.asarray(value, dtype=float)
+    if a.ndim == 0 and n == 1:
+        a = a.reshape(1, 1)
+    if a.shape != (n, n):
+        raise ModelFileError(f"parameter {name}: expected shape ({n}, {n}), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ModelFileError(f"parameter {name}: contains NaN or infinity")
+    return a
+
+
+def _order_of(C: Any) -> int:
+    """The order n is the length of the output row C."""
+    return int(np.asarray(C, dtype=float).size)
+
+
+@dataclass
+class _ModelBase:
+    signals: Signals = field(default_factory=Signals)
+    experiment: Experiment = field(default_factory=Experiment)
+    fit_info: dict = field(default_factory=dict)
+
+    @property
+    def order(self) -> int:
+        return self.C.shape[0]
+
+    def _common_dict(self) -> dict:
+        return {
+            "schema": SCHEMA,
+            "schema_version": SCHEMA_VERSION,
+            "kind": self.kind,
+            "order": self.order,
+            "signals": {k: vars(getattr(self.signals, k)) for k in ("input", "output")},
+            "experiment": vars(self.experiment),
+            "fit_info": self.fit_info,
+        }
+
+
+@dataclass
+class RateIndependentModel(_ModelBase):
+    """Rate-independent semilinear Duhem model, eqs (1)-(2).
+
+    Vectors may be given as lists; `E_plus`, `E_minus`, `D`, `x0` default to zero.
+    """
+
+    A_plus: np.ndarray = None
+    A_minus: np.ndarray = None
+    B_plus: np.ndarray = None
+    B_minus: np.ndarray = None
+    C: np.ndarray = None
+    E_plus: np.ndarray | None = None
+    E_minus: np.ndarray | None = None
+    D: float = 0.0
+    x0: np.ndarray | None = None
+
+    kind = "ri"
+    PARAMS = ("A_plus", "A_minus", "B_plus", "B_minus", "E_plus", "E_minus", "C", "D", "x0")
+
+    def __post_init__(self):
+        if self.A_plus is None or self.A_minus is None or self.B_plus is None \
+                or self.B_minus is None or self.C is None:
+            raise ModelFileError("rate-independent model needs A_plus, A_minus, B_plus, B_minus, C")
+        n = _order_of(self.C)
+        self.A_plus = _mat("A_plus", self.A_plus, n)
+        self.A_minus = _mat("A_minus", self.A_minus, n)
+        self.B_plus = _vec("B_plus", self.B_plus, n)
+        self.B_minus = _vec("B_minus", self.B_minus, n)
+        self.C = _vec("C", self.C, n)
+        self.E_plus = _vec("E_plus", np.zeros(n) if self.E_plus is None else self.E_plus, n)
+        self.E_minus = _vec("E_minus", np.zeros(n) if self.E_minus is None else self.E_minus, n)
+        self.x0 = _vec("x0", np.zeros(n) if self.x0 is None else self.x0, n)
+        self.D = float(self.D)
+        if not np.isfinite(self.D):
+            raise ModelFileError("parameter D: NaN or infinity")
+
+    def to_dict(self) -> dict:
+        d = self._common_dict()
+        d["parameters"] = {k: np.asarray(getattr(self, k)).tolist() for k in self.PARAMS}
+        return d
+
+
+@dataclass
+class RateDependentModel(_ModelBase):
+    """Rate-dependent semilinear Duhem model, eqs (18)-(19) (plus E and D).
+
+    `g` is a `RateFunction` (e.g. `TabulatedRate`) or any callable v -> g(v).
+    """
+
+    A: np.ndarray = None
+    B: np.ndarray = None
+    C: np.ndarray = None
+    g: RateFunction = None
+    E: np.ndarray | None = None
+    D: float = 0.0
+    x0: np.ndarray | None = None
+
+    kind = "rd"
+    PARAMS = ("A", "B", "E", "C", "D", "x0")
+
+    def __post_init__(self):
+        if self.A is None or self.B is None or self.C is None or self.g is None:
+            raise ModelFileError("rate-dependent model needs A, B, C and g")
+        n = _order_of(self.C)
+        self.A = _mat("A", self.A, n)
+        self.B = _vec("B", self.B, n)
+        self.C = _vec("C", self.C, n)
+        self.E = _vec("E", np.zeros(n) if self.E is None else self.E, n)
+        self.x0 = _vec("x0", np.zeros(n) if self.x0 is None else self.x0, n)
+        self.D = float(self.D)
+        self.g = as_rate(self.g)
+
+    def to_dict(self) -> dict:
+        d = self._common_dict()
+        d["parameters"] = {k: np.asarray(getattr(self, k)).tolist() for k in self.PARAMS}
+        d["g"] = self.g.to_dict()
+        return d
+
+
+Model = RateIndependentModel | RateDependentModel
+
+
+def model_from_dict(d: dict, source: str = "model") -> Model:
+    """Build a model from its JSON dictionary, checking schema, version, fields, shapes."""
+    if not isinstance(d, dict) or d.get("schema") != SCHEMA:
+        raise ModelFileError(f"{source}: not a duhem model file (missing \"schema\": \"{SCHEMA}\")")
+    version = d.get("schema_version")
+    if version != SCHEMA_VERSION:
+        raise ModelFileError(f"{source}: unknown schema_version {version!r} "
+                             f"(this version reads {SCHEMA_VERSION})")
+    kind = d.get("kind")
+    cls = {"ri": RateIndependentModel, "rd": RateDependentModel}.get(kind)
+    if cls is None:
+        raise ModelFileError(f"{source}: unknown model kind {kind!r} (expected 'ri' or 'rd')")
+    params = d.get("parameters")
+    if not isinstance(params, dict):
+        raise ModelFileError(f"{source}: missing field 'parameters'")
+    for name in cls.PARAMS:
+        if name not in params:
+            raise ModelFileError(f"{source}: missing parameter '{name}'")
+    kwargs = {k: params[k] for k in cls.PARAMS}
+    if cls is RateDependentModel:
+        if "g" not in d:
+            raise ModelFileError(f"{source}: missing field 'g'")
+        try:
+            kwargs["g"] = rate_from_dict(d["g"])
+        except ValueError as exc:
+            raise ModelFileError(f"{source}: {exc}") from None
+    sig = d.get("signals", {})
+    signals = Signals(**{k: Signal(**sig[k]) for k in ("input", "output") if k in sig})
+    experiment = Experiment(**d.get("experiment", {}))
+    try:
+        model = cls(signals=signals, experiment=experiment, fit_info=d.get("fit_info", {}), **kwargs)
+    except ModelFileError as exc:
+        raise ModelFileError(f"{source}: {exc}") from None
+    order = d.get("order")
+    if order is not None and order != model.order:
+        raise ModelFileError(f"{source}: 'order' is {order} but the matrices have order {model.order}")
+    return model
+
+
+def load_model(path: str | os.PathLike) -> Model:
+    """Read a model JSON file; every problem is a `ModelFileError` naming the file."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            d = json.load(fh)
+    except FileNotFoundError:
+        raise ModelFileError(f"{path}: no such file") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ModelFileError(f"{path}: not a JSON model file ({exc})") from None
+    return model_from_dict(d, source=str(path))
+
+
+def save_model(model: Model, path: str | os.PathLike) -> None:
+    """Write `model` as JSON atomically (temporary file, then rename)."""
+    text = json.dumps(model.to_dict(), indent=2)
+    directory = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=directory)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise

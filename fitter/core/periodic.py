@@ -1,0 +1,81 @@
+"""Limiting periodic input-output map (Theorem 1 of Oh & Bernstein 2007).
+
+For a periodic input sampled over one period (u_N = u_0), one period of the
+kernel is an affine map x_N = Phi x_0 + c of the initial state (every interval
+flow is affine).  When rho(Phi) < 1 the iteration converges to the unique
+periodic state x* = (I - Phi)^{-1} c, and the response from x* is the
+limiting periodic map H_inf.  For the rate-independent model and an input with
+one maximum and one minimum per period, Phi is similar to
+e^{beta A+} e^{-beta A-} (beta = u_max - u_min), so rho(Phi) is the quantity
+of condition (5).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .kernel import KernelError, Simulation, expm, flows, simulate
+
+__all__ = ["ConvergenceError", "PeriodicResponse", "periodic_response", "convergence_rho",
+           "limiting_loop"]
+
+
+class ConvergenceError(ValueError):
+    """The convergence condition rho < 1 of Theorem 1 fails."""
+
+
+@dataclass
+class PeriodicResponse:
+    """The limiting periodic response over one period and the convergence quantity."""
+
+    sim: Simulation
+    rho: float
+    x_periodic: np.ndarray
+
+
+def periodic_response(model, t, u) -> PeriodicResponse:
+    """Limiting periodic response for one period (t_0..t_N, u_N = u_0) of input.
+
+    Raises `ConvergenceError` when the monodromy's spectral radius is >= 1.
+    """
+    u = np.asarray(u, dtype=float)
+    if len(u) < 3:
+        raise KernelError("one period needs at least 3 samples")
+    if not np.isclose(u[-1], u[0], rtol=0, atol=1e-9 * max(1.0, np.ptp(u))):
+        raise KernelError(f"input is not one period: u[0] = {u[0]} but u[-1] = {u[-1]}")
+    n = model.order
+    cache = flows(model)
+    c = simulate(model, t, u, x0=np.zeros(n), flow_cache=cache).x[-1]
+    Phi = np.column_stack([simulate(model, t, u, x0=e, flow_cache=cache).x[-1] - c
+                           for e in np.eye(n)])
+    rho = float(np.max(np.abs(np.linalg.eigvals(Phi))))
+    if not rho < 1:
+        raise ConvergenceError(f"no limiting periodic map: spectral radius of the period map "
+                               f"is {rho:.6g} >= 1 (condition (5) of Theorem 1 fails)")
+    xs = np.linalg.solve(np.eye(n) - Phi, c)
+    return PeriodicResponse(sim=simulate(model, t, u, x0=xs, flow_cache=cache), rho=rho,
+                            x_periodic=xs)
+
+
+def convergence_rho(model, u_min: float, u_max: float) -> float:
+    """rho(e^{beta A+} e^{-beta A-}), condition (5), for a rate-independent model."""
+    if model.kind != "ri":
+        raise KernelError("condition (5) is for the rate-independent model")
+    beta = u_max - u_min
+    M = expm(beta * model.A_plus) @ expm(-beta * model.A_minus)
+    return float(np.max(np.abs(np.linalg.eigvals(M))))
+
+
+def limiting_loop(model, u_min: float, u_max: float, points: int = 201):
+    """Hysteresis map H_inf of a rate-independent model on a uniform grid.
+
+    Returns (u_grid, y_rising, y_falling, rho); any input with one maximum and
+    one minimum per period gives this loop (rate independence).
+    """
+    grid = np.linspace(u_min, u_max, points)
+    u = np.r_[grid, grid[-2::-1]]
+    t = np.arange(len(u), dtype=float)
+    pr = periodic_response(model, t, u)
+    y = pr.sim.y
+    return grid, y[:points], y[points - 1:][::-1], pr.rho

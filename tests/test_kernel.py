@@ -1,0 +1,177 @@
+"""The simulation kernel against scipy's solve_ivp, the stepper against the kernel."""
+import json
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from fitter.core import (ConvergenceError, KernelError, ModelFileError, RateDependentModel,
+                         RateIndependentModel, Stepper, TabulatedRate, convergence_rho,
+                         limiting_loop, load_model, periodic_response, save_model, simulate)
+from fitter.core.kernel import AffineFlow, expm
+
+A1 = np.array([[-1.0, 4.0], [-4.0, -1.0]])
+B1 = np.array([0.0, 1.0])
+
+
+def example1_model():
+    return RateIndependentModel(A_plus=A1, A_minus=-A1, B_plus=B1, B_minus=-B1, C=[0, 1],
+                                x0=[0.15, 0.15])
+
+
+def g3(v):
+    v = np.asarray(v, dtype=float)
+    return np.where(v >= 0, (v / 3 - 1) ** 3 + 1, 1 - np.exp(v))
+
+
+def example3_model():
+    return RateDependentModel(A=[[0, 1], [-3, -1]], B=[1, 0], C=[1, 1], g=g3, x0=[0.1, -0.2])
+
+
+def piecewise_linear(t, u):
+    def at(tt):
+        k = min(max(np.searchsorted(t, tt, "right") - 1, 0), len(t) - 2)
+        v = (u[k + 1] - u[k]) / (t[k + 1] - t[k])
+        return u[k] + v * (tt - t[k]), v
+    return at
+
+
+def reference(model, t, u):
+    at = piecewise_linear(t, u)
+
+    def rhs(tt, x):
+        uu, v = at(tt)
+        if model.kind == "ri":
+            Ap, Am = model.A_plus, model.A_minus
+            return max(v, 0) * (Ap @ x + model.B_plus * uu + model.E_plus) + \
+                min(v, 0) * (Am @ x + model.B_minus * uu + model.E_minus)
+        return float(model.g(np.array(v))) * (model.A @ x + model.B * uu + model.E)
+
+    sol = solve_ivp(rhs, (t[0], t[-1]), model.x0, t_eval=t, rtol=1e-12, atol=1e-14,
+                    max_step=float(np.min(np.diff(t))) / 2, method="DOP853")
+    return sol.y.T
+
+
+@pytest.mark.parametrize("make", [example1_model, example3_model])
+def test_kernel_matches_solve_ivp(make):
+    model = make()
+    rng = np.random.default_rng(0)
+    t = np.cumsum(rng.uniform(0.02, 0.08, 300))
+    u = np.sin(1.3 * t) + 0.3 * np.sin(3.1 * t) + 0.05 * rng.standard_normal(300)
+    x = simulate(model, t, u).x
+    assert np.abs(x - reference(model, t, u)).max() < 1e-9
+
+
+def test_rate_independent_ignores_timing():
+    model = example1_model()
+    u = np.sin(np.linspace(0, 12, 400))
+    y1 = simulate(model, np.linspace(0, 1, 400), u).y
+    y2 = simulate(model, np.cumsum(np.random.default_rng(1).uniform(0.1, 5, 400)), u).y
+    assert np.abs(y1 - y2).max() < 1e-13
+
+
+def test_defective_matrix_uses_fallback_and_is_exact():
+    A = np.array([[-2.0, 1.0], [0.0, -2.0]])
+    flow = AffineFlow(A, np.array([0.3, 1.0]), np.array([0.1, 0.0]))
+    assert not flow.modal
+    x = flow.run(np.array([1.0, -1.0]), np.array([0.5, 0.7]), np.array([1.0, 1.0]),
+                 np.array([0.2, 0.3]))
+    ref = AffineFlow(A + np.diag([0, 1e-3]), flow.B, flow.E)  # near-defective still modal
+    assert ref.modal
+    x_ref = ref.run(np.array([1.0, -1.0]), np.array([0.5, 0.7]), np.array([1.0, 1.0]),
+                    np.array([0.2, 0.3]))
+    assert np.abs(x - x_ref).max() < 1e-3
+    assert np.abs(expm(A) - np.exp(-2) * np.array([[1, 1], [0, 1]])).max() < 1e-14
+
+
+def test_long_run_no_overflow():
+    model = RateIndependentModel(A_plus=[[-50.0]], A_minus=[[50.0]], B_plus=[50.0],
+                                 B_minus=[-50.0], C=[1.0])
+    u = np.sin(np.linspace(0, 2000, 200001))
+    y = simulate(model, None, u).y
+    assert np.all(np.isfinite(y))
+    assert abs(y[-1] - u[-1]) < 0.05
+
+
+def test_periodic_response_and_condition_5():
+    model = example1_model()
+    grid, yr, yf, rho = limiting_loop(model, -1, 1, 401)
+    assert rho == pytest.approx(convergence_rho(model, -1, 1), rel=1e-10)
+    assert rho == pytest.approx(np.exp(-4), rel=1e-9)  # eig(A+)=-1±4i, eig(-A-)... beta=2
+    # the limiting loop is a fixed point: one more period from its end changes nothing
+    t = np.arange(801.0)
+    u = np.r_[grid, grid[-2::-1]]
+    pr = periodic_response(model, t, u)
+    again = simulate(model, t, u, x0=pr.sim.x[-1])
+    assert np.abs(again.y - pr.sim.y).max() < 1e-12
+    assert yr[-1] == pytest.approx(yf[-1]) and yr[0] == pytest.approx(yf[0])
+
+
+def test_divergent_model_is_reported():
+    model = RateIndependentModel(A_plus=[[0.5]], A_minus=[[-0.5]], B_plus=[1], B_minus=[1], C=[1])
+    with pytest.raises(ConvergenceError, match=">= 1"):
+        limiting_loop(model, -1, 1)
+
+
+def test_stepper_equals_simulate():
+    for model in (example1_model(), example3_model()):
+        t = np.linspace(0, 10, 501)
+        u = np.sin(t) + 0.2 * np.cos(2.7 * t)
+        ref = simulate(model, t, u).y
+        st = Stepper(model, t0=t[0], u0=u[0])
+        ys = []
+        for k in range(len(t)):
+            if k:
+                st.do_step(t[k] - t[k - 1])
+            st.set_input(u[k])
+            ys.append(st.output())
+        assert np.abs(np.array(ys) - ref).max() < 1e-12
+
+
+def test_json_round_trip(tmp_path):
+    m = example3_model()
+    m.g = TabulatedRate.from_function(g3, [-3, -1, -0.5, 0.25, 1, 2, 4])
+    path = tmp_path / "m.json"
+    save_model(m, path)
+    m2 = load_model(path)
+    t = np.linspace(0, 10, 300)
+    assert np.array_equal(simulate(m, t, np.sin(t)).y, simulate(m2, t, np.sin(t)).y)
+    m1 = example1_model()
+    save_model(m1, path)
+    assert np.array_equal(load_model(path).A_minus, m1.A_minus)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d.update(schema_version=99), "unknown schema_version 99"),
+    (lambda d: d["parameters"].pop("C"), "missing parameter 'C'"),
+    (lambda d: d["parameters"].update(A_plus=[[1, 2, 3]]), r"A_plus: expected shape \(2, 2\)"),
+    (lambda d: d.update(kind="xx"), "unknown model kind"),
+])
+def test_bad_model_files(tmp_path, edit, message):
+    d = example1_model().to_dict()
+    edit(d)
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(d))
+    with pytest.raises(ModelFileError, match=message):
+        load_model(path)
+
+
+def test_callable_g_cannot_be_saved(tmp_path):
+    with pytest.raises(TypeError, match="tabulate"):
+        save_model(example3_model(), tmp_path / "x.json")
+    assert not list(tmp_path.iterdir())
+
+
+def test_bad_signals():
+    with pytest.raises(KernelError, match=r"u\[2\] is nan"):
+        simulate(example1_model(), None, [0, 1, np.nan])
+    with pytest.raises(KernelError, match="time must increase"):
+        simulate(example3_model(), [0, 1, 1], [0, 1, 0])
+
+
+def test_tabulated_rate_rule():
+    g = TabulatedRate([-1, 0.5, 1, 2], [-0.8, 0.4, 0.9, 1.0])
+    v = np.array([0.0, 0.5, 1.0, 5.0, -1.0, -7.0])
+    assert np.allclose(g(v), [0, 0.4, 0.9, 1.0, -0.8, -0.8])
+    fine = g(np.linspace(0, 2, 201))
+    assert np.all(np.diff(fine) >= -1e-15)  # monotone data stays monotone
