@@ -50,23 +50,30 @@ class KernelError(ValueError):
 def phi1(z: np.ndarray) -> np.ndarray:
     """(e^z - 1)/z, equal to 1 at z = 0; accurate for small |z|."""
     z = np.asarray(z, dtype=complex)
-    small = np.abs(z) < 1e-8
-    zs = np.where(small, 1.0, z)
-    return np.where(small, 1.0 + z / 2, np.expm1(zs) / zs)
+    out = np.ones_like(z)
+    big = np.abs(z) >= 1e-8
+    out[big] = np.expm1(z[big]) / z[big]
+    small = ~big
+    out[small] += z[small] / 2
+    return out
+
+
+_PHI2_SERIES = [1.0 / np.prod(np.arange(1.0, k + 1)) for k in range(2, 20)]
 
 
 def phi2(z: np.ndarray) -> np.ndarray:
-    """(e^z - 1 - z)/z^2, equal to 1/2 at z = 0; series for |z| < 0.5."""
+    """(e^z - 1 - z)/z^2, equal to 1/2 at z = 0; Taylor series for |z| < 0.5."""
     z = np.asarray(z, dtype=complex)
+    out = np.empty_like(z)
     small = np.abs(z) < 0.5
-    zs = np.where(small, 1.0, z)
-    direct = (np.expm1(zs) - zs) / (zs * zs)
-    series = np.zeros_like(z)
-    term = np.full_like(z, 0.5)
-    for k in range(3, 20):
-        series = series + term
-        term = term * z / k
-    return np.where(small, series, direct)
+    zb = z[~small]
+    out[~small] = (np.expm1(zb) - zb) / (zb * zb)
+    zs = z[small]
+    acc = np.full_like(zs, _PHI2_SERIES[-1])
+    for c in _PHI2_SERIES[-2::-1]:
+        acc = acc * zs + c
+    out[small] = acc
+    return out
 
 
 def expm(M: np.ndarray) -> np.ndarray:
