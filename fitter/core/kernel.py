@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["AffineFlow", "expm", "phi1", "phi2", "simulate", "Simulation", "KernelError"]
+__all__ = ["AffineFlow", "expm", "phi1", "phi2", "simulate", "Simulation", "KernelError", "integrate"]
 
 _COND_LIMIT = 1e6
 _CHUNK_SPAN = 300.0
@@ -250,7 +250,9 @@ def simulate(model, t, u, x0=None, flow_cache: dict | None = None) -> Simulation
 
     The input is piecewise linear between samples; the state is exact at every
     sample (no time stepping).  The rate-independent result does not depend
-    on t.  `x0` defaults to the model's x0; y_k = C x_k + D u_k.
+    on t.  `x0` defaults to the model's x0; y_k = C x_k + D u_k.  A model
+    with a non-empty ``effects`` list runs the effect chain of
+    `fitter.core.effects` (then y is the chain's measured output).
     """
     u = _check_signal("u", u)
     t = _check_signal("t", t) if t is not None else np.arange(len(u), dtype=float)
@@ -260,12 +262,23 @@ def simulate(model, t, u, x0=None, flow_cache: dict | None = None) -> Simulation
         raise KernelError("empty input")
     x0 = model.x0 if x0 is None else np.asarray(x0, dtype=float)
     fl = flow_cache if flow_cache is not None else flows(model)
+    if getattr(model, "effects", None):
+        from .effects import run_with_effects
+        X, y, _ = run_with_effects(model, t, u, x0, fl)
+        return Simulation(t=t, u=u, x=X, y=y)
     branch, p, r, S = interval_coefficients(model, t, u)
-    X = np.empty((len(u), model.order))
+    X = integrate(fl, x0, branch, p, r, S)
+    y = X @ model.C + model.D * u
+    return Simulation(t=t, u=u, x=X, y=y)
+
+
+def integrate(fl: dict, x0: np.ndarray, branch: np.ndarray, p: np.ndarray, r: np.ndarray,
+              S: np.ndarray) -> np.ndarray:
+    """States (N+1, n) at the samples from x0, given the N intervals' (branch, p, r, S) of (K)."""
+    X = np.empty((len(S) + 1, fl[1.0].n))
     X[0] = x0
     cuts = np.r_[0, np.flatnonzero(np.diff(branch)) + 1, len(S)]
     for s0, s1 in zip(cuts[:-1], cuts[1:]):
         if s1 > s0:
             X[s0 + 1:s1 + 1] = fl[branch[s0]].run(X[s0], p[s0:s1], r[s0:s1], S[s0:s1])
-    y = X @ model.C + model.D * u
-    return Simulation(t=t, u=u, x=X, y=y)
+    return X

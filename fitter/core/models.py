@@ -17,7 +17,9 @@ Two kinds, after Oh & Bernstein (2007):
 
 `Signals` and `Experiment` carry what an FMU needs to describe itself (names,
 units, the default experiment of the data it was fitted on).  `fit_info` is a
-free-form record of how the model was identified.
+free-form record of how the model was identified.  `effects` (optional, JSON
+``"effects": [{"effect": name, "parameters": {...}}]``, absent when empty) are
+the extensions of `fitter.core.effects`.
 
 This module needs only numpy: it is shipped inside the FMUs.
 """
@@ -31,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from .effects import EffectError, effects_from_list
 from .rates import RateFunction, as_rate, rate_from_dict
 
 __all__ = ["ModelFileError", "Signal", "Signals", "Experiment", "RateIndependentModel", "RateDependentModel",
@@ -105,6 +108,17 @@ class _ModelBase:
     def order(self) -> int:
         return self.C.shape[0]
 
+    def _check_effects(self) -> None:
+        try:
+            self.effects = effects_from_list(self.effects)
+        except EffectError as exc:
+            raise ModelFileError(str(exc)) from None
+
+    def _effects_dict(self, d: dict) -> dict:
+        if self.effects:
+            d["effects"] = [e.to_dict() for e in self.effects]
+        return d
+
     def _common_dict(self) -> dict:
         return {
             "schema": SCHEMA,
@@ -133,6 +147,7 @@ class RateIndependentModel(_ModelBase):
     E_minus: np.ndarray | None = None
     D: float = 0.0
     x0: np.ndarray | None = None
+    effects: list = field(default_factory=list)
 
     kind = "ri"
     PARAMS = ("A_plus", "A_minus", "B_plus", "B_minus", "E_plus", "E_minus", "C", "D", "x0")
@@ -153,11 +168,12 @@ class RateIndependentModel(_ModelBase):
         self.D = float(self.D)
         if not np.isfinite(self.D):
             raise ModelFileError("parameter D: NaN or infinity")
+        self._check_effects()
 
     def to_dict(self) -> dict:
         d = self._common_dict()
         d["parameters"] = {k: np.asarray(getattr(self, k)).tolist() for k in self.PARAMS}
-        return d
+        return self._effects_dict(d)
 
 
 @dataclass
@@ -174,6 +190,7 @@ class RateDependentModel(_ModelBase):
     E: np.ndarray | None = None
     D: float = 0.0
     x0: np.ndarray | None = None
+    effects: list = field(default_factory=list)
 
     kind = "rd"
     PARAMS = ("A", "B", "E", "C", "D", "x0")
@@ -189,12 +206,13 @@ class RateDependentModel(_ModelBase):
         self.x0 = _vec("x0", np.zeros(n) if self.x0 is None else self.x0, n)
         self.D = float(self.D)
         self.g = as_rate(self.g)
+        self._check_effects()
 
     def to_dict(self) -> dict:
         d = self._common_dict()
         d["parameters"] = {k: np.asarray(getattr(self, k)).tolist() for k in self.PARAMS}
         d["g"] = self.g.to_dict()
-        return d
+        return self._effects_dict(d)
 
 
 Model = RateIndependentModel | RateDependentModel
@@ -230,7 +248,8 @@ def model_from_dict(d: dict, source: str = "model") -> Model:
     signals = Signals(**{k: Signal(**sig[k]) for k in ("input", "output") if k in sig})
     experiment = Experiment(**d.get("experiment", {}))
     try:
-        model = cls(signals=signals, experiment=experiment, fit_info=d.get("fit_info", {}), **kwargs)
+        model = cls(signals=signals, experiment=experiment, fit_info=d.get("fit_info", {}),
+                    effects=d.get("effects", []), **kwargs)
     except ModelFileError as exc:
         raise ModelFileError(f"{source}: {exc}") from None
     order = d.get("order")

@@ -17,11 +17,17 @@ Semantics (the FMUs implement exactly this; the README documents it):
   the state: x0 is the state at the first input.
 * The whole state is the tuple (t_a, u_a, x_a, t, u) of `get_state`, so
   rolling back with `set_state` restores the exact same future.
+* A model with effects (`fitter.core.effects`) also carries the effect chain's
+  state at the anchor, s_a (None until the first step: the chain starts afresh
+  at the anchor input); the current point is the one-interval run of
+  `effects.run_with_effects` from (t_a, u_a, x_a, s_a), so stepping equals
+  `simulate`; `get_state` is then (t_a, u_a, x_a, t, u, s_a).
 """
 from __future__ import annotations
 
 import numpy as np
 
+from .effects import EffectState, run_with_effects
 from .kernel import KernelError, flows, interval_coefficients
 
 __all__ = ["Stepper"]
@@ -41,6 +47,7 @@ class Stepper:
         self.t_a, self.u_a, self.x_a = float(t0), float(u0), np.array(x, dtype=float)
         self.t, self.u = float(t0), float(u0)
         self._x_cache = None
+        self.s_a = None
 
     def set_input(self, u: float) -> None:
         if not np.isfinite(u):
@@ -57,28 +64,50 @@ class Stepper:
         return self._x_cache
 
     def output(self) -> float:
+        if self.model.effects:
+            self.state()
+            return self._y_cache
         return float(self.model.C @ self.state() + self.model.D * self.u)
 
     def do_step(self, h: float) -> None:
         if not (np.isfinite(h) and h > 0):
             raise KernelError(f"step size {h} must be positive and finite")
         self.x_a = self.state()
+        if self.model.effects:
+            self.s_a = self._s_cache
         self.t_a, self.u_a = self.t, self.u
         self.t = self.t + h
         self._x_cache = None
 
     def _advance(self) -> np.ndarray:
+        if self.model.effects:
+            return self._advance_effects()
         if self.t == self.t_a or self.u == self.u_a:
             return self.x_a.copy()
         branch, p, r, S = interval_coefficients(self.model, np.array([self.t_a, self.t]),
                                                 np.array([self.u_a, self.u]))
         return self._flows[branch[0]].step(self.x_a, p[0], r[0], S[0])
 
+    def _advance_effects(self) -> np.ndarray:
+        if self.t == self.t_a:
+            t, u = np.array([self.t_a]), np.array([self.u_a])
+        else:
+            t, u = np.array([self.t_a, self.t]), np.array([self.u_a, self.u])
+        X, y, end = run_with_effects(self.model, t, u, self.x_a, self._flows, self.s_a)
+        self._y_cache, self._s_cache = float(y[-1]), end
+        return X[-1].copy()
+
     def get_state(self) -> tuple:
+        if self.model.effects:
+            return (self.t_a, self.u_a, self.x_a.copy(), self.t, self.u, self.s_a)
         return (self.t_a, self.u_a, self.x_a.copy(), self.t, self.u)
 
     def set_state(self, state: tuple) -> None:
-        t_a, u_a, x_a, t, u = state
+        if self.model.effects:
+            t_a, u_a, x_a, t, u, s_a = state
+            self.s_a = None if s_a is None else EffectState(*map(float, s_a))
+        else:
+            t_a, u_a, x_a, t, u = state
         self.t_a, self.u_a, self.x_a = float(t_a), float(u_a), np.array(x_a, dtype=float)
         self.t, self.u = float(t), float(u)
         self._x_cache = None
