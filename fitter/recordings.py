@@ -1,13 +1,60 @@
-"""Recordings: one experiment's sampled input and output, loaded from CSV."""
+"""Recordings: one experiment's sampled input and output, loaded from CSV.
+
+File format
+-----------
+A text file with one header line, then one row per sample; the delimiter is a
+comma (a tab or semicolon is accepted when the header has no comma).  Blank
+lines are skipped; a UTF-8 byte-order mark is ignored.  Only the three chosen
+columns must be numeric.
+
+Choosing columns
+----------------
+A column is chosen by its header name, by its index (an ``int`` or a string
+of digits that is not itself a header name; 0-based), or by the *base name*
+left after removing a unit suffix (``voltage`` selects ``voltage_V``).  An
+exact match wins over a base-name match, which wins over a case-insensitive
+match; more than one candidate at the same level is an error.
+
+Unit rule
+---------
+``name [unit]`` and ``name (unit)`` always give a unit.  ``name_unit`` gives
+one only when the part after an underscore is *clearly* a unit: an optional SI
+prefix, a known unit symbol (``m s g V A W J N Pa bar Hz C F H Ohm K degC rad
+deg T S Wb mol cd L l percent``) and an optional integer exponent, possibly
+joined by ``_per_`` (``uC_per_cm2`` -> ``uC/cm2``).  The longest such suffix
+is taken: ``x_increasing_mm_per_s`` -> name ``x_increasing``, unit ``mm/s``;
+``u_min`` has no unit.  A time column in ``ms``, ``us`` or ``ns`` is converted
+to seconds.
+"""
 from __future__ import annotations
 
+import csv
+import os
+import re
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
 from .core.models import Signal
 
-__all__ = ["Recording"]
+__all__ = ["Recording", "RecordingError", "load_recording", "load_recordings", "split_unit",
+           "MIN_SAMPLES"]
+
+MIN_SAMPLES = 3
+"""Fewest data rows `load_recording` accepts by default."""
+
+_PREFIXES = ("da", "Y", "Z", "E", "P", "T", "G", "M", "k", "h", "d", "c", "m", "u", "µ", "n", "p", "f", "a", "")
+_UNITS = ("m", "s", "g", "V", "A", "W", "J", "N", "Pa", "bar", "Hz", "C", "F", "H", "Ohm", "ohm", "K",
+          "degC", "rad", "deg", "T", "S", "Wb", "mol", "cd", "L", "l", "percent")
+_UNIT_TOKEN = re.compile("^(?:%s)(?:%s)-?[0-9]?$" % ("|".join(_PREFIXES), "|".join(_UNITS)))
+_BRACKET = re.compile(r"^(.*?)\s*[\[(]\s*([^\])]+?)\s*[\])]\s*$")
+_TIME_SCALE = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9}
+
+
+class RecordingError(ValueError):
+    """A recording file or column that cannot be used; the message names file, column, line, value."""
 
 
 @dataclass
@@ -32,3 +79,185 @@ class Recording:
         self.y = np.asarray(self.y, dtype=float)
         if not (self.t.shape == self.u.shape == self.y.shape and self.t.ndim == 1):
             raise ValueError(f"{self.name}: t, u, y must be 1-D arrays of equal length")
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def slice(self, s: slice, name: str | None = None) -> "Recording":
+        """The samples `s` of this recording as a new `Recording` (times unchanged)."""
+        return Recording(self.t[s], self.u[s], self.y[s], name or self.name, self.input, self.output,
+                         self.source)
+
+
+def split_unit(header: str) -> tuple[str, str]:
+    """Split a column header into (name, unit) by the module's unit rule; unit "" if none."""
+    header = header.strip()
+    m = _BRACKET.match(header)
+    if m and m.group(1):
+        return m.group(1), m.group(2)
+    tokens = header.split("_")
+    for k in range(1, len(tokens)):
+        unit = _unit_expression(tokens[k:])
+        if unit:
+            return "_".join(tokens[:k]), unit
+    return header, ""
+
+
+def _unit_expression(tokens: list[str]) -> str:
+    """``['uC', 'per', 'cm2']`` -> ``'uC/cm2'``; "" when the tokens are not clearly a unit."""
+    if len(tokens) % 2 == 0:
+        return ""
+    units, joins = tokens[0::2], tokens[1::2]
+    if not all(j == "per" for j in joins) or not all(_UNIT_TOKEN.match(t) for t in units):
+        return ""
+    return "/".join(units)
+
+
+def _find_column(spec: str | int, header: list[str], path: str, role: str) -> int:
+    """Index of the column `spec` (name, base name or 0-based index) in `header`."""
+    available = ", ".join(repr(h) for h in header)
+    if isinstance(spec, (int, np.integer)) or (isinstance(spec, str) and spec.isdigit()
+                                               and spec not in header):
+        i = int(spec)
+        if not 0 <= i < len(header):
+            raise RecordingError(f"{path}: {role} column index {i} out of range: the file has "
+                                 f"{len(header)} columns ({available})")
+        return i
+    bases = [split_unit(h)[0] for h in header]
+    for candidates in ([h == spec for h in header], [b == spec for b in bases],
+                       [h.lower() == spec.lower() or b.lower() == spec.lower()
+                        for h, b in zip(header, bases)]):
+        hits = [i for i, c in enumerate(candidates) if c]
+        if len(hits) == 1:
+            return hits[0]
+        if len(hits) > 1:
+            raise RecordingError(f"{path}: {role} column {spec!r} is ambiguous: it matches "
+                                 + ", ".join(repr(header[i]) for i in hits))
+    raise RecordingError(f"{path}: {role} column {spec!r} not found (available: {available})")
+
+
+def _read_rows(path: str) -> tuple[list[str], list[list[str]], list[int]]:
+    """Header, data rows and their 1-based line numbers."""
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            text = fh.read()
+    except FileNotFoundError:
+        raise RecordingError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise RecordingError(f"{path}: is a directory, not a CSV file") from None
+    except UnicodeDecodeError:
+        raise RecordingError(f"{path}: not a text (UTF-8) CSV file") from None
+    lines = text.splitlines()
+    first = next((i for i, line in enumerate(lines) if line.strip()), None)
+    if first is None:
+        raise RecordingError(f"{path}: empty file (no header line)")
+    delimiter = "," if "," in lines[first] else "\t" if "\t" in lines[first] else ";" \
+        if ";" in lines[first] else ","
+    reader = csv.reader(lines[first:], delimiter=delimiter)
+    header = [h.strip() for h in next(reader)]
+    rows, numbers = [], []
+    for offset, row in enumerate(reader, start=first + 2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) != len(header):
+            raise RecordingError(f"{path}: line {offset} has {len(row)} fields but the header has "
+                                 f"{len(header)}")
+        rows.append(row)
+        numbers.append(offset)
+    return header, rows, numbers
+
+
+def _column_values(rows: list[list[str]], numbers: list[int], i: int, name: str, path: str) -> np.ndarray:
+    cells = [r[i] for r in rows]
+    try:
+        values = np.array(cells, dtype=float)
+    except ValueError:
+        values = None
+    if values is None:
+        for cell, line in zip(cells, numbers):
+            try:
+                float(cell)
+            except ValueError:
+                what = "an empty cell" if not cell.strip() else f"{cell.strip()!r} is not a number"
+                raise RecordingError(f"{path}: line {line}, column {name!r}: {what}") from None
+    bad = np.flatnonzero(~np.isfinite(values))
+    if bad.size:
+        k = bad[0]
+        raise RecordingError(f"{path}: line {numbers[k]}, column {name!r}: value {cells[k].strip()!r} "
+                             f"is not finite (NaN or infinity)")
+    return values
+
+
+def load_recording(path: str | os.PathLike, time: str | int | None = "time", input: str | int = "u",
+                   output: str | int = "y", *, name: str | None = None,
+                   min_samples: int = MIN_SAMPLES) -> Recording:
+    """Load one experiment from a CSV file.
+
+    Parameters
+    ----------
+    path : the CSV file (one header line).
+    time, input, output : column names, base names or 0-based indices (see the
+        module docstring).  ``time=None`` uses the sample index as time (enough
+        for rate-independent models, whose response does not depend on time).
+    name : label of the recording; defaults to the file stem.
+    min_samples : fewest data rows accepted.
+
+    Raises
+    ------
+    RecordingError
+        Missing file, empty file, missing or ambiguous column, ragged row,
+        non-numeric or non-finite cell, non-increasing time, too few samples.
+        The message names the file, the column, the line (as numbered in the
+        file, header = line 1) and the value.
+    """
+    path = str(path)
+    header, rows, numbers = _read_rows(path)
+    if not rows:
+        raise RecordingError(f"{path}: no data rows after the header")
+    cols = {}
+    for role, spec in (("time", time), ("input", input), ("output", output)):
+        if spec is not None:
+            cols[role] = _find_column(spec, header, path, role)
+    values = {role: _column_values(rows, numbers, i, header[i], path) for role, i in cols.items()}
+    if len(rows) < min_samples:
+        raise RecordingError(f"{path}: too few samples: {len(rows)} data rows, at least {min_samples} needed")
+    if "time" in values:
+        t = values["time"]
+        tname, tunit = split_unit(header[cols["time"]])
+        bad = np.flatnonzero(np.diff(t) <= 0)
+        if bad.size:
+            k = bad[0] + 1
+            raise RecordingError(f"{path}: line {numbers[k]}, column {header[cols['time']]!r}: time "
+                                 f"{rows[k][cols['time']].strip()} does not increase (line {numbers[k - 1]} "
+                                 f"has {rows[k - 1][cols['time']].strip()})")
+        t = t * _TIME_SCALE.get(tunit, 1.0)
+    else:
+        t = np.arange(len(rows), dtype=float)
+    signals = {}
+    for role in ("input", "output"):
+        base, unit = split_unit(header[cols[role]])
+        signals[role] = Signal(base, unit, f"{role} column {header[cols[role]]!r} of {Path(path).name}")
+    return Recording(t, values["input"], values["output"], name=name or Path(path).stem,
+                     input=signals["input"], output=signals["output"], source=path)
+
+
+def load_recordings(paths: Sequence[str | os.PathLike], time: str | int | None = "time",
+                    input: str | int = "u", output: str | int = "y", *,
+                    min_samples: int = MIN_SAMPLES) -> list[Recording]:
+    """Load several experiments (one file each) with the same column choice.
+
+    Raises `RecordingError` for the first bad file, and when the files' input
+    or output columns carry different names or units (they must be the same
+    experiment's signals).
+    """
+    if not paths:
+        raise RecordingError("no recording files given")
+    recs = [load_recording(p, time, input, output, min_samples=min_samples) for p in paths]
+    first = recs[0]
+    for r in recs[1:]:
+        for role in ("input", "output"):
+            a, b = getattr(first, role), getattr(r, role)
+            if (a.name, a.unit) != (b.name, b.unit):
+                raise RecordingError(f"{r.source}: {role} column is {b.name!r} [{b.unit}] but "
+                                     f"{first.source} has {a.name!r} [{a.unit}]")
+    return recs

@@ -1,0 +1,372 @@
+"""Automatic, reported preparation of a recording for identification.
+
+Steps of `prepare` (each result is kept in the returned `Prepared`):
+
+1. **Reversals** of the input (`find_reversals`): a hysteresis (zig-zag)
+   detector.  While the input rises, its running maximum is tracked; the
+   maximum counts as a reversal only once the input has fallen below it by
+   more than a threshold, and vice versa.  The default threshold is
+   ``max(0.05 * range(u), 6 * noise_rms(u))``, so noise and quantisation steps
+   never create reversals, and minor loops smaller than 5% of the range are
+   not split off.  The reversal index is the first sample at the extreme.
+2. **Cycles** (`split_cycles`): a full cycle runs from one reversal to the
+   second next (min -> max -> min or max -> min -> max), both ends included;
+   consecutive cycles share their end sample.  The kind of start giving more
+   cycles is used (ties: minima).
+3. **Settling** (`settled_start`): successive cycles are compared at matched
+   input: on each branch, cycle k+1's output is interpolated linearly in u at
+   cycle k's input samples over the input range both cover (2% trimmed at
+   each end), the differences are averaged in 32 input bins, and d_k is the
+   RMS of these bin means, less the drift per cycle (step 4), over both
+   branches.  Cycle k is settled when every later d_j is below
+   ``max(0.002 * range(y), 3 * noise of the bin means, 2 * min_j d_j)`` (the
+   noise from the scatter within the bins; the last term keeps an irregular
+   drift from counting as a transient).  Everything before the first
+   settled cycle is the transient and is dropped.
+4. **Drift** per cycle: the median over the later half of the cycle pairs of
+   the mean binned difference (cycle k+1 minus cycle k), reported as a note
+   when it exceeds the settling tolerance ("the loops do not close"); with
+   a single cycle, its closure y(end) - y(start).
+5. **Holds**: stretches of at least ``max(9 samples, 10% of the median
+   branch length)`` where the input stays within a band of
+   ``max(0.002 * range(u), 4 * noise_rms(u))``.
+
+All indices in `Prepared` refer to the trimmed recording except
+`transient_end`, the index in the original recording where it starts.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.ndimage import maximum_filter1d, minimum_filter1d
+
+from .metrics import NOISE_WINDOW, noise_rms
+from .recordings import Recording
+
+__all__ = ["PreparationError", "Prepared", "find_reversals", "reversal_threshold", "split_cycles",
+           "cycle_reversals", "settled_start", "cycle_differences", "find_holds", "branch_on_grid",
+           "resample_time", "prepare"]
+
+REVERSAL_FRACTION = 0.05
+REVERSAL_NOISE_FACTOR = 6.0
+SETTLE_FRACTION = 0.002
+SETTLE_BINS = 32
+HOLD_FRACTION = 0.002
+HOLD_MIN_SAMPLES = 9
+
+
+class PreparationError(ValueError):
+    """A recording that cannot be prepared (e.g. too few input cycles)."""
+
+
+def _label(rec: Recording) -> str:
+    return rec.source if rec.source != "generated" else rec.name
+
+
+def _noise(a: np.ndarray) -> float:
+    return noise_rms(a) if a.size >= 2 * NOISE_WINDOW else 0.0
+
+
+def reversal_threshold(u) -> float:
+    """Default reversal threshold ``max(0.05 * range(u), 6 * noise_rms(u))``."""
+    u = np.asarray(u, dtype=float)
+    return max(REVERSAL_FRACTION * float(np.ptp(u)), REVERSAL_NOISE_FACTOR * _noise(u))
+
+
+def find_reversals(u, *, threshold: float | None = None) -> np.ndarray:
+    """Indices of the input's reversals (alternating maxima and minima).
+
+    An extreme counts once the input has moved back from it by more than
+    `threshold` (default `reversal_threshold`); the start and the end of
+    the signal are not reversals.
+    """
+    u = np.asarray(u, dtype=float).ravel()
+    if u.size < 3:
+        return np.zeros(0, dtype=int)
+    thr = reversal_threshold(u) if threshold is None else float(threshold)
+    if not thr > 0:
+        return np.zeros(0, dtype=int)
+    found = []
+    i_max = i_min = 0
+    direction = 0
+    ext = 0
+    for k in range(1, u.size):
+        v = u[k]
+        if direction == 0:
+            if v > u[i_max]:
+                i_max = k
+            if v < u[i_min]:
+                i_min = k
+            if v - u[i_min] > thr:
+                direction, ext = 1, k
+            elif u[i_max] - v > thr:
+                direction, ext = -1, k
+        elif direction > 0:
+            if v > u[ext]:
+                ext = k
+            elif u[ext] - v > thr:
+                found.append(ext)
+                direction, ext = -1, k
+        else:
+            if v < u[ext]:
+                ext = k
+            elif v - u[ext] > thr:
+                found.append(ext)
+                direction, ext = 1, k
+    return np.asarray(found, dtype=int)
+
+
+def _as_u(rec_or_u) -> np.ndarray:
+    return np.asarray(rec_or_u.u if isinstance(rec_or_u, Recording) else rec_or_u, dtype=float)
+
+
+def cycle_reversals(rec_or_u, *, threshold: float | None = None,
+                    reversals: np.ndarray | None = None) -> list[tuple[int, int, int]]:
+    """Full cycles as (start, middle, end) reversal indices (see `split_cycles`)."""
+    u = _as_u(rec_or_u)
+    r = find_reversals(u, threshold=threshold) if reversals is None else np.asarray(reversals)
+    if len(r) < 3:
+        return []
+    starts = [j for j in range(0, len(r) - 2, 2)], [j for j in range(1, len(r) - 2, 2)]
+    first_is_min = u[r[0]] < u[r[1]]
+    by_min = starts[0] if first_is_min else starts[1]
+    by_max = starts[1] if first_is_min else starts[0]
+    chosen = by_min if len(by_min) >= len(by_max) else by_max
+    return [(int(r[j]), int(r[j + 1]), int(r[j + 2])) for j in chosen]
+
+
+def split_cycles(rec, *, threshold: float | None = None) -> list[slice]:
+    """Full input cycles of a recording (or input array) as slices.
+
+    A cycle runs from a reversal to the second next one, both included, so
+    u[s][0] and u[s][-1] are extremes of the same kind.
+    """
+    return [slice(a, c + 1) for a, _, c in cycle_reversals(rec, threshold=threshold)]
+
+
+def _bin_stats(u: np.ndarray, v: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per input bin: mean of v and the variance of that mean (scatter / count); bins with
+    fewer than two samples are left out."""
+    idx = np.digitize(u, edges) - 1
+    ok = (idx >= 0) & (idx < len(edges) - 1)
+    n = np.bincount(idx[ok], minlength=len(edges) - 1)
+    s1 = np.bincount(idx[ok], weights=v[ok], minlength=len(edges) - 1)
+    s2 = np.bincount(idx[ok], weights=v[ok] ** 2, minlength=len(edges) - 1)
+    use = n >= 2
+    mean = s1[use] / n[use]
+    var = np.maximum(s2[use] / n[use] - mean ** 2, 0.0) * n[use] / (n[use] - 1)
+    return mean, var / n[use]
+
+
+def _branch_difference(u, y, a: slice, b: slice):
+    """Bin means of y_b(u_a) - y_a over the common input range (2% trimmed at each end),
+    y_b linearly interpolated in u (`branch_on_grid`), and the variance of each bin mean."""
+    lo = max(u[a].min(), u[b].min())
+    hi = min(u[a].max(), u[b].max())
+    if not hi > lo:
+        return np.zeros(0), np.zeros(0)
+    pad = 0.02 * (hi - lo)
+    ua, ya = u[a], y[a]
+    keep = (ua >= lo + pad) & (ua <= hi - pad)
+    if not keep.any():
+        return np.zeros(0), np.zeros(0)
+    diff = branch_on_grid(u[b], y[b], ua[keep]) - ya[keep]
+    return _bin_stats(ua[keep], diff, np.linspace(lo + pad, hi - pad, SETTLE_BINS + 1))
+
+
+def cycle_differences(u, y, cycles: list[tuple[int, int, int]]) -> tuple[list[np.ndarray], np.ndarray]:
+    """Matched-input differences of successive cycles.
+
+    Returns a list of len(cycles) - 1 arrays, the binned differences cycle
+    k+1 minus cycle k at matched input over both branches, and for each the
+    RMS those binned differences would have from noise alone, estimated from
+    the scatter within the bins (so input noise and quantisation count too).
+    """
+    u = np.asarray(u, dtype=float)
+    y = np.asarray(y, dtype=float)
+    diffs, noise = [], np.zeros(max(len(cycles) - 1, 0))
+    for k in range(len(cycles) - 1):
+        (a0, a1, a2), (b0, b1, b2) = cycles[k], cycles[k + 1]
+        d1, w1 = _branch_difference(u, y, slice(a0, a1 + 1), slice(b0, b1 + 1))
+        d2, w2 = _branch_difference(u, y, slice(a1, a2 + 1), slice(b1, b2 + 1))
+        diffs.append(np.r_[d1, d2])
+        noise[k] = np.sqrt(np.mean(np.r_[w1, w2])) if diffs[-1].size else 0.0
+    return diffs, noise
+
+
+def _settling(u, y, cycles) -> tuple[int, np.ndarray, float, float]:
+    """(first settled cycle, drift-removed RMS differences, drift per cycle, tolerance)."""
+    diffs, noise = cycle_differences(u, y, cycles)
+    tol = SETTLE_FRACTION * float(np.ptp(y))
+    if not diffs:
+        return 0, np.zeros(0), 0.0, tol
+    means = np.array([d.mean() if d.size else 0.0 for d in diffs])
+    drift = float(np.median(means[len(means) // 2:]))
+    r = np.array([np.sqrt(np.mean((d - drift) ** 2)) if d.size else np.inf for d in diffs])
+    tol = max(tol, 3.0 * float(np.max(noise)))
+    floor = max(tol, 2.0 * float(np.min(r)))
+    above = np.flatnonzero(r > floor)
+    first = int(above[-1]) + 1 if above.size else 0
+    return min(first, len(cycles) - 1), r, drift, tol
+
+
+def settled_start(rec: Recording, *, threshold: float | None = None) -> int:
+    """Index of the first sample of the first settled full cycle (0 without cycles).
+
+    See step 3 of the module docstring.
+    """
+    cycles = cycle_reversals(rec, threshold=threshold)
+    if not cycles:
+        return 0
+    k = _settling(rec.u, rec.y, cycles)[0]
+    return cycles[k][0]
+
+
+def find_holds(t, u, *, min_samples: int = HOLD_MIN_SAMPLES, band: float | None = None) -> list[tuple[int, int]]:
+    """Holds of the input as [start, stop) index pairs (see step 5 of the module docstring).
+
+    A hold is a run of at least `min_samples` samples in which the input
+    stays within `band` (default ``max(0.002 range(u), 4 noise_rms(u))``).
+    """
+    u = np.asarray(u, dtype=float)
+    band = max(HOLD_FRACTION * float(np.ptp(u)), 4.0 * _noise(u)) if band is None else band
+    L = int(min_samples) | 1
+    if u.size < L:
+        return []
+    spread = maximum_filter1d(u, L) - minimum_filter1d(u, L)
+    centre = spread <= band
+    centre[:L // 2] = False
+    centre[u.size - L // 2:] = False
+    mask = maximum_filter1d(centre.astype(np.uint8), L).astype(bool)
+    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
+    return [(int(a), int(b)) for a, b in zip(edges[0::2], edges[1::2])]
+
+
+def branch_on_grid(u, y, grid) -> np.ndarray:
+    """Output of one monotone branch at the input values `grid` (linear interpolation).
+
+    The samples are sorted by input (noise may make a measured branch
+    locally non-monotone) and samples with equal input (quantisation) are
+    averaged; y is then linearly interpolated in u, consistent with an input
+    taken as piecewise linear between samples.  Raises `PreparationError`
+    when `grid` leaves the branch's input range or the branch has fewer than
+    two distinct input values.
+    """
+    u = np.asarray(u, dtype=float).ravel()
+    y = np.asarray(y, dtype=float).ravel()
+    grid = np.asarray(grid, dtype=float)
+    if u.shape != y.shape:
+        raise PreparationError(f"branch input and output differ in length ({u.size} and {y.size})")
+    levels, inverse = np.unique(u, return_inverse=True)
+    if levels.size < 2:
+        raise PreparationError("branch has fewer than two distinct input values")
+    means = np.bincount(inverse, weights=y) / np.bincount(inverse)
+    slack = 1e-9 * (levels[-1] - levels[0])
+    if grid.min() < levels[0] - slack or grid.max() > levels[-1] + slack:
+        raise PreparationError(f"grid [{grid.min():.6g}, {grid.max():.6g}] leaves the branch's input "
+                               f"range [{levels[0]:.6g}, {levels[-1]:.6g}]")
+    return np.interp(grid, levels, means)
+
+
+def resample_time(rec: Recording, dt: float | None = None) -> Recording:
+    """The recording on a uniform time grid t0, t0 + dt, ... (default dt: median sample period).
+
+    u and y are interpolated linearly (the input is piecewise linear between
+    samples throughout the project).
+    """
+    step = float(np.median(np.diff(rec.t))) if dt is None else float(dt)
+    if not step > 0:
+        raise PreparationError(f"{_label(rec)}: time step must be positive, got {step}")
+    t = rec.t[0] + step * np.arange(int(np.floor((rec.t[-1] - rec.t[0]) / step + 1e-9)) + 1)
+    return Recording(t, np.interp(t, rec.t, rec.u), np.interp(t, rec.t, rec.y), rec.name, rec.input,
+                     rec.output, rec.source)
+
+
+@dataclass
+class Prepared:
+    """A recording ready for identification, and what was done to it."""
+
+    recording: Recording
+    original: Recording
+    reversals: np.ndarray
+    cycles: list[slice]
+    transient_end: int
+    holds: list[tuple[int, int]]
+    drift_per_cycle: float
+    threshold: float
+    noise_rms: float
+    input_noise_rms: float
+    cycle_difference: list[float] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def n_cycles(self) -> int:
+        return len(self.cycles)
+
+    def to_dict(self) -> dict:
+        """JSON-able summary (indices refer to the trimmed recording)."""
+        r = self.recording
+        return {
+            "recording": r.name, "source": r.source, "samples": len(self.original),
+            "samples_used": len(r), "transient_end": self.transient_end,
+            "transient_time": float(self.original.t[self.transient_end] - self.original.t[0]),
+            "reversal_threshold": self.threshold, "reversals": [int(i) for i in self.reversals],
+            "cycles": [[s.start, s.stop] for s in self.cycles], "n_cycles": self.n_cycles,
+            "holds": [{"start": a, "stop": b, "t_start": float(r.t[a]), "t_stop": float(r.t[b - 1]),
+                       "input": float(np.mean(r.u[a:b]))} for a, b in self.holds],
+            "drift_per_cycle": self.drift_per_cycle, "noise_rms": self.noise_rms,
+            "input_noise_rms": self.input_noise_rms, "cycle_difference": self.cycle_difference,
+            "notes": list(self.notes),
+        }
+
+
+def prepare(rec: Recording, *, min_cycles: int = 1, threshold: float | None = None,
+            drop_transient: bool = True) -> Prepared:
+    """Find reversals, cycles, holds, the settled part and the drift of `rec`.
+
+    Raises `PreparationError` ("too few cycles") when fewer than
+    `min_cycles` full input cycles remain.  See the module docstring.
+    """
+    label = _label(rec)
+    thr = reversal_threshold(rec.u) if threshold is None else float(threshold)
+    r = find_reversals(rec.u, threshold=thr)
+    cycles = cycle_reversals(rec.u, reversals=r)
+    if len(cycles) < min_cycles:
+        raise PreparationError(f"{label}: too few cycles: the input has {len(cycles)} full cycle(s) "
+                               f"({len(r)} reversals by more than {thr:.4g}), at least {min_cycles} needed")
+    sigma, sigma_u = _noise(rec.y), _noise(rec.u)
+    notes = [f"{len(r)} input reversals (threshold {thr:.4g}), {len(cycles)} full cycles"]
+    first, d, drift, tol = _settling(rec.u, rec.y, cycles) if cycles else (0, np.zeros(0), 0.0, 0.0)
+    start = cycles[first][0] if (cycles and drop_transient) else 0
+    if len(cycles) == 1:
+        drift = _closure(rec, cycles[0])
+    if start:
+        notes.append(f"dropped the start-up transient before the first settled cycle: samples "
+                     f"0-{start - 1} (t < {rec.t[start]:.6g}), {first} unsettled full cycle(s)")
+    if d.size and d[-1] > tol:
+        notes.append(f"successive cycles still differ by {d[-1]:.3g} RMS beyond the drift "
+                     f"({100 * d[-1] / np.ptp(rec.y):.2g}% of the output range) at the end: not settled")
+    if cycles and abs(drift) > tol:
+        notes.append(f"the loops do not close: the output drifts by {drift:.3g} per cycle "
+                     f"({100 * drift / np.ptp(rec.y):.2g}% of the output range)")
+    if len(cycles) == 1:
+        notes.append("only one full cycle: settling could not be checked")
+    trimmed = rec.slice(slice(start, None))
+    rev = r[r >= start] - start
+    branch_len = np.median(np.diff(r)) if len(r) > 1 else len(rec.u)
+    holds = find_holds(trimmed.t, trimmed.u, min_samples=max(HOLD_MIN_SAMPLES, int(0.1 * branch_len)))
+    if holds:
+        total = sum(trimmed.t[b - 1] - trimmed.t[a] for a, b in holds)
+        notes.append(f"{len(holds)} input hold(s), {total:.4g} time units in all")
+    return Prepared(recording=trimmed, original=rec, reversals=rev,
+                    cycles=[slice(a - start, c - start + 1) for a, _, c in cycles[first if drop_transient else 0:]],
+                    transient_end=int(start), holds=holds, drift_per_cycle=drift, threshold=thr,
+                    noise_rms=sigma, input_noise_rms=sigma_u,
+                    cycle_difference=[float(x) for x in d], notes=notes)
+
+
+def _closure(rec: Recording, cycle: tuple[int, int, int]) -> float:
+    """Closure y(end) - y(start) of a single cycle (5-sample means about its end reversals)."""
+    a, _, c = cycle
+    return float(np.mean(rec.y[max(c - 2, 0):c + 3]) - np.mean(rec.y[max(a - 2, 0):a + 3]))
