@@ -1,0 +1,305 @@
+"""The FMI 2.0 Co-Simulation modelDescription.xml of an exported model, for every backend.
+
+One function, `model_variables`, fixes the FMU interface of a model (names,
+value references, start values and where each value lives in the model's JSON
+dictionary); `model_description_xml` writes the complete modelDescription from
+it.  Both the pythonfmu backend (`build_fmu`) and the native C backend use them,
+so the two FMUs of one model have the same interface.
+
+Interface
+---------
+* ``u`` (input, Real, continuous) and ``y`` (output, Real, continuous).  The FMI
+  names stay ``u`` and ``y`` so that a connection survives re-fitting on other
+  data; the recording's column name, unit and description go into the
+  variable's ``description`` and its ``unit`` attribute (declared in
+  ``UnitDefinitions``).
+* ``order`` (Integer) and ``kind`` (String, ``ri`` or ``rd``): structural,
+  visible as parameters; an FMU accepts only its own value for them.
+* The parameters of the model's effect extensions (`fitter.core.effects`) as
+  ``<effect>.<parameter>``, e.g. ``creep.tau``.
+* The model matrices as structured names with 1-based indices, e.g.
+  ``A_plus[1,2]``, ``B_plus[1]``, ``D``, the start state ``x0[i]``, and for a
+  rate-dependent model the rate table ``g_v[k]``, ``g_g[k]``.  They are
+  ``causality="parameter"`` with ``variability="fixed"``: they may be set after
+  instantiation and in initialization mode, and the FMU rejects them later.
+  Fixed rather than tunable, because the exact flows (eigendecompositions) are
+  built once from the parameters when initialization ends, and a hysteresis
+  model whose matrices jump mid-simulation has no meaning for the fitted data.
+
+Input semantics (the `Stepper` of `fitter.core`, written into the
+modelDescription's ``description``): y = C x + D u depends directly on u; the
+state moves exactly along the straight input path between the inputs of
+successive communication points, so a host that sets u(t_k) and reads y(t_k)
+at every sample gets the in-process simulation of the sampled input.
+"""
+from __future__ import annotations
+
+import datetime
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+from xml.etree import ElementTree as ET
+
+import numpy as np
+
+from .core.rates import TabulatedRate
+
+__all__ = ["FmiVariable", "model_variables", "model_description_xml", "semantics_text",
+           "capabilities", "LOG_CATEGORIES", "U_REF", "Y_REF"]
+
+U_REF = 0
+Y_REF = 1
+
+LOG_CATEGORIES = {
+    "logStatusWarning": "Log messages with fmi2Warning status.",
+    "logStatusError": "Log messages with fmi2Error status.",
+    "logStatusFatal": "Log messages with fmi2Fatal status.",
+    "logAll": "Log all messages.",
+}
+
+_CAPABILITIES = {
+    "canHandleVariableCommunicationStepSize": "true",
+    "canInterpolateInputs": "false",
+    "canBeInstantiatedOnlyOncePerProcess": "false",
+    "canNotUseMemoryManagementFunctions": "true",
+    "canGetAndSetFMUstate": "true",
+    "canSerializeFMUstate": "true",
+    "providesDirectionalDerivative": "false",
+}
+# A pythonfmu FMU runs inside an embedded Python interpreter: an execution tool.
+_NEEDS_EXECUTION_TOOL = {"python": "true", "native": "false"}
+
+_PARAM_TEXT = {
+    "A_plus": "A+ (rising input), eq (1)", "A_minus": "A- (falling input), eq (1)",
+    "B_plus": "B+ (rising input), eq (1)", "B_minus": "B- (falling input), eq (1)",
+    "E_plus": "E+ affine term (rising input)", "E_minus": "E- affine term (falling input)",
+    "A": "A, eq (18)", "B": "B, eq (18)", "E": "E affine term of eq (18)",
+    "C": "output row C, eq (2)", "D": "feedthrough D of y = C x + D u",
+    "x0": "start state x(0)",
+}
+
+
+@dataclass(frozen=True)
+class FmiVariable:
+    """One scalar variable of the FMU.
+
+    ``path`` locates its value in the model's JSON dictionary
+    (`model.to_dict()`): e.g. ``("parameters", "A_plus", 0, 1)`` for
+    ``A_plus[1,2]`` or ``("g", "v", 3)`` for ``g_v[4]``; it is empty for ``u``
+    and ``y``.
+    """
+
+    name: str
+    value_reference: int
+    type: str
+    causality: str
+    variability: str
+    start: float | int | str | None
+    description: str
+    path: tuple = ()
+    unit: str = ""
+    initial: str | None = None
+
+    def to_json(self) -> dict:
+        return {"name": self.name, "valueReference": self.value_reference, "type": self.type,
+                "causality": self.causality, "path": list(self.path)}
+
+
+def _signal_text(role: str, signal) -> str:
+    text = f"{role} (recording column '{signal.name}'"
+    text += f", unit {signal.unit})" if signal.unit else ")"
+    return f"{text}: {signal.description}" if signal.description else text
+
+
+def _parameter(name: str, vr: int, path: tuple, value: Any, text: str) -> FmiVariable:
+    return FmiVariable(name=name, value_reference=vr, type="Real", causality="parameter",
+                       variability="fixed", start=float(value), description=text, path=path,
+                       initial="exact")
+
+
+def _array_parameters(key: str, value: np.ndarray, path: tuple, vr: int, text: str) -> list:
+    out = []
+    for index in np.ndindex(*value.shape):
+        label = f"{key}[{','.join(str(i + 1) for i in index)}]" if value.ndim else key
+        out.append(_parameter(label, vr + len(out), path + index, value[index], text))
+    return out
+
+
+def model_variables(model) -> list[FmiVariable]:
+    """The FMU's variables in modelDescription order; value references 0, 1, 2, ...
+
+    u = 0, y = 1, order = 2, kind = 3, then the real parameters in the order of
+    `model.PARAMS` (row-major for matrices) and, for a rate-dependent model,
+    ``g_v[k]`` and ``g_g[k]``.  A rate-dependent model's g must be a
+    `TabulatedRate` (a callable g has no parameters to export).
+    """
+    if model.kind == "rd" and not isinstance(model.g, TabulatedRate):
+        raise TypeError("rate-dependent model: g must be a TabulatedRate to be exported "
+                        "(tabulate it with TabulatedRate.from_function)")
+    sig = model.signals
+    variables = [
+        FmiVariable("u", U_REF, "Real", "input", "continuous", 0.0,
+                    _signal_text("hysteresis input", sig.input), unit=sig.input.unit),
+        FmiVariable("y", Y_REF, "Real", "output", "continuous", None,
+                    _signal_text("hysteresis output y = C x + D u", sig.output),
+                    unit=sig.output.unit, initial="calculated"),
+        FmiVariable("order", 2, "Integer", "parameter", "fixed", model.order,
+                    "model order n (length of the state x); structural, cannot be changed",
+                    path=("order",), initial="exact"),
+        FmiVariable("kind", 3, "String", "parameter", "fixed", model.kind,
+                    "model kind: ri = rate-independent, eqs (1)-(2); rd = rate-dependent, "
+                    "eqs (18)-(19); structural, cannot be changed", path=("kind",), initial="exact"),
+    ]
+    for key in model.PARAMS:
+        value = np.asarray(getattr(model, key), dtype=float)
+        variables += _array_parameters(key, value, ("parameters", key), len(variables),
+                                       _PARAM_TEXT[key])
+    if model.kind == "rd":
+        variables += _array_parameters("g_v", model.g.v, ("g", "v"), len(variables),
+                                       "rate table: input slope du/dt of node k (g(0) = 0 implied)")
+        variables += _array_parameters("g_g", model.g.g, ("g", "g"), len(variables),
+                                       "rate table: g(du/dt) at node k; PCHIP between nodes, "
+                                       "constant beyond the outermost nodes")
+    for i, effect in enumerate(_effects(model)):
+        for name, value in effect.parameters.items():
+            variables.append(_parameter(f"{effect.effect}.{name}", len(variables),
+                                        ("effects", i, "parameters", name), value,
+                                        f"effect '{effect.effect}': parameter {name} "
+                                        "(fitter.core.effects)"))
+    return variables
+
+
+def _effects(model) -> list:
+    return list(getattr(model, "effects", None) or [])
+
+
+def semantics_text(model) -> str:
+    """The model-level description: what the FMU computes and its input semantics."""
+    kind = {"ri": "rate-independent, eqs (1)-(2)", "rd": "rate-dependent, eqs (18)-(19)"}[model.kind]
+    text = (f"Semilinear Duhem hysteresis model (Oh and Bernstein, IEEE TAC 2007), {kind}, "
+            f"order {model.order}. Output y = C x + D u depends directly on the input u. "
+            "Between communication points the input is the straight line from the input at "
+            "the previous communication point to the input set for the current one, and the "
+            "state moves exactly along that path (closed-form flow, no integration error, no "
+            "one-sample lag): a host that sets u(t_k) and reads y(t_k) at every sample gets "
+            "the in-process simulation of the sampled input. An input that is not set again "
+            "holds its value, and a held input does not move the state. Setting u before the "
+            "first step does not move the state: x0 is the state at the first input.")
+    names = [e.effect for e in _effects(model)]
+    if names:
+        text += f" Effect extensions (fitter.core.effects): {', '.join(names)}."
+    elif model.kind == "ri":
+        text += (" The model is rate independent: y at a communication point does not depend "
+                 "on the step sizes as long as the steps contain the input's reversals.")
+    return text
+
+
+def capabilities(backend: str) -> dict[str, str]:
+    """CoSimulation capability flags of a backend (``python`` or ``native``)."""
+    if backend not in _NEEDS_EXECUTION_TOOL:
+        raise ValueError(f"unknown FMU backend {backend!r} (expected 'python' or 'native')")
+    return {"needsExecutionTool": _NEEDS_EXECUTION_TOOL[backend], **_CAPABILITIES}
+
+
+def _format(value: float | int | str) -> str:
+    if isinstance(value, float):
+        return repr(value)
+    return str(value)
+
+
+def _variable_element(parent: ET.Element, v: FmiVariable) -> None:
+    attrib = {"name": v.name, "valueReference": str(v.value_reference),
+              "description": v.description, "causality": v.causality,
+              "variability": v.variability}
+    if v.initial is not None:
+        attrib["initial"] = v.initial
+    node = ET.SubElement(parent, "ScalarVariable", attrib)
+    type_attrib = {}
+    if v.unit:
+        type_attrib["unit"] = v.unit
+    if v.start is not None:
+        type_attrib["start"] = _format(v.start)
+    ET.SubElement(node, v.type, type_attrib)
+
+
+def _model_structure(root: ET.Element, variables: Sequence[FmiVariable], effects: bool) -> None:
+    """y depends directly on u; at initialisation y = C x0 + D u (with effects: on all knowns)."""
+    index = {v.name: i + 1 for i, v in enumerate(variables)}
+    structure = ET.SubElement(root, "ModelStructure")
+    outputs = ET.SubElement(structure, "Outputs")
+    ET.SubElement(outputs, "Unknown", {"index": str(index["y"]), "dependencies": str(index["u"]),
+                                       "dependenciesKind": "dependent"})
+    initial = [index["u"]] + [i + 1 for i, v in enumerate(variables)
+                              if v.path[:2] in (("parameters", "C"), ("parameters", "D"),
+                                                ("parameters", "x0"))]
+    unknowns = ET.SubElement(structure, "InitialUnknowns")
+    attrib = {"index": str(index["y"])}
+    if not effects:
+        attrib["dependencies"] = " ".join(map(str, initial))
+    ET.SubElement(unknowns, "Unknown", attrib)
+
+
+def model_description_xml(model, *, model_identifier: str, guid: str, backend: str,
+                          model_name: str | None = None, description: str | None = None,
+                          version: str | None = None, author: str | None = None,
+                          generation_tool: str = "semilinear-duhem",
+                          generation_date: datetime.datetime | None = None,
+                          capability_overrides: Mapping[str, str] | None = None,
+                          source_files: Sequence[str] = (),
+                          log_categories: Mapping[str, str] = LOG_CATEGORIES) -> str:
+    """The complete FMI 2.0 Co-Simulation modelDescription.xml of `model`.
+
+    Parameters
+    ----------
+    model_identifier : str
+        Name of the binary (``binaries/<platform>/<model_identifier>.so``).
+    guid : str
+        The FMU's GUID, written as given.
+    backend : {"python", "native"}
+        Selects the capability flags (`capabilities`); `capability_overrides`
+        replaces single flags.
+    model_name, description, version, author : str, optional
+        Defaults: a name from kind and order, `semantics_text(model)`, no
+        version, no author.
+    source_files : sequence of str
+        C files under ``sources/`` for a source FMU (``<SourceFiles>``).
+    """
+    stamp = (generation_date or datetime.datetime.now(datetime.timezone.utc))
+    attrib = {"fmiVersion": "2.0",
+              "modelName": model_name or f"semilinear Duhem {model.kind.upper()} model, "
+                                         f"order {model.order}",
+              "guid": guid, "description": description or semantics_text(model),
+              "generationTool": generation_tool,
+              "generationDateAndTime": stamp.strftime("%Y-%m-%dT%H:%M:%SZ"),
+              "variableNamingConvention": "structured", "numberOfEventIndicators": "0"}
+    if version:
+        attrib["version"] = version
+    if author:
+        attrib["author"] = author
+    root = ET.Element("fmiModelDescription", attrib)
+    flags = {"modelIdentifier": model_identifier, **capabilities(backend),
+             **(capability_overrides or {})}
+    cosim = ET.SubElement(root, "CoSimulation", flags)
+    if source_files:
+        files = ET.SubElement(cosim, "SourceFiles")
+        for name in source_files:
+            ET.SubElement(files, "File", {"name": name})
+    variables = model_variables(model)
+    units = sorted({v.unit for v in variables if v.unit})
+    if units:
+        unit_defs = ET.SubElement(root, "UnitDefinitions")
+        for unit in units:
+            ET.SubElement(unit_defs, "Unit", {"name": unit})
+    if log_categories:
+        cats = ET.SubElement(root, "LogCategories")
+        for name, text in log_categories.items():
+            ET.SubElement(cats, "Category", {"name": name, "description": text})
+    exp = model.experiment
+    ET.SubElement(root, "DefaultExperiment", {"startTime": _format(float(exp.start_time)),
+                                              "stopTime": _format(float(exp.stop_time)),
+                                              "stepSize": _format(float(exp.step_size))})
+    model_vars = ET.SubElement(root, "ModelVariables")
+    for v in variables:
+        _variable_element(model_vars, v)
+    _model_structure(root, variables, bool(_effects(model)))
+    ET.indent(root)
+    return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
