@@ -1,0 +1,656 @@
+"""Identification of the rate-dependent semilinear Duhem model from triangle waves.
+
+Oh & Bernstein (2007), Sections IV-V.  The model, eqs (18)-(19), is
+
+    dx/dt = g(du/dt) (A x + B u),    y = C x.
+
+Under the triangle wave (20), du/dt is a on the rising branch and b on the
+falling branch, so (21): the model is the linear system g(a)(A, B) on the one
+and g(b)(A, B) on the other.  By Proposition 2 a time-scaled system eta (A, B)
+has the transfer-function coefficients eta^j alpha_j, eta^j beta_j (eq 28),
+which is how g is read off branch by branch (eqs 40-45), one triangle wave per
+pair of slopes (eq 50).
+
+Two estimators (``estimator=``):
+
+``"literal"`` -- the paper as printed:
+    per branch the DARMA least squares (31)-(34) on the samples whose whole
+    regression window lies on the ramp; the bilinear (Tustin) transform
+    z = (1 + s delta/2)/(1 - s delta/2) to the ODEs (35)-(36); g-hat by the mean
+    (45) of the alpha_1 and beta_1 ratios, normalised by the reference wave
+    (50); A-hat, B-hat, C-hat in the observable canonical form (49) of the
+    reference wave's rising branch.
+
+``"improved"`` (default) -- output error on the exact model:
+    1. per wave and branch direction a *ramp-exact* DARMA: on a ramp the exact
+       discretisation of (21) is y_{k+1} = sum_j phi_j y_{k+1-j} + beta u_k + c
+       with a branch constant c (the input lags u_{k-j} = u_k - j v delta
+       collapse into u_k and c), so a sampled ramp response is represented
+       exactly at any delta.  Its poles z give the continuous poles
+       eta lambda = log(z)/delta exactly (no bilinear warping); their
+       coefficient alpha_1 gives the start value of g (ratio to the reference).
+    2. B-hat's start value by linear least squares: for fixed A and g the
+       periodic response is linear in B (variable projection).
+    3. all parameters (alpha, beta of the canonical form (49), g at every slope
+       but the reference) refined jointly by output-error least squares
+       (`scipy.optimize.least_squares`, trust-region reflective with the
+       block-sparse Jacobian) on *every* sample, corner samples included, with
+       the model's limiting periodic response computed by the core kernel
+       (`fitter.core.periodic_response`, `fitter.core.simulate`).  With white
+       output noise this is the maximum-likelihood (Gaussian) estimate; the
+       regressors carry no noise, so there is no errors-in-variables bias.
+
+Typos of the paper and how they are resolved here
+-------------------------------------------------
+* (49): the first column of A-hat is -alpha, so its first entry is
+  -alpha_{1,1}^+ (printed without the minus), as in the canonical form of
+  Proposition 2's proof.  Its subscripts are also swapped: the entries are
+  alpha^+_{1,j} (wave 1, coefficient j; Step 1 writes alpha_{i,j}).
+* (47)-(48): comparing (47) with (29), A-hat = g(a) A and B-hat = g(a) B; the
+  paper prints A-hat = (1/g(a)) A and B-hat = (1/g(a)) A.  With g-hat =
+  g / g(a_1), g-hat(v) A-hat = g(v) A, which is what Example 2's
+  A-hat = -0.25 = g(0.25) (-1) shows.
+* (50): both g-hat(a_i) and g-hat(b_i) are normalised by the reference
+  coefficients alpha_1 = alpha^+_{1,1}, beta_1 = beta^+_{1,1} of wave 1's
+  rising branch, as in (45) and Step 3; the printed falling-branch formula
+  divides by alpha_1^-, beta_1^-, which would give g(b_i)/g(b_1) and make
+  g-hat(b_1) = 1.
+* The ordering T_{a_1} < ... < T_{a_p} contradicts the examples (T_a = 4/a_i
+  with a_i increasing, normalised by g(a_1) = g(0.25)): here wave 1, the
+  reference with g-hat(a_1) = 1, is the wave with the smallest rising slope.
+* (31)-(32) run over k = 0 .. l_+ - 1, which would regress across the corner;
+  Y_+ and Phi_+ (k = n-1 .. l_+ - 2) are used, and more generally only windows
+  whose samples all lie on one ramp (samples are not assumed to hit corners).
+* (35)-(36) have no u^(n) term but the Tustin image of the strictly proper
+  (31) has one (it stands for the one-step delay); the literal estimator drops
+  it (coefficient matching with (35) as printed).
+* Example 2 refers to "Section VI" for the method of Section V.
+
+Numerical assumptions
+---------------------
+* A record (t, u, y) is uniformly sampled, in steady state (the limiting
+  periodic response), with u the exact triangle wave (20) (relative tolerance
+  1e-6): the slopes a, b are the median positive and negative du/dt, a corner
+  inside a sample interval is the intersection of the two ramps, and a record
+  whose corners are all of one kind is taken to start or end at the other
+  extreme (eq (20) sampled from t = 0 starts at its minimum).
+* Between samples the input is piecewise linear (the kernel's rule); corners
+  are inserted exactly, so every sample of the model's response is exact.
+* C-hat = [1, 0, ..., 0], E = 0, D = 0, as in the paper; g-hat is stored as a
+  `TabulatedRate` (PCHIP through g(0) = 0, constant beyond the outermost slopes).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.sparse import lil_matrix
+
+from .core import (CallableRate, ConvergenceError, KernelError, RateDependentModel, TabulatedRate,
+                   periodic_response, simulate)
+
+__all__ = ["ESTIMATORS", "TriangleWave", "triangle_wave", "triangle_response", "periodic_triangle_output",
+           "identify_rd_triangles", "RDIdentification", "WaveFit", "bilinear_d2c"]
+
+ESTIMATORS = ("literal", "improved")
+_TOL = 1e-6
+_PENALTY = 1e3
+
+
+# ----------------------------------------------------------------------------- triangle waves
+
+@dataclass(frozen=True)
+class TriangleWave:
+    """The periodic triangle wave (20): minimum u_lo at t_min (+ multiples of T).
+
+    It rises with slope a > 0 to u_hi in T_a = (u_hi - u_lo)/a, then falls with
+    slope b < 0 back to u_lo in T_b = (u_hi - u_lo)/(-b); T = T_a + T_b.
+    """
+
+    a: float
+    b: float
+    u_lo: float
+    u_hi: float
+    t_min: float = 0.0
+
+    @property
+    def Ta(self) -> float:
+        return (self.u_hi - self.u_lo) / self.a
+
+    @property
+    def Tb(self) -> float:
+        return (self.u_hi - self.u_lo) / -self.b
+
+    @property
+    def T(self) -> float:
+        return self.Ta + self.Tb
+
+    def phase(self, t: np.ndarray) -> np.ndarray:
+        """Time since the last minimum, in [0, T); values within 1e-9 T of a corner snap to it."""
+        tau = np.mod(np.asarray(t, dtype=float) - self.t_min, self.T)
+        eps = 1e-9 * self.T
+        tau = np.where(np.abs(tau - self.Ta) < eps, self.Ta, tau)
+        return np.where(self.T - tau < eps, 0.0, tau)
+
+    def value_at_phase(self, tau: np.ndarray) -> np.ndarray:
+        tau = np.asarray(tau, dtype=float)
+        return np.where(tau <= self.Ta, self.u_lo + self.a * tau, self.u_hi + self.b * (tau - self.Ta))
+
+    def __call__(self, t: np.ndarray) -> np.ndarray:
+        return self.value_at_phase(self.phase(t))
+
+
+def _wave_from_eq20(a: float, b: float, Ta: float, Tb: float) -> TriangleWave:
+    if not (a > 0 and b < 0 and Ta > 0 and Tb > 0):
+        raise ValueError(f"triangle wave (20) needs a > 0, b < 0, Ta > 0, Tb > 0; "
+                         f"got a={a}, b={b}, Ta={Ta}, Tb={Tb}")
+    if not np.isclose(a * Ta, -b * Tb, rtol=1e-9, atol=0):
+        raise ValueError(f"triangle wave (20) is continuous only when a*Ta = -b*Tb; "
+                         f"got a*Ta = {a * Ta}, -b*Tb = {-b * Tb}")
+    return TriangleWave(a=float(a), b=float(b), u_lo=-a * Ta / 2, u_hi=a * Ta / 2, t_min=0.0)
+
+
+def triangle_wave(a: float, b: float, Ta: float, Tb: float, periods: int,
+                  delta: float) -> tuple[np.ndarray, np.ndarray]:
+    """Samples t_k = k delta, 0 <= t_k <= periods T, of the triangle wave (20).
+
+    u(t) = a t - a q T - a T_a / 2 on [qT, qT + T_a) and
+    b t - b (q+1) T + b T_b / 2 on [qT + T_a, (q+1) T), T = T_a + T_b, so u
+    rises from -a T_a/2 at t = 0; continuity requires a T_a = -b T_b.
+    """
+    wave = _wave_from_eq20(a, b, Ta, Tb)
+    if int(periods) != periods or periods < 1:
+        raise ValueError(f"periods must be a positive integer, got {periods}")
+    if not delta > 0:
+        raise ValueError(f"sampling period delta must be > 0, got {delta}")
+    k = int(np.floor(periods * wave.T / delta + 1e-9))
+    t = delta * np.arange(k + 1)
+    return t, wave(t)
+
+
+def periodic_triangle_output(model: RateDependentModel, wave: TriangleWave, t: np.ndarray) -> np.ndarray:
+    """The model's limiting periodic output (Theorem 1) at the times t under `wave`.
+
+    The times are folded into one period [0, T) from a minimum; `periodic_response`
+    over the sorted phases plus the corners (0, T_a, T) gives every sample
+    exactly (the input is linear between grid points).  Raises
+    `ConvergenceError` when rho >= 1.
+    """
+    tau = wave.phase(t)
+    grid, inverse = np.unique(np.r_[tau, 0.0, wave.Ta, wave.T], return_inverse=True)
+    y = periodic_response(model, grid, wave.value_at_phase(grid)).sim.y
+    return y[inverse[:len(tau)]]
+
+
+def triangle_response(model: RateDependentModel, a: float, b: float, Ta: float, Tb: float,
+                      periods: int, delta: float, noise_pp: float = 0.0,
+                      rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Steady-state record (t, u, y) of `model` under the sampled triangle wave (20).
+
+    y is the limiting periodic response (exact at each sample) plus, when
+    noise_pp > 0, uniform noise on [-noise_pp/2, noise_pp/2] drawn from `rng`.
+    """
+    t, u = triangle_wave(a, b, Ta, Tb, periods, delta)
+    y = periodic_triangle_output(model, _wave_from_eq20(a, b, Ta, Tb), t)
+    if noise_pp > 0:
+        if rng is None:
+            raise ValueError("noise_pp > 0 needs a seeded rng (np.random.default_rng(seed))")
+        y = y + rng.uniform(-noise_pp / 2, noise_pp / 2, size=y.shape)
+    return t, u, y
+
+
+# ----------------------------------------------------------------------------- record parsing
+
+@dataclass
+class _Record:
+    """One checked triangle-wave record and its ramp runs."""
+
+    index: int
+    t: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+    delta: float
+    wave: TriangleWave
+    runs: dict  # direction (+1 / -1) -> list of (first, last) sample indices on that ramp
+
+
+def _fail(i: int, msg: str):
+    raise ValueError(f"record {i}: {msg}")
+
+
+def _check_arrays(i: int, rec, order: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    try:
+        t, u, y = (np.asarray(a, dtype=float).ravel() for a in rec)
+    except (TypeError, ValueError):
+        _fail(i, "must be a tuple (t, u, y) of numeric arrays")
+    if not (len(t) == len(u) == len(y)):
+        _fail(i, f"t, u, y differ in length ({len(t)}, {len(u)}, {len(y)})")
+    for name, arr in (("t", t), ("u", u), ("y", y)):
+        bad = np.flatnonzero(~np.isfinite(arr))
+        if bad.size:
+            _fail(i, f"{name}[{bad[0]}] is {arr[bad[0]]} (NaN or infinite)")
+    need = 2 * order + 4
+    if len(t) < need:
+        _fail(i, f"{len(t)} samples are too few for order {order} (need at least {need})")
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        k = int(np.flatnonzero(dt <= 0)[0])
+        _fail(i, f"time must increase: t[{k + 1}] = {t[k + 1]} after t[{k}] = {t[k]}")
+    delta = float(np.median(dt))
+    if np.max(np.abs(dt - delta)) > _TOL * delta:
+        k = int(np.argmax(np.abs(dt - delta)))
+        _fail(i, f"sampling is not uniform (t[{k + 1}] - t[{k}] = {dt[k]}, median {delta}); "
+                 "the DARMA models (31)-(32) need a fixed sampling period")
+    return t, u, y, delta
+
+
+def _interval_types(i: int, v: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """+1 / -1 for intervals on the rising / falling ramp, 0 for corner intervals."""
+    if not np.any(v > 0) or not np.any(v < 0):
+        _fail(i, "the input never " + ("rises" if not np.any(v > 0) else "falls")
+              + ": a triangle wave (20) needs both branches")
+    a, b = float(np.median(v[v > 0])), float(np.median(v[v < 0]))
+    kind = np.zeros(len(v), dtype=int)
+    kind[np.abs(v - a) <= _TOL * a] = 1
+    kind[np.abs(v - b) <= _TOL * -b] = -1
+    zero = np.flatnonzero((kind[:-1] == 0) & (kind[1:] == 0))
+    if zero.size:
+        k = int(zero[0])
+        _fail(i, f"branch not monotone or not a ramp near samples {k}..{k + 2} (du/dt = {v[k]:.6g}, "
+                 f"{v[k + 1]:.6g}; the ramps have slopes a = {a:.6g}, b = {b:.6g})")
+    return kind, a, b
+
+
+def _runs(kind: np.ndarray) -> list[tuple[int, int, int]]:
+    """Maximal runs (direction, first interval, last interval) of ramp intervals."""
+    edges = np.flatnonzero(np.diff(kind)) + 1
+    starts, stops = np.r_[0, edges], np.r_[edges, len(kind)]
+    return [(int(kind[s]), int(s), int(e - 1)) for s, e in zip(starts, stops) if kind[s] != 0]
+
+
+def _corners(i: int, t, u, runs, a: float, b: float) -> list[tuple[int, float, float]]:
+    """Corners (direction of the preceding run, time, value) between consecutive runs."""
+    out = []
+    for (d0, _, e0), (d1, s1, _) in zip(runs[:-1], runs[1:]):
+        if d0 == d1:
+            _fail(i, f"branch not monotone: the input turns back between samples {e0 + 1} and {s1} "
+                     "and resumes in the same direction")
+        if s1 == e0 + 1:
+            out.append((d0, t[s1], u[s1]))
+        else:
+            k = e0 + 1
+            s0, s1_ = (a, b) if d0 > 0 else (b, a)
+            tc = (u[k + 1] - u[k] + s0 * t[k] - s1_ * t[k + 1]) / (s0 - s1_)
+            out.append((d0, tc, u[k] + s0 * (tc - t[k])))
+    return out
+
+
+def _fit_wave(i: int, t, u, runs, a: float, b: float) -> TriangleWave:
+    corners = _corners(i, t, u, runs, a, b)
+    if not corners:
+        _fail(i, "the input has no corner (a single ramp): a triangle wave (20) needs both branches")
+    tops = [c for c in corners if c[0] > 0]
+    bottoms = [c for c in corners if c[0] < 0]
+    u_hi = float(np.mean([c[2] for c in tops])) if tops else float(np.max(u))
+    u_lo = float(np.mean([c[2] for c in bottoms])) if bottoms else float(np.min(u))
+    amp = u_hi - u_lo
+    for d, tc, uc in corners:
+        ref = u_hi if d > 0 else u_lo
+        if abs(uc - ref) > 1e3 * _TOL * amp:
+            _fail(i, f"branch not monotone: the corner at t = {tc:.6g} has u = {uc:.6g} but the wave's "
+                     f"{'maximum' if d > 0 else 'minimum'} is {ref:.6g}")
+    t_min = bottoms[0][1] if bottoms else tops[0][1] - amp / a
+    wave = TriangleWave(a=a, b=b, u_lo=u_lo, u_hi=u_hi, t_min=float(t_min))
+    off = np.abs(wave(t) - u)
+    if off.max() > 1e3 * _TOL * amp:
+        k = int(np.argmax(off))
+        _fail(i, f"u[{k}] = {u[k]:.6g} is off the triangle wave (expected {wave(t[k]):.6g}): "
+                 "branches must be monotone ramps of constant slope")
+    return wave
+
+
+def _parse_record(i: int, rec, order: int) -> _Record:
+    t, u, y, delta = _check_arrays(i, rec, order)
+    v = np.diff(u) / np.diff(t)
+    kind, a, b = _interval_types(i, v)
+    runs = _runs(kind)
+    wave = _fit_wave(i, t, u, runs, a, b)
+    by_dir: dict = {1: [], -1: []}
+    last = len(kind) - 1
+    for d, s, e in runs:
+        samples = e - s + 2
+        if samples >= order + 2:
+            by_dir[d].append((s, e + 1))
+        elif s > 0 and e < last:
+            name = "rising" if d > 0 else "falling"
+            _fail(i, f"the {name} branch at samples {s}..{e + 1} has {samples} samples on the ramp; "
+                     f"order {order} needs at least {order + 2} per branch (sample faster or use a "
+                     "slower triangle wave): branches too short")
+    return _Record(index=i, t=t, u=u, y=y, delta=delta, wave=wave, runs=by_dir)
+
+
+# ----------------------------------------------------------------------------- DARMA and transforms
+
+def _darma_rows(rec: _Record, direction: int, order: int, intercept: bool):
+    """Regression rows of (31)/(32): targets y_{k+1}, regressors [-y_k..-y_{k-n+1}, u_k..].
+
+    With `intercept` (ramp-exact form) the input lags are replaced by u_k and 1.
+    """
+    rows, target = [], []
+    n = order
+    for first, last in rec.runs[direction]:
+        ks = np.arange(first + n - 1, last)
+        ylags = np.column_stack([-rec.y[ks - j] for j in range(n)])
+        if intercept:
+            ulags = np.column_stack([rec.u[ks], np.ones(len(ks))])
+        else:
+            ulags = np.column_stack([rec.u[ks - j] for j in range(n)])
+        rows.append(np.hstack([ylags, ulags]))
+        target.append(rec.y[ks + 1])
+    if not rows:
+        _fail(rec.index, f"no {'rising' if direction > 0 else 'falling'} branch long enough for order {n}")
+    Phi, Y = np.vstack(rows), np.concatenate(target)
+    if len(Y) < Phi.shape[1]:
+        _fail(rec.index, f"too few samples for order {n}: {len(Y)} regression rows on the "
+                         f"{'rising' if direction > 0 else 'falling'} branches, {Phi.shape[1]} unknowns")
+    return Phi, Y
+
+
+def _lstsq(Phi: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """theta = Phi^+ Y, eq (34)."""
+    return np.linalg.lstsq(Phi, Y, rcond=None)[0]
+
+
+def bilinear_d2c(alpha_d: np.ndarray, beta_d: np.ndarray, delta: float) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear (Tustin) transform of the DARMA model (31) to the ODE (35).
+
+    H(z) = (beta_1 z^{n-1} + ... + beta_n) / (z^n + alpha_1 z^{n-1} + ... + alpha_n)
+    with z = (2 + s delta) / (2 - s delta); numerator and denominator are
+    multiplied by (2 - s delta)^n, the denominator made monic, and the s^n
+    numerator coefficient (absent from (35)) dropped.  Returns the continuous
+    (alpha_1..alpha_n), (beta_1..beta_n) of (35).
+    """
+    P = np.polynomial.polynomial
+    n = len(alpha_d)
+    plus, minus = np.array([2.0, delta]), np.array([2.0, -delta])
+    den = np.r_[1.0, alpha_d]
+    num = np.r_[0.0, beta_d]
+    D = np.zeros(n + 1)
+    N = np.zeros(n + 1)
+    for j in range(n + 1):
+        term = P.polymul(P.polypow(plus, n - j), P.polypow(minus, j))
+        D = P.polyadd(D, den[j] * term)
+        N = P.polyadd(N, num[j] * term)
+    D, N = np.pad(D, (0, n + 1 - len(D))), np.pad(N, (0, n + 1 - len(N)))
+    lead = D[n]
+    return D[:n][::-1] / lead, N[:n][::-1] / lead
+
+
+def _exact_d2c(phi: np.ndarray, delta: float) -> np.ndarray | None:
+    """Continuous alpha_1..alpha_n whose poles are log(z)/delta for the DARMA poles z.
+
+    phi are the AR coefficients of y_{k+1} = sum_j phi_j y_{k+1-j} + ...; returns
+    None when a pole is not the image of a continuous one (on the negative real
+    axis or at zero).
+    """
+    z = np.roots(np.r_[1.0, -phi])
+    if np.any(np.abs(z) < 1e-12) or np.any((np.abs(z.imag) < 1e-12) & (z.real < 0)):
+        return None
+    lam = np.log(z.astype(complex)) / delta
+    return np.real(np.poly(lam))[1:]
+
+
+def _canonical(alpha: np.ndarray, beta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Observable canonical form (49) with the sign fixed: first column -alpha."""
+    n = len(alpha)
+    A = np.zeros((n, n))
+    A[:, 0] = -np.asarray(alpha)
+    A[:n - 1, 1:] = np.eye(n - 1)
+    C = np.zeros(n)
+    C[0] = 1.0
+    return A, np.asarray(beta, dtype=float).copy(), C
+
+
+# ----------------------------------------------------------------------------- results
+
+@dataclass
+class WaveFit:
+    """Per-wave coefficients: slopes, discrete (DARMA) and continuous branch coefficients, g-hat.
+
+    `discrete_*` is the DARMA parameter vector of (33): [alpha-hat (n), beta-hat
+    (n)] for the literal estimator, [alpha-hat (n), beta, c] (ramp-exact form)
+    for the improved one.  `continuous_*` is [alpha (n), beta (n)] of (35)-(36)
+    (literal: bilinear; improved: exact pole map, beta = g B-hat after output error).
+    """
+
+    a: float
+    b: float
+    samples: int
+    discrete_plus: np.ndarray
+    discrete_minus: np.ndarray
+    continuous_plus: np.ndarray
+    continuous_minus: np.ndarray
+    g_plus: float
+    g_minus: float
+
+    def to_dict(self) -> dict:
+        return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in vars(self).items()}
+
+
+@dataclass
+class RDIdentification:
+    """Result of `identify_rd_triangles`.
+
+    `model` is the identified `RateDependentModel` (A_hat, B_hat, C_hat and
+    g = TabulatedRate(slopes, g_hat), normalised g_hat(a_1) = 1 at the smallest
+    rising slope).  `waves` holds per-wave coefficients, sorted by rising slope.
+    `rms_residual` is the RMS output error of the identified model's periodic
+    response over all samples.
+    """
+
+    model: RateDependentModel
+    slopes: np.ndarray
+    g_hat: np.ndarray
+    A_hat: np.ndarray
+    B_hat: np.ndarray
+    C_hat: np.ndarray
+    estimator: str
+    waves: list[WaveFit] = field(default_factory=list)
+    rms_residual: float = float("nan")
+    optimizer: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"estimator": self.estimator, "order": int(len(self.C_hat)),
+                "A_hat": self.A_hat.tolist(), "B_hat": self.B_hat.tolist(), "C_hat": self.C_hat.tolist(),
+                "slopes": self.slopes.tolist(), "g_hat": self.g_hat.tolist(),
+                "rms_residual": self.rms_residual, "optimizer": self.optimizer,
+                "waves": [w.to_dict() for w in self.waves], "model": self.model.to_dict()}
+
+
+# ----------------------------------------------------------------------------- estimators
+
+def _two_level_rate(g_plus: float, g_minus: float) -> CallableRate:
+    return CallableRate(lambda v: np.where(v > 0, g_plus, np.where(v < 0, g_minus, 0.0)))
+
+
+def _model(A, B, C, g) -> RateDependentModel:
+    return RateDependentModel(A=A, B=B, C=C, g=g)
+
+
+def _literal(recs: list[_Record], order: int) -> tuple[np.ndarray, np.ndarray, list[WaveFit]]:
+    """Paper-literal: (31)-(34), bilinear to (35)-(36), (45), (49), (50)."""
+    n = order
+    disc, cont = [], []
+    for rec in recs:
+        pair_d, pair_c = [], []
+        for d in (1, -1):
+            th = _lstsq(*_darma_rows(rec, d, n, intercept=False))
+            pair_d.append(th)
+            pair_c.append(np.r_[bilinear_d2c(th[:n], th[n:], rec.delta)])
+        disc.append(pair_d)
+        cont.append(pair_c)
+    alpha_ref, beta_ref = cont[0][0][:n], cont[0][0][n:]
+    a1, b1 = alpha_ref[0], beta_ref[0]
+    waves = []
+    for rec, (dp, dm), (cp, cm) in zip(recs, disc, cont):
+        gp = (cp[0] * b1 + a1 * cp[n]) / (2 * a1 * b1)
+        gm = (cm[0] * b1 + a1 * cm[n]) / (2 * a1 * b1)
+        waves.append(WaveFit(a=rec.wave.a, b=rec.wave.b, samples=len(rec.t), discrete_plus=dp,
+                             discrete_minus=dm, continuous_plus=cp, continuous_minus=cm,
+                             g_plus=float(gp), g_minus=float(gm)))
+    waves[0].g_plus = 1.0
+    return alpha_ref, beta_ref, waves
+
+
+def _ramp_exact_start(recs: list[_Record], order: int):
+    """Step 1 of the improved estimator: ramp-exact DARMA and exact pole map per branch."""
+    n = order
+    disc, alphas = [], []
+    for rec in recs:
+        pair_d, pair_a = [], []
+        for d in (1, -1):
+            th = _lstsq(*_darma_rows(rec, d, n, intercept=True))
+            pair_d.append(th)
+            pair_a.append(_exact_d2c(-th[:n], rec.delta))
+        disc.append(pair_d)
+        alphas.append(pair_a)
+    alpha_ref = alphas[0][0]
+    if alpha_ref is None or alpha_ref[0] == 0:
+        raise ValueError("record 0 (slowest wave): the rising-branch DARMA has a pole on the negative "
+                         "real axis; no continuous model (try order or sampling)")
+    g = np.array([[al[0] / alpha_ref[0] if al is not None else np.nan for al in pair] for pair in alphas])
+    g[~np.isfinite(g)] = np.nanmedian(g)
+    g[0, 0] = 1.0
+    return alpha_ref, g, disc
+
+
+class _OutputError:
+    """Residuals of the output-error problem; see the module docstring (improved, step 3).
+
+    theta = [alpha (n), beta (n), g_plus of waves 2..p, g_minus of waves 1..p].
+    """
+
+    def __init__(self, recs: list[_Record], order: int):
+        self.recs, self.n = recs, order
+        self.sizes = [len(r.y) for r in recs]
+        self.offsets = np.r_[0, np.cumsum(self.sizes)]
+
+    def unpack(self, theta: np.ndarray):
+        n, p = self.n, len(self.recs)
+        alpha, beta = theta[:n], theta[n:2 * n]
+        gp = np.r_[1.0, theta[2 * n:2 * n + p - 1]]
+        gm = theta[2 * n + p - 1:]
+        return alpha, beta, gp, gm
+
+    def pack(self, alpha, beta, gp, gm) -> np.ndarray:
+        return np.r_[alpha, beta, gp[1:], gm]
+
+    def wave_output(self, i: int, A, B, C, gp: float, gm: float) -> np.ndarray:
+        rec = self.recs[i]
+        return periodic_triangle_output(_model(A, B, C, _two_level_rate(gp, gm)), rec.wave, rec.t)
+
+    def __call__(self, theta: np.ndarray) -> np.ndarray:
+        alpha, beta, gp, gm = self.unpack(theta)
+        A, B, C = _canonical(alpha, beta)
+        out = np.empty(self.offsets[-1])
+        for i, rec in enumerate(self.recs):
+            sl = slice(self.offsets[i], self.offsets[i + 1])
+            try:
+                out[sl] = self.wave_output(i, A, B, C, gp[i], gm[i]) - rec.y
+            except (ConvergenceError, KernelError, np.linalg.LinAlgError):
+                out[sl] = _PENALTY
+        return out
+
+    def sparsity(self) -> lil_matrix:
+        n, p = self.n, len(self.recs)
+        S = lil_matrix((self.offsets[-1], 2 * n + 2 * p - 1), dtype=int)
+        for i in range(p):
+            rows = slice(self.offsets[i], self.offsets[i + 1])
+            S[rows, :2 * n] = 1
+            if i > 0:
+                S[rows, 2 * n + i - 1] = 1
+            S[rows, 2 * n + p - 1 + i] = 1
+        return S
+
+    def best_beta(self, alpha, gp, gm) -> np.ndarray:
+        """Variable projection: the periodic response is linear in B for fixed A and g."""
+        n = self.n
+        cols = []
+        for j in range(n):
+            A, _, C = _canonical(alpha, np.zeros(n))
+            e = np.zeros(n)
+            e[j] = 1.0
+            cols.append(np.concatenate([self.wave_output(i, A, e, C, gp[i], gm[i])
+                                        for i in range(len(self.recs))]))
+        Y = np.concatenate([r.y for r in self.recs])
+        return _lstsq(np.column_stack(cols), Y)
+
+
+def _improved(recs: list[_Record], order: int):
+    n = order
+    alpha0, g0, disc = _ramp_exact_start(recs, n)
+    oe = _OutputError(recs, n)
+    beta0 = oe.best_beta(alpha0, g0[:, 0], g0[:, 1])
+    sol = least_squares(oe, oe.pack(alpha0, beta0, g0[:, 0], g0[:, 1]), jac_sparsity=oe.sparsity(),
+                        method="trf", x_scale="jac", xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=200)
+    alpha, beta, gp, gm = oe.unpack(sol.x)
+    waves = [WaveFit(a=rec.wave.a, b=rec.wave.b, samples=len(rec.t), discrete_plus=dp, discrete_minus=dm,
+                     continuous_plus=np.r_[gp[i] ** np.arange(1, n + 1) * alpha,
+                                           gp[i] ** np.arange(1, n + 1) * beta],
+                     continuous_minus=np.r_[gm[i] ** np.arange(1, n + 1) * alpha,
+                                            gm[i] ** np.arange(1, n + 1) * beta],
+                     g_plus=float(gp[i]), g_minus=float(gm[i]))
+             for i, (rec, (dp, dm)) in enumerate(zip(recs, disc))]
+    info = {"method": "least_squares trf, output error", "nfev": int(sol.nfev), "status": int(sol.status),
+            "cost": float(sol.cost)}
+    return alpha, beta, waves, info
+
+
+def identify_rd_triangles(records: list[tuple[np.ndarray, np.ndarray, np.ndarray]], *, order: int = 1,
+                          estimator: str = "improved") -> RDIdentification:
+    """Identify a rate-dependent semilinear Duhem model from triangle-wave records (Section V).
+
+    Parameters
+    ----------
+    records : list of (t, u, y)
+        At least two uniformly sampled steady-state responses to triangle waves
+        (20) of different slopes (see the module docstring for the checks).
+    order : int
+        Model order n of the DARMA models (31)-(32).
+    estimator : {"improved", "literal"}
+        See the module docstring.
+
+    Returns
+    -------
+    RDIdentification
+        With g-hat normalised to 1 at the smallest rising slope a_1, so that
+        A_hat = g(a_1) A, B_hat = g(a_1) B (eqs 47-48 corrected).
+    """
+    if estimator not in ESTIMATORS:
+        raise ValueError(f"estimator must be one of {ESTIMATORS}, got {estimator!r}")
+    if int(order) != order or order < 1:
+        raise ValueError(f"order must be a positive integer, got {order}")
+    order = int(order)
+    if len(records) < 2:
+        raise ValueError(f"need at least 2 triangle-wave records of different slopes (eq 50), "
+                         f"got {len(records)}")
+    recs = sorted((_parse_record(i, r, order) for i, r in enumerate(records)), key=lambda r: r.wave.a)
+    optimizer: dict = {}
+    if estimator == "literal":
+        alpha, beta, waves = _literal(recs, order)
+    else:
+        alpha, beta, waves, optimizer = _improved(recs, order)
+    slopes = np.array([w.a for w in waves] + [w.b for w in waves])
+    g_hat = np.array([w.g_plus for w in waves] + [w.g_minus for w in waves])
+    if np.any(np.diff(np.sort(slopes)) == 0):
+        raise ValueError("two records have the same slope; eq (50) needs one wave per slope")
+    A, B, C = _canonical(alpha, beta)
+    model = RateDependentModel(A=A, B=B, C=C, g=TabulatedRate(slopes, g_hat), fit_info={
+        "method": "Oh & Bernstein 2007, Section V (triangle waves)", "estimator": estimator,
+        "normalisation": "g_hat(a_1) = 1 at the smallest rising slope; A_hat = g(a_1) A"})
+    oe = _OutputError(recs, order)
+    resid = oe(oe.pack(alpha, beta, np.array([w.g_plus for w in waves]), np.array([w.g_minus for w in waves])))
+    return RDIdentification(model=model, slopes=slopes, g_hat=g_hat, A_hat=A, B_hat=B, C_hat=C,
+                            estimator=estimator, waves=waves, rms_residual=float(np.sqrt(np.mean(resid ** 2))),
+                            optimizer=optimizer)
