@@ -11,11 +11,14 @@ from __future__ import annotations
 
 import os
 import shutil
+from ctypes import byref
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["simulate_fmu", "validate_fmu_file", "FmuRunError"]
+_FMI2_FATAL = 4
+
+__all__ = ["simulate_fmu", "validate_fmu_file", "collecting_callbacks", "FmuRunError"]
 
 
 class FmuRunError(RuntimeError):
@@ -61,6 +64,45 @@ def _value_references(md) -> tuple[int, int]:
     return refs["u"], refs["y"]
 
 
+def collecting_callbacks(messages: list[str]):
+    """fmpy FMI 2.0 callbacks whose logger appends "[STATUS] message" to `messages`.
+
+    Keep the returned object alive as long as the instance lives.  Instantiate
+    with ``loggingOn=True``: pythonfmu FMUs pass even their fatal errors to the
+    logger only when logging is on.
+    """
+    from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                           fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+    from fmpy import calloc, free
+    from fmpy.logging import addLoggerProxy
+
+    labels = ["OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING"]
+
+    def logger(component, instance_name, status, category, message):
+        label = labels[status] if 0 <= status < len(labels) else str(status)
+        messages.append(f"[{label}] {message.decode('utf-8', 'replace')}")
+
+    callbacks = fmi2CallbackFunctions()
+    callbacks.logger = fmi2CallbackLoggerTYPE(logger)
+    callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+    callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+    addLoggerProxy(byref(callbacks))
+    return callbacks
+
+
+def _release(fmu, instantiated: bool) -> None:
+    """Free the instance (or only the library when instantiation failed).
+
+    Not called after fmi2Fatal: FMI 2.0 allows no further call then, and a
+    pythonfmu FMU crashes on fmi2FreeInstance after a fatal error (its
+    exception path already released its Python objects).
+    """
+    if instantiated:
+        fmu.freeInstance()
+    else:
+        fmu.freeLibrary()
+
+
 def simulate_fmu(fmu_path: str | os.PathLike, t, u) -> np.ndarray:
     """Output y at every sample of (t, u), from the FMU driven by fmpy's `FMU2Slave`.
 
@@ -82,9 +124,11 @@ def simulate_fmu(fmu_path: str | os.PathLike, t, u) -> np.ndarray:
     fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
                     modelIdentifier=md.coSimulation.modelIdentifier, instanceName="duhem")
     y = np.empty(len(u))
-    instantiated = False
+    messages: list[str] = []
+    callbacks = collecting_callbacks(messages)
+    instantiated = fatal = False
     try:
-        fmu.instantiate()
+        fmu.instantiate(callbacks=callbacks, loggingOn=True)
         instantiated = True
         fmu.setupExperiment(startTime=float(t[0]))
         fmu.enterInitializationMode()
@@ -98,11 +142,11 @@ def simulate_fmu(fmu_path: str | os.PathLike, t, u) -> np.ndarray:
                            communicationStepSize=float(t[k + 1] - t[k]))
         fmu.terminate()
     except Exception as exc:  # fmpy raises FMICallException (and OSError on load)
-        raise FmuRunError(f"{fmu_path}: {exc}") from exc
+        fatal = getattr(exc, "status", None) == _FMI2_FATAL
+        log = "; ".join(messages[-3:])
+        raise FmuRunError(f"{fmu_path}: {exc}" + (f" FMU log: {log}" if log else "")) from exc
     finally:
-        if instantiated:
-            fmu.freeInstance()
-        else:
-            fmu.freeLibrary()
+        if not fatal:
+            _release(fmu, instantiated)
         shutil.rmtree(unzipdir, ignore_errors=True)
     return y
