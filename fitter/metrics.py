@@ -77,15 +77,19 @@ def last_full_cycle(u, *, threshold: float | None = None) -> slice:
     """Samples of the last full input cycle: from the third-last reversal to the last.
 
     Reversals come from `fitter.preparation.find_reversals`; the slice
-    includes both end reversals.  Raises `PreparationError` when the input
-    has fewer than three reversals.
+    includes both end reversals.  A record with two reversals that covers
+    one whole period gives that period (`fitter.preparation.period_cycle`).
+    Raises `PreparationError` when there is no full cycle.
     """
-    from .preparation import PreparationError, find_reversals
+    from .preparation import PreparationError, find_reversals, period_cycle
     r = find_reversals(u, threshold=threshold)
-    if len(r) < 3:
-        raise PreparationError(f"no full input cycle: the input reverses {len(r)} time(s), "
-                               f"a cycle needs 3 reversals")
-    return slice(int(r[-3]), int(r[-1]) + 1)
+    if len(r) >= 3:
+        return slice(int(r[-3]), int(r[-1]) + 1)
+    whole = period_cycle(u, r)
+    if whole is None:
+        raise PreparationError(f"no full input cycle: the input reverses {len(r)} time(s) and does not "
+                               f"cover a whole period")
+    return whole
 
 
 def noise_rms(y) -> float:

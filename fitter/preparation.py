@@ -29,7 +29,8 @@ Steps of `prepare` (each result is kept in the returned `Prepared`):
    a single cycle, its closure y(end) - y(start).
 5. **Holds**: stretches of at least ``max(9 samples, 10% of the median
    branch length)`` where the input stays within a band of
-   ``max(0.002 * range(u), 4 * noise_rms(u))``.
+   ``max(0.002 * range(u), 8 * noise_rms(u))`` (the spread of
+   white noise over many samples stays below 8 RMS).
 
 All indices in `Prepared` refer to the trimmed recording except
 `transient_end`, the index in the original recording where it starts.
@@ -45,7 +46,7 @@ from .metrics import NOISE_WINDOW, noise_rms
 from .recordings import Recording
 
 __all__ = ["PreparationError", "Prepared", "find_reversals", "reversal_threshold", "split_cycles",
-           "cycle_reversals", "settled_start", "cycle_differences", "find_holds", "branch_on_grid",
+           "period_cycle", "cycle_reversals", "settled_start", "cycle_differences", "find_holds", "branch_on_grid",
            "resample_time", "prepare"]
 
 REVERSAL_FRACTION = 0.05
@@ -136,13 +137,44 @@ def cycle_reversals(rec_or_u, *, threshold: float | None = None,
     return [(int(r[j]), int(r[j + 1]), int(r[j + 2])) for j in chosen]
 
 
+def period_cycle(u, reversals: np.ndarray) -> slice | None:
+    """The whole-period cycle of a record without a reversal-to-reversal cycle, or None.
+
+    A record that starts mid-branch, passes one maximum and one minimum and
+    comes back to its starting input in the starting direction (e.g. one
+    period of a triangle from 0 V) holds one full cycle: from sample 0 to the
+    first sample after the second reversal at which the input is back at
+    u[0], or to the last sample if it ends within ``0.01 * range(u)`` short
+    of u[0].
+    """
+    u = np.asarray(u, dtype=float)
+    r = np.asarray(reversals)
+    if len(r) < 2 or len(r) >= 3:
+        return None
+    rising = u[r[0]] > u[r[1]]
+    back = np.flatnonzero(u[r[1]:] >= u[0] if rising else u[r[1]:] <= u[0])
+    if back.size:
+        return slice(0, int(r[1] + back[0]) + 1)
+    if abs(u[-1] - u[0]) <= 0.01 * float(np.ptp(u)):
+        return slice(0, u.size)
+    return None
+
+
 def split_cycles(rec, *, threshold: float | None = None) -> list[slice]:
     """Full input cycles of a recording (or input array) as slices.
 
     A cycle runs from a reversal to the second next one, both included, so
-    u[s][0] and u[s][-1] are extremes of the same kind.
+    u[s][0] and u[s][-1] are extremes of the same kind.  Without such a
+    cycle, a record covering one whole period from mid-branch gives one
+    cycle (`period_cycle`).
     """
-    return [slice(a, c + 1) for a, _, c in cycle_reversals(rec, threshold=threshold)]
+    u = _as_u(rec)
+    r = find_reversals(u, threshold=threshold)
+    cycles = [slice(a, c + 1) for a, _, c in cycle_reversals(u, reversals=r)]
+    if not cycles:
+        whole = period_cycle(u, r)
+        cycles = [whole] if whole is not None else []
+    return cycles
 
 
 def _bin_stats(u: np.ndarray, v: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -205,7 +237,7 @@ def _settling(u, y, cycles) -> tuple[int, np.ndarray, float, float]:
     drift = float(np.median(means[len(means) // 2:]))
     r = np.array([np.sqrt(np.mean((d - drift) ** 2)) if d.size else np.inf for d in diffs])
     tol = max(tol, 3.0 * float(np.max(noise)))
-    floor = max(tol, 2.0 * float(np.min(r)))
+    floor = max(tol, 3.0 * float(np.median(r[len(r) // 2:])))
     above = np.flatnonzero(r > floor)
     first = int(above[-1]) + 1 if above.size else 0
     return min(first, len(cycles) - 1), r, drift, tol
@@ -227,10 +259,10 @@ def find_holds(t, u, *, min_samples: int = HOLD_MIN_SAMPLES, band: float | None 
     """Holds of the input as [start, stop) index pairs (see step 5 of the module docstring).
 
     A hold is a run of at least `min_samples` samples in which the input
-    stays within `band` (default ``max(0.002 range(u), 4 noise_rms(u))``).
+    stays within `band` (default ``max(0.002 range(u), 8 noise_rms(u))``).
     """
     u = np.asarray(u, dtype=float)
-    band = max(HOLD_FRACTION * float(np.ptp(u)), 4.0 * _noise(u)) if band is None else band
+    band = max(HOLD_FRACTION * float(np.ptp(u)), 8.0 * _noise(u)) if band is None else band
     L = int(min_samples) | 1
     if u.size < L:
         return []
@@ -332,11 +364,13 @@ def prepare(rec: Recording, *, min_cycles: int = 1, threshold: float | None = No
     thr = reversal_threshold(rec.u) if threshold is None else float(threshold)
     r = find_reversals(rec.u, threshold=thr)
     cycles = cycle_reversals(rec.u, reversals=r)
-    if len(cycles) < min_cycles:
-        raise PreparationError(f"{label}: too few cycles: the input has {len(cycles)} full cycle(s) "
+    whole = period_cycle(rec.u, r) if not cycles else None
+    n_cycles = len(cycles) + (whole is not None)
+    if n_cycles < min_cycles:
+        raise PreparationError(f"{label}: too few cycles: the input has {n_cycles} full cycle(s) "
                                f"({len(r)} reversals by more than {thr:.4g}), at least {min_cycles} needed")
     sigma, sigma_u = _noise(rec.y), _noise(rec.u)
-    notes = [f"{len(r)} input reversals (threshold {thr:.4g}), {len(cycles)} full cycles"]
+    notes = [f"{len(r)} input reversals (threshold {thr:.4g}), {n_cycles} full cycle(s)"]
     first, d, drift, tol = _settling(rec.u, rec.y, cycles) if cycles else (0, np.zeros(0), 0.0, 0.0)
     start = cycles[first][0] if (cycles and drop_transient) else 0
     if len(cycles) == 1:
@@ -346,11 +380,12 @@ def prepare(rec: Recording, *, min_cycles: int = 1, threshold: float | None = No
                      f"0-{start - 1} (t < {rec.t[start]:.6g}), {first} unsettled full cycle(s)")
     if d.size and d[-1] > tol:
         notes.append(f"successive cycles still differ by {d[-1]:.3g} RMS beyond the drift "
-                     f"({100 * d[-1] / np.ptp(rec.y):.2g}% of the output range) at the end: not settled")
+                     f"({100 * d[-1] / np.ptp(rec.y):.2g}% of the output range) at the end: "
+                     f"cycle-to-cycle variation, or not fully settled")
     if cycles and abs(drift) > tol:
         notes.append(f"the loops do not close: the output drifts by {drift:.3g} per cycle "
                      f"({100 * drift / np.ptp(rec.y):.2g}% of the output range)")
-    if len(cycles) == 1:
+    if n_cycles == 1:
         notes.append("only one full cycle: settling could not be checked")
     trimmed = rec.slice(slice(start, None))
     rev = r[r >= start] - start
@@ -360,7 +395,8 @@ def prepare(rec: Recording, *, min_cycles: int = 1, threshold: float | None = No
         total = sum(trimmed.t[b - 1] - trimmed.t[a] for a, b in holds)
         notes.append(f"{len(holds)} input hold(s), {total:.4g} time units in all")
     return Prepared(recording=trimmed, original=rec, reversals=rev,
-                    cycles=[slice(a - start, c - start + 1) for a, _, c in cycles[first if drop_transient else 0:]],
+                    cycles=[whole] if whole is not None else
+                    [slice(a - start, c - start + 1) for a, _, c in cycles[first if drop_transient else 0:]],
                     transient_end=int(start), holds=holds, drift_per_cycle=drift, threshold=thr,
                     noise_rms=sigma, input_noise_rms=sigma_u,
                     cycle_difference=[float(x) for x in d], notes=notes)

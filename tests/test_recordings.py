@@ -1,0 +1,136 @@
+"""CSV loading: column choice, unit parsing, and one clear error per malformed file."""
+import numpy as np
+import pytest
+
+from fitter.recordings import Recording, RecordingError, load_recording, load_recordings, split_unit
+
+
+def write(tmp_path, text, name="rec.csv"):
+    p = tmp_path / name
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+GOOD = "time,u,y\n0,0,0\n0.1,0.5,0.25\n0.2,1,0.75\n0.3,0.5,0.6\n"
+
+
+def test_loads_default_columns(tmp_path):
+    rec = load_recording(write(tmp_path, GOOD))
+    assert isinstance(rec, Recording)
+    np.testing.assert_array_equal(rec.t, [0, 0.1, 0.2, 0.3])
+    np.testing.assert_array_equal(rec.u, [0, 0.5, 1, 0.5])
+    np.testing.assert_array_equal(rec.y, [0, 0.25, 0.75, 0.6])
+    assert rec.name == "rec" and rec.source.endswith("rec.csv")
+
+
+@pytest.mark.parametrize("header,expected", [
+    ("voltage_V", ("voltage", "V")),
+    ("polarization_uC_per_cm2", ("polarization", "uC/cm2")),
+    ("position_mm", ("position", "mm")),
+    ("pressure_bar", ("pressure", "bar")),
+    ("x_increasing_mm_per_s", ("x_increasing", "mm/s")),
+    ("Force [N]", ("Force", "N")),
+    ("speed (m/s)", ("speed", "m/s")),
+    ("u_min", ("u_min", "")),
+    ("y", ("y", "")),
+    ("force_x", ("force_x", "")),
+])
+def test_unit_rule(header, expected):
+    assert split_unit(header) == expected
+
+
+def test_columns_by_base_name_index_and_units(tmp_path):
+    p = write(tmp_path, "time_ms,voltage_V,note,polarization_uC_per_cm2\n0,1,a,2\n500,3,b,4\n1000,5,c,6\n")
+    rec = load_recording(p, "time", "voltage", 3)
+    np.testing.assert_allclose(rec.t, [0, 0.5, 1.0])  # ms converted to s
+    np.testing.assert_array_equal(rec.u, [1, 3, 5])
+    np.testing.assert_array_equal(rec.y, [2, 4, 6])
+    assert (rec.input.name, rec.input.unit) == ("voltage", "V")
+    assert (rec.output.name, rec.output.unit) == ("polarization", "uC/cm2")
+    rec2 = load_recording(p, "0", "voltage_V", "polarization_uC_per_cm2")
+    np.testing.assert_array_equal(rec2.u, rec.u)
+
+
+def test_time_none_uses_sample_index(tmp_path):
+    rec = load_recording(write(tmp_path, "u,y\n1,2\n3,4\n5,6\n"), time=None)
+    np.testing.assert_array_equal(rec.t, [0, 1, 2])
+
+
+def test_skips_blank_lines_and_accepts_semicolons(tmp_path):
+    rec = load_recording(write(tmp_path, "time;u;y\n0;1;2\n\n1;2;3\n2;3;4\n"))
+    np.testing.assert_array_equal(rec.y, [2, 3, 4])
+
+
+def error_of(tmp_path, text, **kw):
+    with pytest.raises(RecordingError) as exc:
+        load_recording(write(tmp_path, text), **kw)
+    msg = str(exc.value)
+    assert "\n" not in msg and "rec.csv" in msg
+    return msg
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(RecordingError, match=r"nope\.csv: no such file"):
+        load_recording(tmp_path / "nope.csv")
+
+
+def test_empty_file(tmp_path):
+    assert "empty file" in error_of(tmp_path, "")
+    assert "no data rows" in error_of(tmp_path, "time,u,y\n")
+
+
+def test_missing_column_lists_available(tmp_path):
+    msg = error_of(tmp_path, "time_s,voltage_V,pol\n0,1,2\n1,2,3\n2,3,4\n")
+    assert "input column 'u' not found" in msg
+    assert "'time_s', 'voltage_V', 'pol'" in msg
+
+
+def test_index_out_of_range(tmp_path):
+    assert "column index 7 out of range" in error_of(tmp_path, GOOD, output=7)
+
+
+def test_ambiguous_column(tmp_path):
+    msg = error_of(tmp_path, "time,u_V,u_A,y\n0,1,2,3\n1,1,2,3\n2,1,2,3\n")
+    assert "ambiguous" in msg and "'u_V'" in msg and "'u_A'" in msg
+
+
+def test_non_numeric_cell_names_line_column_value(tmp_path):
+    msg = error_of(tmp_path, "time,u,y\n0,0,0\n1,1,1\n2,abc,2\n3,3,3\n")
+    assert "line 4" in msg and "column 'u'" in msg and "'abc' is not a number" in msg
+
+
+def test_empty_cell(tmp_path):
+    msg = error_of(tmp_path, "time,u,y\n0,0,0\n1,1,\n2,2,2\n")
+    assert "line 3" in msg and "column 'y'" in msg and "empty cell" in msg
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-Infinity"])
+def test_non_finite(tmp_path, value):
+    msg = error_of(tmp_path, f"time,u,y\n0,0,0\n1,1,{value}\n2,2,2\n")
+    assert "line 3" in msg and "column 'y'" in msg and "not finite" in msg and value in msg
+
+
+def test_non_increasing_time(tmp_path):
+    msg = error_of(tmp_path, "time,u,y\n0,0,0\n1,1,1\n1,2,2\n3,3,3\n")
+    assert "line 4" in msg and "does not increase" in msg and "line 3" in msg
+
+
+def test_ragged_row(tmp_path):
+    assert "line 3 has 2 fields but the header has 3" in error_of(tmp_path, "time,u,y\n0,0,0\n1,1\n")
+
+
+def test_too_few_samples(tmp_path):
+    assert "too few samples: 2 data rows, at least 3" in error_of(tmp_path, "time,u,y\n0,0,0\n1,1,1\n")
+
+
+def test_unselected_columns_may_be_text(tmp_path):
+    rec = load_recording(write(tmp_path, "time,label,u,y\n0,a,0,0\n1,b,1,1\n2,,2,2\n"))
+    assert len(rec) == 3
+
+
+def test_load_recordings_checks_same_signals(tmp_path):
+    a = write(tmp_path, "time,u_V,y_m\n0,0,0\n1,1,1\n2,2,2\n", "a.csv")
+    b = write(tmp_path, "time,u_mV,y_m\n0,0,0\n1,1,1\n2,2,2\n", "b.csv")
+    assert len(load_recordings([a, a])) == 2
+    with pytest.raises(RecordingError, match=r"b\.csv: input column is 'u' \[mV\] but .*a\.csv has 'u' \[V\]"):
+        load_recordings([a, b], input="u", output="y")
