@@ -1,0 +1,281 @@
+"""The native backend: an FMI 2.0 Co-Simulation FMU that is a plain C shared library.
+
+`build_native_fmu` compiles the C sources of ``fmu_src/native/`` with the
+system C compiler at export time into ``binaries/<platform>/<id>.so``, which
+depends on libc and libm only, so the FMU runs in hosts without Python
+(fmusim, the FMI Compliance Checker, Simulink, Dymola, ...).  The FMU also
+carries its C sources under ``sources/`` and lists them in the
+modelDescription's ``<SourceFiles>`` (an FMI 2.0 source FMU), so an importer
+on another platform can compile it.
+
+Layout of the C, after the Modelica Reference-FMUs:
+
+* ``fmi2_framework.c``: every fmi2* function, the state machine, argument
+  checks, logging, FMU state (shared by all models);
+* ``duhem_model.c``: the model (exact flow, rate function, effect chain,
+  Stepper semantics);
+* ``model_data.h``: generated here, numbers only: kind, order, parameter start
+  values, the value-reference table of
+  `fitter.model_description.model_variables` (so both backends have the same
+  interface), and where each effect parameter lives.
+
+The math equals the Python kernel's (`fitter.core.stepper.Stepper` on
+`fitter.core.kernel`, `fitter.core.rates`, `fitter.core.effects`): the flow of
+eq (K) of the kernel is the matrix exponential of the augmented matrix
+(scaling and squaring of the kernel's degree-18 Taylor series); the rate
+function's PCHIP slopes are computed by the same rules.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import struct
+import subprocess
+import sys
+import tempfile
+import uuid
+import zipfile
+from pathlib import Path
+
+import fmu_src.native
+from fitter.core.effects import EFFECTS
+from fitter.core.rates import TabulatedRate
+from fitter.model_description import U_REF, Y_REF, model_description_xml, model_variables
+
+__all__ = ["build_native_fmu", "NativeBuildError", "find_c_compiler", "model_data_header",
+           "SOURCE_DIR", "C_SOURCES", "MODEL_IDENTIFIER", "LOG_CATEGORIES"]
+
+SOURCE_DIR = Path(fmu_src.native.__file__).resolve().parent
+C_SOURCES = ("fmi2_framework.c", "duhem_model.c")
+HEADERS = ("fmi2_framework.h", "duhem_model.h", "fmi2Functions.h", "fmi2FunctionTypes.h",
+           "fmi2TypesPlatform.h")
+MODEL_IDENTIFIER = "semilinear_duhem"
+LOG_CATEGORIES = {
+    "logStatusError": "Refused calls and failures (always reported).",
+    "logStatusDiscard": "Status requests that are not available (always reported).",
+    "logCalls": "Every fmi2 call (with debug logging on).",
+}
+OPTIMIZE = ("-O2",)
+SANITIZE = ("-O1", "-g", "-fno-omit-frame-pointer", "-fsanitize=address,undefined",
+            "-fno-sanitize-recover=undefined")
+_GUID_NAMESPACE = uuid.UUID("0f8a3c52-6f7e-4d0b-8e61-0c1f3b9d2a74")
+_COMPILERS = ("cc", "gcc", "clang")
+
+
+class NativeBuildError(OSError):
+    """The native FMU could not be compiled (no C compiler, or the compiler failed)."""
+
+
+def find_c_compiler(cc: str | None = None) -> str:
+    """Path of the C compiler: `cc`, else ``$CC``, else the first of cc, gcc, clang on PATH."""
+    candidates = [cc] if cc else ([os.environ["CC"]] if os.environ.get("CC") else list(_COMPILERS))
+    for name in candidates:
+        found = shutil.which(name)
+        if found:
+            return found
+    raise NativeBuildError(
+        f"no C compiler found (looked for {', '.join(candidates)}): the native FMU backend "
+        "compiles C at export time. Install one (e.g. 'apt install gcc') or set CC, or export "
+        "with '--backend python' (no compiler needed, but the simulator must then provide "
+        "Python with numpy)")
+
+
+def _platform() -> tuple[str, str]:
+    """FMI 2.0 binaries folder and shared-library suffix of this machine."""
+    bits = "64" if struct.calcsize("P") == 8 else "32"
+    if sys.platform.startswith("linux"):
+        return f"linux{bits}", ".so"
+    if sys.platform == "darwin":
+        return f"darwin{bits}", ".dylib"
+    raise NativeBuildError(f"the native backend builds with a Unix C compiler; {sys.platform} is "
+                           "not supported: export with '--backend python', or compile the "
+                           "FMU's sources/ with the platform's compiler")
+
+
+def _c_double(value: float) -> str:
+    return repr(float(value))
+
+
+def _c_string(text: str) -> str:
+    return json.dumps(text)  # a JSON string of ASCII text is a valid C string literal
+
+
+def _effect_macros(model, real_index: dict) -> list[str]:
+    present = {e.effect for e in getattr(model, "effects", None) or []}
+    lines = []
+    for effect, params in EFFECTS.items():
+        for name in params:
+            index = real_index.get(f"{effect}.{name}", -1) if effect in present else -1
+            lines.append(f"#define DUHEM_EFFECT_{effect.upper()}_{name.upper()} {index}")
+    return lines
+
+
+def _constraint(name: str) -> str:
+    effect, _, param = name.partition(".")
+    rng = EFFECTS.get(effect, {}).get(param)
+    if rng is None or rng[0] != 0.0:
+        return "ANY_FINITE"
+    return "POSITIVE" if len(rng) > 2 else "NONNEGATIVE"
+
+
+def _base_paths(model) -> list[tuple]:
+    """Paths of the base parameters in the C layout of duhem_model.c, in order."""
+    import numpy as np
+
+    paths = []
+    for key in model.PARAMS:
+        value = np.asarray(getattr(model, key))
+        paths += [("parameters", key) + index for index in np.ndindex(*value.shape)]
+    if model.kind == "rd":
+        paths += [("g", "v", k) for k in range(len(model.g.v))]
+        paths += [("g", "g", k) for k in range(len(model.g.g))]
+    return paths
+
+
+def _check_supported(model) -> None:
+    if model.kind == "rd" and not isinstance(model.g, TabulatedRate):
+        raise ValueError("rate-dependent model: g must be a TabulatedRate for the native FMU "
+                         "(tabulate it with TabulatedRate.from_function)")
+    unknown = [e.effect for e in getattr(model, "effects", None) or [] if e.effect not in EFFECTS]
+    if unknown:
+        raise ValueError(f"effect {unknown[0]!r} is not supported by the native backend; "
+                         "export with '--backend python'")
+
+
+def model_data_header(model, guid: str) -> str:
+    """The generated model_data.h of `model`: numbers and tables only (see duhem_model.h)."""
+    _check_supported(model)
+    variables = model_variables(model)
+    params = [v for v in variables if v.type == "Real" and v.causality == "parameter"]
+    if [tuple(v.path) for v in params[:len(_base_paths(model))]] != _base_paths(model):
+        raise RuntimeError("fitter.model_description parameter order differs from the C "
+                           "layout of duhem_model.c")
+    real_index = {v.name: i for i, v in enumerate(params)}
+    rows = []
+    for v in variables:
+        if v.value_reference == U_REF:
+            rows.append((v.value_reference, "r", "VAR_INPUT", 0, "ANY_FINITE"))
+        elif v.value_reference == Y_REF:
+            rows.append((v.value_reference, "r", "VAR_OUTPUT", 0, "ANY_FINITE"))
+        elif v.type == "Real":
+            rows.append((v.value_reference, "r", "VAR_PARAMETER", real_index[v.name],
+                         _constraint(v.name)))
+        elif v.type == "Integer":
+            rows.append((v.value_reference, "i", "VAR_INTEGER", int(v.start), "ANY_FINITE"))
+        elif v.type == "String":
+            rows.append((v.value_reference, "s", "VAR_STRING", 0, "ANY_FINITE"))
+        else:
+            raise RuntimeError(f"variable {v.name}: type {v.type} has no place in the native FMU")
+    strings = [v.start for v in variables if v.type == "String"]
+    if len(strings) != 1:
+        raise RuntimeError("the native FMU expects exactly one String variable (kind)")
+    u_start = next(v.start for v in variables if v.value_reference == U_REF)
+    lines = [
+        "/* Generated by fitter.native_fmu: the data of one model (no code). */",
+        "#ifndef MODEL_DATA_H", "#define MODEL_DATA_H", "",
+        f"#define DUHEM_GUID {_c_string(guid)}",
+        "#define DUHEM_KIND " + ("DUHEM_RATE_INDEPENDENT" if model.kind == "ri"
+                                 else "DUHEM_RATE_DEPENDENT"),
+        f"#define DUHEM_ORDER {model.order}",
+    ]
+    if model.kind == "rd":
+        lines.append(f"#define DUHEM_RATE_NODES {len(model.g.v)}")
+    lines += [f"#define DUHEM_INPUT_START {_c_double(u_start)}",
+              f"#define DUHEM_N_PARAMETERS {len(params)}", ""]
+    lines += _effect_macros(model, real_index)
+    lines += ["", "static const double duhem_parameters[DUHEM_N_PARAMETERS] = {"]
+    lines += [f"    {_c_double(v.start)}, /* {v.name} */" for v in params]
+    lines += ["};", "", f"#define DUHEM_N_VARIABLES {len(rows)}",
+              "static const DuhemVariable duhem_variables[DUHEM_N_VARIABLES] = {"]
+    lines += [f"    {{{vr}, '{t}', {role}, {index}, {constraint}}},"
+              for vr, t, role, index, constraint in rows]
+    lines += ["};", "", "static const char *const duhem_strings[] = {" + _c_string(strings[0])
+              + "};", "", "#endif", ""]
+    return "\n".join(lines)
+
+
+def _source_hash() -> str:
+    digest = hashlib.sha256()
+    for name in C_SOURCES + HEADERS:
+        digest.update((SOURCE_DIR / name).read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def _guid(model, model_identifier: str) -> str:
+    """Deterministic GUID: same model, same C sources, same identifier -> same GUID."""
+    text = json.dumps(model.to_dict(), sort_keys=True)
+    return "{" + str(uuid.uuid5(_GUID_NAMESPACE, f"native:{model_identifier}:{_source_hash()}:"
+                                                 f"{text}")) + "}"
+
+
+def _compile(cc: str, sources: Path, target: Path, sanitize: bool) -> None:
+    flags = SANITIZE if sanitize else OPTIMIZE
+    command = [cc, *flags, "-fPIC", "-shared", "-fvisibility=hidden", "-I", str(sources),
+               *[str(sources / name) for name in C_SOURCES], "-o", str(target), "-lm"]
+    result = subprocess.run(command, capture_output=True, text=True)
+    if result.returncode != 0:
+        raise NativeBuildError(f"the C compiler failed ({' '.join(command)}):\n"
+                               f"{result.stderr.strip()}")
+
+
+def build_native_fmu(model, out_path: str | os.PathLike, *, sanitize: bool = False,
+                     cc: str | None = None, model_identifier: str = MODEL_IDENTIFIER,
+                     **description) -> str:
+    """Compile `model` into a native FMI 2.0 Co-Simulation FMU at `out_path`; return its path.
+
+    Parameters
+    ----------
+    model : RateIndependentModel or RateDependentModel
+        Rate-dependent models need a `TabulatedRate` g.  Effects of
+        `fitter.core.effects` are supported.
+    out_path : path
+        The FMU to write; written under a temporary name and renamed.
+    sanitize : bool
+        Build with ``-fsanitize=address,undefined`` (for tests; the library
+        then needs the sanitizer runtimes loaded first).
+    cc : str, optional
+        The C compiler (default: ``$CC``, else cc, gcc or clang on PATH).
+    model_identifier : str
+        Name of the shared library and of the FMU's functions' owner.
+    **description
+        ``model_name``, ``description``, ``version``, ``author`` for the
+        modelDescription (`fitter.model_description.model_description_xml`).
+
+    Raises
+    ------
+    NativeBuildError
+        No C compiler was found (the message names ``--backend python``), or it failed.
+    ValueError
+        The model cannot be exported natively (a callable g).
+    """
+    compiler = find_c_compiler(cc)
+    platform, suffix = _platform()
+    guid = _guid(model, model_identifier)
+    header = model_data_header(model, guid)
+    xml = model_description_xml(model, model_identifier=model_identifier, guid=guid,
+                                backend="native", source_files=C_SOURCES,
+                                log_categories=LOG_CATEGORIES, **description)
+    out = Path(out_path).resolve()
+    with tempfile.TemporaryDirectory(prefix="duhem_native_") as tmp:
+        sources = Path(tmp) / "sources"
+        sources.mkdir()
+        for name in C_SOURCES + HEADERS:
+            shutil.copyfile(SOURCE_DIR / name, sources / name)
+        (sources / "model_data.h").write_text(header, encoding="utf-8")
+        library = Path(tmp) / f"{model_identifier}{suffix}"
+        _compile(compiler, sources, library, sanitize)
+        fd, staging = tempfile.mkstemp(prefix=".tmp-", suffix=".fmu", dir=out.parent)
+        os.close(fd)
+        try:
+            with zipfile.ZipFile(staging, "w", zipfile.ZIP_DEFLATED) as zf:
+                zf.writestr("modelDescription.xml", xml)
+                zf.write(library, f"binaries/{platform}/{library.name}")
+                for path in sorted(sources.iterdir()):
+                    zf.write(path, f"sources/{path.name}")
+            os.replace(staging, out)
+        finally:
+            if os.path.exists(staging):
+                os.unlink(staging)
+    return str(out)
