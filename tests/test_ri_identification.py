@@ -102,7 +102,8 @@ def test_bilinear_rejects_eigenvalue_minus_one():
 
 def general_model():
     """A+ and A- unrelated (A- != -A+): checks the falling-branch sign flip."""
-    return RateIndependentModel(A_plus=[[-2.0, 1.0], [-1.0, -1.5]], A_minus=[[1.0, 0.5], [-0.8, 2.0]],
+    return RateIndependentModel(A_plus=[[-2.0, 1.0], [-1.0, -1.5]],
+                                A_minus=[[1.0, 0.5], [-0.8, 2.0]],
                                 B_plus=[1.0, 0.5], B_minus=[0.3, -1.0], C=[1.0, 0.4])
 
 
@@ -224,3 +225,22 @@ Y = np.sin(GRID)
 def test_bad_input_raises_clear_error(args, kwargs, message):
     with pytest.raises(ValueError, match=message):
         identify_ri_loop(*args, **kwargs)
+
+
+def test_non_convergent_model_falls_back_to_data_state_and_reports_it():
+    from fitter.ri_identification import _continuous_rho, _initial_state, _loop_error
+    model = RateIndependentModel(A_plus=[[1.0]], A_minus=[[-1.0]], B_plus=[1.0], B_minus=[1.0],
+                                 C=[1.0])
+    grid = np.linspace(0, 1, 11)
+    rho = _continuous_rho(model, 0.0, 1.0)
+    assert rho == pytest.approx(np.exp(2.0))
+    np.testing.assert_array_equal(_initial_state(model, grid, np.array([0.7]), rho), [0.7])
+    assert _loop_error(model, grid, grid, grid, rho) == float("inf")
+
+
+def test_discrete_rho_survives_overflow_and_underflow():
+    from fitter.ri_identification import _spectral_radius_of_powers
+    big, small = 10 * np.eye(2), 0.5 * np.eye(2)
+    assert _spectral_radius_of_powers([(big, 400), (big, 400)]) == float("inf")
+    assert _spectral_radius_of_powers([(small, 400), (small, 400)]) == pytest.approx(0.5 ** 800)
+    assert _spectral_radius_of_powers([(big, 3), (small, 2)]) == pytest.approx(250.0)
