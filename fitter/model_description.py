@@ -15,8 +15,6 @@ Interface
   ``UnitDefinitions``).
 * ``order`` (Integer) and ``kind`` (String, ``ri`` or ``rd``): structural,
   visible as parameters; an FMU accepts only its own value for them.
-* The parameters of the model's effect extensions (`fitter.core.effects`) as
-  ``<effect>.<parameter>``, e.g. ``creep.tau``.
 * The model matrices as structured names with 1-based indices, e.g.
   ``A_plus[1,2]``, ``B_plus[1]``, ``D``, the start state ``x0[i]``, and for a
   rate-dependent model the rate table ``g_v[k]``, ``g_g[k]``.  They are
@@ -25,6 +23,8 @@ Interface
   Fixed rather than tunable, because the exact flows (eigendecompositions) are
   built once from the parameters when initialization ends, and a hysteresis
   model whose matrices jump mid-simulation has no meaning for the fitted data.
+* The parameters of the model's effect extensions (`fitter.core.effects`) as
+  ``<effect>.<parameter>``, e.g. ``creep.tau``, also fixed.
 
 Input semantics (the `Stepper` of `fitter.core`, written into the
 modelDescription's ``description``): y = C x + D u depends directly on u; the

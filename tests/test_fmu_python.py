@@ -1,9 +1,9 @@
 """The pythonfmu FMI 2.0 Co-Simulation export, loaded and driven with fmpy.
 
 Models are built directly: the paper's Example 1 (rate independent), an
-Example-3-like rate-dependent model with a tabulated g, and the true model of a
-noisy generated recording (order 3, with E and D).  FMUs are built once per
-module.
+Example-3-like rate-dependent model with a tabulated g, the true model of a
+noisy generated recording (order 3, with E and D), and Example 1 with effect
+extensions.  FMUs are built once per module.
 """
 import json
 import sys
@@ -18,7 +18,7 @@ from fmpy.fmi2 import FMU2Slave
 
 import build_fmu
 from fitter.core import (Experiment, RateDependentModel, RateIndependentModel, Signal, Signals,
-                         TabulatedRate, save_model, simulate)
+                         TabulatedRate, model_from_dict, save_model, simulate)
 from fitter.fmu_run import collecting_callbacks, simulate_fmu, validate_fmu_file
 from fitter.model_description import model_description_xml, model_variables
 
@@ -55,12 +55,21 @@ def noisy_truth():
         experiment=Experiment(0.0, 12.0, 0.01))
 
 
+def example1_with_effects():
+    d = example1().to_dict()
+    d["effects"] = [{"effect": "backlash", "parameters": {"b": 0.1}},
+                    {"effect": "creep", "parameters": {"k": 0.2, "tau": 0.5}},
+                    {"effect": "sensor_lag", "parameters": {"tau": 0.05}}]
+    return model_from_dict(d)
+
+
 def periodic_input(cycles=4, per_cycle=250, period=3.0):
     t = np.linspace(0.0, cycles * period, cycles * per_cycle + 1)
     return t, 1.5 * np.sin(2 * np.pi * t / period) + 0.4 * np.sin(6 * np.pi * t / period)
 
 
-MODELS = {"example1": example1, "example3": example3, "noisy": noisy_truth}
+MODELS = {"example1": example1, "example3": example3, "noisy": noisy_truth,
+          "effects": example1_with_effects}
 
 
 @pytest.fixture(scope="module")
@@ -170,6 +179,8 @@ def test_model_description_interface(fmus):
     assert "straight line" in md.description and md.generationTool.startswith("semilinear-duhem")
     rd = {v.name for v in read_model_description(fmus["example3"]).modelVariables}
     assert {"A[2,1]", "g_v[1]", "g_g[20]"} <= rd and "g_v[21]" not in rd
+    eff = {v.name: v for v in read_model_description(fmus["effects"]).modelVariables}
+    assert float(eff["creep.tau"].start) == 0.5 and eff["backlash.b"].causality == "parameter"
 
 
 def test_model_json_travels_in_resources(fmus, tmp_path):
@@ -181,7 +192,7 @@ def test_model_json_travels_in_resources(fmus, tmp_path):
     assert any(n.startswith("resources/duhem_core_") and n.endswith("/kernel.py") for n in names)
 
 
-@pytest.mark.parametrize("name", ["example1", "example3"])
+@pytest.mark.parametrize("name", ["example1", "example3", "effects"])
 def test_fmu_state_rollback_and_serialisation_are_exact(unzipped, name):
     md, unzipdir = unzipped[name]
     inst = Instance(md, unzipdir)
@@ -226,6 +237,18 @@ def test_instances_with_different_parameters_do_not_interfere(unzipped):
     assert np.abs(ya - yb).max() > 0.1
     for inst in (a, b, c):
         inst.free()
+
+
+def test_reset_returns_to_the_exported_model(unzipped):
+    md, unzipdir = unzipped["example1"]
+    inst = Instance(md, unzipdir, start={"C[1]": 2.0})
+    t, u = periodic_input(cycles=1, per_cycle=80)
+    inst.run(t, u)
+    inst.fmu.reset()
+    inst.t = 0.0
+    inst.initialise()
+    assert np.abs(inst.run(t, u) - simulate(example1(), t, u).y).max() < 1e-9
+    inst.free()
 
 
 def substep_outputs(md, unzipdir, t, u, m):
