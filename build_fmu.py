@@ -151,6 +151,7 @@ def _build_python(model, out_path: Path, **opts) -> None:
         with _isolated_imports(code):
             built = FmuBuilder.build_FMU(script, dest=Path(tmp) / "pythonfmu.fmu",
                                          project_files=project_files)
+        opts.setdefault("version", _package_version())
         xml = model_description_xml(
             model, model_identifier=MODEL_IDENTIFIER, guid=_guid(model_json, code, "python"),
             backend="python", generation_tool=f"semilinear-duhem {_package_version()} "
@@ -188,7 +189,8 @@ def build_fmu(model_or_json_path, out_path, *, backend: str = "python", **opts) 
         ``python``: pythonfmu, needs Python with numpy in the host process.
         ``native``: C shared library (`fitter.native_fmu`).
     **opts
-        Python backend: ``model_name``, ``description``, ``version``, ``author``
+        Python backend: ``model_name``, ``description``, ``version`` (default:
+        the version of semilinear-duhem that exports), ``author``
         (modelDescription attributes).  Native backend: passed on.
     """
     if backend not in BACKENDS:
@@ -202,9 +204,7 @@ def build_fmu(model_or_json_path, out_path, *, backend: str = "python", **opts) 
     out = Path(out_path).resolve()
     if not out.parent.is_dir():
         raise FileNotFoundError(f"{out_path}: directory {out.parent} does not exist")
-    fd, tmp_name = tempfile.mkstemp(prefix=".tmp-", suffix=".fmu", dir=out.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
+    tmp = out.parent / f".tmp-{uuid.uuid4().hex}-{out.name}"   # created with the usual mode
     try:
         (_build_python if backend == "python" else _build_native)(model, tmp, **opts)
         os.replace(tmp, out)
