@@ -328,6 +328,7 @@ static double base_output(const ModelData *m, const double *x, double w)
     return y + m->par[P_D] * w;
 }
 
+#if HAS(CREEP_K) || HAS(SENSOR_LAG_TAU)
 /* Exact samples of dz/dt = (target(t) - z)/tau over h, target linear from z0t to z1t. */
 static double first_order(double z0, double z0t, double z1t, double h, double tau)
 {
@@ -335,6 +336,7 @@ static double first_order(double z0, double z0t, double z1t, double h, double ta
     double q = x > 0 ? one_minus_a / x : 1.0;
     return a * z0 + ((z1t - z0t) * (1.0 - q) + one_minus_a * z0t);
 }
+#endif
 
 /* Steps 5-7 of the chain on one sample's y: viscous, thermal drift, saturation. */
 static double output_effects(const ModelData *m, double y, double v, double W)

@@ -1,0 +1,649 @@
+"""The native (C) FMI 2.0 Co-Simulation FMU, loaded and driven with fmpy.
+
+The FMU's output must equal the Python kernel's (`fitter.core.simulate`,
+`fitter.core.Stepper`) for every model kind and effect; its shared library
+must need no Python; it must refuse bad calls with fmi2Error and a logged
+message and never crash, also under random call sequences (hypothesis, run in
+a subprocess so that a crash fails the test instead of killing pytest) and
+under AddressSanitizer and UBSan.
+
+Run as a script (``python tests/test_fmu_native.py fuzz FMU EXAMPLES``) this
+file is the fuzz driver that those subprocesses execute.
+"""
+from __future__ import annotations
+
+import copy
+import math
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+from ctypes import byref, c_char_p, c_double, c_int, c_size_t, c_uint, c_void_p
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from fmpy import extract, read_model_description  # noqa: E402
+from fmpy.fmi1 import FMICallException  # noqa: E402
+from fmpy.fmi2 import (FMU2Slave, fmi2CoSimulation, fmi2DoStepStatus,  # noqa: E402
+                       fmi2LastSuccessfulTime, fmi2ModelExchange)
+
+from fitter.core import (RateDependentModel, RateIndependentModel, Stepper,  # noqa: E402
+                         TabulatedRate, model_from_dict, simulate)
+from fitter.fmu_run import collecting_callbacks, simulate_fmu, validate_fmu_file  # noqa: E402
+from fitter.model_description import model_variables  # noqa: E402
+from fitter.native_fmu import NativeBuildError, build_native_fmu  # noqa: E402
+
+ALL_EFFECTS = [
+    {"effect": "backlash", "parameters": {"b": 0.15}},
+    {"effect": "rate_dependence", "parameters": {"alpha": 0.4}},
+    {"effect": "creep", "parameters": {"k": 0.2, "tau": 0.6}},
+    {"effect": "viscous", "parameters": {"c": 0.03}},
+    {"effect": "thermal_drift", "parameters": {"kappa": 0.02}},
+    {"effect": "saturation", "parameters": {"y_c": 0.1, "beta": 0.7}},
+    {"effect": "sensor_lag", "parameters": {"tau": 0.08}},
+]
+
+
+def g3(v):
+    v = np.asarray(v, dtype=float)
+    return np.where(v >= 0, (v / 3 - 1) ** 3 + 1, 1 - np.exp(v))
+
+
+def ri_model(effects=()):
+    """Order 3 with E and D (a fitted model's full parameter set)."""
+    A_p = np.array([[-2.0, 1.0, 0.0], [-1.0, -2.0, 0.5], [0.0, -0.5, -1.0]])
+    A_m = np.array([[-1.5, -1.0, 0.2], [1.0, -1.5, 0.0], [0.0, 0.3, -2.0]])
+    return RateIndependentModel(A_plus=A_p, A_minus=A_m, B_plus=[1.0, 0.5, -0.2],
+                                B_minus=[0.8, -0.4, 0.3], E_plus=[0.1, 0.0, -0.05],
+                                E_minus=[-0.1, 0.02, 0.0], C=[1.0, -0.5, 0.25], D=0.4,
+                                x0=[0.2, -0.1, 0.05], effects=list(effects))
+
+
+def rd_model(effects=()):
+    """The paper's Example 3 with g tabulated on both sides, plus E and D."""
+    nodes = np.geomspace(0.05, 6.0, 9)
+    g = TabulatedRate.from_function(g3, np.r_[-nodes[::-1], nodes])
+    return RateDependentModel(A=[[0, 1], [-3, -1]], B=[1, 0], C=[1, 1], E=[0.1, -0.05], D=0.05,
+                              g=g, x0=[0.1, -0.2], effects=list(effects))
+
+
+def rd_one_sided():
+    """g known for rising input only: falling input freezes the state."""
+    return RateDependentModel(A=[[-1.0]], B=[1.0], C=[2.0], g=TabulatedRate([0.5, 2.0], [0.4, 1.1]))
+
+
+def ri_small(effects=()):
+    """Paper Example 1 (order 2); with creep and backlash for the fuzz test."""
+    A = np.array([[-1.0, 4.0], [-4.0, -1.0]])
+    return RateIndependentModel(A_plus=A, A_minus=-A, B_plus=[0.0, 1.0], B_minus=[0.0, -1.0],
+                                C=[0, 1], x0=[0.15, 0.15], effects=list(effects))
+
+
+FUZZ_EFFECTS = [{"effect": "creep", "parameters": {"k": 0.2, "tau": 0.6}},
+                {"effect": "backlash", "parameters": {"b": 0.1}}]
+
+MODELS = {
+    "ri": ri_model,
+    "rd": rd_model,
+    "rd_one_sided": rd_one_sided,
+    "ri_effects": lambda: ri_model(ALL_EFFECTS),
+    "rd_effects": lambda: rd_model(ALL_EFFECTS),
+    "fuzz": lambda: ri_small(FUZZ_EFFECTS),
+}
+
+
+def sampled_input(n=400, seed=3):
+    """Irregular sampling, reversals, and held stretches (du = 0)."""
+    rng = np.random.default_rng(seed)
+    t = np.r_[0.0, np.cumsum(rng.uniform(0.01, 0.06, n - 1))]
+    u = 1.4 * np.sin(1.7 * t) + 0.5 * np.sin(4.3 * t + 0.3)
+    u[n // 4:n // 4 + n // 20] = u[n // 4]
+    return t, u
+
+
+
+
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory):
+    out = tmp_path_factory.mktemp("native")
+    return {name: build_native_fmu(make(), out / f"{name}.fmu") for name, make in MODELS.items()}
+
+
+@pytest.fixture(scope="module")
+def unzipped(fmus, tmp_path_factory):
+    return {name: (read_model_description(path), extract(path, str(tmp_path_factory.mktemp(name))))
+            for name, path in fmus.items()}
+
+
+class Instance:
+    """An FMU2Slave instance with its log; variables by name."""
+
+    def __init__(self, md, unzipdir, name="inst", start=None, u0=0.0, initialise=True):
+        self.vr = {v.name: v.valueReference for v in md.modelVariables}
+        self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
+                             modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
+        self.log: list[str] = []
+        self._callbacks = collecting_callbacks(self.log)
+        self.fmu.instantiate(callbacks=self._callbacks, loggingOn=False)
+        self.t = 0.0
+        if initialise:
+            self.initialise(start, u0)
+
+    def initialise(self, start=None, u0=0.0):
+        self.fmu.setupExperiment(startTime=0.0)
+        for key, value in (start or {}).items():
+            self.set(key, value)
+        self.fmu.enterInitializationMode()
+        self.set("u", u0)
+        self.fmu.exitInitializationMode()
+        self.t = 0.0
+
+    def set(self, name, value):
+        self.fmu.setReal([self.vr[name]], [float(value)])
+
+    def y(self):
+        return self.fmu.getReal([self.vr["y"]])[0]
+
+    def sample(self, u):
+        self.set("u", u)
+        return self.y()
+
+    def step(self, h):
+        self.fmu.doStep(currentCommunicationPoint=self.t, communicationStepSize=h)
+        self.t += h
+
+    def run(self, t, u):
+        y = np.empty(len(u))
+        for k in range(len(u)):
+            y[k] = self.sample(u[k])
+            if k + 1 < len(u):
+                self.step(t[k + 1] - t[k])
+        return y
+
+    def free(self):
+        self.fmu.freeInstance()
+
+
+def status_of(call, *args) -> int:
+    """The fmi2Status of a raw fmpy call (fmpy raises on anything above fmi2Warning)."""
+    try:
+        call(*args)
+    except FMICallException as exc:
+        return exc.status
+    return 0
+
+
+# --------------------------------------------------------------------- results
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_output_equals_python_kernel(fmus, name):
+    t, u = sampled_input()
+    ref = simulate(MODELS[name](), t, u).y
+    y = simulate_fmu(fmus[name], t, u)
+    assert np.ptp(ref) > 0.1
+    assert np.abs(y - ref).max() <= 1e-10 * max(1.0, np.abs(ref).max())
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_validate_fmu_is_empty(fmus, name):
+    assert validate_fmu_file(fmus[name]) == []
+
+
+def test_shared_library_needs_no_python(fmus, unzipped):
+    md, unzipdir = unzipped["rd_effects"]
+    library = Path(unzipdir) / "binaries" / "linux64" / f"{md.coSimulation.modelIdentifier}.so"
+    deps = subprocess.run(["ldd", str(library)], capture_output=True, text=True, check=True).stdout
+    names = {line.split()[0].split(".so")[0] for line in deps.splitlines() if line.strip()}
+    assert "python" not in deps.lower()
+    assert names <= {"linux-vdso", "libc", "libm", "/lib64/ld-linux-x86-64"}, names
+    symbols = subprocess.run(["nm", "-D", "--defined-only", str(library)], capture_output=True,
+                             text=True, check=True).stdout.split()[2::3]
+    assert symbols and all(s.startswith("fmi2") for s in symbols), symbols
+    assert md.coSimulation.needsExecutionTool is False
+    with zipfile.ZipFile(fmus["rd_effects"]) as zf:
+        names = set(zf.namelist())
+    assert {"sources/fmi2_framework.c", "sources/duhem_model.c", "sources/model_data.h",
+            "sources/fmi2Functions.h"} <= names
+    assert md.buildConfigurations[0].sourceFileSets[0].sourceFiles == ["fmi2_framework.c",
+                                                                       "duhem_model.c"]
+
+
+def test_source_fmu_compiles_with_fmpy(unzipped, tmp_path):
+    from fmpy.build import build_platform_binary
+
+    md, unzipdir = unzipped["rd_effects"]
+    copy_dir = tmp_path / "fmu"
+    shutil.copytree(unzipdir, copy_dir)
+    shutil.rmtree(copy_dir / "binaries")
+    (tmp_path / "build").mkdir()
+    build_platform_binary(copy_dir, build_dir=tmp_path / "build")
+    t, u = sampled_input(150)
+    inst = Instance(md, str(copy_dir))
+    y = inst.run(t, u)
+    inst.free()
+    assert np.abs(y - simulate(MODELS["rd_effects"](), t, u).y).max() < 1e-10
+
+
+def test_sources_compile_without_warnings(tmp_path):
+    from fitter.native_fmu import C_SOURCES, HEADERS, SOURCE_DIR, model_data_header
+
+    for name in C_SOURCES + HEADERS:
+        shutil.copyfile(SOURCE_DIR / name, tmp_path / name)
+    for model in (ri_model(ALL_EFFECTS), rd_model(), ri_small()):
+        (tmp_path / "model_data.h").write_text(model_data_header(model, "{guid}"))
+        result = subprocess.run(["cc", "-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror",
+                                 "-c", *C_SOURCES], cwd=tmp_path, capture_output=True, text=True)
+        assert result.returncode == 0, result.stderr
+
+
+# --------------------------------------------------------------------- FMI behaviour
+
+
+@pytest.mark.parametrize("name", ["rd", "ri_effects"])
+def test_fmu_state_rollback_and_serialisation_are_exact(unzipped, name):
+    md, unzipdir = unzipped[name]
+    inst = Instance(md, unzipdir)
+    t, u = sampled_input(160)
+    inst.run(t[:70], u[:70])
+    state = inst.fmu.getFMUstate()
+    blob = inst.fmu.serializeFMUstate(state)
+    first = inst.run(t[69:], u[69:])
+    inst.fmu.setFMUstate(state)
+    inst.t = t[69]
+    again = inst.run(t[69:], u[69:])
+    restored = inst.fmu.deSerializeFMUstate(blob)
+    inst.fmu.setFMUstate(restored)
+    inst.t = t[69]
+    third = inst.run(t[69:], u[69:])
+    assert np.array_equal(first, again) and np.array_equal(first, third)
+    assert np.abs(first - simulate(MODELS[name](), t, u).y[69:]).max() < 1e-10
+    inst.fmu.freeFMUstate(state)
+    inst.fmu.freeFMUstate(restored)
+    inst.free()
+
+
+def test_reset_restores_the_start(unzipped):
+    md, unzipdir = unzipped["ri_effects"]
+    t, u = sampled_input(120)
+    inst = Instance(md, unzipdir, start={"x0[1]": 0.9, "creep.k": 0.5})
+    changed = inst.run(t, u)
+    inst.fmu.reset()
+    inst.initialise()
+    default = inst.run(t, u)
+    inst.free()
+    model = ri_model(ALL_EFFECTS)
+    assert np.abs(default - simulate(model, t, u).y).max() < 1e-10
+    model.x0[0] = 0.9
+    model.effects[2].parameters["k"] = 0.5
+    assert np.abs(changed - simulate(model, t, u).y).max() < 1e-10
+
+
+def test_instances_with_different_parameters_do_not_interfere(unzipped):
+    md, unzipdir = unzipped["ri"]
+    a = Instance(md, unzipdir, "a")
+    b = Instance(md, unzipdir, "b", start={"C[1]": 0.5, "x0[2]": -0.3, "A_plus[1,1]": -2.5})
+    md3, unzipdir3 = unzipped["rd"]
+    c = Instance(md3, unzipdir3, "c", start={"g_g[12]": 0.9})
+    t, u = sampled_input(200)
+    ys = np.empty((3, len(u)))
+    for k in range(len(u)):
+        ys[:, k] = [inst.sample(u[k]) for inst in (a, b, c)]
+        if k + 1 < len(u):
+            for inst in (a, b, c):
+                inst.step(t[k + 1] - t[k])
+    model_b = ri_model()
+    model_b.C[0], model_b.x0[1], model_b.A_plus[0, 0] = 0.5, -0.3, -2.5
+    model_c = rd_model()
+    table = model_c.g
+    model_c.g = TabulatedRate(table.v, np.r_[table.g[:11], 0.9, table.g[12:]])
+    assert np.abs(ys[0] - simulate(ri_model(), t, u).y).max() < 1e-10
+    assert np.abs(ys[1] - simulate(model_b, t, u).y).max() < 1e-10
+    assert np.abs(ys[2] - simulate(model_c, t, u).y).max() < 1e-10
+    assert np.abs(ys[0] - ys[1]).max() > 0.1 and np.abs(ys[2] - simulate(rd_model(), t, u).y).max() > 1e-3
+    for inst in (a, b, c):
+        inst.free()
+
+
+def test_output_at_communication_points_does_not_depend_on_step_size(unzipped):
+    md, unzipdir = unzipped["ri"]
+    t = np.arange(41) * 0.1
+    u = np.interp(t, [0, 1.0, 2.5, 4.0], [0.0, 1.2, -0.8, 0.6])   # reversals at samples
+    outputs = []
+    for m in (1, 10, 100):
+        inst = Instance(md, unzipdir, u0=u[0])
+        y = [inst.sample(u[0])]
+        for k in range(len(u) - 1):
+            for j in range(1, m + 1):
+                inst.step((t[k + 1] - t[k]) / m)
+                value = inst.sample(u[k] + (u[k + 1] - u[k]) * j / m)
+            y.append(value)
+        inst.free()
+        outputs.append(np.array(y))
+    assert np.abs(outputs[1] - outputs[0]).max() < 1e-10
+    assert np.abs(outputs[2] - outputs[0]).max() < 1e-10
+    assert np.abs(outputs[0] - simulate(ri_model(), t, u).y).max() < 1e-10
+
+
+def test_output_right_after_initialisation_and_held_input(unzipped):
+    md, unzipdir = unzipped["rd"]
+    model = rd_model()
+    inst = Instance(md, unzipdir, u0=0.7)
+    assert inst.y() == pytest.approx(model.C @ model.x0 + model.D * 0.7, abs=1e-15)
+    inst.step(0.1)
+    y1 = inst.sample(0.9)
+    inst.step(0.1)                       # held input: the state does not move
+    assert inst.y() == y1 and inst.sample(0.5) != y1
+    inst.free()
+
+
+def _expect_error(inst, fragment, call, *args):
+    before = len(inst.log)
+    with pytest.raises(FMICallException) as info:
+        call(*args)
+    assert info.value.status == 3
+    assert any(fragment in line for line in inst.log[before:]), inst.log[before:]
+
+
+def test_refused_calls_report_and_change_nothing(unzipped):
+    md, unzipdir = unzipped["rd_effects"]
+    t, u = sampled_input(80)
+    inst = Instance(md, unzipdir, initialise=False)
+    fmu, c, vr = inst.fmu, inst.fmu.component, inst.vr
+    _expect_error(inst, "illegal call sequence", fmu.doStep, 0.0, 0.1)
+    _expect_error(inst, "illegal call sequence", fmu.getReal, [vr["y"]])
+    _expect_error(inst, "must be positive", fmu.setReal, [vr["creep.tau"]], [0.0])
+    _expect_error(inst, "must be >= 0", fmu.setReal, [vr["backlash.b"]], [-1.0])
+    _expect_error(inst, "unknown value reference", fmu.setReal, [10 ** 6], [1.0])
+    _expect_error(inst, "structural", fmu.setInteger, [vr["order"]], [3])
+    fmu.setInteger([vr["order"]], [2])
+    _expect_error(inst, "structural", fmu.setString, [vr["kind"]], ["ri"])
+    fmu.setString([vr["kind"]], ["rd"])
+    inst.initialise(u0=u[0])
+    _expect_error(inst, "not finite", fmu.setReal, [vr["u"]], [math.nan])
+    _expect_error(inst, "not finite", fmu.setReal, [vr["u"]], [math.inf])
+    _expect_error(inst, "fixed parameter", fmu.setReal, [vr["A[1,1]"]], [1.0])
+    _expect_error(inst, "output cannot be set", fmu.setReal, [vr["y"]], [1.0])
+    _expect_error(inst, "must be positive", fmu.doStep, 0.0, 0.0)
+    _expect_error(inst, "must be positive", fmu.doStep, 0.0, -0.1)
+    _expect_error(inst, "must be positive", fmu.doStep, 0.0, math.nan)
+    _expect_error(inst, "is not the FMU's time", fmu.doStep, 1.0, 0.1)
+    _expect_error(inst, "unknown value reference", fmu.getReal, [10 ** 6])
+    _expect_error(inst, "vr is NULL", fmu.fmi2GetReal, c, None, 1, None)
+    _expect_error(inst, "value is NULL", fmu.fmi2SetReal, c, (c_uint * 1)(vr["u"]), 1, None)
+    _expect_error(inst, "FMUstate is NULL", fmu.fmi2GetFMUstate, c, None)
+    _expect_error(inst, "FMUstate is NULL", fmu.fmi2SetFMUstate, c, None)
+    _expect_error(inst, "unknown log category", fmu.fmi2SetDebugLogging, c, 1, 1,
+                  (c_char_p * 1)(b"logNothing"))
+    state = fmu.getFMUstate()
+    size = len(fmu.serializeFMUstate(state))
+    fmu.freeFMUstate(state)
+    _expect_error(inst, "not a serialized state", fmu.deSerializeFMUstate, bytes(size))
+    _expect_error(inst, "expected", fmu.deSerializeFMUstate, b"short")
+    set_time = fmu.dll.fmi2SetTime
+    set_time.argtypes, set_time.restype = [c_void_p, c_double], c_int
+    assert set_time(c, 0.0) == 3 and "Model Exchange is not supported" in inst.log[-1]
+    _expect_error(inst, "not supported", fmu.fmi2SetRealInputDerivatives, c, None, 0, None, None)
+    assert status_of(fmu.getStatus, fmi2DoStepStatus) == 2          # fmi2Discard
+    assert fmu.getRealStatus(fmi2LastSuccessfulTime) == 0.0
+    y = inst.run(t, u)             # every refusal left the instance as it was
+    inst.fmu.terminate()
+    _expect_error(inst, "illegal call sequence", fmu.doStep, inst.t, 0.1)
+    inst.free()
+    assert np.abs(y - simulate(MODELS["rd_effects"](), t, u).y).max() < 1e-10
+
+
+def test_invalid_rate_table_is_reported_at_initialisation(unzipped):
+    md, unzipdir = unzipped["rd"]
+    inst = Instance(md, unzipdir, initialise=False)
+    inst.fmu.setupExperiment(startTime=0.0)
+    inst.set("g_v[2]", rd_model().g.v[0])
+    inst.fmu.enterInitializationMode()
+    _expect_error(inst, "duplicate", inst.fmu.exitInitializationMode)
+    inst.set("g_v[2]", rd_model().g.v[1])
+    inst.fmu.exitInitializationMode()
+    inst.free()
+
+
+def test_instantiate_rejects_wrong_guid_and_type(unzipped):
+    md, unzipdir = unzipped["ri"]
+    log: list[str] = []
+    callbacks = collecting_callbacks(log)
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="x")
+    assert fmu.fmi2Instantiate(b"x", fmi2CoSimulation, b"{wrong}", b"", byref(callbacks), 0, 0) is None
+    assert fmu.fmi2Instantiate(b"x", fmi2ModelExchange, md.guid.encode(), b"", byref(callbacks), 0,
+                               0) is None
+    assert fmu.fmi2Instantiate(b"", fmi2CoSimulation, md.guid.encode(), b"", byref(callbacks), 0,
+                               0) is None
+    assert fmu.fmi2Instantiate(b"x", fmi2CoSimulation, md.guid.encode(), b"", None, 0, 0) is None
+    assert any("does not match" in m for m in log) and any("Co-Simulation only" in m for m in log)
+    assert any("non-empty" in m for m in log)
+    fmu.freeLibrary()
+
+
+def test_missing_compiler_and_failed_build_leave_no_file(tmp_path):
+    target = tmp_path / "m.fmu"
+    with pytest.raises(NativeBuildError, match="--backend python"):
+        build_native_fmu(ri_small(), target, cc="no-such-compiler-xyz")
+    with pytest.raises(NativeBuildError, match="compiler failed"):
+        build_native_fmu(ri_small(), target, cc="false")
+    assert list(tmp_path.iterdir()) == []
+
+
+# --------------------------------------------------------------------- robustness
+
+
+def _driver(fmu_path: Path, examples: int, env: dict | None = None) -> subprocess.CompletedProcess:
+    environment = {**os.environ, "PYTHONPATH": str(REPO), **(env or {})}
+    return subprocess.run([sys.executable, __file__, "fuzz", str(fmu_path), str(examples)],
+                          capture_output=True, text=True, env=environment, cwd=REPO, timeout=300)
+
+
+def test_random_call_sequences_never_crash(fmus):
+    result = _driver(fmus["fuzz"], 150)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "fuzz: 150 sequences" in result.stdout
+
+
+def test_sanitized_build_runs_clean(tmp_path):
+    runtime = subprocess.run(["cc", "-print-file-name=libasan.so"], capture_output=True,
+                             text=True).stdout.strip()
+    assert os.path.isabs(runtime), "the C compiler ships no AddressSanitizer runtime"
+    path = build_native_fmu(MODELS["fuzz"](), tmp_path / "asan.fmu", sanitize=True)
+    env = {"LD_PRELOAD": runtime, "ASAN_OPTIONS": "detect_leaks=0:abort_on_error=1",
+           "UBSAN_OPTIONS": "print_stacktrace=1:halt_on_error=1"}
+    result = _driver(Path(path), 40, env)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "fuzz: 40 sequences" in result.stdout and "kernel match" in result.stdout
+    assert "AddressSanitizer" not in result.stderr and "runtime error" not in result.stderr
+
+
+# --------------------------------------------------------------------- fuzz driver
+
+
+class Reference:
+    """What the FMU must do: the FMI 2.0 CS state machine and the Python Stepper."""
+
+    SETTABLE = {"x0[1]": None, "C[1]": None, "creep.tau": "positive", "backlash.b": "nonnegative"}
+
+    def __init__(self, model, variables):
+        self.base = model.to_dict()
+        self.paths = {v.name: v.path for v in variables}
+        self.reset()
+
+    def reset(self):
+        self.mode, self.values, self.t0 = "instantiated", copy.deepcopy(self.base), 0.0
+        self.stepper = Stepper(model_from_dict(self.values), 0.0, 0.0)
+
+    def accepts(self, name, value):
+        rule = self.SETTABLE[name]
+        return math.isfinite(value) and not (rule == "positive" and value <= 0) \
+            and not (rule == "nonnegative" and value < 0)
+
+    def set_parameter(self, name, value):
+        node = self.values
+        for key in self.paths[name][:-1]:
+            node = node[key]
+        node[self.paths[name][-1]] = value
+        self.stepper = Stepper(model_from_dict(self.values), self.t0, self.stepper.u)
+
+
+def _fuzz(fmu_path: str, examples: int) -> None:
+    from hypothesis import HealthCheck, given, settings, strategies as st
+
+    md = read_model_description(fmu_path)
+    unzipdir = extract(fmu_path)
+    model = MODELS["fuzz"]()
+    variables = model_variables(model)
+    vr = {v.name: v.value_reference for v in variables}
+    log: list[str] = []
+    callbacks = collecting_callbacks(log)
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="fuzz")
+    t, u = sampled_input(150)
+    fmu.instantiate(callbacks=callbacks)
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    y = []
+    for k in range(len(u)):
+        fmu.setReal([vr["u"]], [u[k]])
+        y.append(fmu.getReal([vr["y"]])[0])
+        if k + 1 < len(u):
+            fmu.doStep(t[k], t[k + 1] - t[k])
+    fmu.fmi2FreeInstance(fmu.component)
+    assert np.abs(np.array(y) - simulate(model, t, u).y).max() < 1e-10
+    print("fuzz: kernel match")
+
+    values = st.sampled_from([0.3, -0.5, 1.2, 0.0, math.nan, math.inf, -math.inf]) | \
+        st.floats(-2.0, 2.0)
+    ops = st.one_of(
+        st.tuples(st.sampled_from(["setup", "enter", "exit", "terminate", "reset", "get_y",
+                                   "get_state", "status", "discard", "get_unknown", "null"])),
+        st.tuples(st.just("set_u"), values),
+        st.tuples(st.just("set_param"), st.sampled_from(sorted(Reference.SETTABLE)), values),
+        st.tuples(st.just("step"), st.sampled_from([0.05, 0.3, 1e-3, 0.0, -0.1, math.nan]),
+                  st.sampled_from([0.0, 0.0, 0.0, 1.0])),
+        st.tuples(st.sampled_from(["set_state", "free_state", "roundtrip"]), st.integers(0, 3)),
+        st.tuples(st.just("garbage"), st.binary(max_size=64)),
+        st.tuples(st.just("set_order"), st.integers(1, 3)),
+    )
+
+    tally = {True: 0, False: 0}
+
+    def expect(status, ok):
+        assert status == (0 if ok else 3), (status, ok)
+        tally[ok] += 1
+
+    @settings(max_examples=examples, derandomize=True, deadline=None, database=None,
+              suppress_health_check=list(HealthCheck))
+    @given(st.lists(ops, max_size=40))
+    def sequence(calls):
+        ref = Reference(model, variables)
+        fmu.instantiate(callbacks=callbacks)
+        c = fmu.component
+        states: list[tuple] = []
+        try:
+            for op in calls:
+                run(op, ref, c, states)
+        finally:
+            for handle, _ in states:
+                fmu.freeFMUstate(handle)
+            fmu.fmi2FreeInstance(c)          # keeps the library loaded, unlike freeInstance
+
+    def run(op, ref, c, states):
+        kind, mode = op[0], ref.mode
+        configure = mode in ("instantiated", "initialization")
+        if kind == "setup":
+            expect(status_of(fmu.setupExperiment, None, 0.0, 0.5), mode == "instantiated")
+            if mode == "instantiated":
+                ref.t0 = 0.5
+                ref.stepper.reset(0.5, ref.stepper.u, ref.stepper.x_a)
+        elif kind in ("enter", "exit", "terminate"):
+            source, target, call = {"enter": ("instantiated", "initialization",
+                                              fmu.enterInitializationMode),
+                                    "exit": ("initialization", "stepping",
+                                             fmu.exitInitializationMode),
+                                    "terminate": ("stepping", "terminated", fmu.terminate)}[kind]
+            expect(status_of(call), mode == source)
+            ref.mode = target if mode == source else mode
+        elif kind == "reset":
+            expect(status_of(fmu.reset), True)
+            ref.reset()
+        elif kind == "get_y":
+            readable = mode in ("initialization", "stepping", "terminated")
+            try:
+                value = fmu.getReal([vr["y"]])[0]
+                assert readable
+                expected = ref.stepper.output()
+                assert abs(value - expected) <= 1e-10 * max(1.0, abs(expected)), (value, expected)
+            except FMICallException as exc:
+                assert exc.status == 3 and not readable
+        elif kind == "get_state":
+            handle = fmu.getFMUstate()
+            states.append((handle, copy.deepcopy(ref.__dict__)))
+        elif kind in ("set_state", "free_state", "roundtrip") and op[1] < len(states):
+            handle, saved = states[op[1]]
+            if kind == "set_state":
+                fmu.setFMUstate(handle)
+                ref.__dict__.update(copy.deepcopy(saved))
+            elif kind == "free_state":
+                fmu.freeFMUstate(handle)
+                assert handle.value is None
+                states.pop(op[1])
+            else:
+                copy_handle = fmu.deSerializeFMUstate(fmu.serializeFMUstate(handle))
+                states.append((copy_handle, copy.deepcopy(saved)))
+        elif kind == "garbage":
+            expect(status_of(fmu.deSerializeFMUstate, op[1] or b"\0"), False)
+        elif kind == "status":
+            ok = mode in ("stepping", "terminated")
+            value = c_double()
+            expect(status_of(fmu.fmi2GetRealStatus, c, fmi2LastSuccessfulTime, byref(value)), ok)
+            assert not ok or value.value == ref.stepper.t
+        elif kind == "discard":
+            assert status_of(fmu.getStatus, fmi2DoStepStatus) == \
+                (2 if mode in ("stepping", "terminated") else 3)
+        elif kind == "get_unknown":
+            expect(status_of(fmu.getReal, [4242]), False)
+        elif kind == "null":
+            expect(status_of(fmu.fmi2GetReal, c, None, 1, None), False)
+            expect(status_of(fmu.fmi2GetFMUstate, c, None), False)
+            expect(status_of(fmu.fmi2SerializedFMUstateSize, c, None, byref(c_size_t())), False)
+            expect(status_of(fmu.fmi2SetString, c, None, 1, None), False)
+            expect(status_of(fmu.fmi2DoStep, None, 0.0, 0.1, 0), False)
+            expect(status_of(fmu.fmi2SetFMUstate, c, c_void_p(None)), False)
+        elif kind == "set_u":
+            ok = mode != "terminated" and math.isfinite(op[1])
+            expect(status_of(fmu.setReal, [vr["u"]], [op[1]]), ok)
+            if ok:
+                ref.stepper.set_input(op[1])
+        elif kind == "set_param":
+            ok = configure and ref.accepts(op[1], op[2])
+            expect(status_of(fmu.setReal, [vr[op[1]]], [op[2]]), ok)
+            if ok:
+                ref.set_parameter(op[1], op[2])
+        elif kind == "set_order":
+            ok = mode != "terminated" and op[1] == model.order
+            expect(status_of(fmu.setInteger, [vr["order"]], [op[1]]), ok)
+        elif kind == "step":
+            h, offset = op[1], op[2]
+            ok = mode == "stepping" and math.isfinite(h) and h > 0 and offset == 0.0
+            expect(status_of(fmu.doStep, ref.stepper.t + offset, h), ok)
+            if ok:
+                ref.stepper.do_step(h)
+
+    sequence()
+    fmu.freeLibrary()
+    print(f"fuzz: {examples} sequences, {tally[True]} calls accepted, {tally[False]} refused")
+
+
+if __name__ == "__main__" and len(sys.argv) == 4 and sys.argv[1] == "fuzz":
+    _fuzz(sys.argv[2], int(sys.argv[3]))
