@@ -44,8 +44,8 @@ from fitter.core.effects import EFFECTS
 from fitter.core.rates import TabulatedRate
 from fitter.model_description import U_REF, Y_REF, model_description_xml, model_variables
 
-__all__ = ["build_native_fmu", "NativeBuildError", "find_c_compiler", "model_data_header",
-           "SOURCE_DIR", "C_SOURCES", "MODEL_IDENTIFIER", "LOG_CATEGORIES"]
+__all__ = ["build_native_fmu", "build_gain_fmu", "NativeBuildError", "find_c_compiler",
+           "model_data_header", "SOURCE_DIR", "C_SOURCES", "MODEL_IDENTIFIER", "LOG_CATEGORIES"]
 
 SOURCE_DIR = Path(fmu_src.native.__file__).resolve().parent
 C_SOURCES = ("fmi2_framework.c", "duhem_model.c")
@@ -210,14 +210,45 @@ def _guid(model, model_identifier: str) -> str:
                                                  f"{text}")) + "}"
 
 
-def _compile(cc: str, sources: Path, target: Path, sanitize: bool) -> None:
+def _compile(cc: str, sources: Path, c_files: tuple[str, ...], target: Path,
+             sanitize: bool) -> None:
     flags = SANITIZE if sanitize else OPTIMIZE
     command = [cc, *flags, "-fPIC", "-shared", "-fvisibility=hidden", "-I", str(sources),
-               *[str(sources / name) for name in C_SOURCES], "-o", str(target), "-lm"]
+               *[str(sources / name) for name in c_files], "-o", str(target), "-lm"]
     result = subprocess.run(command, capture_output=True, text=True)
     if result.returncode != 0:
         raise NativeBuildError(f"the C compiler failed ({' '.join(command)}):\n"
                                f"{result.stderr.strip()}")
+
+
+def _package(out_path: str | os.PathLike, xml: str, files: dict[str, str], c_files: tuple[str, ...],
+             model_identifier: str, cc: str | None, sanitize: bool) -> str:
+    """Compile `c_files` (of SOURCE_DIR, plus the generated `files`) and zip the FMU atomically."""
+    compiler = find_c_compiler(cc)
+    platform, suffix = _platform()
+    out = Path(out_path).resolve()
+    with tempfile.TemporaryDirectory(prefix="duhem_native_") as tmp:
+        sources = Path(tmp) / "sources"
+        sources.mkdir()
+        for name in c_files + HEADERS:
+            shutil.copyfile(SOURCE_DIR / name, sources / name)
+        for name, text in files.items():
+            (sources / name).write_text(text, encoding="utf-8")
+        library = Path(tmp) / f"{model_identifier}{suffix}"
+        _compile(compiler, sources, c_files, library, sanitize)
+        fd, staging = tempfile.mkstemp(prefix=".tmp-", suffix=".fmu", dir=out.parent)
+        os.close(fd)
+        try:
+            with zipfile.ZipFile(staging, "w", zipfile.ZIP_DEFLATED) as zf:
+                zf.writestr("modelDescription.xml", xml)
+                zf.write(library, f"binaries/{platform}/{library.name}")
+                for path in sorted(sources.iterdir()):
+                    zf.write(path, f"sources/{path.name}")
+            os.replace(staging, out)
+        finally:
+            if os.path.exists(staging):
+                os.unlink(staging)
+    return str(out)
 
 
 def build_native_fmu(model, out_path: str | os.PathLike, *, sanitize: bool = False,
@@ -238,7 +269,7 @@ def build_native_fmu(model, out_path: str | os.PathLike, *, sanitize: bool = Fal
     cc : str, optional
         The C compiler (default: ``$CC``, else cc, gcc or clang on PATH).
     model_identifier : str
-        Name of the shared library and of the FMU's functions' owner.
+        Name of the shared library.
     **description
         ``model_name``, ``description``, ``version``, ``author`` for the
         modelDescription (`fitter.model_description.model_description_xml`).
@@ -250,32 +281,48 @@ def build_native_fmu(model, out_path: str | os.PathLike, *, sanitize: bool = Fal
     ValueError
         The model cannot be exported natively (a callable g).
     """
-    compiler = find_c_compiler(cc)
-    platform, suffix = _platform()
+    find_c_compiler(cc)
+    _platform()
     guid = _guid(model, model_identifier)
     header = model_data_header(model, guid)
     xml = model_description_xml(model, model_identifier=model_identifier, guid=guid,
                                 backend="native", source_files=C_SOURCES,
                                 log_categories=LOG_CATEGORIES, **description)
-    out = Path(out_path).resolve()
-    with tempfile.TemporaryDirectory(prefix="duhem_native_") as tmp:
-        sources = Path(tmp) / "sources"
-        sources.mkdir()
-        for name in C_SOURCES + HEADERS:
-            shutil.copyfile(SOURCE_DIR / name, sources / name)
-        (sources / "model_data.h").write_text(header, encoding="utf-8")
-        library = Path(tmp) / f"{model_identifier}{suffix}"
-        _compile(compiler, sources, library, sanitize)
-        fd, staging = tempfile.mkstemp(prefix=".tmp-", suffix=".fmu", dir=out.parent)
-        os.close(fd)
-        try:
-            with zipfile.ZipFile(staging, "w", zipfile.ZIP_DEFLATED) as zf:
-                zf.writestr("modelDescription.xml", xml)
-                zf.write(library, f"binaries/{platform}/{library.name}")
-                for path in sorted(sources.iterdir()):
-                    zf.write(path, f"sources/{path.name}")
-            os.replace(staging, out)
-        finally:
-            if os.path.exists(staging):
-                os.unlink(staging)
-    return str(out)
+    return _package(out_path, xml, {"model_data.h": header}, C_SOURCES, model_identifier, cc,
+                    sanitize)
+
+
+GAIN_IDENTIFIER = "duhem_gain"
+GAIN_SOURCES = ("fmi2_framework.c", "gain_model.c")
+_GAIN_DESCRIPTION = """<?xml version="1.0" encoding="UTF-8"?>
+<fmiModelDescription fmiVersion="2.0" modelName="gain" guid="{6d1c2a0e-5b8f-4c3e-9a71-0000000000a1}"
+  description="y = k u on the native framework (benchmark floor)" generationTool="semilinear-duhem"
+  variableNamingConvention="structured" numberOfEventIndicators="0">
+  <CoSimulation modelIdentifier="duhem_gain" needsExecutionTool="false"
+    canHandleVariableCommunicationStepSize="true" canGetAndSetFMUstate="true"
+    canSerializeFMUstate="true">
+    <SourceFiles><File name="fmi2_framework.c"/><File name="gain_model.c"/></SourceFiles>
+  </CoSimulation>
+  <ModelVariables>
+    <ScalarVariable name="u" valueReference="0" causality="input" variability="continuous">
+      <Real start="0.0"/></ScalarVariable>
+    <ScalarVariable name="y" valueReference="1" causality="output" variability="continuous"
+      initial="calculated"><Real/></ScalarVariable>
+    <ScalarVariable name="k" valueReference="2" causality="parameter" variability="fixed"
+      initial="exact"><Real start="2.0"/></ScalarVariable>
+  </ModelVariables>
+  <ModelStructure>
+    <Outputs><Unknown index="2" dependencies="1" dependenciesKind="dependent"/></Outputs>
+    <InitialUnknowns><Unknown index="2" dependencies="1 3"/></InitialUnknowns>
+  </ModelStructure>
+</fmiModelDescription>
+"""
+
+
+def build_gain_fmu(out_path: str | os.PathLike, *, cc: str | None = None) -> str:
+    """The trivial y = k u FMU on the same framework, compiled the same way (for benchmarks).
+
+    Its fixed three-variable modelDescription is not a model export: it only
+    gives `bench/fmu_throughput.py` the per-step floor of a native FMU.
+    """
+    return _package(out_path, _GAIN_DESCRIPTION, {}, GAIN_SOURCES, GAIN_IDENTIFIER, cc, False)

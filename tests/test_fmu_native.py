@@ -437,6 +437,15 @@ def test_missing_compiler_and_failed_build_leave_no_file(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_benchmark_gain_fmu_is_valid_and_computes_k_u(tmp_path):
+    from fitter.native_fmu import build_gain_fmu
+
+    path = build_gain_fmu(tmp_path / "gain.fmu")
+    t, u = sampled_input(50)
+    assert validate_fmu_file(path) == []
+    assert np.array_equal(simulate_fmu(path, t, u), 2.0 * u)
+
+
 # --------------------------------------------------------------------- robustness
 
 
