@@ -45,7 +45,8 @@ from fitter.core.rates import TabulatedRate
 from fitter.model_description import U_REF, Y_REF, model_description_xml, model_variables
 
 __all__ = ["build_native_fmu", "build_gain_fmu", "NativeBuildError", "find_c_compiler",
-           "model_data_header", "SOURCE_DIR", "C_SOURCES", "MODEL_IDENTIFIER", "LOG_CATEGORIES"]
+           "model_data_header", "SOURCE_DIR", "C_SOURCES", "MODEL_IDENTIFIER", "LOG_CATEGORIES",
+           "NATIVE_EFFECTS"]
 
 SOURCE_DIR = Path(fmu_src.native.__file__).resolve().parent
 C_SOURCES = ("fmi2_framework.c", "duhem_model.c")
@@ -60,6 +61,9 @@ LOG_CATEGORIES = {
 OPTIMIZE = ("-O2",)
 SANITIZE = ("-O1", "-g", "-fno-omit-frame-pointer", "-fsanitize=address,undefined",
             "-fno-sanitize-recover=undefined")
+NATIVE_EFFECTS = frozenset({"backlash", "rate_dependence", "creep", "viscous", "thermal_drift",
+                            "saturation", "sensor_lag"})
+"""The effects of `fitter.core.effects` that duhem_model.c implements."""
 _GUID_NAMESPACE = uuid.UUID("0f8a3c52-6f7e-4d0b-8e61-0c1f3b9d2a74")
 _COMPILERS = ("cc", "gcc", "clang")
 
@@ -105,7 +109,7 @@ def _c_string(text: str) -> str:
 def _effect_macros(model, real_index: dict) -> list[str]:
     present = {e.effect for e in getattr(model, "effects", None) or []}
     lines = []
-    for effect, params in EFFECTS.items():
+    for effect, params in ((k, v) for k, v in EFFECTS.items() if k in NATIVE_EFFECTS):
         for name in params:
             index = real_index.get(f"{effect}.{name}", -1) if effect in present else -1
             lines.append(f"#define DUHEM_EFFECT_{effect.upper()}_{name.upper()} {index}")
@@ -138,7 +142,8 @@ def _check_supported(model) -> None:
     if model.kind == "rd" and not isinstance(model.g, TabulatedRate):
         raise ValueError("rate-dependent model: g must be a TabulatedRate for the native FMU "
                          "(tabulate it with TabulatedRate.from_function)")
-    unknown = [e.effect for e in getattr(model, "effects", None) or [] if e.effect not in EFFECTS]
+    unknown = [e.effect for e in getattr(model, "effects", None) or []
+               if e.effect not in NATIVE_EFFECTS]
     if unknown:
         raise ValueError(f"effect {unknown[0]!r} is not supported by the native backend; "
                          "export with '--backend python'")

@@ -428,6 +428,15 @@ def test_instantiate_rejects_wrong_guid_and_type(unzipped):
     fmu.freeLibrary()
 
 
+def test_effect_without_native_implementation_is_refused(tmp_path, monkeypatch):
+    import fitter.native_fmu as native
+
+    monkeypatch.setattr(native, "NATIVE_EFFECTS", native.NATIVE_EFFECTS - {"creep"})
+    with pytest.raises(ValueError, match="'creep' is not supported by the native backend"):
+        build_native_fmu(ri_small(FUZZ_EFFECTS), tmp_path / "m.fmu")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_missing_compiler_and_failed_build_leave_no_file(tmp_path):
     target = tmp_path / "m.fmu"
     with pytest.raises(NativeBuildError, match="--backend python"):
