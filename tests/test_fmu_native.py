@@ -486,14 +486,14 @@ def test_benchmark_gain_fmu_is_valid_and_computes_k_u(tmp_path):
 # --------------------------------------------------------------------- robustness
 
 
-def _driver(fmu_path: Path, examples: int, env: dict | None = None) -> subprocess.CompletedProcess:
+def _driver(mode: str, fmu_path: Path, argument, env: dict | None = None):
     environment = {**os.environ, "PYTHONPATH": str(REPO), **(env or {})}
-    return subprocess.run([sys.executable, __file__, "fuzz", str(fmu_path), str(examples)],
+    return subprocess.run([sys.executable, __file__, mode, str(fmu_path), str(argument)],
                           capture_output=True, text=True, env=environment, cwd=REPO, timeout=300)
 
 
 def test_random_call_sequences_never_crash(fmus):
-    result = _driver(fmus["fuzz"], 300)
+    result = _driver("fuzz", fmus["fuzz"], 300)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "fuzz: 300 sequences" in result.stdout
 
@@ -502,13 +502,17 @@ def test_sanitized_build_runs_clean(tmp_path):
     runtime = subprocess.run(["cc", "-print-file-name=libasan.so"], capture_output=True,
                              text=True).stdout.strip()
     assert os.path.isabs(runtime), "the C compiler ships no AddressSanitizer runtime"
-    path = build_native_fmu(MODELS["fuzz"](), tmp_path / "asan.fmu", sanitize=True)
     env = {"LD_PRELOAD": runtime, "ASAN_OPTIONS": "detect_leaks=0:abort_on_error=1",
            "UBSAN_OPTIONS": "print_stacktrace=1:halt_on_error=1"}
-    result = _driver(Path(path), 60, env)
-    assert result.returncode == 0, result.stdout + result.stderr
-    assert "fuzz: 60 sequences" in result.stdout and "kernel match" in result.stdout
-    assert "AddressSanitizer" not in result.stderr and "runtime error" not in result.stderr
+    runs = [("fuzz", "fuzz", 60, "fuzz: 60 sequences"),
+            ("check", "rd_effects", "rd_effects", "check: rd_effects kernel match"),
+            ("check", "rd_one_sided", "rd_one_sided", "check: rd_one_sided kernel match")]
+    for mode, name, argument, expected in runs:
+        path = build_native_fmu(MODELS[name](), tmp_path / f"{name}.fmu", sanitize=True)
+        result = _driver(mode, Path(path), argument, env)
+        assert result.returncode == 0, result.stdout + result.stderr
+        assert expected in result.stdout
+        assert "AddressSanitizer" not in result.stderr and "runtime error" not in result.stderr
 
 
 # --------------------------------------------------------------------- fuzz driver
@@ -541,31 +545,53 @@ class Reference:
         self.stepper = Stepper(model_from_dict(self.values), self.t0, self.stepper.u)
 
 
-def _fuzz(fmu_path: str, examples: int) -> None:
-    from hypothesis import HealthCheck, given, settings, strategies as st
-
+def _loaded(fmu_path: str):
+    """An uninstantiated FMU2Slave of the FMU, and its process callbacks."""
     md = read_model_description(fmu_path)
-    unzipdir = extract(fmu_path)
-    model = MODELS["fuzz"]()
-    variables = model_variables(model)
-    vr = {v.name: v.value_reference for v in variables}
-    log: list[str] = []
-    callbacks = process_callbacks(log)
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="fuzz")
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(fmu_path),
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="driver")
+    return fmu, process_callbacks([])
+
+
+def _kernel_match(fmu, callbacks, model) -> None:
+    """Sample-and-step run equals `simulate`; a serialized mid-run state replays it exactly."""
+    vr = {v.name: v.value_reference for v in model_variables(model)}
     t, u = sampled_input(150)
     fmu.instantiate(callbacks=callbacks)
     fmu.setupExperiment(startTime=0.0)
     fmu.enterInitializationMode()
     fmu.exitInitializationMode()
-    y = []
+    y, blob = [], None
     for k in range(len(u)):
         fmu.setReal([vr["u"]], [u[k]])
         y.append(fmu.getReal([vr["y"]])[0])
+        if k == 60:
+            state = fmu.getFMUstate()
+            blob = fmu.serializeFMUstate(state)
+            fmu.freeFMUstate(state)
         if k + 1 < len(u):
             fmu.doStep(t[k], t[k + 1] - t[k])
-    fmu.fmi2FreeInstance(fmu.component)
+    state = fmu.deSerializeFMUstate(blob)
+    fmu.setFMUstate(state)
+    fmu.freeFMUstate(state)
+    replay = [fmu.getReal([vr["y"]])[0]]
+    for k in range(61, len(u)):
+        fmu.doStep(t[k - 1], t[k] - t[k - 1])
+        fmu.setReal([vr["u"]], [u[k]])
+        replay.append(fmu.getReal([vr["y"]])[0])
+    fmu.fmi2FreeInstance(fmu.component)       # keeps the library loaded, unlike freeInstance
     assert np.abs(np.array(y) - simulate(model, t, u).y).max() < 1e-10
+    assert replay == y[60:]
+
+
+def _fuzz(fmu_path: str, examples: int) -> None:
+    from hypothesis import HealthCheck, given, settings, strategies as st
+
+    fmu, callbacks = _loaded(fmu_path)
+    model = MODELS["fuzz"]()
+    variables = model_variables(model)
+    vr = {v.name: v.value_reference for v in variables}
+    _kernel_match(fmu, callbacks, model)
     print("fuzz: kernel match")
 
     values = st.sampled_from([0.3, -0.5, 1.2, 0.0, math.nan, math.inf, -math.inf]) | \
@@ -607,7 +633,7 @@ def _fuzz(fmu_path: str, examples: int) -> None:
         finally:
             for handle, _ in states:
                 fmu.freeFMUstate(handle)
-            fmu.fmi2FreeInstance(c)          # keeps the library loaded, unlike freeInstance
+            fmu.fmi2FreeInstance(c)
 
     def run(op, ref, c, states):
         kind, mode = op[0], ref.mode
@@ -698,3 +724,8 @@ def _fuzz(fmu_path: str, examples: int) -> None:
 
 if __name__ == "__main__" and len(sys.argv) == 4 and sys.argv[1] == "fuzz":
     _fuzz(sys.argv[2], int(sys.argv[3]))
+elif __name__ == "__main__" and len(sys.argv) == 4 and sys.argv[1] == "check":
+    loaded = _loaded(sys.argv[2])
+    _kernel_match(*loaded, MODELS[sys.argv[3]]())
+    loaded[0].freeLibrary()
+    print(f"check: {sys.argv[3]} kernel match")
