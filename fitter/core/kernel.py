@@ -33,6 +33,7 @@ This module needs only numpy: it is shipped inside the FMUs.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,7 +59,7 @@ def phi1(z: np.ndarray) -> np.ndarray:
     return out
 
 
-_PHI2_SERIES = [1.0 / np.prod(np.arange(1.0, k + 1)) for k in range(2, 20)]
+_PHI2_SERIES = np.array([1.0 / np.prod(np.arange(1.0, k + 1)) for k in range(2, 20)])
 
 
 def phi2(z: np.ndarray) -> np.ndarray:
@@ -74,6 +75,9 @@ def phi2(z: np.ndarray) -> np.ndarray:
         acc = acc * zs + c
     out[small] = acc
     return out
+
+
+_PHI2_POWERS = np.arange(len(_PHI2_SERIES))
 
 
 def expm(M: np.ndarray) -> np.ndarray:
@@ -121,6 +125,8 @@ class AffineFlow:
             self.beta = Vinv @ self.B
             self.eps = Vinv @ self.E
             self.Vinv = Vinv
+            self._lam_max = float(np.abs(lam).max())
+            self._phi2_terms = lam[:, None] ** _PHI2_POWERS * _PHI2_SERIES
 
     def _augmented(self, p: float, r: float) -> np.ndarray:
         n = self.n
@@ -139,8 +145,14 @@ class AffineFlow:
             Z = expm(self._augmented(p, r) * S)
             return Z[:self.n, :self.n] @ x + Z[:self.n, self.n + 1]
         z = self.lam * S
-        w = np.exp(z) * (self.Vinv @ x) + S * phi1(z) * (self.beta * p + self.eps) \
-            + S * S * phi2(z) * (self.beta * r)
+        if abs(S) * self._lam_max < 0.5:
+            # the Taylor series of `phi2`, summed as (c_k lambda^k) S^k, c_k lambda^k precomputed
+            p2 = self._phi2_terms @ (S ** _PHI2_POWERS)
+            p1 = 1.0 + z * p2
+        else:
+            p1, p2 = phi1(z), phi2(z)
+        w = np.exp(z) * (self.Vinv @ x) + (S * p1) * (self.beta * p + self.eps) \
+            + (S * S * r) * p2 * self.beta
         return (self.V @ w).real
 
     def run(self, x0: np.ndarray, p: np.ndarray, r: np.ndarray, S: np.ndarray) -> np.ndarray:
@@ -234,6 +246,25 @@ def interval_coefficients(model, t: np.ndarray, u: np.ndarray):
     safe = np.where(gv != 0, gv, 1.0)
     r = np.where(gv != 0, v / safe, 0.0)
     return np.ones_like(du), p, r, gv * dt
+
+
+def one_interval(model, t_a: float, t: float, u_a: float, u: float) -> tuple:
+    """(branch, p, r, S) of `interval_coefficients` for one interval, on floats.
+
+    The communication-point stepper calls this once per step; it avoids numpy
+    array overhead and must agree exactly with the vectorised function.
+    """
+    du = u - u_a
+    if model.kind == "ri":
+        return (1.0 if du >= 0 else -1.0), u_a, 1.0, du
+    h = t - t_a
+    if not h > 0:
+        raise KernelError(f"time must increase: t = {t} after t = {t_a}")
+    v = du / h
+    gv = float(model.g(v))
+    if not math.isfinite(gv):
+        raise KernelError(f"g(du/dt) is not finite at slope {v}")
+    return 1.0, u_a, (v / gv if gv != 0.0 else 0.0), gv * h
 
 
 def flows(model) -> dict:

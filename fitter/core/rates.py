@@ -16,6 +16,7 @@ This module needs only numpy: it is shipped inside the FMUs.
 """
 from __future__ import annotations
 
+import bisect
 from typing import Callable
 
 import numpy as np
@@ -72,18 +73,30 @@ class _Pchip:
         self.x = x
         self.y = y
         self.d = _pchip_slopes(x, y)
+        self._xl, self._yl, self._dl = x.tolist(), y.tolist(), self.d.tolist()
 
     def __call__(self, v: np.ndarray) -> np.ndarray:
-        x, y, d = self.x, self.y, self.d
-        vc = np.clip(v, x[0], x[-1])
-        k = np.clip(np.searchsorted(x, vc) - 1, 0, len(x) - 2)
-        h = x[k + 1] - x[k]
-        t = (vc - x[k]) / h
-        h00 = (1 + 2 * t) * (1 - t) ** 2
-        h10 = t * (1 - t) ** 2
-        h01 = t * t * (3 - 2 * t)
-        h11 = t * t * (t - 1)
-        return h00 * y[k] + h10 * h * d[k] + h01 * y[k + 1] + h11 * h * d[k + 1]
+        vc = np.clip(v, self.x[0], self.x[-1])
+        k = np.clip(np.searchsorted(self.x, vc) - 1, 0, len(self.x) - 2)
+        return _hermite(self.x, self.y, self.d, k, vc)
+
+    def scalar(self, v: float) -> float:
+        """The same interpolant at one float (lists and bisect: no numpy overhead)."""
+        x = self._xl
+        vc = min(max(v, x[0]), x[-1])
+        k = min(max(bisect.bisect_left(x, vc) - 1, 0), len(x) - 2)
+        return _hermite(x, self._yl, self._dl, k, vc)
+
+
+def _hermite(x, y, d, k, v):
+    """Cubic Hermite interpolant on [x_k, x_{k+1}] with node values y and slopes d."""
+    h = x[k + 1] - x[k]
+    t = (v - x[k]) / h
+    h00 = (1 + 2 * t) * (1 - t) ** 2
+    h10 = t * (1 - t) ** 2
+    h01 = t * t * (3 - 2 * t)
+    h11 = t * t * (t - 1)
+    return h00 * y[k] + h10 * h * d[k] + h01 * y[k + 1] + h11 * h * d[k + 1]
 
 
 class TabulatedRate(RateFunction):
@@ -123,6 +136,9 @@ class TabulatedRate(RateFunction):
         return cls(v, np.asarray(fun(v), dtype=float))
 
     def __call__(self, v):
+        if isinstance(v, float):
+            side = self._pos if v > 0 else (self._neg if v < 0 else None)
+            return 0.0 if side is None else side.scalar(v)
         v = np.asarray(v, dtype=float)
         out = np.zeros_like(v)
         if self._pos is not None:

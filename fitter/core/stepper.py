@@ -25,10 +25,12 @@ Semantics (the FMUs implement exactly this; the README documents it):
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .effects import EffectState, run_with_effects
-from .kernel import KernelError, flows, interval_coefficients
+from .kernel import KernelError, flows, one_interval
 
 __all__ = ["Stepper"]
 
@@ -50,7 +52,7 @@ class Stepper:
         self.s_a = None
 
     def set_input(self, u: float) -> None:
-        if not np.isfinite(u):
+        if not math.isfinite(u):
             raise KernelError(f"input u = {u} is not finite")
         self.u = float(u)
         if self.t == self.t_a:
@@ -70,7 +72,7 @@ class Stepper:
         return float(self.model.C @ self.state() + self.model.D * self.u)
 
     def do_step(self, h: float) -> None:
-        if not (np.isfinite(h) and h > 0):
+        if not (math.isfinite(h) and h > 0):
             raise KernelError(f"step size {h} must be positive and finite")
         self.x_a = self.state()
         if self.model.effects:
@@ -84,9 +86,8 @@ class Stepper:
             return self._advance_effects()
         if self.t == self.t_a or self.u == self.u_a:
             return self.x_a.copy()
-        branch, p, r, S = interval_coefficients(self.model, np.array([self.t_a, self.t]),
-                                                np.array([self.u_a, self.u]))
-        return self._flows[branch[0]].step(self.x_a, p[0], r[0], S[0])
+        branch, p, r, S = one_interval(self.model, self.t_a, self.t, self.u_a, self.u)
+        return self._flows[branch].step(self.x_a, p, r, S)
 
     def _advance_effects(self) -> np.ndarray:
         if self.t == self.t_a:
