@@ -72,7 +72,7 @@ class Experiment:
 
 
 def _vec(name: str, value: Any, n: int) -> np.ndarray:
-    a = np.asarray(value, dtype=float)
+    a = np.array(value, dtype=float)
     if a.shape == (n, 1) or a.shape == (1, n):
         a = a.ravel()
     if a.shape != (n,):
@@ -83,7 +83,7 @@ def _vec(name: str, value: Any, n: int) -> np.ndarray:
 
 
 def _mat(name: str, value: Any, n: int) -> np.ndarray:
-    a = np.asarray(value, dtype=float)
+    a = np.array(value, dtype=float)
     if a.ndim == 0 and n == 1:
         a = a.reshape(1, 1)
     if a.shape != (n, n):
