@@ -19,7 +19,7 @@ import shutil
 import subprocess
 import sys
 import zipfile
-from ctypes import CDLL, byref, c_char_p, c_double, c_int, c_size_t, c_uint, c_void_p
+from ctypes import byref, c_char_p, c_double, c_int, c_size_t, c_uint, c_void_p
 from pathlib import Path
 
 import numpy as np
@@ -30,12 +30,13 @@ sys.path.insert(0, str(REPO))
 
 from fmpy import extract, read_model_description  # noqa: E402
 from fmpy.fmi1 import FMICallException  # noqa: E402
-from fmpy.fmi2 import (FMU2Slave, fmi2CoSimulation, fmi2DoStepStatus,  # noqa: E402
+from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE,  # noqa: E402
+                       fmi2CallbackFreeMemoryTYPE, fmi2CoSimulation, fmi2DoStepStatus,
                        fmi2LastSuccessfulTime, fmi2ModelExchange)
 
 from fitter.core import (RateDependentModel, RateIndependentModel, Stepper,  # noqa: E402
                          TabulatedRate, model_from_dict, simulate)
-from fitter.fmu_run import simulate_fmu, validate_fmu_file  # noqa: E402
+from fitter.fmu_run import collecting_callbacks, simulate_fmu, validate_fmu_file  # noqa: E402
 from fitter.model_description import model_variables  # noqa: E402
 from fitter.native_fmu import NativeBuildError, build_native_fmu  # noqa: E402
 
@@ -121,34 +122,6 @@ def unzipped(fmus, tmp_path_factory):
             for name, path in fmus.items()}
 
 
-def process_callbacks(log: list[str]):
-    """fmpy callbacks that log into `log` and allocate with the process's calloc and free.
-
-    fmpy's own callbacks take calloc from libc's handle, which bypasses an
-    AddressSanitizer runtime loaded with LD_PRELOAD; looked up in the global
-    scope instead, the FMU's instance memory is checked too.
-    """
-    from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                           fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
-    from fmpy.logging import addLoggerProxy
-
-    process = CDLL(None)
-    calloc, free = process.calloc, process.free
-    calloc.argtypes, calloc.restype = [c_size_t, c_size_t], c_void_p
-    free.argtypes, free.restype = [c_void_p], None
-
-    def logger(component, instance_name, status, category, message):
-        log.append(f"[{status}] {message.decode('utf-8', 'replace')}")
-
-    callbacks = fmi2CallbackFunctions()
-    callbacks.logger = fmi2CallbackLoggerTYPE(logger)
-    callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-    callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-    addLoggerProxy(byref(callbacks))
-    callbacks.keep = (calloc, free)
-    return callbacks
-
-
 class Instance:
     """An FMU2Slave instance with its log; variables by name."""
 
@@ -157,7 +130,7 @@ class Instance:
         self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
                              modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
         self.log: list[str] = []
-        self._callbacks = process_callbacks(self.log)
+        self._callbacks = collecting_callbacks(self.log)
         self.fmu.instantiate(callbacks=self._callbacks, loggingOn=False)
         self.t = 0.0
         if initialise:
@@ -442,7 +415,7 @@ def test_invalid_rate_table_is_reported_at_initialisation(unzipped):
 def test_instantiate_rejects_wrong_guid_and_type(unzipped):
     md, unzipdir = unzipped["ri"]
     log: list[str] = []
-    callbacks = process_callbacks(log)
+    callbacks = collecting_callbacks(log)
     fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
                     modelIdentifier=md.coSimulation.modelIdentifier, instanceName="x")
     assert fmu.fmi2Instantiate(b"x", fmi2CoSimulation, b"{wrong}", b"", byref(callbacks), 0, 0) is None
@@ -453,6 +426,12 @@ def test_instantiate_rejects_wrong_guid_and_type(unzipped):
     assert fmu.fmi2Instantiate(b"x", fmi2CoSimulation, md.guid.encode(), b"", None, 0, 0) is None
     assert any("does not match" in m for m in log) and any("Co-Simulation only" in m for m in log)
     assert any("non-empty" in m for m in log)
+    callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE()   # NULL: the FMU declares
+    callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE()           # canNotUseMemoryManagementFunctions
+    component = fmu.fmi2Instantiate(b"x", fmi2CoSimulation, md.guid.encode(), b"",
+                                    byref(callbacks), 0, 0)
+    assert component is not None
+    fmu.fmi2FreeInstance(component)
     fmu.freeLibrary()
 
 
@@ -546,11 +525,11 @@ class Reference:
 
 
 def _loaded(fmu_path: str):
-    """An uninstantiated FMU2Slave of the FMU, and its process callbacks."""
+    """An uninstantiated FMU2Slave of the FMU, and logging callbacks."""
     md = read_model_description(fmu_path)
     fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(fmu_path),
                     modelIdentifier=md.coSimulation.modelIdentifier, instanceName="driver")
-    return fmu, process_callbacks([])
+    return fmu, collecting_callbacks([])
 
 
 def _kernel_match(fmu, callbacks, model) -> None:

@@ -10,10 +10,15 @@
  * unknown value reference, a non-finite value or a bad step size is refused
  * with fmi2Error and a message through the logger; a refused call changes
  * nothing, so the instance stays usable and its memory intact.
+ *
+ * Memory comes from the C library's calloc and free: the FMU declares
+ * canNotUseMemoryManagementFunctions, and ignores the host's allocateMemory
+ * and freeMemory (which may then be NULL).
  */
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "fmi2_framework.h"
@@ -40,15 +45,11 @@ static const char *const CATEGORY_NAMES[] = {"logStatusError", "logStatusDiscard
 typedef struct {
     unsigned magic;
     fmi2CallbackLogger logger;
-    fmi2CallbackAllocateMemory allocate;
-    fmi2CallbackFreeMemory release;
     fmi2ComponentEnvironment environment;
     char *name;
     int logging_on;
     unsigned categories;
     int state;
-    int stop_defined;
-    double stop_time;
     ModelData *model;
 } Instance;
 
@@ -179,10 +180,6 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     probe.logger = functions->logger;
     probe.environment = functions->componentEnvironment;
     probe.name = (char *)(instanceName ? instanceName : "?");
-    if (!functions->allocateMemory || !functions->freeMemory) {
-        fail(&probe, "fmi2Instantiate: allocateMemory and freeMemory callbacks are required");
-        return NULL;
-    }
     if (!instanceName || !instanceName[0]) {
         fail(&probe, "fmi2Instantiate: instanceName must be a non-empty string");
         return NULL;
@@ -196,18 +193,16 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
              fmuGUID ? fmuGUID : "(NULL)", model_guid());
         return NULL;
     }
-    in = (Instance *)functions->allocateMemory(1, sizeof(Instance));
+    in = (Instance *)calloc(1, sizeof(Instance));
     if (!in) return NULL;
     *in = probe;
-    in->allocate = functions->allocateMemory;
-    in->release = functions->freeMemory;
-    in->name = (char *)in->allocate(strlen(instanceName) + 1, 1);
-    in->model = (ModelData *)in->allocate(1, model_size());
+    in->name = (char *)calloc(strlen(instanceName) + 1, 1);
+    in->model = (ModelData *)calloc(1, model_size());
     if (!in->name || !in->model) {
-        in->name = (char *)"?";
-        fail(in, "fmi2Instantiate: out of memory");
-        if (in->model) in->release(in->model);
-        in->release(in);
+        free(in->name);
+        free(in->model);
+        free(in);
+        fail(&probe, "fmi2Instantiate: out of memory");
         return NULL;
     }
     strcpy(in->name, instanceName);
@@ -225,9 +220,9 @@ void fmi2FreeInstance(fmi2Component c)
     Instance *in = enter(c, "fmi2FreeInstance", S_ANY);
     if (!in) return;
     in->magic = 0;
-    in->release(in->model);
-    in->release(in->name);
-    in->release(in);
+    free(in->model);
+    free(in->name);
+    free(in);
 }
 
 fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fmi2Real tolerance,
@@ -245,8 +240,6 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fm
                     stopTime, startTime);
     msg = model_set_start_time(in->model, startTime);
     if (msg) return fail(in, "fmi2SetupExperiment: %s", msg);
-    in->stop_defined = stopTimeDefined ? 1 : 0;
-    in->stop_time = stopTime;
     return fmi2OK;
 }
 
@@ -282,7 +275,6 @@ fmi2Status fmi2Reset(fmi2Component c)
     Instance *in = enter(c, "fmi2Reset", S_ANY);
     if (!in) return fmi2Error;
     model_defaults(in->model, 0.0);
-    in->stop_defined = 0;
     in->state = S_INSTANTIATED;
     return fmi2OK;
 }
@@ -427,14 +419,14 @@ static Snapshot *new_snapshot(const Instance *in, fmi2FMUstate *slot, const char
 {
     Snapshot *snap;
     if (*slot) return live_snapshot(in, *slot, function);
-    snap = (Snapshot *)in->allocate(1, sizeof(Snapshot));
+    snap = (Snapshot *)calloc(1, sizeof(Snapshot));
     if (!snap) {
         fail(in, "%s: out of memory", function);
         return NULL;
     }
-    snap->model = (ModelData *)in->allocate(1, model_size());
+    snap->model = (ModelData *)calloc(1, model_size());
     if (!snap->model) {
-        in->release(snap);
+        free(snap);
         fail(in, "%s: out of memory", function);
         return NULL;
     }
@@ -478,8 +470,8 @@ fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate)
     snap = live_snapshot(in, *FMUstate, "fmi2FreeFMUstate");
     if (!snap) return fmi2Error;
     snap->magic = 0;
-    in->release(snap->model);
-    in->release(snap);
+    free(snap->model);
+    free(snap);
     *FMUstate = NULL;
     return fmi2OK;
 }
@@ -543,12 +535,12 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
     if (header.state != S_INSTANTIATED && header.state != S_INIT && header.state != S_STEP
         && header.state != S_TERMINATED)
         return fail(in, "fmi2DeSerializeFMUstate: corrupt state (mode %d)", header.state);
-    scratch = (ModelData *)in->allocate(1, model_size());
+    scratch = (ModelData *)calloc(1, model_size());
     if (!scratch) return fail(in, "fmi2DeSerializeFMUstate: out of memory");
     memcpy(scratch, serializedState + sizeof header, model_size());
     msg = model_validate(scratch);
     if (msg) {
-        in->release(scratch);
+        free(scratch);
         return fail(in, "fmi2DeSerializeFMUstate: corrupt state: %s", msg);
     }
     snap = new_snapshot(in, FMUstate, "fmi2DeSerializeFMUstate");
@@ -556,7 +548,7 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
         snap->state = header.state;
         memcpy(snap->model, scratch, model_size());
     }
-    in->release(scratch);
+    free(scratch);
     return snap ? fmi2OK : fmi2Error;
 }
 
