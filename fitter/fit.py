@@ -578,8 +578,9 @@ class FitResult:
     """A fitted model (physical units) and its JSON-able summary.
 
     `predict(rec)` and `band(rec)` give the model output for any recording
-    with the same columns, started from the periodic state of its first
-    settled cycle (NaN before that cycle, the dropped transient).
+    with the same columns (input made monotone between reversals), started
+    from the periodic state of its first settled cycle: a prediction, nothing
+    is fitted to `rec` (NaN before that cycle, the dropped transient).
     """
 
     model: object
@@ -588,14 +589,15 @@ class FitResult:
     cov: np.ndarray
     build: Callable[[np.ndarray], object] = field(repr=False)
 
-    def _start(self, rec: Recording) -> tuple[int, tuple[int, int]]:
+    def _start(self, rec: Recording) -> tuple[int, tuple[int, int], np.ndarray]:
+        """First kept sample, first settled cycle (relative to it) and the monotone input."""
         prep = prepare(rec, min_cycles=0)
-        s0, s1 = _cycle_of(prep)
-        return prep.transient_end, (s0, s1)
+        u = monotone_input(prep.recording.u, prep.reversals)
+        return prep.transient_end, _cycle_of(prep), u
 
-    def _simulate(self, model, rec: Recording, start: int, cyc) -> np.ndarray:
+    def _simulate(self, model, rec: Recording, start: int, cyc, u) -> np.ndarray:
         from .core.kernel import simulate
-        t, u = rec.t[start:], rec.u[start:]
+        t = rec.t[start:]
         x0, _ = cycle_fixed_point(model, t[cyc[0]:cyc[1] + 1], u[cyc[0]:cyc[1] + 1])
         y = np.full(len(rec.u), np.nan)
         y[start + cyc[0]:] = simulate(model, t[cyc[0]:], u[cyc[0]:], x0=x0).y
@@ -603,17 +605,17 @@ class FitResult:
 
     def predict(self, rec: Recording) -> np.ndarray:
         """Model output on the samples of `rec` (NaN on the dropped transient)."""
-        start, cyc = self._start(rec)
-        return self._simulate(self.model, rec, start, cyc)
+        start, cyc, u = self._start(rec)
+        return self._simulate(self.model, rec, start, cyc, u)
 
     def band(self, rec: Recording, level: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
         """Uncertainty band y_hat -+ level * sd, sd^2 = diag(J cov J^T) (linearised, J by differences)."""
-        start, cyc = self._start(rec)
+        start, cyc, u = self._start(rec)
         ok = None
 
         def fun(th):
             nonlocal ok
-            y = self._simulate(self.build(th), rec, start, cyc)
+            y = self._simulate(self.build(th), rec, start, cyc, u)
             ok = np.isfinite(y)
             return np.where(ok, y, 0.0)
         y0 = fun(self.theta)

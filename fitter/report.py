@@ -1,0 +1,142 @@
+"""HTML fit report: per-recording error figures and plots (matplotlib, Agg backend).
+
+`write_fit_report(result, recordings, directory)` writes, for every recording,
+the data and model loops (y against u) with the model's uncertainty band
+(`FitResult.band`: y_hat -+ 2 sd, linearised propagation of the parameter
+covariance), and the residual against the input and against time, plus an
+`index.html` with the table of NRMSE, max error, loop-area error and residual
+RMS against the estimated noise level, the convergence condition and the
+preparation notes.  Everything is written to a temporary directory next to
+`directory` and renamed into place, so a reader never sees half a report.
+"""
+from __future__ import annotations
+
+import html
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Sequence
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from .metrics import compare  # noqa: E402
+from .recordings import Recording  # noqa: E402
+
+__all__ = ["write_fit_report", "recording_metrics"]
+
+
+def _safe(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in name)
+
+
+def recording_metrics(result, rec: Recording) -> tuple[dict, np.ndarray]:
+    """`fitter.metrics.compare` on the samples the model predicts (after the dropped transient)."""
+    y_hat = result.predict(rec)
+    ok = np.isfinite(y_hat)
+    first = int(np.argmax(ok))
+    m = compare(rec.slice(slice(first, None)), y_hat[first:])
+    m["first_sample"] = first
+    return m, y_hat
+
+
+def _loop_figure(rec: Recording, y_hat, lo, hi, path: Path) -> None:
+    ok = np.isfinite(y_hat)
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    ax.plot(rec.u, rec.y, ".", ms=2, color="0.5", label="data")
+    ax.fill_between(rec.u[ok], lo[ok], hi[ok], color="C1", alpha=0.35, lw=0, label="model ±2 sd")
+    ax.plot(rec.u[ok], y_hat[ok], "-", color="C0", lw=1, label="model")
+    ax.set_xlabel(f"{rec.input.name} [{rec.input.unit}]" if rec.input.unit else rec.input.name)
+    ax.set_ylabel(f"{rec.output.name} [{rec.output.unit}]" if rec.output.unit else rec.output.name)
+    ax.set_title(f"{rec.name}: data and model loop")
+    ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _residual_figure(rec: Recording, y_hat, noise: float | None, path: Path) -> None:
+    ok = np.isfinite(y_hat)
+    r = rec.y[ok] - y_hat[ok]
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.6))
+    a1.plot(rec.u[ok], r, ".", ms=2)
+    a1.set_xlabel(rec.input.name)
+    a2.plot(rec.t[ok], r, "-", lw=0.7)
+    a2.set_xlabel("time")
+    for ax in (a1, a2):
+        ax.set_ylabel(f"residual {rec.output.name}")
+        if noise:
+            ax.axhspan(-2 * noise, 2 * noise, color="C2", alpha=0.2, lw=0, label="±2 noise RMS")
+        ax.axhline(0, color="k", lw=0.5)
+    a1.legend(loc="best", fontsize=8)
+    fig.suptitle(f"{rec.name}: residual vs input and vs time")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _fmt(x, spec=".4g") -> str:
+    return "–" if x is None else format(x, spec)
+
+
+def _page(result, rows: list[tuple[str, dict, str, str]]) -> str:
+    s = result.summary
+    conv = s["convergence"]
+    head = ("<tr><th>recording</th><th>samples used</th><th>NRMSE</th><th>max error</th>"
+            "<th>loop-area error</th><th>residual RMS</th><th>noise RMS</th><th>residual / noise</th></tr>")
+    body = []
+    for name, m, _, _ in rows:
+        ratio = m["residual_rms"] / m["noise_rms"] if m.get("noise_rms") else None
+        body.append(f"<tr><td>{html.escape(name)}</td><td>{m['samples']}</td><td>{_fmt(m['nrmse'], '.3%')}</td>"
+                    f"<td>{_fmt(m['max_error'])}</td><td>{_fmt(m['loop_area_error'], '.2%') if m['loop_area_error'] is not None else '–'}</td>"
+                    f"<td>{_fmt(m['residual_rms'])}</td><td>{_fmt(m['noise_rms'])}</td><td>{_fmt(ratio, '.2f')}</td></tr>")
+    figs = "".join(f"<h3>{html.escape(n)}</h3><img src='{a}' alt='loop {html.escape(n)}'>"
+                   f"<img src='{b}' alt='residual {html.escape(n)}'>" for n, _, a, b in rows)
+    notes = "".join(f"<li><b>{html.escape(p['recording'])}</b>: {html.escape('; '.join(p['notes']))}</li>"
+                    for p in s.get("preparation", []))
+    params = "".join(f"<tr><td>{html.escape(k)}</td><td>{v['value']:.6g}</td><td>{_fmt(v['stderr'], '.3g')}</td></tr>"
+                     for k, v in s.get("parameters_normalised", {}).items())
+    return f"""<!doctype html><html><head><meta charset="utf-8"><title>Fit report</title>
+<style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
+td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}img{{max-width:100%}}</style></head><body>
+<h1>Semilinear Duhem fit report</h1>
+<p>Model: <b>{'rate-dependent' if s['kind'] == 'rd' else 'rate-independent'}</b>, order {s['order']}.
+Chosen by: {html.escape(s['why'])}.</p>
+<p>Convergence condition: <b>{'satisfied' if conv['satisfied'] else 'NOT satisfied'}</b>
+({html.escape(conv['quantity'])} = {_fmt(conv['value'])}).</p>
+<h2>Errors per recording</h2><p>The model is started from the periodic state of each recording's first
+settled cycle (a prediction: nothing is fitted to the recording shown); samples before it (the start-up
+transient) are not compared.  NRMSE = RMS error / output range.</p>
+<table>{head}{''.join(body)}</table>
+<h2>Figures</h2>{figs}
+<h2>Preparation</h2><ul>{notes}</ul>
+<h2>Parameters (normalised units) and standard errors</h2><table><tr><th>name</th><th>value</th>
+<th>stderr</th></tr>{params}</table></body></html>"""
+
+
+def write_fit_report(result, recordings: Sequence[Recording], directory) -> str:
+    """Write the report for `result` on `recordings` into `directory`; returns the index.html path."""
+    directory = Path(directory)
+    directory.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".report-", dir=directory.parent))
+    try:
+        rows = []
+        for i, rec in enumerate(recordings):
+            m, y_hat = recording_metrics(result, rec)
+            lo, hi = result.band(rec)
+            stem = f"{i:02d}_{_safe(rec.name)}"
+            _loop_figure(rec, y_hat, lo, hi, tmp / f"{stem}_loop.png")
+            _residual_figure(rec, y_hat, m.get("noise_rms"), tmp / f"{stem}_residual.png")
+            rows.append((rec.name, m, f"{stem}_loop.png", f"{stem}_residual.png"))
+        (tmp / "index.html").write_text(_page(result, rows), encoding="utf-8")
+        if directory.exists():
+            shutil.rmtree(directory)
+        os.replace(tmp, directory)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return str(directory / "index.html")

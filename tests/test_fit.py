@@ -1,0 +1,201 @@
+"""Fitting generated and measured recordings: output-error refinement, fit_recordings, report.
+
+Generated data come from the project's own kernel: sine inputs at three rates,
+a start-up transient (x0 far from the periodic state), seeded Gaussian output
+noise.  The true and the fitted models are compared on their limiting
+periodic responses (Theorem 1), which is what "the loop" means here.
+"""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fitter.core import (RateDependentModel, RateIndependentModel, TabulatedRate, periodic_response,
+                         simulate)
+from fitter.fit import FitError, fit_recordings, monotone_input
+from fitter.output_error import refine
+from fitter.recordings import Recording
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+OMEGAS = (0.5, 2.0, 8.0)
+
+
+def ri_true() -> RateIndependentModel:
+    return RateIndependentModel(A_plus=[[-3.0]], A_minus=[[2.0]], B_plus=[3.0], B_minus=[2.0], C=[4.0],
+                                E_plus=[1.0], E_minus=[-1.0], D=0.5, x0=[2.0])
+
+
+def rd_true() -> RateDependentModel:
+    v = np.logspace(-3, 3, 121)
+    g = v / (1 + v / 2)
+    return RateDependentModel(A=[[-1.0]], B=[1.0], C=[3.0], E=[0.2], D=0.3,
+                              g=TabulatedRate(np.r_[-v[::-1], v], np.r_[g[::-1], g]), x0=[1.5])
+
+
+def sine_recordings(model, seed: int, noise: float = 0.01, periods: int = 4, per: int = 200):
+    """u = 1 + 2 sin(w t) at three rates; output noise `noise` x range; x0 = model.x0 (transient)."""
+    rng = np.random.default_rng(seed)
+    recs = []
+    for w in OMEGAS:
+        t = np.linspace(0, periods * 2 * np.pi / w, periods * per + 1)
+        u = 1.0 + 2.0 * np.sin(w * t)
+        y = simulate(model, t, u).y
+        recs.append(Recording(t, u, y + noise * np.ptp(y) * rng.standard_normal(len(y)), name=f"w{w}"))
+    return recs
+
+
+def loop_errors(true, fitted) -> list[float]:
+    """max |limiting loop true - fitted| / y-range of the true loop, per rate."""
+    out = []
+    for w in OMEGAS:
+        t = np.linspace(0, 2 * np.pi / w, 401)
+        u = 1.0 + 2.0 * np.sin(w * t)
+        a = periodic_response(true, t, u).sim.y
+        b = periodic_response(fitted, t, u).sim.y
+        out.append(float(np.max(np.abs(a - b)) / np.ptp(a)))
+    return out
+
+
+@pytest.fixture(scope="module")
+def ri_fit():
+    return fit_recordings(sine_recordings(ri_true(), seed=3), kind="ri", order=1)
+
+
+@pytest.fixture(scope="module")
+def rd_fit():
+    return fit_recordings(sine_recordings(rd_true(), seed=4), kind="auto", order=1)
+
+
+def test_rate_independent_loop_recovered(ri_fit):
+    assert ri_fit.model.kind == "ri"
+    assert max(loop_errors(ri_true(), ri_fit.model)) < 0.02
+
+
+def test_rate_independent_summary_is_honest(ri_fit):
+    s = json.loads(json.dumps(ri_fit.summary))
+    assert s["convergence"]["satisfied"] is True
+    assert s["convergence"]["value"] < 1
+    for rec in s["recordings"]:
+        # residual at the noise level (1% of range) and the transient was dropped
+        assert 0.8 < rec["residual_rms"] / rec["noise_rms"] < 1.3
+        assert rec["nrmse"] < 0.015
+        assert rec["transient_end"] > 0
+    assert all(np.isfinite(p["stderr"]) and p["stderr"] > 0 for p in s["parameters_normalised"].values())
+
+
+def test_rate_dependent_loops_recovered_and_chosen(rd_fit):
+    assert rd_fit.summary["kind"] == "rd"
+    assert {c["kind"] for c in rd_fit.summary["candidates"]} == {"ri", "rd"}
+    assert max(loop_errors(rd_true(), rd_fit.model)) < 0.02
+    assert rd_fit.summary["convergence"]["satisfied"] is True
+
+
+def test_fitted_model_round_trips_json(rd_fit):
+    from fitter.core import model_from_dict
+    m = model_from_dict(json.loads(json.dumps(rd_fit.model.to_dict())))
+    t = np.linspace(0, 10, 501)
+    u = 1 + 2 * np.sin(2 * t)
+    np.testing.assert_allclose(simulate(m, t, u).y, simulate(rd_fit.model, t, u).y, rtol=1e-12,
+                               atol=1e-12)
+    assert m.signals.input.name == "u" and m.experiment.stop_time > 0
+
+
+def test_band_contains_prediction_and_truth(ri_fit):
+    rec = sine_recordings(ri_true(), seed=5)[1]
+    lo, hi = ri_fit.band(rec)
+    y = ri_fit.predict(rec)
+    ok = np.isfinite(y)
+    assert ok.sum() > len(y) // 2
+    assert np.all(lo[ok] <= y[ok]) and np.all(y[ok] <= hi[ok])
+    width = np.median(hi[ok] - lo[ok])
+    assert 0 < width < 0.02 * np.ptp(rec.y)
+
+
+def test_normalisation_maps_back_exactly():
+    """Fitting y' = a y + b against u' = c u + d gives the same loops, rescaled."""
+    recs = sine_recordings(ri_true(), seed=6, noise=0.002)
+    base = fit_recordings(recs, kind="ri", order=1)
+    scaled = [Recording(r.t, 1e3 * r.u + 72.0, 10.0 * r.y - 5.0, r.name) for r in recs]
+    big = fit_recordings(scaled, kind="ri", order=1)
+    t = np.linspace(0, 2 * np.pi, 401)
+    u = 1 + 2 * np.sin(t)
+    a = periodic_response(base.model, t, u).sim.y
+    b = periodic_response(big.model, t, 1e3 * u + 72.0).sim.y
+    np.testing.assert_allclose(b, 10 * a - 5, atol=2e-3 * np.ptp(b))
+
+
+def test_refine_recovers_parameters_with_fitted_initial_state():
+    def build(th):
+        return RateIndependentModel(A_plus=[[th[0]]], A_minus=[[th[1]]], B_plus=[th[2]],
+                                    B_minus=[th[3]], C=[1.0], D=th[4])
+    true = np.array([-3.0, 2.5, 1.0, 1.2, 0.3])
+    t = np.linspace(0, 60, 6001)
+    u = np.sin(t)
+    rng = np.random.default_rng(0)
+    y = simulate(build(true), t, u, x0=[0.5]).y + 0.01 * rng.standard_normal(len(t))
+    res = refine(build, np.array([-1.0, 1.0, 0.5, 0.5, 0.0]), [Recording(t, u, y)], x0="fit")
+    assert res.success
+    assert np.all(np.abs(res.theta - true) < 4 * res.stderr + 1e-12)
+    assert np.all(res.stderr < 0.02)
+    assert abs(res.x0s[0][0] - 0.5) < 0.05
+    assert abs(res.sigma - 0.01) < 1e-3
+
+
+def test_monotone_input_removes_noise_reversals_only():
+    u = np.r_[np.linspace(0, 1, 50), np.linspace(1, 0, 50)[1:]]
+    noisy = u + 0.01 * np.random.default_rng(1).standard_normal(len(u))
+    m = monotone_input(noisy, np.array([49]))
+    assert np.all(np.diff(m[:50]) >= 0) and np.all(np.diff(m[49:]) <= 0)
+    assert np.max(np.abs(m - u)) < 0.05
+    np.testing.assert_array_equal(monotone_input(u, np.array([49])), u)
+
+
+def test_rejects_input_that_never_reverses():
+    t = np.linspace(0, 1, 200)
+    with pytest.raises(FitError, match="never reverses"):
+        fit_recordings([Recording(t, t, np.sin(t), name="ramp")])
+
+
+def test_rejects_half_a_cycle():
+    t = np.linspace(0, 1.5 * np.pi, 300)
+    with pytest.raises(FitError, match="too few cycles|never reverses"):
+        fit_recordings([Recording(t, np.sin(t), np.cos(t), name="short")])
+
+
+def test_report_writes_html_and_figures(ri_fit, tmp_path):
+    from fitter.report import write_fit_report
+    recs = sine_recordings(ri_true(), seed=3)
+    index = Path(write_fit_report(ri_fit, recs, tmp_path / "rep"))
+    html = index.read_text()
+    assert index.name == "index.html"
+    pngs = sorted(p.name for p in index.parent.glob("*.png"))
+    assert len(pngs) >= 2 * len(recs)
+    for name in pngs:
+        assert name in html
+        assert (index.parent / name).read_bytes()[:4] == b"\x89PNG"
+    assert "NRMSE" in html and "w2.0" in html
+
+
+def _piezo(names):
+    import csv
+    recs = []
+    for name in names:
+        path = DATA / "piezo-pnzt" / f"{name}.csv"
+        with open(path) as fh:
+            rows = list(csv.DictReader(fh))
+        a = np.array([[float(r["time_s"]), float(r["voltage_V"]), float(r["polarization_uC_per_cm2"])]
+                      for r in rows])
+        recs.append(Recording(a[:, 0], a[:, 1], a[:, 2], name=name))
+    return recs
+
+
+@pytest.mark.skipif(not (DATA / "piezo-pnzt").is_dir(), reason="../shared/data is absent")
+def test_piezo_three_rates_rate_dependent_fit():
+    recs = _piezo(["slow_T06_triangle_1400V_1Hz", "slow_T01_triangle_1400V_0.1Hz",
+                   "slow_T02_triangle_1400V_0.01Hz"])
+    res = fit_recordings(recs, kind="rd", order=2)
+    assert res.summary["convergence"]["satisfied"] is True
+    assert res.model.to_dict()["g"]["type"] == "table"
+    for rec in res.summary["recordings"]:
+        assert rec["nrmse"] < 0.08
