@@ -244,6 +244,73 @@ def test_sources_compile_without_warnings(tmp_path):
         assert result.returncode == 0, result.stderr
 
 
+C_HOST = r"""
+/* A Python-free co-simulation host: dlopen the FMU's library, sample-and-step u = sin(0.7 t). */
+#include <dlfcn.h>
+#include <math.h>
+#include <stdio.h>
+#include "fmi2Functions.h"
+
+static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status,
+                   fmi2String category, fmi2String message, ...)
+{
+    (void)env; (void)name; (void)category;
+    fprintf(stderr, "[%d] %s\n", (int)status, message);
+}
+
+#define LOAD(type, name) type *name = (type *)dlsym(lib, #name)
+
+int main(int argc, char **argv)
+{
+    void *lib = argc == 3 ? dlopen(argv[1], RTLD_NOW | RTLD_LOCAL) : NULL;
+    const fmi2CallbackFunctions callbacks = {logger, NULL, NULL, NULL, NULL};
+    const fmi2ValueReference u_ref = 0, y_ref = 1;
+    fmi2Component c;
+    int k;
+    if (!lib) return 2;
+    LOAD(fmi2InstantiateTYPE, fmi2Instantiate);
+    LOAD(fmi2SetupExperimentTYPE, fmi2SetupExperiment);
+    LOAD(fmi2EnterInitializationModeTYPE, fmi2EnterInitializationMode);
+    LOAD(fmi2ExitInitializationModeTYPE, fmi2ExitInitializationMode);
+    LOAD(fmi2SetRealTYPE, fmi2SetReal);
+    LOAD(fmi2GetRealTYPE, fmi2GetReal);
+    LOAD(fmi2DoStepTYPE, fmi2DoStep);
+    LOAD(fmi2TerminateTYPE, fmi2Terminate);
+    LOAD(fmi2FreeInstanceTYPE, fmi2FreeInstance);
+    c = fmi2Instantiate("host", fmi2CoSimulation, argv[2], "", &callbacks, fmi2False, fmi2False);
+    if (!c || fmi2SetupExperiment(c, fmi2False, 0.0, 0.0, fmi2False, 0.0)
+        || fmi2EnterInitializationMode(c) || fmi2ExitInitializationMode(c)) return 3;
+    for (k = 0; k < 200; k++) {
+        double t = 0.05 * k, u = sin(0.7 * t), y;
+        if (fmi2SetReal(c, &u_ref, 1, &u) || fmi2GetReal(c, &y_ref, 1, &y)
+            || fmi2DoStep(c, t, 0.05, fmi2True)) return 4;
+        printf("%.17g\n", y);
+    }
+    fmi2Terminate(c);
+    fmi2FreeInstance(c);
+    return dlclose(lib);
+}
+"""
+
+
+def _run_c_host(unzipdir: str, md, tmp_path: Path, flags: tuple[str, ...] = ()) -> np.ndarray:
+    (tmp_path / "host.c").write_text(C_HOST)
+    subprocess.run(["cc", *flags, "-I", str(Path(unzipdir) / "sources"), "host.c", "-o", "host",
+                    "-ldl", "-lm"], cwd=tmp_path, check=True)
+    library = Path(unzipdir) / "binaries" / "linux64" / f"{md.coSimulation.modelIdentifier}.so"
+    result = subprocess.run([str(tmp_path / "host"), str(library), md.guid], capture_output=True,
+                            text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    return np.array(result.stdout.split(), dtype=float)
+
+
+def test_python_free_c_host_runs_the_fmu(unzipped, tmp_path):
+    md, unzipdir = unzipped["rd_effects"]
+    y = _run_c_host(unzipdir, md, tmp_path)
+    t = 0.05 * np.arange(200)
+    assert np.abs(y - simulate(MODELS["rd_effects"](), t, np.sin(0.7 * t)).y).max() < 1e-10
+
+
 # --------------------------------------------------------------------- FMI behaviour
 
 
@@ -492,6 +559,13 @@ def test_sanitized_build_runs_clean(tmp_path):
         assert result.returncode == 0, result.stdout + result.stderr
         assert expected in result.stdout
         assert "AddressSanitizer" not in result.stderr and "runtime error" not in result.stderr
+    # and in a sanitized C host, without LD_PRELOAD
+    path = tmp_path / "rd_effects.fmu"
+    unzipdir = extract(str(path), str(tmp_path / "unzipped"))
+    y = _run_c_host(unzipdir, read_model_description(str(path)), tmp_path,
+                    ("-fsanitize=address,undefined", "-fno-sanitize-recover=undefined"))
+    t = 0.05 * np.arange(200)
+    assert np.abs(y - simulate(MODELS["rd_effects"](), t, np.sin(0.7 * t)).y).max() < 1e-10
 
 
 # --------------------------------------------------------------------- fuzz driver
