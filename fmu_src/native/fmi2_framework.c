@@ -131,11 +131,6 @@ static Instance *enter(fmi2Component c, const char *function, int allowed)
     return in;
 }
 
-static int is_finite(double v)
-{
-    return isfinite(v) ? 1 : 0;
-}
-
 /* ---------------------------------------------------------------- common */
 
 const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
@@ -233,9 +228,9 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fm
     (void)toleranceDefined;
     (void)tolerance;
     if (!in) return fmi2Error;
-    if (!is_finite(startTime))
+    if (!isfinite(startTime))
         return fail(in, "fmi2SetupExperiment: startTime = %g is not finite", startTime);
-    if (stopTimeDefined && !(is_finite(stopTime) && stopTime >= startTime))
+    if (stopTimeDefined && !(isfinite(stopTime) && stopTime >= startTime))
         return fail(in, "fmi2SetupExperiment: stopTime = %g must be finite and >= startTime = %g",
                     stopTime, startTime);
     msg = model_set_start_time(in->model, startTime);
@@ -594,11 +589,11 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
     (void)noSetFMUStatePriorToCurrentPoint;
     if (!in) return fmi2Error;
     t = model_time(in->model);
-    if (!(is_finite(communicationStepSize) && communicationStepSize > 0.0))
+    if (!(isfinite(communicationStepSize) && communicationStepSize > 0.0))
         return fail(in, "fmi2DoStep: communicationStepSize = %g must be positive and finite",
                     communicationStepSize);
     tolerance = 1e-9 * (1.0 + (t < 0 ? -t : t) + communicationStepSize);
-    if (!is_finite(currentCommunicationPoint)
+    if (!isfinite(currentCommunicationPoint)
         || !(currentCommunicationPoint - t <= tolerance && t - currentCommunicationPoint <= tolerance))
         return fail(in, "fmi2DoStep: currentCommunicationPoint = %.17g is not the FMU's time %.17g",
                     currentCommunicationPoint, t);
