@@ -19,6 +19,9 @@ Layout of the C, after the Modelica Reference-FMUs:
   `fitter.model_description.model_variables` (so both backends have the same
   interface), and where each effect parameter lives.
 
+``resources/model.json`` carries the model itself (not read by the C; `duhem
+validate` compares the FMU with its in-process simulation).
+
 The math equals the Python kernel's (`fitter.core.stepper.Stepper` on
 `fitter.core.kernel`, `fitter.core.rates`, `fitter.core.effects`): the flow of
 eq (K) of the kernel is the matrix exponential of the augmented matrix
@@ -227,7 +230,8 @@ def _compile(cc: str, sources: Path, c_files: tuple[str, ...], target: Path,
 
 
 def _package(out_path: str | os.PathLike, xml: str, files: dict[str, str], c_files: tuple[str, ...],
-             model_identifier: str, cc: str | None, sanitize: bool) -> str:
+             model_identifier: str, cc: str | None, sanitize: bool,
+             resources: dict[str, str] | None = None) -> str:
     """Compile `c_files` (of SOURCE_DIR, plus the generated `files`) and zip the FMU atomically."""
     compiler = find_c_compiler(cc)
     platform, suffix = _platform()
@@ -249,6 +253,8 @@ def _package(out_path: str | os.PathLike, xml: str, files: dict[str, str], c_fil
                 zf.write(library, f"binaries/{platform}/{library.name}")
                 for path in sorted(sources.iterdir()):
                     zf.write(path, f"sources/{path.name}")
+                for name, text in (resources or {}).items():
+                    zf.writestr(f"resources/{name}", text)
             os.replace(staging, out)
         finally:
             if os.path.exists(staging):
@@ -293,8 +299,9 @@ def build_native_fmu(model, out_path: str | os.PathLike, *, sanitize: bool = Fal
     xml = model_description_xml(model, model_identifier=model_identifier, guid=guid,
                                 backend="native", source_files=C_SOURCES,
                                 log_categories=LOG_CATEGORIES, **description)
+    model_json = json.dumps(model.to_dict(), indent=2)
     return _package(out_path, xml, {"model_data.h": header}, C_SOURCES, model_identifier, cc,
-                    sanitize)
+                    sanitize, {"model.json": model_json})
 
 
 GAIN_IDENTIFIER = "duhem_gain"

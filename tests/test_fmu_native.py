@@ -13,6 +13,7 @@ file is the fuzz driver that those subprocesses execute.
 from __future__ import annotations
 
 import copy
+import json
 import math
 import os
 import shutil
@@ -214,6 +215,9 @@ def test_shared_library_needs_no_python(fmus, unzipped):
             "sources/fmi2Functions.h"} <= names
     assert md.buildConfigurations[0].sourceFileSets[0].sourceFiles == ["fmi2_framework.c",
                                                                        "duhem_model.c"]
+    with zipfile.ZipFile(fmus["rd_effects"]) as zf:
+        shipped = model_from_dict(json.loads(zf.read("resources/model.json")))
+    assert shipped.to_dict() == MODELS["rd_effects"]().to_dict()
 
 
 def test_source_fmu_compiles_with_fmpy(unzipped, tmp_path):
