@@ -164,16 +164,17 @@ def model_data_header(model, guid: str) -> str:
     rows = []
     for v in variables:
         if v.value_reference == U_REF:
-            rows.append((v.value_reference, "r", "VAR_INPUT", 0, "ANY_FINITE"))
+            rows.append((v.name, v.value_reference, "r", "VAR_INPUT", 0, "ANY_FINITE"))
         elif v.value_reference == Y_REF:
-            rows.append((v.value_reference, "r", "VAR_OUTPUT", 0, "ANY_FINITE"))
+            rows.append((v.name, v.value_reference, "r", "VAR_OUTPUT", 0, "ANY_FINITE"))
         elif v.type == "Real":
-            rows.append((v.value_reference, "r", "VAR_PARAMETER", real_index[v.name],
+            rows.append((v.name, v.value_reference, "r", "VAR_PARAMETER", real_index[v.name],
                          _constraint(v.name)))
         elif v.type == "Integer":
-            rows.append((v.value_reference, "i", "VAR_INTEGER", int(v.start), "ANY_FINITE"))
+            rows.append((v.name, v.value_reference, "i", "VAR_INTEGER", int(v.start),
+                         "ANY_FINITE"))
         elif v.type == "String":
-            rows.append((v.value_reference, "s", "VAR_STRING", 0, "ANY_FINITE"))
+            rows.append((v.name, v.value_reference, "s", "VAR_STRING", 0, "ANY_FINITE"))
         else:
             raise RuntimeError(f"variable {v.name}: type {v.type} has no place in the native FMU")
     strings = [v.start for v in variables if v.type == "String"]
@@ -197,8 +198,8 @@ def model_data_header(model, guid: str) -> str:
     lines += [f"    {_c_double(v.start)}, /* {v.name} */" for v in params]
     lines += ["};", "", f"#define DUHEM_N_VARIABLES {len(rows)}",
               "static const DuhemVariable duhem_variables[DUHEM_N_VARIABLES] = {"]
-    lines += [f"    {{{vr}, '{t}', {role}, {index}, {constraint}}},"
-              for vr, t, role, index, constraint in rows]
+    lines += [f"    {{{_c_string(name)}, {vr}, '{t}', {role}, {index}, {constraint}}},"
+              for name, vr, t, role, index, constraint in rows]
     lines += ["};", "", "static const char *const duhem_strings[] = {" + _c_string(strings[0])
               + "};", "", "#endif", ""]
     return "\n".join(lines)

@@ -440,7 +440,8 @@ def test_refused_calls_report_and_change_nothing(unzipped):
     inst.initialise(u0=u[0])
     _expect_error(inst, "not finite", fmu.setReal, [vr["u"]], [math.nan])
     _expect_error(inst, "not finite", fmu.setReal, [vr["u"]], [math.inf])
-    _expect_error(inst, "fixed parameter", fmu.setReal, [vr["A[1,1]"]], [1.0])
+    _expect_error(inst, "A[1,1] (value reference 4) = 1: a fixed parameter", fmu.setReal,
+                  [vr["A[1,1]"]], [1.0])
     _expect_error(inst, "output cannot be set", fmu.setReal, [vr["y"]], [1.0])
     _expect_error(inst, "must be positive", fmu.doStep, 0.0, 0.0)
     _expect_error(inst, "must be positive", fmu.doStep, 0.0, -0.1)

@@ -465,6 +465,12 @@ static const DuhemVariable *find(char type, fmi2ValueReference vr)
 
 static const char *const UNKNOWN = "unknown value reference for this type";
 
+const char *model_variable_name(char type, fmi2ValueReference vr)
+{
+    const DuhemVariable *var = find(type, vr);
+    return var ? var->name : "?";
+}
+
 size_t model_size(void) { return sizeof(ModelData); }
 
 const char *model_guid(void) { return DUHEM_GUID; }

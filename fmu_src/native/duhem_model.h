@@ -32,6 +32,7 @@ typedef enum {
 typedef enum { ANY_FINITE, NONNEGATIVE, POSITIVE } Constraint;
 
 typedef struct {
+    const char *name;
     fmi2ValueReference vr;
     char type;      /* 'r' Real, 'i' Integer, 's' String */
     VariableRole role;

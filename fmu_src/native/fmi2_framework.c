@@ -292,7 +292,8 @@ fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
     if (!in || check_arrays(in, "fmi2GetReal", vr, nvr, value) != fmi2OK) return fmi2Error;
     for (i = 0; i < nvr; i++) {
         const char *msg = model_get_real(in->model, vr[i], &value[i]);
-        if (msg) return fail(in, "fmi2GetReal: value reference %u: %s", vr[i], msg);
+        if (msg) return fail(in, "fmi2GetReal: %s (value reference %u): %s",
+                             model_variable_name('r', vr[i]), vr[i], msg);
     }
     return fmi2OK;
 }
@@ -305,7 +306,8 @@ fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t
     if (!in || check_arrays(in, "fmi2GetInteger", vr, nvr, value) != fmi2OK) return fmi2Error;
     for (i = 0; i < nvr; i++) {
         const char *msg = model_get_integer(in->model, vr[i], &value[i]);
-        if (msg) return fail(in, "fmi2GetInteger: value reference %u: %s", vr[i], msg);
+        if (msg) return fail(in, "fmi2GetInteger: %s (value reference %u): %s",
+                             model_variable_name('i', vr[i]), vr[i], msg);
     }
     return fmi2OK;
 }
@@ -318,7 +320,8 @@ fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t
     if (!in || check_arrays(in, "fmi2GetBoolean", vr, nvr, value) != fmi2OK) return fmi2Error;
     for (i = 0; i < nvr; i++) {
         const char *msg = model_get_boolean(in->model, vr[i], &value[i]);
-        if (msg) return fail(in, "fmi2GetBoolean: value reference %u: %s", vr[i], msg);
+        if (msg) return fail(in, "fmi2GetBoolean: %s (value reference %u): %s",
+                             model_variable_name('b', vr[i]), vr[i], msg);
     }
     return fmi2OK;
 }
@@ -331,7 +334,8 @@ fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
     if (!in || check_arrays(in, "fmi2GetString", vr, nvr, value) != fmi2OK) return fmi2Error;
     for (i = 0; i < nvr; i++) {
         const char *msg = model_get_string(in->model, vr[i], &value[i]);
-        if (msg) return fail(in, "fmi2GetString: value reference %u: %s", vr[i], msg);
+        if (msg) return fail(in, "fmi2GetString: %s (value reference %u): %s",
+                             model_variable_name('s', vr[i]), vr[i], msg);
     }
     return fmi2OK;
 }
@@ -346,8 +350,8 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
     phase = in->state == S_STEP ? PHASE_STEP : PHASE_CONFIGURE;
     for (i = 0; i < nvr; i++) {
         const char *msg = model_check_set_real(in->model, vr[i], value[i], phase);
-        if (msg) return fail(in, "fmi2SetReal: value reference %u, value %g: %s", vr[i],
-                             value[i], msg);
+        if (msg) return fail(in, "fmi2SetReal: %s (value reference %u) = %g: %s",
+                             model_variable_name('r', vr[i]), vr[i], value[i], msg);
     }
     for (i = 0; i < nvr; i++) model_set_real(in->model, vr[i], value[i], phase);
     return fmi2OK;
@@ -362,7 +366,8 @@ fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t
     if (!in || check_arrays(in, "fmi2SetInteger", vr, nvr, value) != fmi2OK) return fmi2Error;
     for (i = 0; i < nvr; i++) {
         const char *msg = model_check_set_integer(in->model, vr[i], value[i]);
-        if (msg) return fail(in, "fmi2SetInteger: value reference %u: %s", vr[i], msg);
+        if (msg) return fail(in, "fmi2SetInteger: %s (value reference %u): %s",
+                             model_variable_name('i', vr[i]), vr[i], msg);
     }
     return fmi2OK;
 }
@@ -375,7 +380,8 @@ fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t
     if (!in || check_arrays(in, "fmi2SetBoolean", vr, nvr, value) != fmi2OK) return fmi2Error;
     for (i = 0; i < nvr; i++) {
         const char *msg = model_check_set_boolean(in->model, vr[i], value[i]);
-        if (msg) return fail(in, "fmi2SetBoolean: value reference %u: %s", vr[i], msg);
+        if (msg) return fail(in, "fmi2SetBoolean: %s (value reference %u): %s",
+                             model_variable_name('b', vr[i]), vr[i], msg);
     }
     return fmi2OK;
 }
@@ -388,7 +394,8 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
     if (!in || check_arrays(in, "fmi2SetString", vr, nvr, value) != fmi2OK) return fmi2Error;
     for (i = 0; i < nvr; i++) {
         const char *msg = model_check_set_string(in->model, vr[i], value[i]);
-        if (msg) return fail(in, "fmi2SetString: value reference %u: %s", vr[i], msg);
+        if (msg) return fail(in, "fmi2SetString: %s (value reference %u): %s",
+                             model_variable_name('s', vr[i]), vr[i], msg);
     }
     return fmi2OK;
 }

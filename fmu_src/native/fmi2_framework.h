@@ -36,6 +36,9 @@ const char *model_validate(ModelData *m);
 /* End of initialization: check the parameters as a whole. */
 const char *model_exit_initialization(ModelData *m);
 
+/* Name of the variable of this type ('r', 'i', 'b', 's') and value reference, for messages. */
+const char *model_variable_name(char type, fmi2ValueReference vr);
+
 const char *model_get_real(ModelData *m, fmi2ValueReference vr, fmi2Real *value);
 const char *model_get_integer(const ModelData *m, fmi2ValueReference vr, fmi2Integer *value);
 const char *model_get_boolean(const ModelData *m, fmi2ValueReference vr, fmi2Boolean *value);

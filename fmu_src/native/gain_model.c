@@ -19,6 +19,12 @@ struct ModelData {
 
 static const char *const UNKNOWN = "unknown value reference for this type";
 
+const char *model_variable_name(char type, fmi2ValueReference vr)
+{
+    static const char *const names[] = {"u", "y", "k"};
+    return type == 'r' && vr <= VR_K ? names[vr] : "?";
+}
+
 size_t model_size(void) { return sizeof(ModelData); }
 
 const char *model_guid(void) { return GAIN_GUID; }
