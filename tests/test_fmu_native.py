@@ -516,6 +516,17 @@ def test_effect_without_native_implementation_is_refused(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_build_fmu_dispatches_to_the_native_backend(tmp_path):
+    import build_fmu
+
+    path = build_fmu.build_fmu(ri_small(), tmp_path / "m.fmu", backend="native",
+                               model_name="Example 1")
+    md = read_model_description(path)
+    assert md.modelName == "Example 1" and md.coSimulation.needsExecutionTool is False
+    t, u = sampled_input(60)
+    assert np.abs(simulate_fmu(path, t, u) - simulate(ri_small(), t, u).y).max() < 1e-10
+
+
 def test_missing_compiler_and_failed_build_leave_no_file(tmp_path):
     target = tmp_path / "m.fmu"
     with pytest.raises(NativeBuildError, match="--backend python"):
