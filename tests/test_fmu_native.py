@@ -507,6 +507,13 @@ def test_instantiate_rejects_wrong_guid_and_type(unzipped):
     fmu.freeLibrary()
 
 
+def test_every_core_effect_runs_natively():
+    from fitter.core.effects import EFFECTS
+    from fitter.native_fmu import NATIVE_EFFECTS
+
+    assert NATIVE_EFFECTS == set(EFFECTS) == {e["effect"] for e in ALL_EFFECTS}
+
+
 def test_effect_without_native_implementation_is_refused(tmp_path, monkeypatch):
     import fitter.native_fmu as native
 
