@@ -87,8 +87,22 @@ def ri_small(effects=()):
                                 C=[0, 1], x0=[0.15, 0.15], effects=list(effects))
 
 
+def rd_small(effects=()):
+    """Order 2, a four-node rate table (for the fuzz test)."""
+    return RateDependentModel(A=[[-2.0, 0.3], [0.0, -1.0]], B=[2.0, 1.0], C=[1.0, 0.5], E=[0.1, 0.0],
+                              g=TabulatedRate([-1.0, -0.3, 0.4, 1.5], [0.8, 0.3, 0.35, 1.2]),
+                              effects=list(effects))
+
+
 FUZZ_EFFECTS = [{"effect": "creep", "parameters": {"k": 0.2, "tau": 0.6}},
                 {"effect": "backlash", "parameters": {"b": 0.1}}]
+FUZZ_RD_EFFECTS = [{"effect": "rate_dependence", "parameters": {"alpha": 0.3}},
+                   {"effect": "sensor_lag", "parameters": {"tau": 0.05}}]
+# The parameters each fuzz model's sequences set (g_v can collide: an invalid rate table).
+FUZZ_PARAMETERS = {
+    "fuzz": ["x0[1]", "C[1]", "creep.tau", "backlash.b"],
+    "fuzz_rd": ["x0[2]", "g_v[1]", "g_v[4]", "g_g[2]", "sensor_lag.tau", "rate_dependence.alpha"],
+}
 
 MODELS = {
     "ri": ri_model,
@@ -97,6 +111,7 @@ MODELS = {
     "ri_effects": lambda: ri_model(ALL_EFFECTS),
     "rd_effects": lambda: rd_model(ALL_EFFECTS),
     "fuzz": lambda: ri_small(FUZZ_EFFECTS),
+    "fuzz_rd": lambda: rd_small(FUZZ_RD_EFFECTS),
 }
 
 
@@ -557,16 +572,17 @@ def test_benchmark_gain_fmu_is_valid_and_computes_k_u(tmp_path):
 # --------------------------------------------------------------------- robustness
 
 
-def _driver(mode: str, fmu_path: Path, argument, env: dict | None = None):
+def _driver(mode: str, fmu_path: Path, *arguments, env: dict | None = None):
     environment = {**os.environ, "PYTHONPATH": str(REPO), **(env or {})}
-    return subprocess.run([sys.executable, __file__, mode, str(fmu_path), str(argument)],
+    return subprocess.run([sys.executable, __file__, mode, str(fmu_path), *map(str, arguments)],
                           capture_output=True, text=True, env=environment, cwd=REPO, timeout=300)
 
 
-def test_random_call_sequences_never_crash(fmus):
-    result = _driver("fuzz", fmus["fuzz"], 300)
+@pytest.mark.parametrize("name", FUZZ_PARAMETERS)
+def test_random_call_sequences_never_crash(fmus, name):
+    result = _driver("fuzz", fmus[name], name, 250)
     assert result.returncode == 0, result.stdout + result.stderr
-    assert "fuzz: 300 sequences" in result.stdout
+    assert "fuzz: 250 sequences" in result.stdout
 
 
 def test_sanitized_build_runs_clean(tmp_path):
@@ -575,12 +591,13 @@ def test_sanitized_build_runs_clean(tmp_path):
     assert os.path.isabs(runtime), "the C compiler ships no AddressSanitizer runtime"
     env = {"LD_PRELOAD": runtime, "ASAN_OPTIONS": "detect_leaks=0:abort_on_error=1",
            "UBSAN_OPTIONS": "print_stacktrace=1:halt_on_error=1"}
-    runs = [("fuzz", "fuzz", 60, "fuzz: 60 sequences"),
-            ("check", "rd_effects", "rd_effects", "check: rd_effects kernel match"),
-            ("check", "rd_one_sided", "rd_one_sided", "check: rd_one_sided kernel match")]
-    for mode, name, argument, expected in runs:
+    runs = [("fuzz", "fuzz", (60,), "fuzz: 60 sequences"),
+            ("fuzz", "fuzz_rd", (60,), "fuzz: 60 sequences"),
+            ("check", "rd_effects", (), "check: rd_effects kernel match"),
+            ("check", "rd_one_sided", (), "check: rd_one_sided kernel match")]
+    for mode, name, arguments, expected in runs:
         path = build_native_fmu(MODELS[name](), tmp_path / f"{name}.fmu", sanitize=True)
-        result = _driver(mode, Path(path), argument, env)
+        result = _driver(mode, Path(path), name, *arguments, env=env)
         assert result.returncode == 0, result.stdout + result.stderr
         assert expected in result.stdout
         assert "AddressSanitizer" not in result.stderr and "runtime error" not in result.stderr
@@ -597,9 +614,12 @@ def test_sanitized_build_runs_clean(tmp_path):
 
 
 class Reference:
-    """What the FMU must do: the FMI 2.0 CS state machine and the Python Stepper."""
+    """What the FMU must do: the FMI 2.0 CS state machine and the Python Stepper.
 
-    SETTABLE = {"x0[1]": None, "C[1]": None, "creep.tau": "positive", "backlash.b": "nonnegative"}
+    `invalid`: the parameters set so far make no model (a rate table with a
+    repeated or zero slope); the FMU must then refuse to compute y and to end
+    initialization.
+    """
 
     def __init__(self, model, variables):
         self.base = model.to_dict()
@@ -609,18 +629,29 @@ class Reference:
     def reset(self):
         self.mode, self.values, self.t0 = "instantiated", copy.deepcopy(self.base), 0.0
         self.stepper = Stepper(model_from_dict(self.values), 0.0, 0.0)
+        self.invalid = False
 
-    def accepts(self, name, value):
-        rule = self.SETTABLE[name]
-        return math.isfinite(value) and not (rule == "positive" and value <= 0) \
-            and not (rule == "nonnegative" and value < 0)
+    @staticmethod
+    def accepts(name, value):
+        """Finite, and within an effect parameter's range (`fitter.core.effects.EFFECTS`)."""
+        from fitter.core.effects import EFFECTS
+
+        effect, _, param = name.partition(".")
+        rng = EFFECTS.get(effect, {}).get(param, (-math.inf, math.inf))
+        return math.isfinite(value) and value >= rng[0] and not (len(rng) > 2 and value <= rng[0])
 
     def set_parameter(self, name, value):
         node = self.values
         for key in self.paths[name][:-1]:
             node = node[key]
         node[self.paths[name][-1]] = value
-        self.stepper = Stepper(model_from_dict(self.values), self.t0, self.stepper.u)
+        try:
+            model = model_from_dict(self.values)
+        except ValueError:
+            self.invalid = True
+            return
+        self.invalid = False
+        self.stepper = Stepper(model, self.t0, self.stepper.u)
 
 
 def _loaded(fmu_path: str):
@@ -662,11 +693,11 @@ def _kernel_match(fmu, callbacks, model) -> None:
     assert replay == y[60:]
 
 
-def _fuzz(fmu_path: str, examples: int) -> None:
+def _fuzz(fmu_path: str, name: str, examples: int) -> None:
     from hypothesis import HealthCheck, given, settings, strategies as st
 
     fmu, callbacks = _loaded(fmu_path)
-    model = MODELS["fuzz"]()
+    model = MODELS[name]()
     variables = model_variables(model)
     vr = {v.name: v.value_reference for v in variables}
     _kernel_match(fmu, callbacks, model)
@@ -682,7 +713,8 @@ def _fuzz(fmu_path: str, examples: int) -> None:
         set_u, get_y, step, set_u, get_y, step,
         st.tuples(st.sampled_from(["setup", "enter", "exit", "terminate", "reset",
                                    "get_state", "status", "discard", "get_unknown", "null"])),
-        st.tuples(st.just("set_param"), st.sampled_from(sorted(Reference.SETTABLE)), values),
+        st.tuples(st.just("set_param"), st.sampled_from(FUZZ_PARAMETERS[name]),
+                  values | st.sampled_from([-1.0, -0.3, 0.4, 1.5])),
         st.tuples(st.sampled_from(["set_state", "free_state", "roundtrip"]), st.integers(0, 3)),
         st.tuples(st.just("garbage"), st.binary(max_size=64)),
         st.tuples(st.just("set_order"), st.integers(1, 3)),
@@ -727,13 +759,14 @@ def _fuzz(fmu_path: str, examples: int) -> None:
                                     "exit": ("initialization", "stepping",
                                              fmu.exitInitializationMode),
                                     "terminate": ("stepping", "terminated", fmu.terminate)}[kind]
-            expect(status_of(call), mode == source)
-            ref.mode = target if mode == source else mode
+            ok = mode == source and not (kind == "exit" and ref.invalid)
+            expect(status_of(call), ok)
+            ref.mode = target if ok else mode
         elif kind == "reset":
             expect(status_of(fmu.reset), True)
             ref.reset()
         elif kind == "get_y":
-            readable = mode in ("initialization", "stepping", "terminated")
+            readable = mode in ("initialization", "stepping", "terminated") and not ref.invalid
             try:
                 value = fmu.getReal([vr["y"]])[0]
                 assert readable
@@ -800,8 +833,8 @@ def _fuzz(fmu_path: str, examples: int) -> None:
     print(f"fuzz: {examples} sequences, {tally[True]} calls accepted, {tally[False]} refused")
 
 
-if __name__ == "__main__" and len(sys.argv) == 4 and sys.argv[1] == "fuzz":
-    _fuzz(sys.argv[2], int(sys.argv[3]))
+if __name__ == "__main__" and len(sys.argv) == 5 and sys.argv[1] == "fuzz":
+    _fuzz(sys.argv[2], sys.argv[3], int(sys.argv[4]))
 elif __name__ == "__main__" and len(sys.argv) == 4 and sys.argv[1] == "check":
     loaded = _loaded(sys.argv[2])
     _kernel_match(*loaded, MODELS[sys.argv[3]]())
