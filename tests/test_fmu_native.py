@@ -7,8 +7,9 @@ message and never crash, also under random call sequences (hypothesis, run in
 a subprocess so that a crash fails the test instead of killing pytest) and
 under AddressSanitizer and UBSan.
 
-Run as a script (``python tests/test_fmu_native.py fuzz FMU EXAMPLES``) this
-file is the fuzz driver that those subprocesses execute.
+Run as a script (``python tests/test_fmu_native.py fuzz FMU MODEL EXAMPLES`` or
+``... check FMU MODEL``, MODEL a key of `MODELS`) this file is the driver that
+those subprocesses execute.
 """
 from __future__ import annotations
 
@@ -122,8 +123,6 @@ def sampled_input(n=400, seed=3):
     u = 1.4 * np.sin(1.7 * t) + 0.5 * np.sin(4.3 * t + 0.3)
     u[n // 4:n // 4 + n // 20] = u[n // 4]
     return t, u
-
-
 
 
 @pytest.fixture(scope="module")
