@@ -10,6 +10,11 @@
  *
  * Every hook that can fail returns NULL on success or a static message
  * saying why; a hook that fails changes nothing.
+ *
+ * Building the binary of an FMU from its sources/ by hand (any C99 compiler;
+ * this is what fitter.native_fmu runs at export time):
+ *   cc -O2 -fPIC -shared -fvisibility=hidden -I sources \
+ *      sources/fmi2_framework.c sources/duhem_model.c -o semilinear_duhem.so -lm
  */
 #ifndef FMI2_FRAMEWORK_H
 #define FMI2_FRAMEWORK_H
