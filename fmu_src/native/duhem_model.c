@@ -106,22 +106,18 @@ struct ModelData {
 
 /* ---------------------------------------------------------------- exact flow */
 
-static void matmul(double A[M][M], double B[M][M], double C[M][M])
-{
-    int i, j, k;
-    for (i = 0; i < M; i++)
-        for (j = 0; j < M; j++) {
-            double acc = 0.0;
-            for (k = 0; k < M; k++) acc += A[i][k] * B[k][j];
-            C[i][j] = acc;
-        }
-}
-
-/* Z = e^X (X is overwritten); -1 when X is not finite or too large to scale. */
+/*
+ * Z = e^X for the augmented matrix X of flow() (X is overwritten); -1 when X is
+ * not finite or too large to scale.  Rows N and N+1 of X are zero but for
+ * X[N][N+1] = sigma, so the rows N, N+1 of every power X^k (k >= 2) are zero
+ * and those of e^X are [0 .. 0 1 sigma] and [0 .. 0 0 1]: only the top N rows
+ * are computed.  The terms left out are exact zeros, so Z is the full
+ * algorithm's, at about half the cost.
+ */
 static int expm(double X[M][M], double Z[M][M])
 {
-    double T[M][M], P[M][M], norm = 0.0, scale = 1.0;
-    int i, j, k, s = 0;
+    double T[N][M], P[N][M], norm = 0.0, scale = 1.0, sigma;
+    int i, j, c, k, s = 0;
     for (j = 0; j < M; j++) {
         double column = 0.0;
         for (i = 0; i < M; i++) column += fabs(X[i][j]);
@@ -134,22 +130,40 @@ static int expm(double X[M][M], double Z[M][M])
         s++;
     }
     for (i = 0; i < M; i++)
+        for (j = 0; j < M; j++) X[i][j] /= scale;
+    for (i = 0; i < N; i++)
         for (j = 0; j < M; j++) {
-            X[i][j] /= scale;
-            T[i][j] = Z[i][j] = (i == j) ? 1.0 : 0.0;
+            T[i][j] = X[i][j];
+            Z[i][j] = (i == j ? 1.0 : 0.0) + X[i][j];
         }
-    for (k = 1; k <= TAYLOR_DEGREE; k++) {
-        matmul(T, X, P);
-        for (i = 0; i < M; i++)
+    for (k = 2; k <= TAYLOR_DEGREE; k++) {
+        for (i = 0; i < N; i++)
+            for (c = 0; c < M; c++) {
+                double acc = 0.0;
+                for (j = 0; j <= N; j++) acc += T[i][j] * X[j][c];
+                P[i][c] = acc;
+            }
+        for (i = 0; i < N; i++)
             for (j = 0; j < M; j++) {
                 T[i][j] = P[i][j] / k;
                 Z[i][j] += T[i][j];
             }
     }
+    sigma = X[N][N + 1];
+    for (j = 0; j < M; j++) Z[N][j] = Z[N + 1][j] = 0.0;
+    Z[N][N] = Z[N + 1][N + 1] = 1.0;
     for (; s > 0; s--) {
-        matmul(Z, Z, P);
+        Z[N][N + 1] = sigma;
+        for (i = 0; i < N; i++)
+            for (c = 0; c < M; c++) {
+                double acc = 0.0;
+                for (j = 0; j < M; j++) acc += Z[i][j] * Z[j][c];
+                P[i][c] = acc;
+            }
         memcpy(Z, P, sizeof P);
+        sigma = sigma + sigma;
     }
+    Z[N][N + 1] = sigma;
     return 0;
 }
 
