@@ -143,8 +143,8 @@ def _base_paths(model) -> list[tuple]:
 
 def _check_supported(model) -> None:
     if model.kind == "rd" and not isinstance(model.g, TabulatedRate):
-        raise ValueError("rate-dependent model: g must be a TabulatedRate for the native FMU "
-                         "(tabulate it with TabulatedRate.from_function)")
+        raise TypeError("rate-dependent model: g must be a TabulatedRate for the native FMU "
+                        "(tabulate it with TabulatedRate.from_function)")
     unknown = [e.effect for e in getattr(model, "effects", None) or []
                if e.effect not in NATIVE_EFFECTS]
     if unknown:
@@ -290,11 +290,14 @@ def build_native_fmu(model, out_path: str | os.PathLike, *, sanitize: bool = Fal
     ------
     NativeBuildError
         No C compiler was found (the message names ``--backend python``), or it failed.
+    TypeError
+        A rate-dependent model whose g is a callable, not a `TabulatedRate`.
     ValueError
-        The model cannot be exported natively (a callable g).
+        An effect that the C model does not implement (not in `NATIVE_EFFECTS`).
     """
     find_c_compiler(cc)
     _platform()
+    _check_supported(model)
     guid = _guid(model, model_identifier)
     header = model_data_header(model, guid)
     xml = model_description_xml(model, model_identifier=model_identifier, guid=guid,

@@ -551,7 +551,13 @@ def test_build_fmu_dispatches_to_the_native_backend(tmp_path):
 
 
 def test_missing_compiler_and_failed_build_leave_no_file(tmp_path):
+    from fitter.core import CallableRate
+
     target = tmp_path / "m.fmu"
+    model = rd_model()
+    model.g = CallableRate(g3)
+    with pytest.raises(TypeError, match="tabulate"):
+        build_native_fmu(model, target)
     with pytest.raises(NativeBuildError, match="--backend python"):
         build_native_fmu(ri_small(), target, cc="no-such-compiler-xyz")
     with pytest.raises(NativeBuildError, match="compiler failed"):
