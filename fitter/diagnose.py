@@ -38,7 +38,11 @@ Procedure (`diagnose`)
    recording; the runner-up gets the same hold-out check, and the report says
    why the winner wins (residual, hold-out error, where the difference lies).
 
-The result is a `Diagnosis`; ``to_json()`` is the stable ``--json`` output.
+The verdict: "effects_found" (findings non-empty), "nothing_missing" (no
+finding and the base residual within `NOISE_MARGIN` of the noise) or
+"unexplained" (no finding, residual above the noise: the missing physics is
+not in the catalogue, or the base model is too simple).  The result is a
+`Diagnosis`; ``to_json()`` is the stable ``--json`` output.
 """
 from __future__ import annotations
 
@@ -456,6 +460,7 @@ class Diagnosis:
     """Result of `diagnose`; ``to_json()`` is the stable ``--json`` output."""
 
     noise_rms: float
+    verdict: str               # "effects_found", "nothing_missing" or "unexplained"
     baseline: dict
     mismatch: dict
     candidates: list
@@ -470,7 +475,7 @@ class Diagnosis:
     extended_output: np.ndarray = field(repr=False, default=None)
 
     def to_json(self) -> dict:
-        return {"noise_rms": self.noise_rms, "baseline": self.baseline, "mismatch": self.mismatch,
+        return {"verdict": self.verdict, "noise_rms": self.noise_rms, "baseline": self.baseline, "mismatch": self.mismatch,
                 "findings": self.findings, "candidates": self.candidates, "extended": self.extended,
                 "validation": self.validation, "comparison": self.comparison, "summary": self.paragraph,
                 "base_model": self.base_model.to_dict(), "extended_model": self.extended_model.to_dict()}
@@ -489,14 +494,20 @@ def _summary(ex: Experiment, model_fit: _Fit, noise: float) -> dict:
 
 # --------------------------------------------------------------------------- the procedure
 def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress | None = None,
-             candidates: Sequence[str] = CANDIDATES, alpha: float = ALPHA, max_findings: int = 2) -> Diagnosis:
+             candidates: Sequence[str] = CANDIDATES, alpha: float = ALPHA, max_findings: int = 2,
+             base_order: int | None = 1) -> Diagnosis:
     """Diagnose one experiment; see the module docstring for the procedure.
 
     Parameters
     ----------
     recordings : the experiment's recordings, in time order, on one clock.
     model : optional base model (`RateIndependentModel` or `RateDependentModel`); its A, B, E, x0 are
-        refined.  Default: a first-order rate-independent model fitted here.
+        refined on the experiment.
+    base_order : without `model`: 1 (default) fits the first-order rate-independent base here (fast;
+        every candidate fit refits its 7 parameters); any other value (None = chosen by BIC) takes the
+        base from `fitter.fit.fit_recordings(recordings, kind="ri", order=base_order)`, which is then
+        refined like a given model (more parameters: slower, and a flexible base absorbs part of what
+        an effect would explain).
     progress : optional callback ``progress(message, fraction_done)``; see `rich_progress`.
     candidates : effect names to test (default all of `fitter.core.effects.EFFECTS`).
     alpha : family-wise significance level (Bonferroni over the candidates).
@@ -515,6 +526,9 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
     mask = np.ones(len(ex.t), bool)
     report("fitting the base model", 0.0)
     noise = float(np.median([noise_rms(r.y) for r in ex.recordings if len(r.y) >= 14]))
+    if model is None and base_order != 1:
+        from .fit import fit_recordings
+        model = fit_recordings(ex.recordings, kind="ri", order=base_order).model
     base = _fit_base(ex, model, mask)
     base_rss = base.rss
     mismatch = locate_mismatch(ex, base.residual, noise)
@@ -564,7 +578,13 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
     extended = dict(_summary(ex, current, noise), effects=[e.to_dict() for e in ext_model.effects])
     baseline = _summary(ex, base, noise)
     report("done", 1.0)
-    diag = Diagnosis(noise_rms=noise, baseline=baseline, mismatch=mismatch, candidates=tested,
+    if findings:
+        verdict = "effects_found"
+    elif baseline["residual_rms"] <= NOISE_MARGIN * noise:
+        verdict = "nothing_missing"
+    else:
+        verdict = "unexplained"
+    diag = Diagnosis(noise_rms=noise, verdict=verdict, baseline=baseline, mismatch=mismatch, candidates=tested,
                      findings=findings, extended=extended, validation=validation, comparison=comparison,
                      paragraph="", base_model=base.model, extended_model=ext_model,
                      baseline_output=ex.y - base.residual, extended_output=ex.y - current.residual)
@@ -603,6 +623,13 @@ def _validate(ex: Experiment, base: _Fit, findings: list, tested: list, fits: di
                  f"{runner['effect']} with {out[runner['effect']]:.3g}, the base model with {out['base']:.3g}")
         worst = _where_differs(ex, fits[win].residual, fits[runner["effect"]].residual)
         text += f". The runner-up's extra error is largest {worst}"
+        out["confirmed"] = bool(out[win] < out["base"] and out[win] <= out[runner["effect"]])
+        if not out["confirmed"]:
+            text += (f". Caution: on the held-out run {win} does not predict better than "
+                     f"{'the base model' if out[win] >= out['base'] else runner['effect']}, so the hold-out "
+                     "check does not confirm it")
+    else:
+        out["confirmed"] = bool(out[win] < out["base"])
     return out, text
 
 
@@ -622,27 +649,43 @@ def _paragraph(d: Diagnosis, ex: Experiment) -> str:
     b, e = d.baseline, d.extended
     m = d.mismatch
     text = (f"The base model leaves a residual of {b['residual_rms']:.3g} RMS against a noise level of "
-            f"{d.noise_rms:.3g} estimated from the data ({b['residual_rms'] / d.noise_rms:.1f} times the noise); "
+            f"{d.noise_rms:.3g} estimated from the data ({_times(b['residual_rms'], d.noise_rms)}); "
             f"the largest mismatch is in {m['worst_recording']}.")
     g = m["growth"]
-    trends = [f"{k.split('_')[1]} (r = {v:.2f})" for k, v in g.items() if v is not None and abs(v) >= 0.7]
-    if trends:
-        text += " Across recordings it grows with " + ", ".join(trends) + "."
+    trends = [f"{'increases' if v > 0 else 'decreases'} with {k.split('_')[1]} (r = {v:.2f})"
+              for k, v in g.items() if v is not None and abs(v) >= 0.7]
+    if trends and b["residual_rms"] > NOISE_MARGIN * d.noise_rms:
+        text += " Across recordings it " + ", ".join(trends) + "."
     rep = m.get("repeat")
     if rep:
         text += (f" The repeated run {rep['repeat']} differs from {rep['original']} by {rep['data_difference_rms']:.3g}"
                  f" RMS (noise alone: {rep['expected_from_noise']:.3g}).")
-    if not d.findings:
+    if not d.findings and d.verdict == "nothing_missing":
         return text + " No candidate effect explains a significant part of it: nothing is missing."
+    if not d.findings:
+        best = d.candidates[0] if d.candidates else None
+        more = (f" (the best, {best['effect']}, explains {100 * best['explained_fraction']:.0f}%, "
+                f"p = {best['p_value']:.2g} with an effective sample size of {best['n_eff']:.0f})") if best else ""
+        return text + (" The residual is above the noise, but no candidate effect explains a significant part of "
+                       f"it{more}: what is missing is not in the catalogue (or the base model is too simple).")
     for f in d.findings:
         params = ", ".join(f"{k} = {v:.3g} ± {f['stderr'][k]:.2g}" for k, v in f["parameters"].items())
         text += (f" The model had no {f['effect'].replace('_', ' ')}; adding it ({params}) removes "
                  f"{100 * f['explained_fraction']:.0f}% of the residual (p = {f['p_value']:.2g}).")
     if d.comparison:
         text += " " + d.comparison + "."
-    text += (f" The extended model leaves {e['residual_rms']:.3g} RMS ({e['residual_rms'] / d.noise_rms:.2f} times "
-             f"the noise); NRMSE {100 * b['nrmse']:.2f}% -> {100 * e['nrmse']:.2f}%.")
+    text += (f" The extended model leaves {e['residual_rms']:.3g} RMS ({_times(e['residual_rms'], d.noise_rms)}); "
+             f"NRMSE {100 * b['nrmse']:.2f}% -> {100 * e['nrmse']:.2f}%.")
     return text
+
+
+def _times(value: float, noise: float) -> str:
+    if noise <= 0:
+        return "no noise level"
+    ratio = value / noise
+    if ratio > 100:
+        return "over 100 times the noise: a systematic misfit"
+    return f"{ratio:.2f} times the noise"
 
 
 # --------------------------------------------------------------------------- progress
@@ -697,11 +740,11 @@ def _effect_for(name: str, strength: float, y_mid: float) -> Effect:
 def synthetic_experiment(effect: str | None = None, *, seed: int = 0, samples: int = 3000,
                          runs: Sequence[tuple[float, float]] = DEFAULT_RUNS, cycles: int = 2,
                          size: float = 0.02, snr: float = 15.0, hold: float = 0.1,
-                         gap: float = 1.0) -> tuple[list[Recording], dict]:
+                         gap: float = 1.0, base: dict | None = None) -> tuple[list[Recording], dict]:
     """An experiment generated by the project's simulator with one effect concealed.
 
     Base: first-order rate-independent model `TRUTH_BASE` (loop between u = -1 and 1, y range about 2,
-    x0 on the settled loop at u = -1).
+    x0 on the settled loop at u = -1), or `base` (the keyword arguments of `_ri1`).
     Each run (period s, amplitude) is `cycles` trapezoidal triangles with holds of fraction `hold` at the
     tips, `samples` samples, `gap` seconds apart; the last default run repeats the first.  The effect's
     strength is set (bisection) so that max |y_with - y_without| = `size` times the output range; white
@@ -710,7 +753,7 @@ def synthetic_experiment(effect: str | None = None, *, seed: int = 0, samples: i
     """
     ts, us = _runs_signal(runs, samples, cycles, hold, gap)
     t, u = np.concatenate(ts), np.concatenate(us)
-    base = _ri1(**TRUTH_BASE)
+    base = _ri1(**(base or TRUTH_BASE))
     y0 = simulate(base, t, u).y
     yrange = float(np.ptp(y0))
     truth = {"base_model": base.to_dict(), "effect": None, "seed": seed, "size": size, "snr": snr}

@@ -123,7 +123,8 @@ def _html(diagnosis) -> str:
         "<!doctype html><meta charset='utf-8'><title>duhem diagnose</title>",
         "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}td,th{border:1px solid #ccc;"
         "padding:2px 6px;font-size:13px}table{border-collapse:collapse}</style>",
-        "<h1>Diagnosis</h1>", f"<p>{html.escape(d['summary'])}</p>",
+        "<h1>Diagnosis</h1>", f"<p><b>Verdict: {html.escape(d['verdict'].replace('_', ' '))}.</b> "
+        f"{html.escape(d['summary'])}</p>",
         f"<p>Noise level (from the data): {d['noise_rms']:.4g}; base residual RMS "
         f"{d['baseline']['residual_rms']:.4g}; extended residual RMS {d['extended']['residual_rms']:.4g}.</p>",
         "<h2>Findings</h2>", findings,

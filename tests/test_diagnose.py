@@ -49,7 +49,7 @@ def test_clean_experiment_has_nothing_missing(seed):
     assert d.findings == []
     assert d.extended["effects"] == []
     assert abs(d.noise_rms / truth["noise_rms"] - 1) < 0.2
-    assert "nothing is missing" in d.paragraph
+    assert "nothing is missing" in d.paragraph and d.verdict == "nothing_missing"
 
 
 def test_json_output_and_extended_model_round_trip(tmp_path):
