@@ -210,7 +210,11 @@ class _RIParam:
                      T @ m.B_minus, T @ m.E_plus, T @ m.E_minus, m.D]
 
     def rho(self, m, u_min: float, u_max: float) -> float:
-        return convergence_rho(m, u_min, u_max)
+        """rho(e^{beta A+} e^{-beta A-}) of condition (5) (inf when it overflows)."""
+        with np.errstate(all="ignore"):
+            M_ok = np.all(np.isfinite(m.A_plus)) and np.abs(m.A_plus).max() * (u_max - u_min) < 600 \
+                and np.abs(m.A_minus).max() * (u_max - u_min) < 600
+            return convergence_rho(m, u_min, u_max) if M_ok else np.inf
 
 
 @dataclass
@@ -451,7 +455,7 @@ def _ri_starts(grid, yr, yf, n: int, q: float | None, lower=None) -> tuple[list[
     cands.sort(key=lambda c: c[0])
     info["start"] = cands[0][2]
     info["start_loop_error"] = cands[0][0]
-    return [c[1] for c in cands[:2]], info
+    return [c[1] for c in cands[:3]], info
 
 
 # --------------------------------------------------------------------- fitting
@@ -477,8 +481,11 @@ def _barrier(param, data: _Data) -> Callable[[np.ndarray], np.ndarray]:
     def pen(th):
         try:
             m = param.build(th)
-            val = param.rho(m, lo, hi)
+            with np.errstate(all="ignore"):
+                val = param.rho(m, lo, hi) if np.all(np.isfinite(th)) else np.inf
         except (ValueError, np.linalg.LinAlgError):
+            val = np.inf
+        if not np.isfinite(val):
             return np.array([1e3])
         limit = RHO_MARGIN if param.kind == "ri" else -1e-3
         return np.array([1e3 * max(0.0, val - limit)])
@@ -664,7 +671,8 @@ def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order
     orders = ORDERS if order is None else (order,)
     cands: list[_Candidate] = []
     ri_fits: dict[int, _Candidate] = {}
-    for n in orders:
+    ri_orders = orders if kind != "rd" else orders[:1]
+    for n in ri_orders:
         say(f"rate-independent model, order {n}")
         lower = ri_fits.get(n - 1)
         starts, info = _ri_starts(grid, yr, yf, n, q, lower.res.model if lower else None)
@@ -695,6 +703,8 @@ def _result(best: _Candidate, cands, data: _Data, scaling: _Scaling, recordings,
     model.signals = _signals(recordings)
     model.experiment = _experiment(recordings)
     ok, val = _convergence_ok(param, res.model, data)
+    rhos = [cycle_fixed_point(res.model, r.t[a:b + 1], r.u[a:b + 1])[1]
+            for r, (a, b) in zip(data.norm, data.cycles)]
     per_rec = []
     for rec, prep, r, s in zip(data.recs, data.preps, res.residuals, res.starts):
         y_hat = np.full(len(rec.y), np.nan)
@@ -705,7 +715,10 @@ def _result(best: _Candidate, cands, data: _Data, scaling: _Scaling, recordings,
         per_rec.append(m)
     stderr = dict(zip(param.names(), zip(res.theta.tolist(), res.stderr.tolist())))
     summary = {
-        "kind": param.kind, "order": param.n, "q": q,
+        "kind": param.kind, "order": param.n,
+        "q": q if q is not None else next((c.start_info["q"] for c in cands if "q" in c.start_info), None),
+        "q_why": "given" if q is not None else "lowest loop error of the Section III estimate among "
+                 f"{list(Q_CANDIDATES)} (a start for the output-error refinement only)",
         "why": _why(best, cands, kind, levels),
         "candidates": [{"kind": c.param.kind, "order": c.param.n, "parameters": c.param.size,
                         "rss_normalised": c.rss, "bic": c.bic, "start": c.start_info.get("start")}
@@ -716,10 +729,11 @@ def _result(best: _Candidate, cands, data: _Data, scaling: _Scaling, recordings,
         "convergence": {"satisfied": bool(ok),
                         "quantity": "rho(e^{beta A+} e^{-beta A-}) (condition 5)" if param.kind == "ri"
                         else "max Re eig(A) (< 0 <=> rho(period map) < 1 since g >= 0)",
-                        "value": val, "rho_per_recording": res.rho},
+                        "value": val, "rho_per_recording": rhos},
         "rate_levels": levels, "triangle_inputs": triangle,
         "v_ref": v_ref * scaling.u_s if param.kind == "rd" else None,
-        "x0": "fitted per recording (linear least squares) at its first kept sample",
+        "x0": "fitted per recording (linear least squares) at its first kept sample; the per-recording "
+              "metrics are those of the fit (FitResult.predict starts from the periodic state instead)",
         "optimiser": {"success": res.success, "nfev": res.nfev, "message": res.message},
         "preparation": [dict(p.to_dict(), notes=n) for p, n in zip(data.preps, data.notes)],
     }

@@ -18,7 +18,10 @@ interval flow of the kernel is affine).  This gives three exact choices:
 * ``"model"``: x_0 = build(theta).x0 for every recording, all samples fitted.
 * ``"fit"``: x_0 of each recording is eliminated by linear least squares
   (variable projection): x_0 = argmin ||y - C Phi x_0 - C c - D u||, so a
-  start-up transient is fitted without adding parameters to theta.
+  start-up transient is fitted without adding parameters to theta.  Phi_k is
+  computed over a prefix (twice the first cycle, doubled until
+  max|Phi| < 1e-9, i.e. until x_0 no longer matters), and x_0 is fitted on
+  that prefix; the rest of the recording is one plain simulation.
 * ``"periodic"`` (settled): each recording is fitted from the start of its
   first settled cycle (sample s0; the samples before s0 are the transient and
   are dropped), and x(s0) is the fixed point x* = (I - Phi)^-1 c of the affine
@@ -39,7 +42,9 @@ survives to within a block.  For a rate-independent model the decimated
 simulation is exact at the kept samples wherever the input is monotone
 between them (Proposition 1); for a rate-dependent one the kept input is a
 piecewise-linear approximation.  The final residuals, Jacobian and covariance
-are always evaluated on all samples.
+are evaluated on all samples; for a decimated problem the Jacobian is that of
+the kept samples and J^T J is scaled by N_all / N_kept (the information of an
+oversampled recording grows with its sample count).
 
 Uncertainty
 -----------
@@ -61,6 +66,7 @@ __all__ = ["RefineResult", "refine", "simulate_from", "cycle_fixed_point", "jaco
            "X0_MODES"]
 
 X0_MODES = ("model", "fit", "periodic")
+LSQ_METHOD = "trf"
 _FAIL = 1e3  # residual (in units of the output's std) returned where simulation fails
 
 
@@ -112,6 +118,8 @@ def cycle_fixed_point(model, t, u, cache=None) -> tuple[np.ndarray, float]:
     c = simulate(model, t, u, x0=np.zeros(n), flow_cache=cache).x[-1]
     Phi = np.column_stack([simulate(model, t, u, x0=e, flow_cache=cache).x[-1] - c
                            for e in np.eye(n)])
+    if not (np.all(np.isfinite(Phi)) and np.all(np.isfinite(c))):
+        return np.array(model.x0, dtype=float), np.inf
     rho = float(np.max(np.abs(np.linalg.eigvals(Phi))))
     if not rho < 1:
         return np.array(model.x0, dtype=float), rho
@@ -127,11 +135,20 @@ def simulate_from(model, t, u, y, mode: str, cycle: tuple[int, int] | None):
     if mode == "model":
         return 0, np.array(model.x0, dtype=float), simulate(model, t, u, flow_cache=cache).y, np.nan
     if mode == "fit":
-        c, Phi = _affine_parts(model, t, u, cache)
+        n_pre = len(u) if cycle is None else min(len(u), max(2 * (cycle[1] + 1), 64))
+        while True:
+            c, Phi = _affine_parts(model, t[:n_pre], u[:n_pre], cache)
+            if n_pre == len(u) or np.max(np.abs(Phi[-1])) < 1e-9:
+                break
+            n_pre = min(len(u), 2 * n_pre)
         G = np.einsum("j,kjl->kl", model.C, Phi)
-        base = c @ model.C + model.D * u
-        x0, *_ = np.linalg.lstsq(G, y - base, rcond=None)
-        return 0, x0, base + G @ x0, np.nan
+        base = c @ model.C + model.D * u[:n_pre]
+        if not (np.all(np.isfinite(G)) and np.all(np.isfinite(base))):
+            raise KernelError("simulation overflowed")
+        x0, *_ = np.linalg.lstsq(G, y[:n_pre] - base, rcond=None)
+        if n_pre == len(u):
+            return 0, x0, base + G @ x0, np.nan
+        return 0, x0, simulate(model, t, u, x0=x0, flow_cache=cache).y, np.nan
     if mode != "periodic":
         raise ValueError(f"x0 must be one of {X0_MODES}, not {mode!r}")
     s0, s1 = cycle
@@ -229,7 +246,7 @@ def refine(build: Callable[[np.ndarray], object], theta0: np.ndarray,
            max_nfev: int | None = None, progress: Callable[[str], None] | None = None,
            cycles: Sequence[tuple[int, int] | None] | None = None,
            penalty: Callable[[np.ndarray], np.ndarray] | None = None,
-           max_samples: int | None = 20000) -> RefineResult:
+           max_samples: int | None = 6000) -> RefineResult:
     """Output-error least squares of `build(theta)` on `recordings`.
 
     Parameters
@@ -264,16 +281,24 @@ def refine(build: Callable[[np.ndarray], object], theta0: np.ndarray,
         return fun
 
     coarse = _problem(recordings, weights, cycles, max_samples)
-    sol = least_squares(objective(coarse), theta0, method="trf", x_scale="jac", max_nfev=max_nfev)
+    budget = None if max_nfev is None else (max_nfev * (len(theta0) + 1) if LSQ_METHOD == "lm" else max_nfev)
+    sol = least_squares(objective(coarse), theta0, method=LSQ_METHOD, x_scale="jac", max_nfev=budget)
     if progress:
         progress(f"output-error refinement: cost {sol.cost:.4g} after {sol.nfev} evaluations")
     full = _problem(recordings, weights, cycles, None)
-    fun = objective(full)
     r, model, info = _residuals(build, sol.x, full, x0)
-    J = jacobian(fun, sol.x, fun(sol.x))[:len(r)]
-    dof = max(len(r) - len(sol.x), 1)
+    n_full = len(r)
+    if sum(len(y) for y in coarse.y) < sum(len(y) for y in full.y):
+        r_kept, _, _ = _residuals(build, sol.x, coarse, x0)
+        J = jacobian(lambda th: _residuals(build, th, coarse, x0)[0], sol.x, r_kept)
+        J_scale = n_full / len(r_kept)
+    else:
+        J = jacobian(lambda th: _residuals(build, th, full, x0)[0], sol.x, r * np.concatenate(
+            [w[s:] for w, s in zip(full.w, [i[0] for i in info])]))
+        J_scale = 1.0
+    dof = max(n_full - len(sol.x), 1)
     sigma = float(np.sqrt(np.sum(r ** 2) / dof))
-    cov = sigma ** 2 * np.linalg.pinv(J.T @ J)
+    cov = sigma ** 2 * np.linalg.pinv(J_scale * (J.T @ J))
     return RefineResult(theta=sol.x, model=model, residuals=[i[2] for i in info],
                         starts=[i[0] for i in info], x0s=[i[1] for i in info],
                         cost=float(0.5 * np.sum(r ** 2)), jac=J, cov=cov,
