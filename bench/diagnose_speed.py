@@ -3,6 +3,7 @@
     python bench/diagnose_speed.py                 # timing (target: under 2 minutes)
     python bench/diagnose_speed.py --sweep 5       # success rates over 7 effects x 5 seeds + 5 clean
     python bench/diagnose_speed.py --piezo DIR     # diagnose the measured piezo data, reports in DIR
+    python bench/diagnose_speed.py --piezo DIR --base-order auto   # ... with a fit_recordings base
 
 The experiments come from `fitter.diagnose.synthetic_experiment` (the project's
 own simulator; timing: effect max 2% of the output range, noise 1/15 of that;
@@ -117,7 +118,7 @@ def piezo_experiment(files, remove_offset_current: bool) -> list[Recording]:
     return recs
 
 
-def piezo(out: Path) -> None:
+def piezo(out: Path, base_order: int | None) -> None:
     if not PIEZO.exists():
         print(f"skipped: {PIEZO} is absent")
         return
@@ -125,9 +126,10 @@ def piezo(out: Path) -> None:
         recordings = piezo_experiment(files, drift)
         t0 = time.perf_counter()
         with rich_progress(f"piezo {label}") as progress:
-            d = diagnose(recordings, progress=progress)
+            d = diagnose(recordings, progress=progress, base_order=base_order)
         write_diagnosis_report(d, recordings, out / label)
         print(f"\n== piezo {label} ({time.perf_counter() - t0:.1f} s): {', '.join(r.name for r in recordings)}")
+        print(f"verdict: {d.verdict}; findings: {[f['effect'] for f in d.findings]}")
         print(d.paragraph)
         for c in d.candidates:
             print(f"  {c['rank']}. {c['effect']:16s} residual {c['residual_rms']:.4g}  explains "
@@ -144,9 +146,11 @@ def main() -> None:
     ap.add_argument("--sweep", type=int, default=0, help="seeds per effect for the success-rate sweep")
     ap.add_argument("--samples", type=int, default=1000, help="samples per recording in the sweep")
     ap.add_argument("--piezo", type=Path, default=None, help="diagnose the piezo data; reports in this folder")
+    ap.add_argument("--base-order", default="1",
+                    help="piezo: base model order (1: the first-order base; 'auto': fit_recordings chooses)")
     args = ap.parse_args()
     if args.piezo:
-        piezo(args.piezo)
+        piezo(args.piezo, None if args.base_order == "auto" else int(args.base_order))
     elif args.sweep:
         sweep(args.sweep, args.samples)
     else:
