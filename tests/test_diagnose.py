@@ -24,7 +24,9 @@ def run(effect, seed):
     key = (effect, seed)
     if key not in _CACHE:
         recs, truth = synthetic_experiment(effect, seed=seed, samples=SAMPLES)
-        _CACHE[key] = (recs, truth, diagnose(recs))
+        steps = []
+        _CACHE[key] = (recs, truth, diagnose(recs, progress=lambda msg, frac: steps.append((msg, frac))))
+        _CACHE[key][2].steps = steps
     return _CACHE[key]
 
 
@@ -78,6 +80,14 @@ def test_thermal_drift_shows_in_the_repeat():
     _, _, clean = run(None, 0)
     assert clean.mismatch["repeat"]["data_difference_rms"] < 1.3 * clean.mismatch["repeat"]["expected_from_noise"]
     assert d.validation["thermal_drift"] < 0.5 * d.validation["base"]
+
+
+def test_progress_is_reported_in_order():
+    _, _, d = run("backlash", 0)
+    fractions = [f for _, f in d.steps]
+    assert fractions[0] == 0.0 and fractions[-1] == 1.0
+    assert all(b >= a for a, b in zip(fractions, fractions[1:]))
+    assert {f"testing {name}" for name in EFFECTS} <= {m for m, _ in d.steps}
 
 
 def test_report_is_written(tmp_path):
