@@ -61,7 +61,7 @@ from .core.models import RateDependentModel, RateIndependentModel, Signals
 from .metrics import noise_rms, nrmse, rms
 from .recordings import Recording
 
-__all__ = ["DiagnoseError", "Diagnosis", "Experiment", "diagnose", "locate_mismatch", "rich_progress",
+__all__ = ["DiagnoseError", "Diagnosis", "JoinedExperiment", "diagnose", "locate_mismatch", "rich_progress",
            "synthetic_experiment", "CANDIDATES"]
 
 CANDIDATES = tuple(EFFECTS)
@@ -78,7 +78,7 @@ class DiagnoseError(ValueError):
 
 # --------------------------------------------------------------------------- experiment
 @dataclass
-class Experiment:
+class JoinedExperiment:
     """The recordings of one experiment, concatenated on the experiment clock."""
 
     recordings: list
@@ -92,7 +92,7 @@ class Experiment:
         return slice(*self.bounds[i])
 
 
-def _experiment(recordings: Sequence[Recording]) -> Experiment:
+def _experiment(recordings: Sequence[Recording]) -> JoinedExperiment:
     recs = list(recordings)
     if not recs:
         raise DiagnoseError("no recordings given")
@@ -128,7 +128,7 @@ def _experiment(recordings: Sequence[Recording]) -> Experiment:
                             f"({', '.join(r.source for r in recs)}): no hysteresis loop to diagnose")
     stops = np.cumsum([len(r.t) for r in recs])
     bounds = [(int(s - len(r.t)), int(s)) for s, r in zip(stops, recs)]
-    return Experiment(recs, np.concatenate([r.t for r in recs]), u, np.concatenate([r.y for r in recs]),
+    return JoinedExperiment(recs, np.concatenate([r.t for r in recs]), u, np.concatenate([r.y for r in recs]),
                       np.concatenate([np.full(len(r.t), i) for i, r in enumerate(recs)]), bounds)
 
 
@@ -228,11 +228,11 @@ class _Fit:
         return self.family.build(self.theta)
 
 
-def _simulate(model, ex: Experiment) -> np.ndarray:
+def _simulate(model, ex: JoinedExperiment) -> np.ndarray:
     return simulate(model, ex.t, ex.u).y
 
 
-def _least_squares(family: _Family, theta0: np.ndarray, ex: Experiment, mask: np.ndarray,
+def _least_squares(family: _Family, theta0: np.ndarray, ex: JoinedExperiment, mask: np.ndarray,
                    lower: np.ndarray, upper: np.ndarray, free: np.ndarray | None = None) -> _Fit:
     """Minimise sum over `mask` of (y - yhat(theta))^2; only the `free` entries of theta move."""
     scale = max(np.ptp(ex.y), 1e-300)
@@ -263,7 +263,7 @@ def _least_squares(family: _Family, theta0: np.ndarray, ex: Experiment, mask: np
     return _Fit(family, theta, full, jac, mask)
 
 
-def _bounds(family: _Family, ex: Experiment) -> tuple[np.ndarray, np.ndarray]:
+def _bounds(family: _Family, ex: JoinedExperiment) -> tuple[np.ndarray, np.ndarray]:
     lo = np.full(family.n_base, -np.inf)
     hi = np.full(family.n_base, np.inf)
     if family.base_keys[:2] == ["A_plus", "A_minus"] and family.n_base == 7:
@@ -285,12 +285,12 @@ def _bounds(family: _Family, ex: Experiment) -> tuple[np.ndarray, np.ndarray]:
     return np.r_[lo, elo], np.r_[hi, ehi]
 
 
-def _min_dt(ex: Experiment) -> float:
+def _min_dt(ex: JoinedExperiment) -> float:
     """The shortest of the recordings' median sample periods."""
     return float(min(np.median(np.diff(r.t)) for r in ex.recordings))
 
 
-def _effect_starts(name: str, ex: Experiment, y_fit: np.ndarray) -> list[list[float]]:
+def _effect_starts(name: str, ex: JoinedExperiment, y_fit: np.ndarray) -> list[list[float]]:
     """Starting values of an effect's parameters (several for nonlinear ones)."""
     dt = _min_dt(ex)
     span_u, span_y = np.ptp(ex.u), max(np.ptp(ex.y), 1e-300)
@@ -315,7 +315,7 @@ def _effect_starts(name: str, ex: Experiment, y_fit: np.ndarray) -> list[list[fl
     raise KeyError(name)
 
 
-def _fit_family(family: _Family, base: np.ndarray, ex: Experiment, mask: np.ndarray,
+def _fit_family(family: _Family, base: np.ndarray, ex: JoinedExperiment, mask: np.ndarray,
                 y_fit: np.ndarray) -> _Fit:
     """Joint fit of base + effects, started from the best of the effects' starting values.
 
@@ -334,7 +334,7 @@ def _fit_family(family: _Family, base: np.ndarray, ex: Experiment, mask: np.ndar
     return _least_squares(family, theta0, ex, mask, lower, upper)
 
 
-def _fit_base(ex: Experiment, model, mask: np.ndarray) -> _Fit:
+def _fit_base(ex: JoinedExperiment, model, mask: np.ndarray) -> _Fit:
     """Base fit: refine a given model, or a first-order RI model (grid over A, linear in B, E, x0)."""
     if model is not None:
         family = _Family(RateIndependentModel(**{k: getattr(model, k) for k in model.PARAMS},
@@ -406,7 +406,7 @@ def _corr(a: Sequence[float], b: Sequence[float]) -> float | None:
     return float(np.corrcoef(a, b)[0, 1])
 
 
-def _repeat_pair(ex: Experiment) -> tuple[int, int] | None:
+def _repeat_pair(ex: JoinedExperiment) -> tuple[int, int] | None:
     """(original, repeat): the last recording when an earlier one has the same length, rate and amplitude."""
     last = len(ex.recordings) - 1
     if last < 1:
@@ -419,7 +419,7 @@ def _repeat_pair(ex: Experiment) -> tuple[int, int] | None:
     return None
 
 
-def locate_mismatch(ex: Experiment, residual: np.ndarray, noise: float) -> dict:
+def locate_mismatch(ex: JoinedExperiment, residual: np.ndarray, noise: float) -> dict:
     """Where the residual lives: per recording, branch, input range; growth; repeat."""
     du = np.r_[0.0, np.diff(ex.u)]
     tol = 1e-9 * np.ptp(ex.u)
@@ -481,11 +481,11 @@ class Diagnosis:
                 "base_model": self.base_model.to_dict(), "extended_model": self.extended_model.to_dict()}
 
 
-def _per_recording_nrmse(ex: Experiment, yhat: np.ndarray) -> dict:
+def _per_recording_nrmse(ex: JoinedExperiment, yhat: np.ndarray) -> dict:
     return {r.name: nrmse(ex.y[ex.part(i)], yhat[ex.part(i)]) for i, r in enumerate(ex.recordings)}
 
 
-def _summary(ex: Experiment, model_fit: _Fit, noise: float) -> dict:
+def _summary(ex: JoinedExperiment, model_fit: _Fit, noise: float) -> dict:
     yhat = ex.y - model_fit.residual
     return {"nrmse": nrmse(ex.y, yhat), "residual_rms": rms(model_fit.residual),
             "noise_ratio": rms(model_fit.residual) / noise if noise else None,
@@ -592,7 +592,7 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
     return diag
 
 
-def _validate(ex: Experiment, base: _Fit, findings: list, tested: list, fits: dict, mask: np.ndarray,
+def _validate(ex: JoinedExperiment, base: _Fit, findings: list, tested: list, fits: dict, mask: np.ndarray,
               noise: float) -> tuple[dict | None, str]:
     """Hold out the last recording: refit base (+ winner, + runner-up) on the rest, predict it."""
     if len(ex.recordings) < 2 or not findings:
@@ -633,7 +633,7 @@ def _validate(ex: Experiment, base: _Fit, findings: list, tested: list, fits: di
     return out, text
 
 
-def _where_differs(ex: Experiment, r_win: np.ndarray, r_run: np.ndarray) -> str:
+def _where_differs(ex: JoinedExperiment, r_win: np.ndarray, r_run: np.ndarray) -> str:
     extra = r_run ** 2 - r_win ** 2
     per = [(float(np.sum(extra[ex.part(i)])), r.name) for i, r in enumerate(ex.recordings)]
     rec = max(per)[1]
@@ -645,7 +645,7 @@ def _where_differs(ex: Experiment, r_win: np.ndarray, r_run: np.ndarray) -> str:
     return f"in {rec} and {where}"
 
 
-def _paragraph(d: Diagnosis, ex: Experiment) -> str:
+def _paragraph(d: Diagnosis, ex: JoinedExperiment) -> str:
     b, e = d.baseline, d.extended
     m = d.mismatch
     text = (f"The base model leaves a residual of {b['residual_rms']:.3g} RMS against a noise level of "
