@@ -671,12 +671,16 @@ def _paragraph(d: Diagnosis, ex: JoinedExperiment) -> str:
     for f in d.findings:
         params = ", ".join(f"{k} = {v:.3g} ± {f['stderr'][k]:.2g}" for k, v in f["parameters"].items())
         text += (f" The model had no {f['effect'].replace('_', ' ')}; adding it ({params}) removes "
-                 f"{100 * f['explained_fraction']:.0f}% of the residual (p = {f['p_value']:.2g}).")
+                 f"{100 * f['explained_fraction']:.0f}% of the residual ({_p_text(f['p_value'])}).")
     if d.comparison:
         text += " " + d.comparison + "."
     text += (f" The extended model leaves {e['residual_rms']:.3g} RMS ({_times(e['residual_rms'], d.noise_rms)}); "
              f"NRMSE {100 * b['nrmse']:.2f}% -> {100 * e['nrmse']:.2f}%.")
     return text
+
+
+def _p_text(p: float) -> str:
+    return "p < 1e-300" if p == 0 else f"p = {p:.2g}"
 
 
 def _times(value: float, noise: float) -> str:
