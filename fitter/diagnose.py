@@ -320,7 +320,10 @@ def _fit_family(family: _Family, base: np.ndarray, ex: JoinedExperiment, mask: n
     """Joint fit of base + effects, started from the best of the effects' starting values.
 
     The starts are screened with the base parameters held (cheap: only the
-    effect parameters move); the joint fit starts from the best one.
+    effect parameters move); the joint fit starts from the best one.  Should
+    it end above the nested model (the base with the effect switched off,
+    `_null_effect`), it is refitted from there, so a candidate never explains
+    a negative fraction.
     """
     lower, upper = _bounds(family, ex)
     starts = [[]]
@@ -331,7 +334,23 @@ def _fit_family(family: _Family, base: np.ndarray, ex: JoinedExperiment, mask: n
         effect_only = np.r_[np.zeros(family.n_base, bool), np.ones(len(theta0) - family.n_base, bool)]
         screened = [_least_squares(family, np.r_[base, s], ex, mask, lower, upper, effect_only) for s in starts]
         theta0 = min(screened, key=lambda f: f.rss).theta
-    return _least_squares(family, theta0, ex, mask, lower, upper)
+    fit = _least_squares(family, theta0, ex, mask, lower, upper)
+    null = np.r_[base, sum((_null_effect(name, ex, y_fit) for name in family.names), [])]
+    null_rss = float(np.sum((ex.y - _simulate(family.build(null), ex))[mask] ** 2))
+    if fit.rss > null_rss * (1 + 1e-4):
+        fit = _least_squares(family, null, ex, mask, lower, upper)
+    return fit
+
+
+def _null_effect(name: str, ex: JoinedExperiment, y_fit: np.ndarray) -> list[float]:
+    """Effect parameters (in theta's coordinates) at which the effect (almost) vanishes: the nested model."""
+    if name == "creep":
+        return [0.0, math.log(10 * _min_dt(ex))]
+    if name == "saturation":
+        return [float(np.mean(y_fit)), 0.0]
+    if name == "sensor_lag":
+        return [math.log(0.05 * _min_dt(ex)) + 1e-6]
+    return [0.0]
 
 
 def _fit_base(ex: JoinedExperiment, model, mask: np.ndarray) -> _Fit:
