@@ -43,13 +43,20 @@ Pipeline of `fit_recordings`
    initial state would let a barely convergent model mimic a non-closing loop,
    so ``x0="periodic"`` is used instead: the cycle is taken as settled.
    The convergence condition is enforced: for the rate-dependent model with
-   g >= 0 the period map is e^{A sum g dt}, so rho < 1 iff A is Hurwitz; for
-   the rate-independent model rho(e^{beta A+} e^{-beta A-}) < 1, condition (5).
-   A violated condition triggers a refit with a barrier on it.
-6. **Selection**: order n in {1, 2, 3} and, for ``kind="auto"``, RI vs RD by
-   BIC = N ln(RSS/N) + p ln N on the stacked residuals; q (the bound of the
-   Section III constrained least squares) by the loop error of the initial
-   estimate.  All candidates are listed in the summary.
+   g >= 0 the period map is e^{A sum g dt}, so rho < 1 iff A is Hurwitz, which
+   the parameterisation guarantees (A's characteristic polynomial is built
+   from positive factors); for the rate-independent model
+   rho(e^{beta A+} e^{-beta A-}) < 1, condition (5), is kept by a barrier
+   residual 1e3 max(0, rho - 0.99) added to the objective.  The optimiser
+   (trust-region reflective) stops after `MAX_NFEV` iterations per start.
+6. **Selection**: orders n = 1, 2, 3 are fitted upward, each started from
+   the order n-1 fit (extra fast, weakly observed modes) and the other
+   starts; for ``kind="auto"`` RI vs RD, and the order, by
+   BIC = N ln(RSS/N) + p ln N on the stacked residuals (the RD order search
+   stops when BIC rises; ``kind="rd"`` fits only the order-1 RI model, as a
+   start).  q (the bound of the Section III constrained least squares) is
+   chosen by the loop error of the Section III estimate; it only shapes a
+   start.  All candidates are listed in the summary.
 """
 from __future__ import annotations
 

@@ -67,6 +67,7 @@ __all__ = ["RefineResult", "refine", "simulate_from", "cycle_fixed_point", "jaco
 
 X0_MODES = ("model", "fit", "periodic")
 LSQ_METHOD = "trf"
+FTOL = 1e-6  # relative cost decrease below which the optimiser stops (noise-level gains)
 _FAIL = 1e3  # residual (in units of the output's std) returned where simulation fails
 
 
@@ -282,7 +283,8 @@ def refine(build: Callable[[np.ndarray], object], theta0: np.ndarray,
 
     coarse = _problem(recordings, weights, cycles, max_samples)
     budget = None if max_nfev is None else (max_nfev * (len(theta0) + 1) if LSQ_METHOD == "lm" else max_nfev)
-    sol = least_squares(objective(coarse), theta0, method=LSQ_METHOD, x_scale="jac", max_nfev=budget)
+    sol = least_squares(objective(coarse), theta0, method=LSQ_METHOD, x_scale="jac", max_nfev=budget,
+                        ftol=FTOL)
     if progress:
         progress(f"output-error refinement: cost {sol.cost:.4g} after {sol.nfev} evaluations")
     full = _problem(recordings, weights, cycles, None)
