@@ -189,7 +189,7 @@ def _column_values(rows: list[list[str]], numbers: list[int], i: int, name: str,
 
 
 def load_recording(path: str | os.PathLike, time: str | int | None = "time", input: str | int = "u",
-                   output: str | int = "y", *, name: str | None = None,
+                   output: str | int | None = "y", *, name: str | None = None,
                    min_samples: int = MIN_SAMPLES) -> Recording:
     """Load one experiment from a CSV file.
 
@@ -198,7 +198,9 @@ def load_recording(path: str | os.PathLike, time: str | int | None = "time", inp
     path : the CSV file (one header line).
     time, input, output : column names, base names or 0-based indices (see the
         module docstring).  ``time=None`` uses the sample index as time (enough
-        for rate-independent models, whose response does not depend on time).
+        for rate-independent models, whose response does not depend on time);
+        ``output=None`` reads no output column (y is NaN), e.g. for an input
+        to simulate.
     name : label of the recording; defaults to the file stem.
     min_samples : fewest data rows accepted.
 
@@ -233,11 +235,13 @@ def load_recording(path: str | os.PathLike, time: str | int | None = "time", inp
         t = t * _TIME_SCALE.get(tunit, 1.0)
     else:
         t = np.arange(len(rows), dtype=float)
-    signals = {}
+    signals = {"output": Signal("y")}
     for role in ("input", "output"):
-        base, unit = split_unit(header[cols[role]])
-        signals[role] = Signal(base, unit, f"{role} column {header[cols[role]]!r} of {Path(path).name}")
-    return Recording(t, values["input"], values["output"], name=name or Path(path).stem,
+        if role in cols:
+            base, unit = split_unit(header[cols[role]])
+            signals[role] = Signal(base, unit, f"{role} column {header[cols[role]]!r} of {Path(path).name}")
+    y = values["output"] if "output" in values else np.full(len(rows), np.nan)
+    return Recording(t, values["input"], y, name=name or Path(path).stem,
                      input=signals["input"], output=signals["output"], source=path)
 
 

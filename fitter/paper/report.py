@@ -1,0 +1,194 @@
+"""Benchmark: the paper's Examples 1-3 reproduced, our figures beside the paper's.
+
+`run` identifies all three examples (Example 1: `fitter.paper.example1`;
+Examples 2-3: `fitter.rd_identification` with the paper-literal and the
+improved estimator), checks the project's done-when figures, and optionally
+saves PNGs like the paper's Figs. 1, 3-6.  `main` is the command line
+(`bench/reproduce_paper.py`, `duhem reproduce-paper`): a readable table, or
+``--json``; its exit status is 1 when a done-when check fails.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from . import example2, example3
+
+__all__ = ["run", "checks", "format_table", "main", "TIME_LIMIT_S"]
+
+TIME_LIMIT_S = 15.0
+
+
+def _example1(figures_dir: str | None) -> tuple[dict, list[str]]:
+    """Example 1 from `fitter.paper.example1` (imported here: it is another module's work)."""
+    try:
+        from . import example1
+    except ImportError as exc:
+        return {"error": f"fitter.paper.example1 unavailable: {exc}"}, []
+    result = example1.run_example1()
+    paths = []
+    if figures_dir is not None:
+        path = str(Path(figures_dir) / "fig1_example1.png")
+        example1.plot_example1(result, path)
+        paths.append(path)
+    return result, paths
+
+
+def _check(name: str, value, limit: float, ok: bool) -> dict:
+    return {"check": name, "value": value, "limit": limit, "pass": bool(ok)}
+
+
+def checks(result: dict) -> list[dict]:
+    """The done-when figures of issue 2, each with its limit and pass/fail."""
+    out = []
+    ex1 = result["example1"].get("runs")
+    if ex1:
+        e7, e1 = ex1["q=7"]["max_abs_loop_error"], ex1["q=1"]["max_abs_loop_error"]
+        out.append(_check("ex1 q=7 max |loop error|", e7, 2e-3, e7 is not None and e7 <= 2e-3))
+        out.append(_check("ex1 q=1 constraint active and fit worse than q=7", e1, e7 or 0.0,
+                          ex1["q=1"]["constraint_active"] and (e1 is None or e1 > (e7 or 0.0))))
+    imp = result["example2"]["estimators"]["improved"]
+    a, b = imp["noisy"]["median_A_hat"], imp["noisy"]["median_B_hat"]
+    out.append(_check("ex2 improved median A_hat rel. error vs -0.25", abs(a / -0.25 - 1), 0.01,
+                      abs(a / -0.25 - 1) <= 0.01))
+    out.append(_check("ex2 improved median B_hat rel. error vs 0.25", abs(b / 0.25 - 1), 0.01,
+                      abs(b / 0.25 - 1) <= 0.01))
+    e = imp["noise_free"]["worst_rel_g_error"]
+    out.append(_check("ex2 improved noise-free worst rel. g error", e, 0.01, e <= 0.01))
+    e = imp["noisy"]["median_worst_rel_g_error"]
+    out.append(_check("ex2 improved noisy median worst rel. g error", e, 0.10, e < 0.10))
+    imp3 = result["example3"]["estimators"]["improved"]
+    e = imp3["max_abs_g_error"]
+    out.append(_check("ex3 improved max |g_hat - g/g(a1)|", e, 0.005, e <= 0.005))
+    loops = list(imp3["loop_rel_errors"].values())
+    worst = None if None in loops else max(loops)
+    out.append(_check("ex3 improved worst sine-loop error / y-range", worst, 0.01,
+                      worst is not None and worst <= 0.01))
+    t = result["run_time_s"]
+    out.append(_check("run time [s]", t, TIME_LIMIT_S, t < TIME_LIMIT_S))
+    return out
+
+
+def run(seeds: int = 20, figures_dir: str | None = None, workers: int = 2) -> dict:
+    """Run the three examples; JSON-able result with checks and the run time.
+
+    Figures (when `figures_dir` is given, created if missing): fig1_example1,
+    fig3_example2_g, fig4_example2_loops, fig5_example3_g, fig6_example3_loops.
+    """
+    t0 = time.perf_counter()
+    if figures_dir is not None:
+        Path(figures_dir).mkdir(parents=True, exist_ok=True)
+    ex1, figures = _example1(figures_dir)
+    ex2 = example2.run_example2(seeds=seeds, workers=workers)
+    ex3 = example3.run_example3()
+    if figures_dir is not None:
+        figures += example2.plot_example2(ex2, figures_dir) + example3.plot_example3(ex3, figures_dir)
+    result = {"example1": ex1, "example2": ex2, "example3": ex3, "figures": figures,
+              "run_time_s": time.perf_counter() - t0}
+    result["checks"] = checks(result)
+    return result
+
+
+def _fmt(x, spec: str = ".4g") -> str:
+    if x is None:
+        return "-"
+    if isinstance(x, bool):
+        return "yes" if x else "no"
+    if isinstance(x, (int, float)):
+        return format(x, spec)
+    return str(x)
+
+
+def _rows(title: str, header: list[str], rows: list[list]) -> list[str]:
+    cells = [header] + [[_fmt(c) for c in r] for r in rows]
+    widths = [max(len(r[i]) for r in cells) for i in range(len(header))]
+    lines = [title, "  " + "  ".join(h.ljust(w) for h, w in zip(header, widths))]
+    lines.append("  " + "  ".join("-" * w for w in widths))
+    lines += ["  " + "  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in cells[1:]]
+    return lines + [""]
+
+
+def _example1_lines(ex1: dict) -> list[str]:
+    if "runs" not in ex1:
+        return ["Example 1: " + ex1.get("error", "not run"), ""]
+    rows = []
+    for key, r in ex1["runs"].items():
+        paper = ex1.get("paper", {}).get(key, {})
+        rows += [[key, "cost (12)", paper.get("cost"), r["cost"]],
+                 [key, "rho(A+^l A-^l) (text)", paper.get("rho"), r["rho_text"]],
+                 [key, "rho(A+ A-^l) (eq 13)", paper.get("rho"), r["rho_eq13"]],
+                 [key, "constraint active", None, r["constraint_active"]],
+                 [key, "max |loop error|", None, r["max_abs_loop_error"]]]
+    title = (f"Example 1 (rate-independent, m = {ex1['m']}, order {ex1['order']}, ell = {ex1['ell']}; "
+             f"true y-range {ex1['runs']['q=7']['y_range']:.4g})")
+    return _rows(title, ["q", "quantity", "paper", "ours"], rows)
+
+
+def _example2_lines(ex2: dict) -> list[str]:
+    est, s = ex2["estimators"], ex2["settings"]
+    lit, imp = est["literal"], est["improved"]
+    rows = [["noise-free A_hat", -0.25, lit["noise_free"]["A_hat"], imp["noise_free"]["A_hat"], "-0.25"],
+            ["noise-free B_hat", 0.25, lit["noise_free"]["B_hat"], imp["noise_free"]["B_hat"], "0.25"],
+            ["noise-free worst |g_hat/4g - 1|", None, lit["noise_free"]["worst_rel_g_error"],
+             imp["noise_free"]["worst_rel_g_error"], "<= 0.01"],
+            ["noisy median A_hat", ex2["paper"]["A_hat"], lit["noisy"]["median_A_hat"],
+             imp["noisy"]["median_A_hat"], "-0.25 +-1%"],
+            ["noisy median B_hat", ex2["paper"]["B_hat"], lit["noisy"]["median_B_hat"],
+             imp["noisy"]["median_B_hat"], "0.25 +-1%"],
+            ["noisy median worst |g_hat/4g - 1|", None, lit["noisy"]["median_worst_rel_g_error"],
+             imp["noisy"]["median_worst_rel_g_error"], "< 0.10"]]
+    for w in s["omegas"]:
+        key = f"{w:g}"
+        rows.append([f"seed-0 sine loop error/range, w={key}", None,
+                     lit["noisy"]["seed0"]["loop_rel_errors"][key], imp["noisy"]["seed0"]["loop_rel_errors"][key],
+                     ""])
+    title = (f"Example 2 (12 waves, delta = {s['delta']}, noise {s['noise_pp']} p-p, "
+             f"{s['periods_per_record']} period per record, {s['seeds']} seeds; g errors over all 24 slopes)")
+    return _rows(title, ["quantity", "paper", "literal", "improved", "target"], rows)
+
+
+def _example3_lines(ex3: dict) -> list[str]:
+    est, s = ex3["estimators"], ex3["settings"]
+    lit, imp = est["literal"], est["improved"]
+    rows = [["max |g_hat - g/g(a1)|", None, lit["max_abs_g_error"], imp["max_abs_g_error"], "<= 0.005"]]
+    for w in s["omegas"]:
+        key = f"{w:g}"
+        rows.append([f"sine loop error/range, w={key}", None, lit["loop_rel_errors"][key],
+                     imp["loop_rel_errors"][key], "<= 0.01"])
+    rows.append(["w=0.5 loop error, g_hat linear (not PCHIP)", None, lit["loop_rel_error_w0.5_linear_g"],
+                 imp["loop_rel_error_w0.5_linear_g"], ""])
+    title = (f"Example 3 (14 waves, order {s['order']}, delta = {s['delta']}, noise-free, "
+             f"{s['periods_per_record']} period per record; paper gives figures only)")
+    return _rows(title, ["quantity", "paper", "literal", "improved", "target"], rows)
+
+
+def format_table(result: dict) -> str:
+    """The readable report printed by `main`."""
+    lines = _example1_lines(result["example1"]) + _example2_lines(result["example2"]) \
+        + _example3_lines(result["example3"])
+    lines += _rows("Done-when checks", ["check", "value", "limit", "pass"],
+                   [[c["check"], c["value"], c["limit"], c["pass"]] for c in result["checks"]])
+    if result["figures"]:
+        lines += ["Figures: " + ", ".join(result["figures"]), ""]
+    lines.append(f"run time {result['run_time_s']:.2f} s")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line: print the table (or --json); exit status 1 when a check fails."""
+    parser = argparse.ArgumentParser(prog="reproduce-paper", description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    parser.add_argument("--figures", metavar="DIR", help="save PNG figures (Figs. 1, 3-6) to DIR")
+    parser.add_argument("--seeds", type=int, default=20, help="noise seeds for Example 2 (default 20)")
+    args = parser.parse_args(argv)
+    if args.seeds < 1:
+        parser.error(f"--seeds must be >= 1, got {args.seeds}")
+    result = run(seeds=args.seeds, figures_dir=args.figures)
+    print(json.dumps(result, indent=2) if args.json else format_table(result))
+    return 0 if all(c["pass"] for c in result["checks"]) else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
