@@ -219,8 +219,8 @@ def _residuals(build, theta, prob: _Problem, mode: str):
             with np.errstate(all="ignore"):
                 s, x0, yhat, rho = simulate_from(model, t, u, y, mode, cyc)
             r = y[s:] - yhat
-            if not np.all(np.isfinite(r)):
-                raise KernelError("non-finite simulation")
+            if not np.all(np.abs(r) < _FAIL * sc * 1e3):
+                raise KernelError("simulation diverged")
         except (KernelError, ValueError, np.linalg.LinAlgError):
             s, x0, rho = start, None, np.nan
             r = np.full(len(y) - start, _FAIL * sc)
