@@ -695,7 +695,7 @@ def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order
             cands.append(ri_fits[n])
         if lower is not None and ri_fits[n].bic > lower.bic and kind == "ri":
             break
-    if kind in ("auto", "rd"):
+    if kind == "rd" or (kind == "auto" and levels >= 2):
         rd_fits: dict[int, _Candidate] = {}
         for n in orders:
             say(f"rate-dependent model, order {n}")
@@ -763,6 +763,9 @@ def _why(best: _Candidate, cands, kind: str, levels: int) -> str:
         text = f"kind {kind!r} requested; order by " + text
     if levels < 2 and best.param.kind == "rd":
         text += "; note: a single input rate, so g is barely identifiable"
+    if levels < 2 and kind == "auto":
+        text += ("; rate-dependent candidates not tried: the recordings have a single input rate, "
+                 "from which rate dependence cannot be established (use --kind rd to force it)")
     return text
 
 

@@ -185,9 +185,12 @@ def _linear_recurrence(w0: np.ndarray, z: np.ndarray, a: np.ndarray, f: np.ndarr
     """
     N = len(z)
     span = np.cumsum(np.abs(z.real).max(axis=1))
-    chunk_id = np.floor(span / _CHUNK_SPAN).astype(np.int64)
-    starts = np.r_[0, np.flatnonzero(np.diff(chunk_id)) + 1]
-    ends = np.r_[starts[1:], N]
+    if span[-1] < _CHUNK_SPAN:
+        starts, ends = (0,), (N,)
+    else:
+        chunk_id = np.floor(span / _CHUNK_SPAN).astype(np.int64)
+        starts = np.concatenate(([0], np.flatnonzero(np.diff(chunk_id)) + 1))
+        ends = np.concatenate((starts[1:], [N]))
     W = np.empty_like(f)
     w = w0.astype(complex)
     for s0, s1 in zip(starts, ends):
