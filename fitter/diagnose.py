@@ -138,7 +138,7 @@ def _reversals(u: np.ndarray) -> int:
     if span == 0:
         return 0
     thr = 0.1 * span
-    count, direction, ref = 0, 0, u[0]
+    count, direction = 0, 0
     lo = hi = u[0]
     for v in u:
         hi, lo = max(hi, v), min(lo, v)
@@ -549,7 +549,6 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
         from .fit import fit_recordings
         model = fit_recordings(ex.recordings, kind="ri", order=base_order).model
     base = _fit_base(ex, model, mask)
-    base_rss = base.rss
     mismatch = locate_mismatch(ex, base.residual, noise)
     n_steps = len(candidates) * 2 + 4
     done = [1]
@@ -559,7 +558,6 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
         report(msg, min(done[0] / n_steps, 0.99))
 
     current, findings, tested, fits = base, [], [], {}
-    base_theta = base.family.base_theta(base.model)
     fixed: list[Effect] = list(base.family.fixed)
     remaining = list(candidates)
     while remaining and len(findings) < max_findings:

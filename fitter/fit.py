@@ -66,7 +66,6 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.optimize import isotonic_regression
 
-from .core.kernel import KernelError
 from .core.models import Experiment, RateDependentModel, RateIndependentModel, Signals
 from .core.periodic import convergence_rho
 from .core.rates import TabulatedRate
@@ -269,7 +268,6 @@ class _RDParam:
 
     def theta_from(self, A, B, E, C, D, c=None) -> np.ndarray:
         T = _observability(A, C)
-        Ti = np.linalg.inv(T)
         c = np.zeros(1 + self.n_c) if c is None else c
         return np.r_[_hurwitz_theta(np.linalg.eigvals(A)), T @ B, T @ E, D, c]
 

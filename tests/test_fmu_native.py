@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fmu_host import Instance as FmuInstance, unzip_all
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -133,57 +134,14 @@ def fmus(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def unzipped(fmus, tmp_path_factory):
-    return {name: (read_model_description(path), extract(path, str(tmp_path_factory.mktemp(name))))
-            for name, path in fmus.items()}
+    return unzip_all(fmus, tmp_path_factory)
 
 
-class Instance:
-    """An FMU2Slave instance with its log; variables by name."""
+class Instance(FmuInstance):
+    """The shared host; logging off, and `free` does not terminate (instances may be in error)."""
 
-    def __init__(self, md, unzipdir, name="inst", start=None, u0=0.0, initialise=True):
-        self.vr = {v.name: v.valueReference for v in md.modelVariables}
-        self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
-                             modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
-        self.log: list[str] = []
-        self._callbacks = collecting_callbacks(self.log)
-        self.fmu.instantiate(callbacks=self._callbacks, loggingOn=False)
-        self.t = 0.0
-        if initialise:
-            self.initialise(start, u0)
-
-    def initialise(self, start=None, u0=0.0):
-        self.fmu.setupExperiment(startTime=0.0)
-        for key, value in (start or {}).items():
-            self.set(key, value)
-        self.fmu.enterInitializationMode()
-        self.set("u", u0)
-        self.fmu.exitInitializationMode()
-        self.t = 0.0
-
-    def set(self, name, value):
-        self.fmu.setReal([self.vr[name]], [float(value)])
-
-    def y(self):
-        return self.fmu.getReal([self.vr["y"]])[0]
-
-    def sample(self, u):
-        self.set("u", u)
-        return self.y()
-
-    def step(self, h):
-        self.fmu.doStep(currentCommunicationPoint=self.t, communicationStepSize=h)
-        self.t += h
-
-    def run(self, t, u):
-        y = np.empty(len(u))
-        for k in range(len(u)):
-            y[k] = self.sample(u[k])
-            if k + 1 < len(u):
-                self.step(t[k + 1] - t[k])
-        return y
-
-    def free(self):
-        self.fmu.freeInstance()
+    LOGGING_ON = False
+    TERMINATE_ON_FREE = False
 
 
 def status_of(call, *args) -> int:

@@ -12,7 +12,8 @@ from xml.etree import ElementTree as ET
 
 import numpy as np
 import pytest
-from fmpy import extract, read_model_description
+from fmu_host import Instance as FmuInstance, unzip_all
+from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave
 
@@ -80,58 +81,11 @@ def fmus(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def unzipped(fmus, tmp_path_factory):
-    return {name: (read_model_description(path), extract(path, str(tmp_path_factory.mktemp(name))))
-            for name, path in fmus.items()}
+    return unzip_all(fmus, tmp_path_factory)
 
 
-class Instance:
-    """An initialised FMU2Slave of one FMU, with its log; value references by name."""
-
-    def __init__(self, md, unzipdir, name="inst", start=None, u0=0.0, initialise=True):
-        self.vr = {v.name: v.valueReference for v in md.modelVariables}
-        self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
-                             modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
-        self.log = []
-        self._callbacks = collecting_callbacks(self.log)
-        self.fmu.instantiate(callbacks=self._callbacks, loggingOn=True)
-        self.t = 0.0
-        if initialise:
-            self.initialise(start, u0)
-
-    def initialise(self, start=None, u0=0.0):
-        self.fmu.setupExperiment(startTime=0.0)
-        for key, value in (start or {}).items():
-            self.set(key, value)
-        self.fmu.enterInitializationMode()
-        self.set("u", u0)
-        self.fmu.exitInitializationMode()
-
-    def set(self, name, value):
-        self.fmu.setReal([self.vr[name]], [float(value)])
-
-    def y(self):
-        return self.fmu.getReal([self.vr["y"]])[0]
-
-    def sample(self, u):
-        self.set("u", u)
-        return self.y()
-
-    def step(self, h):
-        self.fmu.doStep(currentCommunicationPoint=self.t, communicationStepSize=h)
-        self.t += h
-
-    def run(self, t, u):
-        """Sample-and-step through (t, u); y at every sample."""
-        y = np.empty(len(u))
-        for k in range(len(u)):
-            y[k] = self.sample(u[k])
-            if k + 1 < len(u):
-                self.step(t[k + 1] - t[k])
-        return y
-
-    def free(self):
-        self.fmu.terminate()
-        self.fmu.freeInstance()
+class Instance(FmuInstance):
+    """The shared host with logging on (pythonfmu logs only then)."""
 
 
 @pytest.mark.parametrize("name", MODELS)
