@@ -258,7 +258,8 @@ def _interval_types(i: int, v: np.ndarray) -> tuple[np.ndarray, float, float]:
     if zero.size:
         k = int(zero[0])
         _fail(i, f"branch not monotone or not a ramp near samples {k}..{k + 2} (du/dt = {v[k]:.6g}, "
-                 f"{v[k + 1]:.6g}; the ramps have slopes a = {a:.6g}, b = {b:.6g})")
+                 f"{v[k + 1]:.6g}; the ramps have slopes a = {a:.6g}, b = {b:.6g}), or the branches are "
+                 "too short: each must span whole sample intervals (sample faster)")
     return kind, a, b
 
 
@@ -636,6 +637,10 @@ def identify_rd_triangles(records: list[tuple[np.ndarray, np.ndarray, np.ndarray
         raise ValueError(f"need at least 2 triangle-wave records of different slopes (eq 50), "
                          f"got {len(records)}")
     recs = sorted((_parse_record(i, r, order) for i, r in enumerate(records)), key=lambda r: r.wave.a)
+    for r0, r1 in zip(recs[:-1], recs[1:]):
+        if np.isclose(r0.wave.a, r1.wave.a, rtol=_TOL, atol=0):
+            raise ValueError(f"records {r0.index} and {r1.index} have the same rising slope "
+                             f"{r0.wave.a:.6g}; eq (50) needs one wave per slope")
     optimizer: dict = {}
     if estimator == "literal":
         alpha, beta, waves = _literal(recs, order)
@@ -644,7 +649,7 @@ def identify_rd_triangles(records: list[tuple[np.ndarray, np.ndarray, np.ndarray
     slopes = np.array([w.a for w in waves] + [w.b for w in waves])
     g_hat = np.array([w.g_plus for w in waves] + [w.g_minus for w in waves])
     if np.any(np.diff(np.sort(slopes)) == 0):
-        raise ValueError("two records have the same slope; eq (50) needs one wave per slope")
+        raise ValueError("two records have the same falling slope; eq (50) needs one wave per slope")
     A, B, C = _canonical(alpha, beta)
     model = RateDependentModel(A=A, B=B, C=C, g=TabulatedRate(slopes, g_hat), fit_info={
         "method": "Oh & Bernstein 2007, Section V (triangle waves)", "estimator": estimator,
