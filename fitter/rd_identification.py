@@ -36,9 +36,9 @@ Two estimators (``estimator=``):
        (`scipy.optimize.least_squares`, trust-region reflective with the
        block-sparse Jacobian) on *every* sample, corner samples included, with
        the model's limiting periodic response computed by the core kernel
-       (`fitter.core.periodic_response`, `fitter.core.simulate`).  With white
-       output noise this is the maximum-likelihood (Gaussian) estimate; the
-       regressors carry no noise, so there is no errors-in-variables bias.
+       (`fitter.core.periodic_response`).  With white output noise this is
+       the maximum-likelihood (Gaussian) estimate; the regressors carry no
+       noise, so there is no errors-in-variables bias.
 
 Typos of the paper and how they are resolved here
 -------------------------------------------------
@@ -88,7 +88,7 @@ from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 
 from .core import (CallableRate, ConvergenceError, KernelError, RateDependentModel, TabulatedRate,
-                   periodic_response, simulate)
+                   periodic_response)
 
 __all__ = ["ESTIMATORS", "TriangleWave", "triangle_wave", "triangle_response", "periodic_triangle_output",
            "identify_rd_triangles", "RDIdentification", "WaveFit", "bilinear_d2c"]
@@ -608,6 +608,17 @@ def _improved(recs: list[_Record], order: int):
     return alpha, beta, waves, info
 
 
+def _check_distinct_slopes(recs: list[_Record]) -> None:
+    """Eq (50) reads g at one rising and one falling slope per wave: no slope twice (relative 1e-6)."""
+    for kind, key in (("rising", "a"), ("falling", "b")):
+        ordered = sorted(recs, key=lambda r: getattr(r.wave, key))
+        for r0, r1 in zip(ordered[:-1], ordered[1:]):
+            v0, v1 = getattr(r0.wave, key), getattr(r1.wave, key)
+            if np.isclose(v0, v1, rtol=_TOL, atol=0):
+                raise ValueError(f"records {min(r0.index, r1.index)} and {max(r0.index, r1.index)} have the "
+                                 f"same {kind} slope {v0:.6g}; eq (50) needs one wave per slope")
+
+
 def identify_rd_triangles(records: list[tuple[np.ndarray, np.ndarray, np.ndarray]], *, order: int = 1,
                           estimator: str = "improved") -> RDIdentification:
     """Identify a rate-dependent semilinear Duhem model from triangle-wave records (Section V).
@@ -637,10 +648,7 @@ def identify_rd_triangles(records: list[tuple[np.ndarray, np.ndarray, np.ndarray
         raise ValueError(f"need at least 2 triangle-wave records of different slopes (eq 50), "
                          f"got {len(records)}")
     recs = sorted((_parse_record(i, r, order) for i, r in enumerate(records)), key=lambda r: r.wave.a)
-    for r0, r1 in zip(recs[:-1], recs[1:]):
-        if np.isclose(r0.wave.a, r1.wave.a, rtol=_TOL, atol=0):
-            raise ValueError(f"records {r0.index} and {r1.index} have the same rising slope "
-                             f"{r0.wave.a:.6g}; eq (50) needs one wave per slope")
+    _check_distinct_slopes(recs)
     optimizer: dict = {}
     if estimator == "literal":
         alpha, beta, waves = _literal(recs, order)
@@ -648,8 +656,6 @@ def identify_rd_triangles(records: list[tuple[np.ndarray, np.ndarray, np.ndarray
         alpha, beta, waves, optimizer = _improved(recs, order)
     slopes = np.array([w.a for w in waves] + [w.b for w in waves])
     g_hat = np.array([w.g_plus for w in waves] + [w.g_minus for w in waves])
-    if np.any(np.diff(np.sort(slopes)) == 0):
-        raise ValueError("two records have the same falling slope; eq (50) needs one wave per slope")
     A, B, C = _canonical(alpha, beta)
     model = RateDependentModel(A=A, B=B, C=C, g=TabulatedRate(slopes, g_hat), fit_info={
         "method": "Oh & Bernstein 2007, Section V (triangle waves)", "estimator": estimator,

@@ -187,7 +187,7 @@ def _dip_in_rising_branch():
     ("short_branches", r"record 1: the falling branch .* order 2 needs at least 4 per branch .*branches too short"),
     ("one_wave", r"need at least 2 triangle-wave records .* got 1"),
     ("same_slope", r"records 0 and 1 have the same rising slope 0.25; eq \(50\) needs one wave per slope"),
-    ("same_falling_slope", r"two records have the same falling slope"),
+    ("same_falling_slope", r"records 0 and 1 have the same falling slope -0.25; eq \(50\) needs one"),
     ("undersampled", r"record 1: branch not monotone or not a ramp .*or the branches are too short"),
     ("length", r"record 1: t, u, y differ in length \(124, 124, 123\)"),
     ("non_uniform", r"record 1: sampling is not uniform"),
