@@ -2,9 +2,11 @@
 
 Usage::
 
-    python build_fmu.py model.json -o model.fmu [--backend python|native]
+    python build_fmu.py model.json -o model.fmu [--backend native|python]
 
-or `build_fmu(model_or_json_path, out_path, backend="python")` from Python.
+(the script's default backend is ``native``: the FMU then runs in simulators
+without Python), or `build_fmu(model_or_json_path, out_path, backend="python")`
+from Python.
 
 The ``python`` backend (pythonfmu)
 ----------------------------------
@@ -40,7 +42,8 @@ What pythonfmu needs, and how it is given:
   `fitter.model_description.model_description_xml`.
 
 The FMU is written under a temporary name beside `out_path` and renamed into
-place, so a failed build never leaves a partial file.
+place, so a failed build never leaves a partial file; it gets the usual mode
+(0o666 & ~umask) whichever backend wrote it.
 
 The ``native`` backend is `fitter.native_fmu.build_native_fmu`.
 """
@@ -176,6 +179,12 @@ def _build_native(model, out_path: Path, **opts) -> None:
     build_native_fmu(model, str(out_path), **opts)
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def build_fmu(model_or_json_path, out_path, *, backend: str = "python", **opts) -> str:
     """Build an FMI 2.0 Co-Simulation FMU of a model; return the FMU's path.
 
@@ -204,9 +213,10 @@ def build_fmu(model_or_json_path, out_path, *, backend: str = "python", **opts) 
     out = Path(out_path).resolve()
     if not out.parent.is_dir():
         raise FileNotFoundError(f"{out_path}: directory {out.parent} does not exist")
-    tmp = out.parent / f".tmp-{uuid.uuid4().hex}-{out.name}"   # created with the usual mode
+    tmp = out.parent / f".tmp-{uuid.uuid4().hex}-{out.name}"
     try:
         (_build_python if backend == "python" else _build_native)(model, tmp, **opts)
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, out)
     finally:
         if tmp.exists():
@@ -219,14 +229,15 @@ def main(argv: list[str] | None = None) -> int:
                                                  "FMI 2.0 Co-Simulation FMU.")
     parser.add_argument("model", help="model JSON file (duhem fit output)")
     parser.add_argument("-o", "--output", required=True, help="FMU file to write")
-    parser.add_argument("--backend", choices=BACKENDS, default="python",
-                        help="python: pythonfmu (host needs Python with numpy); "
-                             "native: C shared library (needs a C compiler now)")
+    parser.add_argument("--backend", choices=BACKENDS, default="native",
+                        help="native (default): C shared library, the simulator needs no Python "
+                             "(needs a C compiler now); python: pythonfmu (the simulator needs "
+                             "Python with numpy)")
     args = parser.parse_args(argv)
     try:
         path = build_fmu(args.model, args.output, backend=args.backend)
     except (ValueError, TypeError, OSError, FmuBuildError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print("error: " + " ".join(str(exc).split()), file=sys.stderr)
         return 1
     print(path)
     return 0

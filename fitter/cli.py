@@ -9,10 +9,17 @@ Conventions shared by every command
 * An error is one line on stderr, ``error: <file>: <what>``, and exit code 1;
   a command-line usage error is exit code 2 (click); a validation whose NRMSE
   exceeds the threshold is exit code 3.  No traceback is shown (set
-  ``DUHEM_DEBUG=1`` to see one).
+  ``DUHEM_DEBUG=1`` to see one).  Numerical warnings of the optimisers
+  (e.g. an overflow in a rejected trial step) are not shown either: the
+  command's own result says whether the fit converged.
 * Every output file is written under a temporary name in its directory and
-  renamed into place, so a failure never leaves a partial file; report
+  renamed into place, so a failure never leaves a partial file; it gets the
+  usual mode (0o666 & ~umask), not the 0600 of `tempfile.mkstemp`.  Report
   directories are filled from a temporary directory, file by file.
+* FMUs are built with the ``native`` backend by default (a C library: the
+  simulator needs no Python); ``--backend python`` builds a pythonfmu FMU
+  (no C compiler needed at export, but the simulator must provide Python
+  with numpy).
 """
 from __future__ import annotations
 
@@ -23,6 +30,7 @@ import os
 import shutil
 import sys
 import tempfile
+import warnings
 import zipfile
 from pathlib import Path
 from typing import Callable, Iterator
@@ -58,12 +66,15 @@ def _one_line(exc: BaseException) -> str:
 
 
 def _guarded(func: Callable) -> Callable:
-    """Turn every exception of a command into a `CliError` (one line, exit code 1)."""
+    """Turn every exception of a command into a `CliError` (one line, exit code 1); hide RuntimeWarnings."""
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
         try:
-            return func(*args, **kwargs)
+            with warnings.catch_warnings():
+                if not os.environ.get("DUHEM_DEBUG"):
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                return func(*args, **kwargs)
         except (click.ClickException, click.exceptions.Exit, click.Abort):
             raise
         except KeyboardInterrupt:
@@ -114,15 +125,22 @@ def _atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
     os.close(fd)
     try:
         yield Path(tmp)
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, target)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
 
 
-def _write_json_file(path: str, data) -> None:
-    with _atomic_path(path, ".json") as tmp:
-        tmp.write_text(json.dumps(_clean_json(data), indent=2, default=_json_default), encoding="utf-8")
+def _umask() -> int:
+    """The process's file-creation mask (read by setting it and restoring it)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _write_json(path: Path, data) -> None:
+    path.write_text(json.dumps(_clean_json(data), indent=2, default=_json_default), encoding="utf-8")
 
 
 @contextlib.contextmanager
@@ -170,7 +188,7 @@ def _table(title: str, columns: list[str], rows: list[list]) -> None:
         table.add_column(c, justify="left" if c == columns[0] else "right")
     for row in rows:
         table.add_row(*[_fmt(v) for v in row])
-    Console(file=click.get_text_stream("stdout"), soft_wrap=True).print(table)
+    Console(file=sys.stdout, soft_wrap=True).print(table)
 
 
 def _fmt(v) -> str:
@@ -235,6 +253,32 @@ def _column_options(func: Callable) -> Callable:
     return func
 
 
+def _backend_option(func: Callable) -> Callable:
+    return click.option("--backend", type=click.Choice(["native", "python"]), default="native",
+                        show_default=True,
+                        help="native: C library, the simulator needs no Python (needs a C compiler "
+                             "now); python: pythonfmu, the simulator needs Python with numpy")(func)
+
+
+def _check_fmu_name(path: str | None) -> None:
+    if path and Path(path).suffix.lower() != ".fmu":
+        raise CliError(f"{path}: an FMU file name must end in .fmu")
+
+
+def _check_backend(backend: str) -> None:
+    """Fail before any long work when the native backend has no C compiler (message names --backend python)."""
+    if backend == "native":
+        from .native_fmu import find_c_compiler
+        find_c_compiler()
+
+
+def _build_fmu(model, path: str | os.PathLike, backend: str) -> None:
+    """`build_fmu.build_fmu` (imported late: it imports pythonfmu)."""
+    from build_fmu import build_fmu
+
+    build_fmu(model, path, backend=backend)
+
+
 def _load(paths, time_col, input_col, output_col) -> list[Recording]:
     return load_recordings(list(paths), time_col, input_col, output_col)
 
@@ -258,40 +302,43 @@ def main() -> None:
 @click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False),
               help="model JSON file to write")
 @click.option("--fmu", type=click.Path(dir_okay=False), help="also export the model as this FMU")
+@_backend_option
 @click.option("--report", type=click.Path(file_okay=False), help="write a fit report (HTML, PNG) here")
 @click.option("--order", type=int, help="state dimension n (default: chosen by BIC)")
 @click.option("--q", type=float, help="bound on sigma_max(A+-) of the Section III least squares")
 @_column_options
 @click.option("--json", "as_json", is_flag=True, help="print the fit summary as JSON")
 @_guarded
-def fit(recordings, kind, out, fmu, report, order, q, time_col, input_col, output_col, as_json):
+def fit(recordings, kind, out, fmu, backend, report, order, q, time_col, input_col, output_col, as_json):
     """Fit a model to one or more recordings (one CSV file per experiment, e.g. per rate)."""
+    from .core.models import save_model
     from .fit import fit_recordings
 
-    if fmu and Path(fmu).suffix.lower() != ".fmu":
-        raise CliError(f"{fmu}: an FMU file name must end in .fmu")
+    _check_fmu_name(fmu)
+    if fmu:
+        _check_backend(backend)
     recs = _load(recordings, time_col, input_col, output_col)
-    with _progress() as say:
+    with _progress() as say, contextlib.ExitStack() as outputs:
+        model_tmp = outputs.enter_context(_atomic_path(out, ".json"))
+        report_tmp = outputs.enter_context(_report_directory(report)) if report else None
+        fmu_tmp = outputs.enter_context(_atomic_path(fmu, ".fmu")) if fmu else None
         say(f"fitting {len(recs)} recording(s)")
         result = fit_recordings(recs, kind=kind, order=order, q=q, progress=say)
-        from .core.models import save_model
-        with _atomic_path(out, ".json") as tmp:
-            save_model(result.model, tmp)
-        if report:
+        save_model(result.model, model_tmp)
+        if report_tmp:
             say("writing the fit report")
             from .report import write_fit_report
-            with _report_directory(report) as tmpdir:
-                write_fit_report(result, recs, tmpdir)
-        if fmu:
-            say("building the FMU")
-            from build_fmu import build_fmu
-            build_fmu(result.model, fmu, backend="python")
+            write_fit_report(result, recs, report_tmp)
+        if fmu_tmp:
+            say(f"building the {backend} FMU")
+            _build_fmu(result.model, fmu_tmp, backend)
     summary = result.summary
     if as_json:
-        _emit_json(_clean_json({"model": out, "fmu": fmu, "report": report, "summary": summary}))
+        _emit_json(_clean_json({"model": out, "fmu": fmu, "backend": backend if fmu else None,
+                                "report": report, "summary": summary}))
         return
     click.echo(f"{result.model.kind} model of order {result.model.order} written to {out}"
-               + (f", FMU {fmu}" if fmu else "") + (f", report in {report}" if report else ""))
+               + (f", FMU {fmu} ({backend} backend)" if fmu else "") + (f", report in {report}" if report else ""))
     if summary.get("why"):
         click.echo(f"chosen: {summary['why']}")
     conv = summary.get("convergence") or {}
@@ -308,24 +355,20 @@ def fit(recordings, kind, out, fmu, report, order, q, time_col, input_col, outpu
 @main.command()
 @click.argument("model", type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False), help="FMU file to write")
-@click.option("--backend", type=click.Choice(["python", "native"]), default="python", show_default=True,
-              help="python: pythonfmu (the host needs Python with numpy); native: C library")
+@_backend_option
 @click.option("--json", "as_json", is_flag=True, help="print the result as JSON")
 @_guarded
 def export(model, out, backend, as_json):
     """Export a model JSON as an FMI 2.0 Co-Simulation FMU."""
-    from build_fmu import build_fmu
-
     m = _load_model_json(model)
-    if Path(out).suffix.lower() != ".fmu":
-        raise CliError(f"{out}: an FMU file name must end in .fmu")
-    with _progress() as say:
+    _check_fmu_name(out)
+    with _progress() as say, _atomic_path(out, ".fmu") as tmp:
         say(f"building the {backend} FMU")
-        path = build_fmu(m, out, backend=backend)
+        _build_fmu(m, tmp, backend)
     if as_json:
-        _emit_json({"model": model, "fmu": path, "backend": backend, "kind": m.kind, "order": m.order})
+        _emit_json({"model": model, "fmu": out, "backend": backend, "kind": m.kind, "order": m.order})
     else:
-        click.echo(f"{m.kind} model of order {m.order} exported to {path} ({backend} backend)")
+        click.echo(f"{m.kind} model of order {m.order} exported to {out} ({backend} backend)")
 
 
 @main.command()
@@ -442,7 +485,7 @@ def simulate(model, input_csv, out, time_col, input_col, as_json):
     from its stored initial state x0.  The output CSV has columns time,u,y.
     """
     rec = load_recording(input_csv, time_col, input_col, None)
-    with _progress() as say:
+    with _progress() as say, _atomic_path(out, ".csv") as tmp:
         say(f"simulating {len(rec)} samples")
         if _is_zip(model):
             from .fmu_run import simulate_fmu
@@ -453,7 +496,6 @@ def simulate(model, input_csv, out, time_col, input_col, as_json):
             from .core import simulate as run
             y = run(_load_model_json(model), rec.t, rec.u).y
             engine = "in-process"
-    with _atomic_path(out, ".csv") as tmp:
         np.savetxt(tmp, np.column_stack([rec.t, rec.u, y]), delimiter=",", fmt="%.17g",
                    header="time,u,y", comments="")
     info = {"model": model, "input": input_csv, "out": out, "engine": engine, "samples": len(rec),
@@ -467,14 +509,19 @@ def simulate(model, input_csv, out, time_col, input_col, as_json):
 @main.command()
 @click.argument("recordings", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--model", "model_path", type=click.Path(dir_okay=False),
-              help="base model JSON (default: fit a first-order rate-independent model)")
+              help="base model JSON (default: fit a rate-independent model of order --base-order)")
 @click.option("--report", type=click.Path(file_okay=False), help="write the diagnosis report (HTML, PNG) here")
 @click.option("--json", "json_out", type=click.Path(dir_okay=False, allow_dash=True),
               help="write the diagnosis as JSON to this file ('-' for stdout)")
 @click.option("--fmu", type=click.Path(dir_okay=False), help="export the extended model as this FMU")
+@_backend_option
+@click.option("--base-order", type=click.IntRange(1, 3), default=1, show_default=True, metavar="N",
+              help="without --model: order of the rate-independent base model (1: fitted here, fast; "
+                   "2-3: fitted by 'duhem fit --kind ri --order N' first, slower)")
 @_column_options
 @_guarded
-def diagnose(recordings, model_path, report, json_out, fmu, time_col, input_col, output_col):
+def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order, time_col, input_col,
+             output_col):
     """Locate the model-data mismatch of one experiment, name the physics left out, model it.
 
     The recordings are one experiment in time order on one clock (e.g.
@@ -482,35 +529,43 @@ def diagnose(recordings, model_path, report, json_out, fmu, time_col, input_col,
     """
     from .diagnose import diagnose as run_diagnosis, rich_progress
 
-    if fmu and Path(fmu).suffix.lower() != ".fmu":
-        raise CliError(f"{fmu}: an FMU file name must end in .fmu")
+    _check_fmu_name(fmu)
+    if model_path and base_order != 1:
+        raise CliError("--base-order applies only without --model (the given model sets the base)")
+    if fmu:
+        _check_backend(backend)
     base = _load_model_json(model_path) if model_path else None
     recs = _load(recordings, time_col, input_col, output_col)
-    if _stderr_is_terminal():
-        with rich_progress("diagnosing") as progress:
-            result = run_diagnosis(recs, model=base, progress=progress)
-    else:
-        result = run_diagnosis(recs, model=base)
-    data = _clean_json(result.to_json())
-    if report:
-        from .diagnose_report import write_diagnosis_report
-        with _report_directory(report) as tmpdir:
-            write_diagnosis_report(result, recs, tmpdir)
-    if fmu:
-        from build_fmu import build_fmu
-        build_fmu(result.extended_model, fmu, backend="python")
+    with contextlib.ExitStack() as outputs:
+        json_tmp = outputs.enter_context(_atomic_path(json_out, ".json")) \
+            if json_out and json_out != "-" else None
+        report_tmp = outputs.enter_context(_report_directory(report)) if report else None
+        fmu_tmp = outputs.enter_context(_atomic_path(fmu, ".fmu")) if fmu else None
+        if _stderr_is_terminal():
+            with rich_progress("diagnosing") as progress:
+                result = run_diagnosis(recs, model=base, progress=progress, base_order=base_order)
+        else:
+            result = run_diagnosis(recs, model=base, base_order=base_order)
+        data = _clean_json(result.to_json())
+        if report_tmp:
+            from .diagnose_report import write_diagnosis_report
+            write_diagnosis_report(result, recs, report_tmp)
+        if fmu_tmp:
+            _build_fmu(result.extended_model, fmu_tmp, backend)
+        if json_tmp:
+            _write_json(json_tmp, data)
     if json_out == "-":
         _emit_json(data)
         return
-    if json_out:
-        _write_json_file(json_out, data)
     click.echo(result.paragraph)
     findings = data.get("findings") or []
     if findings:
         _table("findings (most important first)", ["effect", "p-value", "explained fraction"],
                [[f.get("effect"), f.get("p_value"), f.get("explained_fraction")] for f in findings])
-    else:
+    elif result.verdict == "nothing_missing":
         click.echo("nothing missing: the residual is consistent with the noise level")
+    else:
+        click.echo("unexplained: the residual is above the noise but no candidate effect explains it")
 
 
 def _stderr_is_terminal() -> bool:
