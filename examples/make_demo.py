@@ -5,18 +5,20 @@ displacement y (um), a rate-independent semilinear Duhem model of order 2
 (eqs (1)-(2) of Oh & Bernstein 2007), simulated by the project's own kernel
 (`fitter.core.simulate`).
 
-Model (diagonal, two hysteretic states relaxing toward +-k_i at rates a_i per volt)::
+Model (diagonal: two hysteretic states; while u rises each relaxes toward
+2 um, while u falls toward 0, at rates a_i per volt of input travel)::
 
-    rising  u:  dx_i/du = -a_i x_i + a_i k_i        (A+ = -diag(a), E+ = a k)
-    falling u:  dx_i/du = +a_i x_i + a_i k_i        (A- = +diag(a), E- = a k)
+    rising  u:  dx_i/du = -a_i (x_i - 2)        (A+ = -diag(a), E+ = 2 a)
+    falling u:  dx_i/du = +a_i x_i              (A- = +diag(a), E- = 0)
     y = c . x + d u
 
-with a = (0.06, 0.02) 1/V, k = (1, 1) um, c = (0.9, 1.4), d = 0.085 um/V.
+with a = (0.06, 0.02) 1/V, c = (0.9, 1.4), d = 0.085 um/V.
 Condition (5): rho(e^{beta A+} e^{-beta A-}) = e^{-2 * 0.02 * beta} < 1.
 
 Input: 6 periods at 1 Hz of a sine-ish drive from 0 V to 100 V (a sine with a
-5% third harmonic), 400 samples per period; the actuator starts from x = 0,
-not from its periodic state, so the first cycles hold a start-up transient.
+5% third harmonic), 400 samples per period; the actuator starts from x = (1, 1) um
+(a remanent state left by earlier use), not
+from its periodic state, so the first cycles hold a start-up transient.
 Measurement: seeded white noise, 0.05 V on u and 0.015 um on y (about 0.15%
 of the output range), y rounded to 1 nm (quantisation).
 
@@ -40,10 +42,9 @@ PERIODS, SAMPLES_PER_PERIOD, FREQ = 6, 400, 1.0
 
 def truth() -> RateIndependentModel:
     a = np.array([0.06, 0.02])
-    k = np.array([1.0, 1.0])
     return RateIndependentModel(
-        A_plus=-np.diag(a), A_minus=np.diag(a), B_plus=[0, 0], B_minus=[0, 0], E_plus=a * k, E_minus=a * k,
-        C=[0.9, 1.4], D=0.085, x0=[0.0, 0.0],
+        A_plus=-np.diag(a), A_minus=np.diag(a), B_plus=[0, 0], B_minus=[0, 0], E_plus=2 * a, E_minus=[0, 0],
+        C=[0.9, 1.4], D=0.085, x0=[1.0, 1.0],
         signals=Signals(Signal("u", "V", "drive voltage"), Signal("y", "um", "displacement")),
         experiment=Experiment(0.0, PERIODS / FREQ, 1.0 / (FREQ * SAMPLES_PER_PERIOD)),
         fit_info={"source": "ground truth of examples/demo.csv (examples/make_demo.py)"})
@@ -59,6 +60,7 @@ def _atomic_text(path: Path, text: str) -> None:
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=path.parent)
     with os.fdopen(fd, "w", encoding="utf-8") as fh:
         fh.write(text)
+    os.chmod(tmp, 0o644)
     os.replace(tmp, path)
 
 
@@ -74,6 +76,7 @@ def main() -> None:
     lines = ["time_s,u_V,y_um"] + [f"{a:.6f},{b:.4f},{c:.3f}" for a, b, c in zip(t, u_meas, y_meas)]
     _atomic_text(HERE / "demo.csv", "\n".join(lines) + "\n")
     save_model(model, HERE / "demo_truth.json")
+    os.chmod(HERE / "demo_truth.json", 0o644)
     print(f"wrote {HERE / 'demo.csv'} ({n} samples) and {HERE / 'demo_truth.json'}")
 
 
