@@ -67,6 +67,20 @@ class Instance:
                 self.step(t[k + 1] - t[k])
         return y
 
+    def rollback_runs(self, t, u, k):
+        """Run to sample k, save the state (also serialized), run on; then replay
+        from the saved and from the deserialized state.  Returns the three runs."""
+        self.run(t[:k + 1], u[:k + 1])
+        state = self.fmu.getFMUstate()
+        blob = self.fmu.serializeFMUstate(state)
+        runs = [self.run(t[k:], u[k:])]
+        for saved in (state, self.fmu.deSerializeFMUstate(blob)):
+            self.fmu.setFMUstate(saved)
+            self.t = t[k]
+            runs.append(self.run(t[k:], u[k:]))
+            self.fmu.freeFMUstate(saved)
+        return runs
+
     def free(self):
         if self.TERMINATE_ON_FREE:
             self.fmu.terminate()
