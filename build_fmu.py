@@ -17,7 +17,7 @@ The FMU's ``resources/`` holds
   simulation kernel (numpy only, relative imports only),
 * ``model.json``: the model, as `fitter.core.save_model` writes it,
 * ``duhem_fmu.json``: the kernel package name, the model file name and the
-  variable table of `fitter.model_description.model_variables`,
+  variable table of `fitter.fmu.model_description.model_variables`,
 * ``pythonfmu/``: the pythonfmu runtime that pythonfmu embeds.
 
 ``<code>`` is a hash of the slave and kernel sources.  pythonfmu's binary
@@ -39,13 +39,13 @@ What pythonfmu needs, and how it is given:
   imported are restored afterwards;
 * pythonfmu's own modelDescription omits ``InitialUnknowns``; the built zip is
   rewritten with the complete modelDescription of
-  `fitter.model_description.model_description_xml`.
+  `fitter.fmu.model_description.model_description_xml`.
 
 The FMU is written under a temporary name beside `out_path` and renamed into
 place, so a failed build never leaves a partial file; it gets the usual mode
 (0o666 & ~umask) whichever backend wrote it.
 
-The ``native`` backend is `fitter.native_fmu.build_native_fmu`.
+The ``native`` backend is `fitter.fmu.native.build_native_fmu`.
 """
 from __future__ import annotations
 
@@ -64,7 +64,7 @@ from pathlib import Path
 import fitter.core
 import fmu_src
 from fitter.core import load_model, save_model
-from fitter.model_description import model_description_xml, model_variables
+from fitter.fmu.model_description import model_description_xml, model_variables
 
 __all__ = ["build_fmu", "FmuBuildError", "MODEL_IDENTIFIER", "main"]
 
@@ -172,7 +172,7 @@ def _package_version() -> str:
 
 def _build_native(model, out_path: Path, **opts) -> None:
     try:
-        from fitter.native_fmu import build_native_fmu
+        from fitter.fmu.native import build_native_fmu
     except ImportError as exc:
         raise FmuBuildError(f"the native FMU backend is not available ({exc}); "
                             "use backend='python'") from None
@@ -196,7 +196,7 @@ def build_fmu(model_or_json_path, out_path, *, backend: str = "python", **opts) 
         The FMU to write (replaced atomically).
     backend : {"python", "native"}
         ``python``: pythonfmu, needs Python with numpy in the host process.
-        ``native``: C shared library (`fitter.native_fmu`).
+        ``native``: C shared library (`fitter.fmu.native`).
     **opts
         Python backend: ``model_name``, ``description``, ``version`` (default:
         the version of semilinear-duhem that exports), ``author``

@@ -5,7 +5,7 @@
     python bench/diagnose_speed.py --piezo DIR     # diagnose the measured piezo data, reports in DIR
     python bench/diagnose_speed.py --piezo DIR --base-order auto   # ... with a fit_recordings base
 
-The experiments come from `fitter.diagnose.synthetic_experiment` (the project's
+The experiments come from `fitter.diagnosis.diagnose.synthetic_experiment` (the project's
 own simulator; timing: effect max 2% of the output range, noise 1/15 of that;
 sweep: per seed a different base loop, effect size 1.5-2.5% of the range and
 noise 1/10-1/20 of it, `_varied`).  The
@@ -19,7 +19,7 @@ voltage -> polarization, on the clock of the files' timestamps:
 (b) the trapezoid runs creep_T01-T03, after removing the offset-current drift
 (a straight line fitted to the last 20 s of each record, the final 0 V hold,
 is subtracted as slope x time), and with the voltage inside each hold
-(`fitter.preparation.find_holds`) set to the hold's median: the +-0.2 V
+(`fitter.data.preparation.find_holds`) set to the hold's median: the +-0.2 V
 measurement noise of a held voltage would otherwise reverse the
 rate-independent model's branch at almost every sample (slow, and not
 physics).  aixPlorer re-references P in every table, and
@@ -37,10 +37,10 @@ from pathlib import Path
 import numpy as np
 
 from fitter.core.effects import EFFECTS
-from fitter.diagnose import diagnose, rich_progress, synthetic_experiment
-from fitter.diagnose_report import write_diagnosis_report
-from fitter.preparation import find_holds
-from fitter.recordings import Recording, load_recording
+from fitter.diagnosis.diagnose import diagnose, rich_progress, synthetic_experiment
+from fitter.reports.diagnosis_report import write_diagnosis_report
+from fitter.data.preparation import find_holds
+from fitter.data.recordings import Recording, load_recording
 
 PIEZO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "piezo-pnzt"
 TRIANGLES = ("slow_T01_triangle_1400V_0.1Hz.csv", "slow_T02_triangle_1400V_0.01Hz.csv",

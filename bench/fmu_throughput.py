@@ -4,7 +4,7 @@ For every FMU backend in `BACKENDS`, and models of order 1-4 (rate independent
 and rate dependent):
 
 * steps per second of the model FMU in fmpy's `FMU2Slave` loop, one step being
-  ``setReal(u)``, ``getReal(y)``, ``doStep`` (the host of `fitter.fmu_run`);
+  ``setReal(u)``, ``getReal(y)``, ``doStep`` (the host of `fitter.fmu.host`);
 * the same for a trivial ``y = k u`` FMU built the same way (the per-step floor
   of host plus FMU wrapper), and the ratio model / trivial.
   Target: ratio >= 0.30 for the pythonfmu backend, order <= 4; >= 0.50 for the
@@ -108,8 +108,8 @@ BACKENDS = [Backend("python", lambda m, p: build_fmu.build_fmu(m, p, backend="py
                     build_python_gain, 0.30)]
 
 # The native (C) backend: its trivial FMU is y = k u on the same C framework, compiled the
-# same way (`fitter.native_fmu.build_gain_fmu`).  Target: ratio >= 0.50 (issue 6).
-from fitter.native_fmu import build_gain_fmu  # noqa: E402
+# same way (`fitter.fmu.native.build_gain_fmu`).  Target: ratio >= 0.50 (issue 6).
+from fitter.fmu.native import build_gain_fmu  # noqa: E402
 
 BACKENDS.append(Backend("native", lambda m, p: build_fmu.build_fmu(m, p, backend="native"),
                         lambda p: build_gain_fmu(p), 0.50))

@@ -48,9 +48,9 @@ import numpy as np
 
 from fitter.core import RateDependentModel, RateIndependentModel, TabulatedRate, simulate
 from fitter.core.models import Signal
-from fitter.fit import fit_recordings
-from fitter.metrics import compare
-from fitter.recordings import Recording
+from fitter.identification.fit import fit_recordings
+from fitter.data.metrics import compare
+from fitter.data.recordings import Recording
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 PIEZO = {"1 Hz": "slow_T06_triangle_1400V_1Hz", "0.1 Hz": "slow_T01_triangle_1400V_0.1Hz",
@@ -122,7 +122,7 @@ def piezo_part(report: Path | None) -> dict:
                     "pred": {k: _pred(r, recs[k]) for k in labels},
                     "convergence": r.summary["convergence"]}
         if report is not None:
-            from fitter.report import write_fit_report
+            from fitter.reports.fit_report import write_fit_report
             write_fit_report(r, [recs[k] for k in labels], report / f"piezo_{kind}")
     for held in labels:
         _log(f"piezo: rd fit without {held}")
@@ -149,7 +149,7 @@ def friction_part(report: Path | None) -> dict:
                        "fit": dict(zip(recs, _fit_nrmse(r))),
                        "pred": {k: _pred(r, v) for k, v in recs.items()}}
     if report is not None:
-        from fitter.report import write_fit_report
+        from fitter.reports.fit_report import write_fit_report
         write_fit_report(r, list(recs.values()), report / "friction_joint_ri")
     return out
 

@@ -38,8 +38,8 @@ from typing import Callable, Iterator
 import click
 import numpy as np
 
-from .core.models import ModelFileError, load_model, model_from_dict
-from .recordings import Recording, load_recording, load_recordings
+from fitter.core.models import ModelFileError, load_model, model_from_dict
+from fitter.data.recordings import Recording, load_recording, load_recordings
 
 __all__ = ["main", "CliError", "DEFAULT_THRESHOLD", "EXIT_ERROR", "EXIT_VALIDATION_FAILED"]
 
@@ -268,7 +268,7 @@ def _check_fmu_name(path: str | None) -> None:
 def _check_backend(backend: str) -> None:
     """Fail before any long work when the native backend has no C compiler (message names --backend python)."""
     if backend == "native":
-        from .native_fmu import find_c_compiler
+        from fitter.fmu.native import find_c_compiler
         find_c_compiler()
 
 
@@ -311,8 +311,8 @@ def main() -> None:
 @_guarded
 def fit(recordings, kind, out, fmu, backend, report, order, q, time_col, input_col, output_col, as_json):
     """Fit a model to one or more recordings (one CSV file per experiment, e.g. per rate)."""
-    from .core.models import save_model
-    from .fit import fit_recordings
+    from fitter.core.models import save_model
+    from fitter.identification.fit import fit_recordings
 
     _check_fmu_name(fmu)
     if fmu:
@@ -327,7 +327,7 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, time_col, input_c
         save_model(result.model, model_tmp)
         if report_tmp:
             say("writing the fit report")
-            from .report import write_fit_report
+            from fitter.reports.fit_report import write_fit_report
             write_fit_report(result, recs, report_tmp)
         if fmu_tmp:
             say(f"building the {backend} FMU")
@@ -387,9 +387,9 @@ def validate(fmu, recordings, threshold, plot, time_col, input_col, output_col, 
     overall, the loop-area error, and the largest difference between the
     FMU and the in-process simulation of the model stored in the FMU.
     """
-    from .core import simulate
-    from .fmu_run import simulate_fmu
-    from .metrics import compare, last_full_cycle
+    from fitter.core import simulate
+    from fitter.fmu.host import simulate_fmu
+    from fitter.data.metrics import compare, last_full_cycle
 
     if not threshold > 0:
         raise CliError(f"--threshold must be positive, got {threshold}")
@@ -488,12 +488,12 @@ def simulate(model, input_csv, out, time_col, input_col, as_json):
     with _progress() as say, _atomic_path(out, ".csv") as tmp:
         say(f"simulating {len(rec)} samples")
         if _is_zip(model):
-            from .fmu_run import simulate_fmu
+            from fitter.fmu.host import simulate_fmu
             _check_fmu(model)
             y = simulate_fmu(model, rec.t, rec.u)
             engine = "fmu"
         else:
-            from .core import simulate as run
+            from fitter.core import simulate as run
             y = run(_load_model_json(model), rec.t, rec.u).y
             engine = "in-process"
         np.savetxt(tmp, np.column_stack([rec.t, rec.u, y]), delimiter=",", fmt="%.17g",
@@ -527,7 +527,7 @@ def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order,
     The recordings are one experiment in time order on one clock (e.g.
     several rates and a repeat of the first run).
     """
-    from .diagnose import diagnose as run_diagnosis, rich_progress
+    from fitter.diagnosis.diagnose import diagnose as run_diagnosis, rich_progress
 
     _check_fmu_name(fmu)
     if model_path and base_order != 1:
@@ -548,7 +548,7 @@ def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order,
             result = run_diagnosis(recs, model=base, base_order=base_order)
         data = _clean_json(result.to_json())
         if report_tmp:
-            from .diagnose_report import write_diagnosis_report
+            from fitter.reports.diagnosis_report import write_diagnosis_report
             write_diagnosis_report(result, recs, report_tmp)
         if fmu_tmp:
             _build_fmu(result.extended_model, fmu_tmp, backend)
@@ -580,7 +580,7 @@ def _stderr_is_terminal() -> bool:
 @_guarded
 def reproduce_paper(as_json, figures, seeds):
     """Reproduce Examples 1-3 of Oh & Bernstein (2007): our figures beside the paper's."""
-    from .paper.report import main as paper_main
+    from fitter.paper.report import main as paper_main
 
     argv = (["--json"] if as_json else []) + (["--figures", figures] if figures else []) \
         + (["--seeds", str(seeds)] if seeds else [])

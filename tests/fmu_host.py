@@ -5,7 +5,7 @@ import numpy as np
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
-from fitter.fmu_run import collecting_callbacks
+from fitter.fmu.host import collecting_callbacks
 
 
 def unzip_all(fmus: dict, tmp_path_factory) -> dict:

@@ -1,4 +1,4 @@
-"""`fitter.diagnose`: the right effect on generated experiments, nothing on clean ones, clear errors.
+"""`fitter.diagnosis.diagnose`: the right effect on generated experiments, nothing on clean ones, clear errors.
 
 The experiments come from the project's own simulator (`synthetic_experiment`):
 4 recordings (0.025, 0.125, 0.5 Hz and a repeat of the first), effect max 2% of
@@ -12,9 +12,9 @@ import pytest
 
 from fitter.core import load_model, save_model, simulate
 from fitter.core.effects import EFFECTS
-from fitter.diagnose import DiagnoseError, diagnose, synthetic_experiment
-from fitter.diagnose_report import write_diagnosis_report
-from fitter.recordings import Recording
+from fitter.diagnosis.diagnose import DiagnoseError, diagnose, synthetic_experiment
+from fitter.reports.diagnosis_report import write_diagnosis_report
+from fitter.data.recordings import Recording
 
 SAMPLES = 300
 _CACHE: dict = {}

@@ -13,9 +13,9 @@ import pytest
 
 from fitter.core import (RateDependentModel, RateIndependentModel, TabulatedRate, periodic_response,
                          simulate)
-from fitter.fit import FitError, fit_recordings, monotone_input
-from fitter.output_error import refine
-from fitter.recordings import Recording
+from fitter.identification.fit import FitError, fit_recordings, monotone_input
+from fitter.identification.output_error import refine
+from fitter.data.recordings import Recording
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 OMEGAS = (0.5, 2.0, 8.0)
@@ -164,7 +164,7 @@ def test_rejects_half_a_cycle():
 
 
 def test_report_writes_html_and_figures(ri_fit, tmp_path):
-    from fitter.report import write_fit_report
+    from fitter.reports.fit_report import write_fit_report
     recs = sine_recordings(ri_true(), seed=3)
     index = Path(write_fit_report(ri_fit, recs, tmp_path / "rep"))
     html = index.read_text()

@@ -9,12 +9,12 @@ import pytest
 
 import build_fmu
 from fitter.core import RateIndependentModel, limiting_loop, periodic_response, simulate
-from fitter.fit import fit_recordings
-from fitter.fmu_run import simulate_fmu, validate_fmu_file
+from fitter.identification.fit import fit_recordings
+from fitter.fmu.host import simulate_fmu, validate_fmu_file
 from fitter.paper import example1, example3
-from fitter.rd_identification import identify_rd_triangles
-from fitter.recordings import Recording
-from fitter.ri_identification import identify_ri_loop
+from fitter.identification.rd_triangles import identify_rd_triangles
+from fitter.data.recordings import Recording
+from fitter.identification.ri_loop import identify_ri_loop
 
 BACKENDS = ("native", "python")
 

@@ -39,9 +39,9 @@ from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE,  # noqa: E402
 
 from fitter.core import (RateDependentModel, RateIndependentModel, Stepper,  # noqa: E402
                          TabulatedRate, model_from_dict, simulate)
-from fitter.fmu_run import collecting_callbacks, simulate_fmu, validate_fmu_file  # noqa: E402
-from fitter.model_description import model_variables  # noqa: E402
-from fitter.native_fmu import NativeBuildError, build_native_fmu  # noqa: E402
+from fitter.fmu.host import collecting_callbacks, simulate_fmu, validate_fmu_file  # noqa: E402
+from fitter.fmu.model_description import model_variables  # noqa: E402
+from fitter.fmu.native import NativeBuildError, build_native_fmu  # noqa: E402
 
 ALL_EFFECTS = [
     {"effect": "backlash", "parameters": {"b": 0.15}},
@@ -211,7 +211,7 @@ def test_source_fmu_compiles_with_fmpy(unzipped, tmp_path):
 
 
 def test_sources_compile_without_warnings(tmp_path):
-    from fitter.native_fmu import C_SOURCES, HEADERS, SOURCE_DIR, model_data_header
+    from fitter.fmu.native import C_SOURCES, HEADERS, SOURCE_DIR, model_data_header
 
     for name in C_SOURCES + HEADERS:
         shutil.copyfile(SOURCE_DIR / name, tmp_path / name)
@@ -471,13 +471,13 @@ def test_instantiate_rejects_wrong_guid_and_type(unzipped):
 
 def test_every_core_effect_runs_natively():
     from fitter.core.effects import EFFECTS
-    from fitter.native_fmu import NATIVE_EFFECTS
+    from fitter.fmu.native import NATIVE_EFFECTS
 
     assert NATIVE_EFFECTS == set(EFFECTS) == {e["effect"] for e in ALL_EFFECTS}
 
 
 def test_effect_without_native_implementation_is_refused(tmp_path, monkeypatch):
-    import fitter.native_fmu as native
+    import fitter.fmu.native as native
 
     monkeypatch.setattr(native, "NATIVE_EFFECTS", native.NATIVE_EFFECTS - {"creep"})
     with pytest.raises(ValueError, match="'creep' is not supported by the native backend"):
@@ -512,7 +512,7 @@ def test_missing_compiler_and_failed_build_leave_no_file(tmp_path):
 
 
 def test_benchmark_gain_fmu_is_valid_and_computes_k_u(tmp_path):
-    from fitter.native_fmu import build_gain_fmu
+    from fitter.fmu.native import build_gain_fmu
 
     path = build_gain_fmu(tmp_path / "gain.fmu")
     t, u = sampled_input(50)

@@ -20,8 +20,8 @@ from fmpy.fmi2 import FMU2Slave
 import build_fmu
 from fitter.core import (Experiment, RateDependentModel, RateIndependentModel, Signal, Signals,
                          TabulatedRate, model_from_dict, save_model, simulate)
-from fitter.fmu_run import collecting_callbacks, simulate_fmu, validate_fmu_file
-from fitter.model_description import model_description_xml, model_variables
+from fitter.fmu.host import collecting_callbacks, simulate_fmu, validate_fmu_file
+from fitter.fmu.model_description import model_description_xml, model_variables
 
 A1 = np.array([[-1.0, 4.0], [-4.0, -1.0]])
 B1 = np.array([0.0, 1.0])
@@ -285,7 +285,7 @@ def test_build_is_atomic_and_errors_are_clear(tmp_path, monkeypatch):
         build_fmu.build_fmu(example1(), target, backend="java")
     with pytest.raises(TypeError, match="unknown option"):
         build_fmu.build_fmu(example1(), target, colour="red")
-    monkeypatch.setitem(sys.modules, "fitter.native_fmu", None)
+    monkeypatch.setitem(sys.modules, "fitter.fmu.native", None)
     with pytest.raises(build_fmu.FmuBuildError, match="native FMU backend is not available"):
         build_fmu.build_fmu(example1(), target, backend="native")
     assert list(tmp_path.iterdir()) == []

@@ -10,7 +10,7 @@ import pytest
 
 from fitter.core import CallableRate, RateDependentModel, model_from_dict
 from fitter.paper import example2, example3, report
-from fitter.rd_identification import ESTIMATORS, identify_rd_triangles
+from fitter.identification.rd_triangles import ESTIMATORS, identify_rd_triangles
 
 NOISY_SEEDS = 5
 

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from fitter.recordings import Recording, RecordingError, load_recording, load_recordings, split_unit
+from fitter.data.recordings import Recording, RecordingError, load_recording, load_recordings, split_unit
 
 
 def write(tmp_path, text, name="rec.csv"):

@@ -7,7 +7,7 @@ import pytest
 from fitter.core import (RateIndependentModel, limiting_loop, load_model, save_model,
                          simulate)
 from fitter.paper.example1 import PAPER, plot_example1, run_example1, true_model
-from fitter.ri_identification import (bilinear_to_continuous, flip_and_concatenate,
+from fitter.identification.ri_loop import (bilinear_to_continuous, flip_and_concatenate,
                                       identify_ri_loop, nmss_states)
 
 
@@ -228,7 +228,7 @@ def test_bad_input_raises_clear_error(args, kwargs, message):
 
 
 def test_non_convergent_model_falls_back_to_data_state_and_reports_it():
-    from fitter.ri_identification import _continuous_rho, _initial_state, _loop_error
+    from fitter.identification.ri_loop import _continuous_rho, _initial_state, _loop_error
     model = RateIndependentModel(A_plus=[[1.0]], A_minus=[[-1.0]], B_plus=[1.0], B_minus=[1.0],
                                  C=[1.0])
     grid = np.linspace(0, 1, 11)
@@ -239,7 +239,7 @@ def test_non_convergent_model_falls_back_to_data_state_and_reports_it():
 
 
 def test_discrete_rho_survives_overflow_and_underflow():
-    from fitter.ri_identification import _spectral_radius_of_powers
+    from fitter.identification.ri_loop import _spectral_radius_of_powers
     big, small = 10 * np.eye(2), 0.5 * np.eye(2)
     assert _spectral_radius_of_powers([(big, 400), (big, 400)]) == float("inf")
     assert _spectral_radius_of_powers([(small, 400), (small, 400)]) == pytest.approx(0.5 ** 800)

@@ -51,13 +51,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .kernel import KernelError, _linear_recurrence, integrate, interval_coefficients
+from .errors import EffectError, KernelError
+from .kernel import _linear_recurrence, integrate, interval_coefficients
 
 __all__ = ["EFFECTS", "EffectError", "Effect", "EffectState", "effects_from_list", "run_with_effects"]
 
 
-class EffectError(ValueError):
-    """An effect description that is not valid."""
 
 
 _REAL = (-math.inf, math.inf)

@@ -38,14 +38,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .errors import KernelError
+
 __all__ = ["AffineFlow", "expm", "phi1", "phi2", "simulate", "Simulation", "KernelError", "integrate"]
 
 _COND_LIMIT = 1e6
 _CHUNK_SPAN = 300.0
 
 
-class KernelError(ValueError):
-    """Invalid input to the simulation kernel."""
 
 
 def phi1(z: np.ndarray) -> np.ndarray:

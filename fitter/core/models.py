@@ -33,7 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from .effects import EffectError, effects_from_list
+from .effects import effects_from_list
+from .errors import EffectError, ModelFileError
 from .rates import RateFunction, as_rate, rate_from_dict
 
 __all__ = ["ModelFileError", "Signal", "Signals", "Experiment", "RateIndependentModel", "RateDependentModel",
@@ -43,8 +44,6 @@ SCHEMA = "duhem-model"
 SCHEMA_VERSION = 1
 
 
-class ModelFileError(ValueError):
-    """A model file or dictionary that does not describe a valid model."""
 
 
 @dataclass

@@ -15,14 +15,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .kernel import KernelError, Simulation, expm, flows, simulate
+from .errors import ConvergenceError, KernelError
+from .kernel import Simulation, expm, flows, simulate
 
 __all__ = ["ConvergenceError", "PeriodicResponse", "periodic_response", "convergence_rho",
            "limiting_loop"]
 
 
-class ConvergenceError(ValueError):
-    """The convergence condition rho < 1 of Theorem 1 fails."""
 
 
 @dataclass

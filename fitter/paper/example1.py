@@ -12,7 +12,7 @@ is then about 3e-4, and the eq-(13) reading rho(A+ A-^ell) at q = 7 comes out at
 the paper's 0.134.  The paper does not state ell, the solver or the regression
 columns; its cost 5.12e-9 at q = 7 is far below what the printed falling-branch
 columns allow (the first one crosses the switch at u_max, see
-`fitter.ri_identification`), so its numbers are printed beside ours, not matched.
+`fitter.identification.ri_loop`), so its numbers are printed beside ours, not matched.
 (Our improved estimator, which drops that column, gets a cost of ~2e-14 at q = 7,
 which suggests the paper's regression had no switch-crossing column either.)
 
@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core import ConvergenceError, RateIndependentModel, limiting_loop
-from ..ri_identification import identify_ri_loop
+from fitter.core import ConvergenceError, RateIndependentModel, limiting_loop
+from fitter.identification.ri_loop import identify_ri_loop
 
 __all__ = ["true_model", "run_example1", "plot_example1", "PAPER"]
 
@@ -73,7 +73,7 @@ def run_example1(q_values=(1.0, 7.0), ell: int = 1000, m: int = 2) -> dict:
     max_abs_loop_error (identified vs true limiting loop, on a grid of 2 ell + 1
     points, i.e. also between the identification samples) and the true y_range.
     "runs" is the paper's method (``method="paper"``), "improved_runs" the default
-    improved estimator of `fitter.ri_identification` (item 7) on the same data.
+    improved estimator of `fitter.identification.ri_loop` (item 7) on the same data.
     """
     grid, yr, yf, fits = _identify(q_values, ell, m)
     improved = _identify(q_values, ell, m, method="improved")[3]

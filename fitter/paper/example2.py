@@ -17,9 +17,9 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from ..core import CallableRate, RateDependentModel, model_from_dict
-from ..rd_identification import ESTIMATORS, identify_rd_triangles, triangle_response
-from .example3 import loop_errors, plot_loops
+from fitter.core import CallableRate, RateDependentModel, model_from_dict
+from fitter.identification.rd_triangles import ESTIMATORS, identify_rd_triangles, triangle_response
+from fitter.paper.example3 import loop_errors, plot_loops
 
 __all__ = ["PAPER", "SLOPES", "DELTA", "NOISE_PP", "PERIODS", "OMEGAS", "g_true", "true_model", "records",
            "run_example2", "plot_example2"]

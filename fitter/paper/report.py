@@ -1,7 +1,7 @@
 """Benchmark: the paper's Examples 1-3 reproduced, our figures beside the paper's.
 
 `run` identifies all three examples (Example 1: `fitter.paper.example1`;
-Examples 2-3: `fitter.rd_identification` with the paper-literal and the
+Examples 2-3: `fitter.identification.rd_triangles` with the paper-literal and the
 improved estimator), checks the project's done-when figures, and optionally
 saves PNGs like the paper's Figs. 1, 3-6.  `main` is the command line
 (`bench/reproduce_paper.py`, `duhem reproduce-paper`): a readable table, or
@@ -14,7 +14,7 @@ import json
 import time
 from pathlib import Path
 
-from . import example2, example3
+from fitter.paper import example2, example3
 
 __all__ = ["run", "checks", "format_table", "main", "TIME_LIMIT_S"]
 
@@ -24,7 +24,7 @@ TIME_LIMIT_S = 15.0
 def _example1(figures_dir: str | None) -> tuple[dict, list[str]]:
     """Example 1 from `fitter.paper.example1` (imported here: it is another module's work)."""
     try:
-        from . import example1
+        from fitter.paper import example1
     except ImportError as exc:
         return {"error": f"fitter.paper.example1 unavailable: {exc}"}, []
     result = example1.run_example1()

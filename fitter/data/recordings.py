@@ -37,7 +37,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .core.models import Signal
+from fitter.core.errors import DuhemError
+from fitter.core.models import Signal
 
 __all__ = ["Recording", "RecordingError", "load_recording", "load_recordings", "split_unit",
            "MIN_SAMPLES"]
@@ -53,7 +54,7 @@ _BRACKET = re.compile(r"^(.*?)\s*[\[(]\s*([^\])]+?)\s*[\])]\s*$")
 _TIME_SCALE = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9}
 
 
-class RecordingError(ValueError):
+class RecordingError(DuhemError):
     """A recording file or column that cannot be used; the message names file, column, line, value."""
 
 

@@ -41,7 +41,7 @@ from xml.etree import ElementTree as ET
 
 import numpy as np
 
-from .core.rates import TabulatedRate
+from fitter.core.rates import TabulatedRate
 
 __all__ = ["FmiVariable", "model_variables", "model_description_xml", "semantics_text",
            "capabilities", "LOG_CATEGORIES", "U_REF", "Y_REF"]

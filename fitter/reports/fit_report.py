@@ -24,8 +24,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .metrics import compare  # noqa: E402
-from .recordings import Recording  # noqa: E402
+from fitter.data.metrics import compare  # noqa: E402
+from fitter.data.recordings import Recording  # noqa: E402
 
 __all__ = ["write_fit_report", "recording_metrics"]
 
@@ -35,7 +35,7 @@ def _safe(name: str) -> str:
 
 
 def recording_metrics(result, rec: Recording) -> tuple[dict, np.ndarray]:
-    """`fitter.metrics.compare` on the samples the model predicts (after the dropped transient)."""
+    """`fitter.data.metrics.compare` on the samples the model predicts (after the dropped transient)."""
     y_hat = result.predict(rec)
     ok = np.isfinite(y_hat)
     first = int(np.argmax(ok))

@@ -76,12 +76,12 @@ def loop_area(u, y) -> float:
 def last_full_cycle(u, *, threshold: float | None = None) -> slice:
     """Samples of the last full input cycle: from the third-last reversal to the last.
 
-    Reversals come from `fitter.preparation.find_reversals`; the slice
+    Reversals come from `fitter.data.preparation.find_reversals`; the slice
     includes both end reversals.  A record with two reversals that covers
-    one whole period gives that period (`fitter.preparation.period_cycle`).
+    one whole period gives that period (`fitter.data.preparation.period_cycle`).
     Raises `PreparationError` when there is no full cycle.
     """
-    from .preparation import PreparationError, find_reversals, period_cycle
+    from fitter.data.preparation import PreparationError, find_reversals, period_cycle
     r = find_reversals(u, threshold=threshold)
     if len(r) >= 3:
         return slice(int(r[-3]), int(r[-1]) + 1)

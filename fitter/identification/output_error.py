@@ -59,8 +59,8 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.optimize import least_squares
 
-from .core.kernel import KernelError, flows, simulate
-from .recordings import Recording
+from fitter.core.kernel import KernelError, flows, simulate
+from fitter.data.recordings import Recording
 
 __all__ = ["RefineResult", "refine", "simulate_from", "cycle_fixed_point", "jacobian",
            "X0_MODES"]
@@ -261,7 +261,7 @@ def refine(build: Callable[[np.ndarray], object], theta0: np.ndarray,
     max_nfev : cap on residual evaluations (default scipy's, 100 p).
     progress : called with a one-line status after the optimisation stages.
     cycles : for x0="periodic", the (s0, s1) sample indices of each recording's
-        first settled cycle; by default found by `fitter.preparation`.
+        first settled cycle; by default found by `fitter.data.preparation`.
     penalty : optional theta -> extra residuals (e.g. a barrier that keeps the
         convergence condition satisfied); appended to the objective.
     max_samples : decimate longer recordings during the optimisation.
@@ -310,8 +310,8 @@ def refine(build: Callable[[np.ndarray], object], theta0: np.ndarray,
 
 
 def _first_cycle(rec: Recording) -> tuple[int, int]:
-    """(s0, s1) of the first settled cycle, from `fitter.preparation`."""
-    from .preparation import prepare
+    """(s0, s1) of the first settled cycle, from `fitter.data.preparation`."""
+    from fitter.data.preparation import prepare
     prep = prepare(rec)
     return first_settled_cycle(prep)
 

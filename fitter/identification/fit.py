@@ -2,7 +2,7 @@
 
 Pipeline of `fit_recordings`
 ----------------------------
-1. **Preparation** (`fitter.preparation.prepare`): input reversals, settled
+1. **Preparation** (`fitter.data.preparation.prepare`): input reversals, settled
    cycles (the start-up transient is dropped), holds, drift; the notes go into
    the summary.  A recording whose input never reverses twice, or that holds
    neither a full cycle nor one closing period, is rejected (`FitError`).
@@ -30,12 +30,12 @@ Pipeline of `fit_recordings`
 4. **Initial estimates**: rate-independent from the loop (the settled branches
    resampled on a uniform input grid and averaged over cycles and recordings:
    the input-domain reparameterisation of Section III) by
-   `fitter.ri_identification.identify_ri_loop` when available, and always by a
+   `fitter.identification.ri_loop.identify_ri_loop` when available, and always by a
    first-order branch regression dy/du = a y + b u + e (each branch); the best
    start is kept.  Rate-dependent: `identify_rd_triangles` (Section V) when all
    inputs are triangle waves, else the rising-branch part of the
    rate-independent fit with g = |v|.
-5. **Output-error refinement** (`fitter.output_error.refine`).  Initial
+5. **Output-error refinement** (`fitter.identification.output_error.refine`).  Initial
    state ``x0="fit"``: the state at the first kept sample of each recording is
    eliminated by linear least squares, so what remains of a slowly decaying
    transient after the preparation's cut is fitted, not mistaken for the loop.
@@ -66,13 +66,14 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.optimize import isotonic_regression
 
-from .core.models import Experiment, RateDependentModel, RateIndependentModel, Signals
-from .core.periodic import convergence_rho
-from .core.rates import TabulatedRate
-from .metrics import compare
-from .output_error import RefineResult, cycle_fixed_point, jacobian, refine
-from .preparation import PreparationError, Prepared, branch_on_grid, find_reversals, prepare
-from .recordings import Recording
+from fitter.core.errors import DuhemError
+from fitter.core.models import Experiment, RateDependentModel, RateIndependentModel, Signals
+from fitter.core.periodic import convergence_rho
+from fitter.core.rates import TabulatedRate
+from fitter.data.metrics import compare
+from fitter.identification.output_error import RefineResult, cycle_fixed_point, jacobian, refine
+from fitter.data.preparation import PreparationError, Prepared, branch_on_grid, find_reversals, prepare
+from fitter.data.recordings import Recording
 
 __all__ = ["FitError", "FitResult", "fit_recordings", "monotone_input"]
 
@@ -88,7 +89,7 @@ RHO_MARGIN = 0.99
 MAX_NFEV = 60
 
 
-class FitError(ValueError):
+class FitError(DuhemError):
     """Recordings that cannot be fitted (too few cycles, an input that never reverses, ...)."""
 
 
@@ -427,7 +428,7 @@ def _embed(m, n: int):
 
 
 def _loop_error(m, grid, yr, yf) -> float:
-    from .core.periodic import limiting_loop
+    from fitter.core.periodic import limiting_loop
     try:
         g, r, f, rho = limiting_loop(m, grid[0], grid[-1], len(grid))
     except (ValueError, np.linalg.LinAlgError):
@@ -447,7 +448,7 @@ def _ri_starts(grid, yr, yf, n: int, q: float | None, lower=None) -> tuple[list[
     base = _embed(_ri_first_order(grid, yr, yf), n)
     cands.append((_loop_error(base, grid, yr, yf), par.theta(base), "branch regression"))
     try:
-        from .ri_identification import identify_ri_loop
+        from fitter.identification.ri_loop import identify_ri_loop
     except ImportError:
         identify_ri_loop = None
     if identify_ri_loop is not None and n % 2 == 1:
@@ -568,7 +569,7 @@ def _rd_starts(param: _RDParam, ri: _Candidate | None, lower: _Candidate | None,
         info["start"] = f"order {param.n - 1} fit, embedded"
     if triangle and len(data.norm) >= 2:
         try:
-            from .rd_identification import identify_rd_triangles
+            from fitter.identification.rd_triangles import identify_rd_triangles
             ident = identify_rd_triangles([(r.t, r.u, r.y) for r in data.norm], order=param.n)
             m = ident.model
             vk = param.v_ref * np.exp(param.knots)
@@ -615,7 +616,7 @@ class FitResult:
         return prep.transient_end, _cycle_of(prep), u
 
     def _simulate(self, model, rec: Recording, start: int, cyc, u) -> np.ndarray:
-        from .core.kernel import simulate
+        from fitter.core.kernel import simulate
         t = rec.t[start:]
         x0, _ = cycle_fixed_point(model, t[cyc[0]:cyc[1] + 1], u[cyc[0]:cyc[1] + 1])
         y = np.full(len(rec.u), np.nan)

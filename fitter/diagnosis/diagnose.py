@@ -15,7 +15,7 @@ Procedure (`diagnose`)
    E±, x0 solved by linear least squares, since the
    output is affine in them for fixed A, then a joint nonlinear least-squares
    refinement), or a given model whose A, B, E (per branch) and x0 are refined.
-2. Noise level sigma: `fitter.metrics.noise_rms` of each recording's output,
+2. Noise level sigma: `fitter.data.metrics.noise_rms` of each recording's output,
    pooled (median).  Locating (`locate_mismatch`): residual RMS per recording,
    per branch (rising / falling / held input), per input-range bin, its
    correlation across recordings with log rate, start time and amplitude, and
@@ -55,11 +55,12 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.stats import chi2
 
-from .core.effects import EFFECTS, Effect
-from .core.kernel import KernelError, simulate
-from .core.models import RateDependentModel, RateIndependentModel, Signals
-from .metrics import noise_rms, nrmse, rms
-from .recordings import Recording
+from fitter.core.errors import DuhemError
+from fitter.core.effects import EFFECTS, Effect
+from fitter.core.kernel import KernelError, simulate
+from fitter.core.models import RateDependentModel, RateIndependentModel, Signals
+from fitter.data.metrics import noise_rms, nrmse, rms
+from fitter.data.recordings import Recording
 
 __all__ = ["DiagnoseError", "Diagnosis", "JoinedExperiment", "diagnose", "locate_mismatch", "rich_progress",
            "synthetic_experiment", "CANDIDATES"]
@@ -72,7 +73,7 @@ MIN_SAMPLES = 200
 Progress = Callable[[str, float], None]
 
 
-class DiagnoseError(ValueError):
+class DiagnoseError(DuhemError):
     """Input that cannot be diagnosed (named file, column, row, value)."""
 
 
@@ -524,7 +525,7 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
         refined on the experiment.
     base_order : without `model`: 1 (default) fits the first-order rate-independent base here (fast;
         every candidate fit refits its 7 parameters); any other value (None = chosen by BIC) takes the
-        base from `fitter.fit.fit_recordings(recordings, kind="ri", order=base_order)`, which is then
+        base from `fitter.identification.fit.fit_recordings(recordings, kind="ri", order=base_order)`, which is then
         refined like a given model (more parameters: slower, and a flexible base absorbs part of what
         an effect would explain).
     progress : optional callback ``progress(message, fraction_done)``; see `rich_progress`.
@@ -546,7 +547,7 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
     report("fitting the base model", 0.0)
     noise = float(np.median([noise_rms(r.y) for r in ex.recordings if len(r.y) >= 14]))
     if model is None and base_order != 1:
-        from .fit import fit_recordings
+        from fitter.identification.fit import fit_recordings
         model = fit_recordings(ex.recordings, kind="ri", order=base_order).model
     base = _fit_base(ex, model, mask)
     mismatch = locate_mismatch(ex, base.residual, noise)

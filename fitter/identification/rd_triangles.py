@@ -87,7 +87,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 
-from .core import (CallableRate, ConvergenceError, KernelError, RateDependentModel, TabulatedRate,
+from fitter.core import (CallableRate, ConvergenceError, KernelError, RateDependentModel, TabulatedRate,
                    periodic_response)
 
 __all__ = ["ESTIMATORS", "TriangleWave", "triangle_wave", "triangle_response", "periodic_triangle_output",

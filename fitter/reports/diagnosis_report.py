@@ -1,4 +1,4 @@
-"""HTML + PNG report of a `fitter.diagnose.Diagnosis`.
+"""HTML + PNG report of a `fitter.diagnosis.diagnose.Diagnosis`.
 
 `write_diagnosis_report(diagnosis, recordings, directory)` writes
 

@@ -105,7 +105,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .core import (ConvergenceError, RateIndependentModel, convergence_rho, limiting_loop,
+from fitter.core import (ConvergenceError, RateIndependentModel, convergence_rho, limiting_loop,
                    periodic_response)
 
 __all__ = ["RIIdentification", "identify_ri_loop", "flip_and_concatenate", "nmss_states",

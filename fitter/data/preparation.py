@@ -40,10 +40,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from fitter.core.errors import DuhemError
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
-from .metrics import NOISE_WINDOW, noise_rms
-from .recordings import Recording
+from fitter.data.metrics import NOISE_WINDOW, noise_rms
+from fitter.data.recordings import Recording
 
 __all__ = ["PreparationError", "Prepared", "find_reversals", "reversal_threshold", "split_cycles",
            "period_cycle", "cycle_reversals", "settled_start", "cycle_differences", "find_holds", "branch_on_grid",
@@ -57,7 +59,7 @@ HOLD_FRACTION = 0.002
 HOLD_MIN_SAMPLES = 9
 
 
-class PreparationError(ValueError):
+class PreparationError(DuhemError):
     """A recording that cannot be prepared (e.g. too few input cycles)."""
 
 
