@@ -1,5 +1,10 @@
-"""Effect extensions: exact discretisations, Stepper == simulate, JSON round trip, bad input."""
+"""Effect extensions: exact discretisations, Stepper == simulate, JSON round trip, bad input.
+
+The tests parametrised over `REGISTRY` run every registered effect (at its
+`EffectSpec.example`), so a new effect is tested without editing this file.
+"""
 import json
+import math
 
 import numpy as np
 import pytest
@@ -7,17 +12,9 @@ from scipy.integrate import solve_ivp
 
 from fitter.core import (KernelError, ModelFileError, RateDependentModel, RateIndependentModel, Stepper,
                          TabulatedRate, load_model, model_from_dict, save_model, simulate)
-from fitter.core.effects import EFFECTS, Effect
+from fitter.core.effects import REGISTRY, STAGES, Effect, EffectContext
 
-ALL = {
-    "backlash": {"b": 0.1},
-    "rate_dependence": {"alpha": 0.3},
-    "creep": {"k": 0.05, "tau": 0.7},
-    "viscous": {"c": 0.02},
-    "thermal_drift": {"kappa": 0.01},
-    "saturation": {"y_c": 0.1, "beta": 0.4},
-    "sensor_lag": {"tau": 0.05},
-}
+ALL = {name: dict(spec.example) for name, spec in REGISTRY.items()}
 
 ZERO = {"backlash": {"b": 0.0}, "rate_dependence": {"alpha": 0.0}, "creep": {"k": 0.0, "tau": 1.0},
         "viscous": {"c": 0.0}, "thermal_drift": {"kappa": 0.0}, "saturation": {"y_c": 0.1, "beta": 0.0},
@@ -66,13 +63,19 @@ def test_stepper_equals_simulate_with_all_effects(make):
     assert st.output() == first
 
 
-def test_effects_change_output_and_no_effect_is_identity():
+@pytest.mark.parametrize("name", REGISTRY)
+def test_effect_changes_output(name):
     t, u = signal()
     base = simulate(ri(), t, u).y
-    for name, params in ALL.items():
-        y = simulate(ri([(name, params)]), t, u).y
-        assert np.max(np.abs(y - base)) > 1e-3, name
-        y0 = simulate(ri([(name, ZERO[name])]), t, u).y
+    y = simulate(ri([(name, ALL[name])]), t, u).y
+    assert np.max(np.abs(y - base)) > 1e-3, name
+
+
+def test_no_effect_is_identity():
+    t, u = signal()
+    base = simulate(ri(), t, u).y
+    for name, params in ZERO.items():
+        y0 = simulate(ri([(name, params)]), t, u).y
         np.testing.assert_allclose(y0, base, atol=1e-13, err_msg=name)
 
 
@@ -148,7 +151,8 @@ def test_json_round_trip_and_no_effects_key(tmp_path):
     np.testing.assert_array_equal(simulate(back, t, u).y, simulate(model, t, u).y)
     assert [e.effect for e in back.effects] == list(ALL)
     assert "effects" not in ri().to_dict()
-    assert set(EFFECTS) == set(ALL)
+    assert list(REGISTRY) == list(ALL) == ["backlash", "rate_dependence", "creep", "viscous",
+                                           "thermal_drift", "saturation", "sensor_lag"]
 
 
 @pytest.mark.parametrize("effects, message", [
@@ -170,3 +174,140 @@ def test_bad_effects(effects, message):
 def test_timed_effect_needs_increasing_time():
     with pytest.raises(KernelError, match="time must increase"):
         simulate(ri([("viscous", {"c": 1.0})]), np.array([0.0, 1.0, 1.0]), np.array([0.0, 1.0, 2.0]))
+
+
+# --------------------------------------------------------------------- the registry, effect by effect
+
+
+def context(model, t, u) -> EffectContext:
+    """The diagnosis' `EffectContext` of one recording (t, u) and the model's output."""
+    y = simulate(model, t, u).y
+    v95 = float(np.percentile(np.abs(np.diff(u) / np.diff(t)), 95)) or 1.0
+    return EffectContext(dt_min=float(np.median(np.diff(t))), duration=float(np.ptp(t)),
+                         u_span=float(np.ptp(u)), y_min=float(y.min()), y_max=float(y.max()),
+                         y_mean=float(np.mean(y)), v95=v95)
+
+
+def test_registry_is_in_stage_order_and_well_formed():
+    stages = [STAGES.index(spec.stage) for spec in REGISTRY.values()]
+    assert stages == sorted(stages)
+    for name, spec in REGISTRY.items():
+        assert spec.name == name and spec.description and "\n" not in spec.description
+        names = [par.name for par in spec.parameters]
+        assert len(set(names)) == len(names) and list(spec.example) == names
+        assert isinstance(spec.state, tuple) and isinstance(spec.timed, bool)
+
+
+def _outside(par) -> list[float]:
+    """Values just outside a parameter's allowed range, and non-finite ones."""
+    values = [math.nan, math.inf, -math.inf]
+    if par.lower > -math.inf:
+        values.append(par.lower if par.strict else par.lower - 1e-9 * max(1.0, abs(par.lower)))
+    if par.upper < math.inf:
+        values.append(par.upper + 1e-9 * max(1.0, abs(par.upper)))
+    return values
+
+
+@pytest.mark.parametrize("name", REGISTRY)
+def test_parameter_ranges_are_validated(name):
+    spec = REGISTRY[name]
+    assert Effect(name, dict(spec.example)).parameters == spec.example
+    for par in spec.parameters:
+        if par.lower > -math.inf and not par.strict:
+            Effect(name, {**spec.example, par.name: par.lower})
+        for value in _outside(par):
+            d = ri().to_dict()
+            d["effects"] = [{"effect": name, "parameters": {**spec.example, par.name: value}}]
+            with pytest.raises(ModelFileError, match=f"parameter {par.name} = .* must be {par.rule()}"):
+                model_from_dict(d)
+            assert not par.allows(value)
+
+
+@pytest.mark.parametrize("name", REGISTRY)
+def test_null_is_the_base_model(name):
+    t, u = signal()
+    base = simulate(ri(), t, u).y
+    spec = REGISTRY[name]
+    null = spec.null(context(ri(), t, u))
+    y = simulate(ri([(name, null)]), t, u).y
+    if name == "sensor_lag":
+        # the null lag tau > 0 (its log must exist) is not exact: the lag e = y - m of a
+        # first-order filter started at e = 0 obeys |e| <= tau max|dy/dt|
+        bound = null["tau"] * np.max(np.abs(np.diff(base) / np.diff(t)))
+        assert 0 < np.max(np.abs(y - base)) <= bound * (1 + 1e-9)
+    else:
+        np.testing.assert_allclose(y, base, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", REGISTRY)
+def test_starts_and_null_within_bounds(name):
+    t, u = signal()
+    spec = REGISTRY[name]
+    ctx = context(ri(), t, u)
+    bounds = spec.bounds(ctx)
+    names = [par.name for par in spec.parameters]
+    assert list(bounds) == names
+    starts = spec.starts(ctx)
+    assert starts
+    for point in starts + [spec.null(ctx)]:
+        assert list(point) == names
+        for par in spec.parameters:
+            lo, hi = bounds[par.name]
+            assert lo <= point[par.name] <= hi, (par.name, point, bounds)
+            if par.log:
+                assert 0 < lo < hi < math.inf
+        Effect(name, point)
+
+
+def test_context_values_reproduce_the_diagnosis():
+    ctx = EffectContext(dt_min=0.01, duration=100.0, u_span=2.0, y_min=-1.0, y_max=3.0, y_mean=0.5,
+                        v95=4.0)
+    taus = np.geomspace(0.03, 10.0, 4)
+    assert REGISTRY["creep"].starts(ctx) == [{"k": 0.0, "tau": tau} for tau in taus]
+    assert REGISTRY["sensor_lag"].starts(ctx) == [{"tau": tau} for tau in taus[:3]]
+    assert REGISTRY["backlash"].starts(ctx) == [{"b": 0.02}, {"b": 0.1}]
+    assert REGISTRY["rate_dependence"].starts(ctx) == [{"alpha": 0.0125}, {"alpha": 0.125}]
+    assert REGISTRY["saturation"].starts(ctx) == [{"y_c": 0.5, "beta": 0.25}, {"y_c": 0.5, "beta": 0.75}]
+    assert REGISTRY["viscous"].starts(ctx) == [{"c": 0.0}]
+    assert REGISTRY["creep"].null(ctx) == {"k": 0.0, "tau": 0.1}
+    assert REGISTRY["saturation"].null(ctx) == {"y_c": 0.5, "beta": 0.0}
+    assert REGISTRY["sensor_lag"].null(ctx) == {"tau": math.exp(math.log(0.0005) + 1e-6)}
+    assert REGISTRY["thermal_drift"].null(ctx) == {"kappa": 0.0}
+    assert REGISTRY["creep"].bounds(ctx) == {"k": (-math.inf, math.inf), "tau": (0.0005, 1000.0)}
+    assert REGISTRY["saturation"].bounds(ctx) == {"y_c": (-1.0, 3.0), "beta": (0.0, math.inf)}
+    assert REGISTRY["backlash"].bounds(ctx) == {"b": (0.0, math.inf)}
+    short = EffectContext(dt_min=0.5, duration=2.0, u_span=1.0, y_min=0.0, y_max=0.0, y_mean=0.0, v95=1.0)
+    assert REGISTRY["sensor_lag"].bounds(short) == {"tau": (0.025, 20.0)}
+    assert REGISTRY["creep"].starts(short)[-1]["tau"] == pytest.approx(5.0)
+    assert REGISTRY["saturation"].starts(short)[0]["beta"] == 0.5 / (1e-300 / 2)
+
+
+@pytest.mark.parametrize("name", REGISTRY)
+@pytest.mark.parametrize("make", [ri, rd])
+def test_serialisation_round_trip_and_stepper(name, make, tmp_path):
+    model = make([(name, ALL[name])])
+    save_model(model, tmp_path / "m.json")
+    back = load_model(tmp_path / "m.json")
+    assert back.to_dict() == model.to_dict()
+    assert json.loads(json.dumps(model.to_dict()))["effects"] == [{"effect": name, "parameters": ALL[name]}]
+    t, u = signal(n=150, seed=2)
+    y = simulate(model, t, u).y
+    np.testing.assert_array_equal(simulate(back, t, u).y, y)
+    st = Stepper(back, t0=t[0], u0=u[0])
+    out = [st.output()]
+    for k in range(1, len(t)):
+        st.do_step(t[k] - t[k - 1])
+        st.set_input(u[k])
+        out.append(st.output())
+        if k == 60:
+            saved = st.get_state()
+            assert len(saved[-1]) == len(REGISTRY[name].state)
+    np.testing.assert_allclose(out, y, rtol=0, atol=1e-12)
+    st.set_state(json.loads(json.dumps([list(v) if isinstance(v, (tuple, np.ndarray)) else v for v in saved])))
+    assert st.output() == out[60]
+
+
+@pytest.mark.parametrize("name", [n for n, spec in REGISTRY.items() if spec.timed])
+def test_timed_effects_need_increasing_time(name):
+    with pytest.raises(KernelError, match="time must increase: t\\[2\\] = 1.0 after t\\[1\\] = 1.0"):
+        simulate(ri([(name, ALL[name])]), np.array([0.0, 1.0, 1.0]), np.array([0.0, 1.0, 2.0]))

@@ -130,7 +130,7 @@ def test_stepper_equals_simulate():
 
 def test_json_round_trip(tmp_path):
     m = example3_model()
-    m.g = TabulatedRate.from_function(g3, [-3, -1, -0.5, 0.25, 1, 2, 4])
+    m = m.replace(g=TabulatedRate.from_function(g3, [-3, -1, -0.5, 0.25, 1, 2, 4]))
     path = tmp_path / "m.json"
     save_model(m, path)
     m2 = load_model(path)

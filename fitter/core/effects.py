@@ -5,6 +5,14 @@ stored in the model JSON as ``"effects": [{"effect": name, "parameters": {...}}]
 (absent = none).  `kernel.simulate` and `stepper.Stepper` both run the chain
 below through `run_with_effects`, so FMUs run it unchanged.
 
+`REGISTRY` is the one list of effects: an `EffectSpec` per effect, in chain
+order, that declares its parameters (`ParameterSpec`: allowed range, log
+scale), whether it needs time and whether the native C FMU implements it,
+applies itself in the chain (`EffectSpec.apply`), and gives the diagnosis its
+fitting bounds, starting values and vanishing point (`bounds`, `starts`,
+`null`, from an `EffectContext`).  Model validation, the diagnosis, the native
+FMU generator and the tests all read it (docs/developer.md, "Adding an effect").
+
 Input semantics are the kernel's: the input u is piecewise linear between the
 samples t_0 < t_1 < ... (for a rate-independent model without time, t_k = k).
 On interval k (from sample k to k+1): h_k = t_{k+1} - t_k, du_k = u_{k+1} - u_k,
@@ -39,104 +47,183 @@ The chain, always applied in this order whatever the order of the list:
    m_{k+1} = a m_k + dy_k (1 - q) + (1 - a) y_k with a, q as in 4 (tau = 0:
    m = y).
 
-The chain's state at a sample is `EffectState` (w, c, W, m, y): the play
-output, the creep state, the travel, the measured output, and the output before
-the lag.  This module needs only numpy: it is shipped inside the FMUs.
+Each step acts in one stage of the chain (`EffectSpec.stage`): ``input``
+(the base model's input w, step 1), ``rate`` (the coefficients r, S of (K),
+step 2) or ``output`` (the output y, steps 4-8).  The chain's state at a
+sample, `EffectState`, is the tuple of the present effects' state variables
+(`EffectSpec.state`) in chain order: backlash (w, the play output), creep (c),
+thermal_drift (W, the travel), sensor_lag (m, the measured output, and y, the
+output before the lag).  This module needs only numpy: it is shipped inside
+the FMUs.
 """
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import NamedTuple
 
 import numpy as np
 
 from .errors import EffectError, KernelError
-from .kernel import _linear_recurrence, integrate, interval_coefficients
+from .flow import check_increasing, integrate, interval_coefficients, linear_recurrence
 
-__all__ = ["EFFECTS", "EffectError", "Effect", "EffectState", "effects_from_list", "run_with_effects"]
+__all__ = ["REGISTRY", "STAGES", "EffectSpec", "ParameterSpec", "EffectContext", "Chain", "EffectError",
+           "Effect", "EffectState", "effects_from_list", "run_with_effects"]
+
+EffectState = tuple
+"""State of the effect chain at one sample: a tuple of floats (module docstring)."""
+
+STAGES = ("input", "rate", "output")
+"""The chain's stages in the order they run (module docstring)."""
+
+_INF = math.inf
 
 
+@dataclass(frozen=True)
+class ParameterSpec:
+    """One effect parameter: allowed range lower <= value <= upper (lower < value when `strict`).
+
+    `log`: a time constant, fitted on a log scale (its fitting bounds are
+    relative to the sample period and the duration, see `EffectSpec.bounds`).
+    """
+
+    name: str
+    lower: float
+    upper: float
+    strict: bool = False
+    log: bool = False
+
+    def allows(self, value: float) -> bool:
+        """Whether `value` is finite and in the allowed range."""
+        return (math.isfinite(value) and value >= self.lower and value <= self.upper
+                and not (self.strict and value <= self.lower))
+
+    def rule(self) -> str:
+        """The allowed range in words: "positive", ">= 0", "finite", "> 0 and <= 1", ..."""
+        if self.lower == 0 and self.upper == math.inf:
+            return "positive" if self.strict else ">= 0"
+        low = f"{'>' if self.strict else '>='} {self.lower:g}" if self.lower > -math.inf else ""
+        high = f"<= {self.upper:g}" if self.upper < math.inf else ""
+        return " and ".join(part for part in (low, high) if part) or "finite"
 
 
-_REAL = (-math.inf, math.inf)
-_NONNEG = (0.0, math.inf)
-_POS = (0.0, math.inf, "positive")
+@dataclass(frozen=True)
+class EffectContext:
+    """What an effect's fitting bounds, starts and null depend on (one experiment).
 
-EFFECTS: dict[str, dict[str, tuple]] = {
-    "backlash": {"b": _NONNEG},
-    "rate_dependence": {"alpha": _NONNEG},
-    "creep": {"k": _REAL, "tau": _POS},
-    "viscous": {"c": _REAL},
-    "thermal_drift": {"kappa": _REAL},
-    "saturation": {"y_c": _REAL, "beta": _NONNEG},
-    "sensor_lag": {"tau": _NONNEG},
-}
-"""Effect name -> parameter name -> allowed range, in the chain's order."""
+    dt_min : shortest median sample period of the recordings
+    duration : time span of the experiment
+    u_span : input range, max u - min u
+    y_min, y_max : output range
+    y_mean : mean of the fitted base model's output
+    v95 : 95th percentile of |du/dt| (1.0 when that is 0)
+    """
 
-_TIMED = {"rate_dependence", "creep", "viscous", "sensor_lag"}
+    dt_min: float
+    duration: float
+    u_span: float
+    y_min: float
+    y_max: float
+    y_mean: float
+    v95: float
 
 
 @dataclass
-class Effect:
-    """One effect: its name (a key of `EFFECTS`) and its parameters."""
+class Chain:
+    """The samples on their way through the chain (module docstring's notation).
 
-    effect: str
-    parameters: dict = field(default_factory=dict)
+    t, u : the samples; h = diff(t)
+    w : the base model's input (the ``input`` stage may change it; else u)
+    r, S : per-interval coefficients of the kernel's eq (K) for w (the ``rate`` stage may rescale them)
+    y : the output (the ``output`` stage transforms it)
+    """
 
-    def __post_init__(self):
-        spec = EFFECTS.get(self.effect)
-        if spec is None:
-            raise EffectError(f"unknown effect {self.effect!r} (known: {', '.join(EFFECTS)})")
-        if not isinstance(self.parameters, dict) or set(self.parameters) != set(spec):
-            got = sorted(self.parameters) if isinstance(self.parameters, dict) else self.parameters
-            raise EffectError(f"effect {self.effect!r}: parameters must be {sorted(spec)}, got {got}")
-        clean = {}
-        for name, rng in spec.items():
-            try:
-                value = float(self.parameters[name])
-            except (TypeError, ValueError):
-                raise EffectError(f"effect {self.effect!r}: parameter {name} is not a number") from None
-            strict = len(rng) > 2
-            if not math.isfinite(value) or value < rng[0] or (strict and value <= rng[0]):
-                need = "positive" if strict else (">= 0" if rng[0] == 0 else "finite")
-                raise EffectError(f"effect {self.effect!r}: parameter {name} = {value} must be {need}")
-            clean[name] = value
-        self.parameters = clean
-
-    def to_dict(self) -> dict:
-        return {"effect": self.effect, "parameters": dict(self.parameters)}
+    t: np.ndarray
+    u: np.ndarray
+    h: np.ndarray
+    w: np.ndarray
+    r: np.ndarray | None = None
+    S: np.ndarray | None = None
+    y: np.ndarray | None = None
 
 
-def effects_from_list(items) -> list[Effect]:
-    """Validate a list of `Effect` or ``{"effect", "parameters"}`` dicts (each name at most once)."""
-    if items is None:
-        return []
-    if not isinstance(items, (list, tuple)):
-        raise EffectError(f"'effects' must be a list, got {type(items).__name__}")
-    out = []
-    for item in items:
-        if isinstance(item, Effect):
-            out.append(Effect(item.effect, dict(item.parameters)))
-        elif isinstance(item, dict) and set(item) == {"effect", "parameters"}:
-            out.append(Effect(item["effect"], item["parameters"]))
-        else:
-            raise EffectError(f"each effect must be {{'effect': name, 'parameters': {{...}}}}, got {item!r}")
-    names = [e.effect for e in out]
-    dup = [n for n in set(names) if names.count(n) > 1]
-    if dup:
-        raise EffectError(f"effect {dup[0]!r} is listed more than once")
+class EffectSpec(ABC):
+    """One effect: what it is, its parameters, how it runs in the chain and how it is fitted.
+
+    Attributes
+    ----------
+    name : the key in `REGISTRY` and in the model JSON
+    description : one line in physical words
+    stage : the chain stage it acts in, one of `STAGES`
+    timed : needs strictly increasing time (it depends on du/dt or on elapsed time)
+    native : the native C FMU implements it (a C function ``effect_<name>`` in duhem_model.c)
+    parameters : its parameters, in the order of the model JSON and of the C parameter block
+    state : names of its state variables, carried from sample to sample (may be empty)
+    example : typical parameter values at which the effect is clearly visible on an input of
+        unit amplitude and unit rate (the tests run every effect there; synthetic experiments
+        conceal it at these values with `strength` scaled)
+    strength : the parameter that sets the effect's size (default: the first one)
+    """
+
+    name: str
+    description: str
+    stage: str
+    timed: bool
+    native: bool = True
+    parameters: tuple[ParameterSpec, ...]
+    state: tuple[str, ...] = ()
+    example: dict[str, float]
+    strength: str | None = None
+
+    @property
+    def strength_parameter(self) -> str:
+        """Name of the parameter that sets the effect's size (`strength`, else the first parameter)."""
+        return self.strength or self.parameters[0].name
+
+    @abstractmethod
+    def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
+        """Apply the effect with parameters `p` to `chain` in place; return its state at the last sample.
+
+        `s0` is its state at the first sample (`state` values), None to start afresh.
+        """
+
+    def bounds(self, ctx: EffectContext) -> dict[str, tuple[float, float]]:
+        """Fitting bounds in physical units.
+
+        The allowed range; a `log` parameter (a time constant) within
+        [0.05 dt_min, 10 max(duration, dt_min)].
+        """
+        out = {}
+        for par in self.parameters:
+            if par.log:
+                out[par.name] = (ctx.dt_min * 0.05, max(ctx.duration, ctx.dt_min) * 10)
+            else:
+                out[par.name] = (par.lower, par.upper)
+        return out
+
+    def starts(self, ctx: EffectContext) -> list[dict[str, float]]:
+        """Starting values in physical units (several for a nonlinear effect); default: the null."""
+        return [self.null(ctx)]
+
+    def null(self, ctx: EffectContext) -> dict[str, float]:
+        """Parameter values at which the effect (almost) vanishes (the nested model); default all 0."""
+        return {par.name: 0.0 for par in self.parameters}
+
+
+def _first_order(m0: float, target: np.ndarray, h: np.ndarray, tau: float) -> np.ndarray:
+    """Exact samples of dm/dt = (z(t) - m)/tau, z linear between the samples `target`."""
+    x = h / tau
+    a = np.exp(-x)
+    one_minus_a = -np.expm1(-x)
+    q = np.where(x > 0, one_minus_a / np.where(x > 0, x, 1.0), 1.0)
+    f = np.diff(target) * (1.0 - q) + one_minus_a * target[:-1]
+    out = np.empty_like(target)
+    out[0] = m0
+    if len(h):
+        W = linear_recurrence(np.array([m0]), (-x)[:, None].astype(complex), a[:, None].astype(complex),
+                              f[:, None].astype(complex))
+        out[1:] = W[:, 0].real
     return out
-
-
-class EffectState(NamedTuple):
-    """State of the effect chain at one sample (see the module docstring)."""
-
-    w: float
-    c: float
-    W: float
-    m: float
-    y: float
 
 
 def _play(u: np.ndarray, b: float, w0: float) -> np.ndarray:
@@ -166,19 +253,238 @@ def _play(u: np.ndarray, b: float, w0: float) -> np.ndarray:
     return w
 
 
-def _first_order(m0: float, target: np.ndarray, h: np.ndarray, tau: float) -> np.ndarray:
-    """Exact samples of dm/dt = (z(t) - m)/tau, z linear between the samples `target`."""
-    x = h / tau
-    a = np.exp(-x)
-    one_minus_a = -np.expm1(-x)
-    q = np.where(x > 0, one_minus_a / np.where(x > 0, x, 1.0), 1.0)
-    f = np.diff(target) * (1.0 - q) + one_minus_a * target[:-1]
-    out = np.empty_like(target)
-    out[0] = m0
-    if len(h):
-        W = _linear_recurrence(np.array([m0]), (-x)[:, None].astype(complex), a[:, None].astype(complex),
-                               f[:, None].astype(complex))
-        out[1:] = W[:, 0].real
+def _taus(ctx: EffectContext) -> np.ndarray:
+    """Starting time constants: geomspace(3 dt_min, max(duration / 10, 10 dt_min), 4)."""
+    return np.geomspace(3 * ctx.dt_min, max(ctx.duration / 10, 10 * ctx.dt_min), 4)
+
+
+class Backlash(EffectSpec):
+    """Step 1 of the chain (module docstring): the play operator on the base input."""
+
+    name = "backlash"
+    description = "mechanical play: the input must travel b across a dead band before the output follows"
+    stage = "input"
+    timed = False
+    parameters = (ParameterSpec("b", 0.0, _INF),)
+    state = ("w",)
+    example = {"b": 0.1}
+
+    def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
+        chain.w = _play(chain.u, p["b"], chain.u[0] if s0 is None else s0[0])
+        return (float(chain.w[-1]),)
+
+    def starts(self, ctx: EffectContext) -> list[dict[str, float]]:
+        return [{"b": 0.01 * ctx.u_span}, {"b": 0.05 * ctx.u_span}]
+
+
+class RateDependence(EffectSpec):
+    """Step 2 of the chain: the base dynamics slowed by 1 / (1 + alpha |dw/dt|)."""
+
+    name = "rate_dependence"
+    description = "rate-dependent lag: the faster the input moves, the less the loop keeps up"
+    stage = "rate"
+    timed = True
+    parameters = (ParameterSpec("alpha", 0.0, _INF),)
+    example = {"alpha": 0.3}
+
+    def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
+        s = 1.0 / (1.0 + p["alpha"] * np.abs(np.diff(chain.w) / chain.h))
+        chain.r, chain.S = chain.r / s, chain.S * s
+        return ()
+
+    def starts(self, ctx: EffectContext) -> list[dict[str, float]]:
+        return [{"alpha": 0.05 / ctx.v95}, {"alpha": 0.5 / ctx.v95}]
+
+
+class Creep(EffectSpec):
+    """Step 4 of the chain: y += c, dc/dt = (k u - c) / tau."""
+
+    name = "creep"
+    description = "creep of the material: a slow first-order approach of the output after input changes"
+    stage = "output"
+    timed = True
+    parameters = (ParameterSpec("k", -_INF, _INF), ParameterSpec("tau", 0.0, _INF, strict=True, log=True))
+    state = ("c",)
+    example = {"k": 0.05, "tau": 3.0}
+
+    def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
+        k = p["k"]
+        c = _first_order(k * chain.u[0] if s0 is None else s0[0], k * chain.u, chain.h, p["tau"])
+        chain.y = chain.y + c
+        return (float(c[-1]),)
+
+    def starts(self, ctx: EffectContext) -> list[dict[str, float]]:
+        return [{"k": 0.0, "tau": float(tau)} for tau in _taus(ctx)]
+
+    def null(self, ctx: EffectContext) -> dict[str, float]:
+        return {"k": 0.0, "tau": 10 * ctx.dt_min}
+
+
+class Viscous(EffectSpec):
+    """Step 5 of the chain: y += c du/dt."""
+
+    name = "viscous"
+    description = "viscous damping: an output offset proportional to the input rate"
+    stage = "output"
+    timed = True
+    parameters = (ParameterSpec("c", -_INF, _INF),)
+    example = {"c": 0.02}
+
+    def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
+        chain.y = chain.y + p["c"] * np.r_[0.0, np.diff(chain.u) / chain.h]
+        return ()
+
+
+class ThermalDrift(EffectSpec):
+    """Step 6 of the chain: y *= 1 - kappa W, W the input travel."""
+
+    name = "thermal_drift"
+    description = "thermal drift: the gain changes in proportion to the input travel (self-heating)"
+    stage = "output"
+    timed = False
+    parameters = (ParameterSpec("kappa", -_INF, _INF),)
+    state = ("W",)
+    example = {"kappa": 0.01}
+
+    def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
+        W = (0.0 if s0 is None else s0[0]) + np.r_[0.0, np.cumsum(np.abs(np.diff(chain.u)))]
+        chain.y = chain.y * (1.0 - p["kappa"] * W)
+        return (float(W[-1]),)
+
+
+class Saturation(EffectSpec):
+    """Step 7 of the chain: y -> y_c + tanh(beta (y - y_c)) / beta."""
+
+    name = "saturation"
+    description = "saturation: the output flattens smoothly (tanh) away from a centre y_c"
+    stage = "output"
+    timed = False
+    parameters = (ParameterSpec("y_c", -_INF, _INF), ParameterSpec("beta", 0.0, _INF))
+    example = {"y_c": 0.0, "beta": 0.4}
+    strength = "beta"
+
+    def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
+        yc, beta = p["y_c"], p["beta"]
+        if beta > 0:
+            chain.y = yc + np.tanh(beta * (chain.y - yc)) / beta
+        return ()
+
+    def bounds(self, ctx: EffectContext) -> dict[str, tuple[float, float]]:
+        return {**super().bounds(ctx), "y_c": (ctx.y_min, ctx.y_max)}
+
+    def starts(self, ctx: EffectContext) -> list[dict[str, float]]:
+        half = max(ctx.y_max - ctx.y_min, 1e-300) / 2
+        return [{"y_c": ctx.y_mean, "beta": 0.5 / half}, {"y_c": ctx.y_mean, "beta": 1.5 / half}]
+
+    def null(self, ctx: EffectContext) -> dict[str, float]:
+        return {"y_c": ctx.y_mean, "beta": 0.0}
+
+
+class SensorLag(EffectSpec):
+    """Step 8 of the chain: the measured output m, dm/dt = (y - m) / tau."""
+
+    name = "sensor_lag"
+    description = "sensor lag: the measurement follows the output as a first-order low-pass"
+    stage = "output"
+    timed = True
+    parameters = (ParameterSpec("tau", 0.0, _INF, log=True),)
+    state = ("m", "y")
+    example = {"tau": 0.05}
+
+    def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
+        target, tau = chain.y, p["tau"]
+        y_last = float(target[-1])
+        if tau > 0:
+            if s0 is not None:
+                target = target.copy()
+                target[0] = s0[1]
+            chain.y = _first_order(target[0] if s0 is None else s0[0], target, chain.h, tau)
+        return (float(chain.y[-1]), y_last)
+
+    def starts(self, ctx: EffectContext) -> list[dict[str, float]]:
+        return [{"tau": float(tau)} for tau in _taus(ctx)[:3]]
+
+    def null(self, ctx: EffectContext) -> dict[str, float]:
+        return {"tau": math.exp(math.log(0.05 * ctx.dt_min) + 1e-6)}
+
+
+REGISTRY: dict[str, EffectSpec] = {spec.name: spec for spec in (
+    Backlash(), RateDependence(), Creep(), Viscous(), ThermalDrift(), Saturation(), SensorLag())}
+"""Effect name -> `EffectSpec`, in chain order."""
+
+
+@dataclass
+class Effect:
+    """One effect of a model: its name (a key of `REGISTRY`) and its parameters."""
+
+    effect: str
+    parameters: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        spec = REGISTRY.get(self.effect)
+        if spec is None:
+            raise EffectError(f"unknown effect {self.effect!r} (known: {', '.join(REGISTRY)})")
+        names = [par.name for par in spec.parameters]
+        if not isinstance(self.parameters, dict) or set(self.parameters) != set(names):
+            got = sorted(self.parameters) if isinstance(self.parameters, dict) else self.parameters
+            raise EffectError(f"effect {self.effect!r}: parameters must be {sorted(names)}, got {got}")
+        clean = {}
+        for par in spec.parameters:
+            try:
+                value = float(self.parameters[par.name])
+            except (TypeError, ValueError):
+                raise EffectError(f"effect {self.effect!r}: parameter {par.name} is not a number") from None
+            if not par.allows(value):
+                raise EffectError(f"effect {self.effect!r}: parameter {par.name} = {value} must be {par.rule()}")
+            clean[par.name] = value
+        self.parameters = clean
+
+    @property
+    def spec(self) -> EffectSpec:
+        return REGISTRY[self.effect]
+
+    def to_dict(self) -> dict:
+        return {"effect": self.effect, "parameters": dict(self.parameters)}
+
+
+def effects_from_list(items) -> list[Effect]:
+    """Validate a list of `Effect` or ``{"effect", "parameters"}`` dicts (each name at most once)."""
+    if items is None:
+        return []
+    if not isinstance(items, (list, tuple)):
+        raise EffectError(f"'effects' must be a list, got {type(items).__name__}")
+    out = []
+    for item in items:
+        if isinstance(item, Effect):
+            out.append(Effect(item.effect, dict(item.parameters)))
+        elif isinstance(item, dict) and set(item) == {"effect", "parameters"}:
+            out.append(Effect(item["effect"], item["parameters"]))
+        else:
+            raise EffectError(f"each effect must be {{'effect': name, 'parameters': {{...}}}}, got {item!r}")
+    names = [e.effect for e in out]
+    dup = [n for n in set(names) if names.count(n) > 1]
+    if dup:
+        raise EffectError(f"effect {dup[0]!r} is listed more than once")
+    return out
+
+
+def _present(model) -> list[tuple[EffectSpec, dict]]:
+    """The model's effects as (spec, parameters), in chain order."""
+    given = {e.effect: e.parameters for e in model.effects}
+    return [(spec, given[name]) for name, spec in REGISTRY.items() if name in given]
+
+
+def _split_state(present: list, state0: EffectState | None) -> dict[str, tuple | None]:
+    """Each present effect's part of the chain state `state0` (None: all start afresh)."""
+    if state0 is None:
+        return {spec.name: None for spec, _ in present}
+    need = sum(len(spec.state) for spec, _ in present)
+    if len(state0) != need:
+        raise KernelError(f"effect state has {len(state0)} values, the model's effects have {need}")
+    out, i = {}, 0
+    for spec, _ in present:
+        out[spec.name] = tuple(state0[i:i + len(spec.state)])
+        i += len(spec.state)
     return out
 
 
@@ -186,55 +492,41 @@ def run_with_effects(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: di
                      state0: EffectState | None = None):
     """Simulate `model` with its effects over the samples (t, u).
 
+    The stages run in the order of `STAGES`, the effects of each stage in
+    `REGISTRY` order: input effects set the base input w; the kernel's
+    interval coefficients of w are rescaled by the rate effects; the base
+    model is integrated and y = C x + D w transformed by the output effects.
+
     Parameters
     ----------
     model : model with a non-empty ``effects`` list
-    t, u : checked sample arrays (t increasing where a timed effect is present)
+    t, u : finite sample arrays (t strictly increasing where a timed effect is present)
     x0 : base state at the first sample
-    fl : the model's flows (`kernel.flows`)
-    state0 : effect state at the first sample; None starts the chain afresh
-        (w_0 = u_0, c_0 = k u_0, W_0 = 0, m_0 = y_0).
+    fl : the model's flows (`flow.flows`)
+    state0 : effect state at the first sample (as returned in `end`); None starts the chain
+        afresh (w_0 = u_0, c_0 = k u_0, W_0 = 0, m_0 = y_0).
 
     Returns
     -------
     X : (N, n) base states, y : (N,) measured outputs, end : `EffectState` at the last sample.
     """
-    eff = {e.effect: e.parameters for e in model.effects}
-    h = np.diff(t)
-    if _TIMED & set(eff):
-        bad = np.flatnonzero(h <= 0)
-        if bad.size:
-            raise KernelError(f"time must increase: t[{bad[0] + 1}] = {t[bad[0] + 1]} "
-                              f"after t[{bad[0]}] = {t[bad[0]]}")
-    w = u
-    if "backlash" in eff:
-        w = _play(u, eff["backlash"]["b"], u[0] if state0 is None else state0.w)
-    branch, p, r, S = interval_coefficients(model, t, w)
-    if "rate_dependence" in eff:
-        s = 1.0 / (1.0 + eff["rate_dependence"]["alpha"] * np.abs(np.diff(w) / h))
-        r, S = r / s, S * s
-    X = integrate(fl, x0, branch, p, r, S)
-    y = X @ model.C + model.D * w
-    c_end = 0.0
-    if "creep" in eff:
-        k, tau = eff["creep"]["k"], eff["creep"]["tau"]
-        c = _first_order(k * u[0] if state0 is None else state0.c, k * u, h, tau)
-        y = y + c
-        c_end = c[-1]
-    if "viscous" in eff:
-        y = y + eff["viscous"]["c"] * np.r_[0.0, np.diff(u) / h]
-    W = (0.0 if state0 is None else state0.W) + np.r_[0.0, np.cumsum(np.abs(np.diff(u)))]
-    if "thermal_drift" in eff:
-        y = y * (1.0 - eff["thermal_drift"]["kappa"] * W)
-    if "saturation" in eff:
-        yc, beta = eff["saturation"]["y_c"], eff["saturation"]["beta"]
-        if beta > 0:
-            y = yc + np.tanh(beta * (y - yc)) / beta
-    y_pre = y
-    if "sensor_lag" in eff and eff["sensor_lag"]["tau"] > 0:
-        target = y_pre.copy()
-        if state0 is not None:
-            target[0] = state0.y
-        y = _first_order(target[0] if state0 is None else state0.m, target, h, eff["sensor_lag"]["tau"])
-    end = EffectState(w=float(w[-1]), c=float(c_end), W=float(W[-1]), m=float(y[-1]), y=float(y_pre[-1]))
-    return X, y, end
+    present = _present(model)
+    if any(spec.timed for spec, _ in present):
+        check_increasing(t)
+    starts = _split_state(present, state0)
+    chain = Chain(t=t, u=u, h=np.diff(t), w=u)
+    ends: dict[str, tuple] = {}
+    _run_stage("input", present, chain, starts, ends)
+    branch, p, chain.r, chain.S = interval_coefficients(model, t, chain.w)
+    _run_stage("rate", present, chain, starts, ends)
+    X = integrate(fl, x0, branch, p, chain.r, chain.S)
+    chain.y = X @ model.C + model.D * chain.w
+    _run_stage("output", present, chain, starts, ends)
+    end = tuple(value for spec, _ in present for value in ends[spec.name])
+    return X, chain.y, end
+
+
+def _run_stage(stage: str, present: list, chain: Chain, starts: dict, ends: dict) -> None:
+    for spec, params in present:
+        if spec.stage == stage:
+            ends[spec.name] = spec.apply(params, chain, starts[spec.name])

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -35,6 +35,7 @@ import numpy as np
 
 from .effects import effects_from_list
 from .errors import EffectError, ModelFileError
+from .files import atomic_file
 from .rates import RateFunction, as_rate, rate_from_dict
 
 __all__ = ["ModelFileError", "Signal", "Signals", "Experiment", "RateIndependentModel", "RateDependentModel",
@@ -97,8 +98,20 @@ def _order_of(C: Any) -> int:
     return int(np.asarray(C, dtype=float).size)
 
 
-@dataclass
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+@dataclass(frozen=True)
 class _ModelBase:
+    """Fields shared by both kinds.
+
+    Models are immutable once validated: `__post_init__` checks and normalises
+    every field (shapes, finiteness, effects) and the arrays are made
+    read-only; `replace(**changes)` returns a validated copy.
+    """
+
     signals: Signals = field(default_factory=Signals)
     experiment: Experiment = field(default_factory=Experiment)
     fit_info: dict = field(default_factory=dict)
@@ -107,9 +120,16 @@ class _ModelBase:
     def order(self) -> int:
         return self.C.shape[0]
 
+    def replace(self, **changes) -> "_ModelBase":
+        """A copy with `changes` applied, validated like a new model."""
+        return dataclasses.replace(self, **changes)
+
+    def _set(self, name: str, value) -> None:
+        object.__setattr__(self, name, _frozen(value) if isinstance(value, np.ndarray) else value)
+
     def _check_effects(self) -> None:
         try:
-            self.effects = effects_from_list(self.effects)
+            self._set("effects", effects_from_list(self.effects))
         except EffectError as exc:
             raise ModelFileError(str(exc)) from None
 
@@ -130,7 +150,7 @@ class _ModelBase:
         }
 
 
-@dataclass
+@dataclass(frozen=True)
 class RateIndependentModel(_ModelBase):
     """Rate-independent semilinear Duhem model, eqs (1)-(2).
 
@@ -156,15 +176,15 @@ class RateIndependentModel(_ModelBase):
                 or self.B_minus is None or self.C is None:
             raise ModelFileError("rate-independent model needs A_plus, A_minus, B_plus, B_minus, C")
         n = _order_of(self.C)
-        self.A_plus = _mat("A_plus", self.A_plus, n)
-        self.A_minus = _mat("A_minus", self.A_minus, n)
-        self.B_plus = _vec("B_plus", self.B_plus, n)
-        self.B_minus = _vec("B_minus", self.B_minus, n)
-        self.C = _vec("C", self.C, n)
-        self.E_plus = _vec("E_plus", np.zeros(n) if self.E_plus is None else self.E_plus, n)
-        self.E_minus = _vec("E_minus", np.zeros(n) if self.E_minus is None else self.E_minus, n)
-        self.x0 = _vec("x0", np.zeros(n) if self.x0 is None else self.x0, n)
-        self.D = float(self.D)
+        self._set("A_plus", _mat("A_plus", self.A_plus, n))
+        self._set("A_minus", _mat("A_minus", self.A_minus, n))
+        self._set("B_plus", _vec("B_plus", self.B_plus, n))
+        self._set("B_minus", _vec("B_minus", self.B_minus, n))
+        self._set("C", _vec("C", self.C, n))
+        self._set("E_plus", _vec("E_plus", np.zeros(n) if self.E_plus is None else self.E_plus, n))
+        self._set("E_minus", _vec("E_minus", np.zeros(n) if self.E_minus is None else self.E_minus, n))
+        self._set("x0", _vec("x0", np.zeros(n) if self.x0 is None else self.x0, n))
+        self._set("D", float(self.D))
         if not np.isfinite(self.D):
             raise ModelFileError("parameter D: NaN or infinity")
         self._check_effects()
@@ -175,7 +195,7 @@ class RateIndependentModel(_ModelBase):
         return self._effects_dict(d)
 
 
-@dataclass
+@dataclass(frozen=True)
 class RateDependentModel(_ModelBase):
     """Rate-dependent semilinear Duhem model, eqs (18)-(19) (plus E and D).
 
@@ -198,13 +218,13 @@ class RateDependentModel(_ModelBase):
         if self.A is None or self.B is None or self.C is None or self.g is None:
             raise ModelFileError("rate-dependent model needs A, B, C and g")
         n = _order_of(self.C)
-        self.A = _mat("A", self.A, n)
-        self.B = _vec("B", self.B, n)
-        self.C = _vec("C", self.C, n)
-        self.E = _vec("E", np.zeros(n) if self.E is None else self.E, n)
-        self.x0 = _vec("x0", np.zeros(n) if self.x0 is None else self.x0, n)
-        self.D = float(self.D)
-        self.g = as_rate(self.g)
+        self._set("A", _mat("A", self.A, n))
+        self._set("B", _vec("B", self.B, n))
+        self._set("C", _vec("C", self.C, n))
+        self._set("E", _vec("E", np.zeros(n) if self.E is None else self.E, n))
+        self._set("x0", _vec("x0", np.zeros(n) if self.x0 is None else self.x0, n))
+        self._set("D", float(self.D))
+        self._set("g", as_rate(self.g))
         self._check_effects()
 
     def to_dict(self) -> dict:
@@ -270,18 +290,7 @@ def load_model(path: str | os.PathLike) -> Model:
 
 
 def save_model(model: Model, path: str | os.PathLike) -> None:
-    """Write `model` as JSON atomically (temporary file, then rename)."""
+    """Write `model` as JSON atomically (`fitter.core.files.atomic_file`)."""
     text = json.dumps(model.to_dict(), indent=2)
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=directory)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_file(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")

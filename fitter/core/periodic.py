@@ -19,9 +19,42 @@ from .errors import ConvergenceError, KernelError
 from .kernel import Simulation, expm, flows, simulate
 
 __all__ = ["ConvergenceError", "PeriodicResponse", "periodic_response", "convergence_rho",
-           "limiting_loop"]
+           "limiting_loop", "affine_response", "period_map", "fixed_point"]
 
 
+def affine_response(model, t, u, cache: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """States as an affine function of the initial state: x_k = Phi_k x_0 + c_k.
+
+    Returns c (N, n), the states from x_0 = 0, and Phi (N, n, n), column j the
+    states from x_0 = e_j minus c (every interval flow of the kernel is affine).
+    """
+    cache = flows(model) if cache is None else cache
+    c = simulate(model, t, u, x0=np.zeros(model.order), flow_cache=cache).x
+    Phi = np.stack([simulate(model, t, u, x0=e, flow_cache=cache).x - c for e in np.eye(model.order)],
+                   axis=2)
+    return c, Phi
+
+
+def period_map(model, t, u, cache: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(Phi, c) of the affine map x_N = Phi x_0 + c over the given samples (one period)."""
+    c, Phi = affine_response(model, t, u, cache)
+    return Phi[-1], c[-1]
+
+
+def fixed_point(model, t, u, cache: dict | None = None) -> tuple[np.ndarray | None, float]:
+    """Periodic state x* = (I - Phi)^{-1} c of the samples' period map and rho(Phi).
+
+    x* is None when rho >= 1 (no fixed point to converge to) or the map overflows
+    (rho = inf).  The samples are taken as they are: when u[-1] != u[0] the
+    fixed point is the state the recorded cycle would return to.
+    """
+    Phi, c = period_map(model, t, u, cache)
+    if not (np.all(np.isfinite(Phi)) and np.all(np.isfinite(c))):
+        return None, np.inf
+    rho = float(np.max(np.abs(np.linalg.eigvals(Phi))))
+    if not rho < 1:
+        return None, rho
+    return np.linalg.solve(np.eye(model.order) - Phi, c), rho
 
 
 @dataclass
@@ -43,16 +76,11 @@ def periodic_response(model, t, u) -> PeriodicResponse:
         raise KernelError("one period needs at least 3 samples")
     if not np.isclose(u[-1], u[0], rtol=0, atol=1e-9 * max(1.0, np.ptp(u))):
         raise KernelError(f"input is not one period: u[0] = {u[0]} but u[-1] = {u[-1]}")
-    n = model.order
     cache = flows(model)
-    c = simulate(model, t, u, x0=np.zeros(n), flow_cache=cache).x[-1]
-    Phi = np.column_stack([simulate(model, t, u, x0=e, flow_cache=cache).x[-1] - c
-                           for e in np.eye(n)])
-    rho = float(np.max(np.abs(np.linalg.eigvals(Phi))))
-    if not rho < 1:
+    xs, rho = fixed_point(model, t, u, cache)
+    if xs is None:
         raise ConvergenceError(f"no limiting periodic map: spectral radius of the period map "
                                f"is {rho:.6g} >= 1 (condition (5) of Theorem 1 fails)")
-    xs = np.linalg.solve(np.eye(n) - Phi, c)
     return PeriodicResponse(sim=simulate(model, t, u, x0=xs, flow_cache=cache), rho=rho,
                             x_periodic=xs)
 

@@ -6,7 +6,7 @@ Semantics (the FMUs implement exactly this; the README documents it):
   last communication point, and the *current* time t and input u.
 * The output at the current time is y = C x + D u where x is the state moved
   from the anchor along the straight input path u_a -> u over [t_a, t]
-  (`kernel.AffineFlow.step`, the same exact flow that `kernel.simulate` uses).
+  (`flow.AffineFlow.step`, the same exact flow that `kernel.simulate` uses).
   So a host that sets u(t_k) and reads y(t_k) at every sample gets exactly
   `simulate` of the sampled input, with no one-sample lag; y depends directly
   on u.
@@ -18,8 +18,9 @@ Semantics (the FMUs implement exactly this; the README documents it):
 * The whole state is the tuple (t_a, u_a, x_a, t, u) of `get_state`, so
   rolling back with `set_state` restores the exact same future.
 * A model with effects (`fitter.core.effects`) also carries the effect chain's
-  state at the anchor, s_a (None until the first step: the chain starts afresh
-  at the anchor input); the current point is the one-interval run of
+  state at the anchor, s_a (an `effects.EffectState`, the present effects'
+  state values in chain order; None until the first step: the chain starts
+  afresh at the anchor input); the current point is the one-interval run of
   `effects.run_with_effects` from (t_a, u_a, x_a, s_a), so stepping equals
   `simulate`; `get_state` is then (t_a, u_a, x_a, t, u, s_a).
 """
@@ -29,8 +30,9 @@ import math
 
 import numpy as np
 
-from .effects import EffectState, run_with_effects
-from .kernel import KernelError, flows, one_interval
+from .effects import run_with_effects
+from .errors import KernelError
+from .flow import flows, one_interval
 
 __all__ = ["Stepper"]
 
@@ -106,7 +108,7 @@ class Stepper:
     def set_state(self, state: tuple) -> None:
         if self.model.effects:
             t_a, u_a, x_a, t, u, s_a = state
-            self.s_a = None if s_a is None else EffectState(*map(float, s_a))
+            self.s_a = None if s_a is None else tuple(map(float, s_a))
         else:
             t_a, u_a, x_a, t, u = state
         self.t_a, self.u_a, self.x_a = float(t_a), float(u_a), np.array(x_a, dtype=float)

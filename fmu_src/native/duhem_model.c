@@ -30,13 +30,17 @@
  * constant beyond the outermost nodes; its nodes g_v, g_g are parameters, so
  * the interpolant is rebuilt here when they change.
  *
- * Effects (fitter.core.effects, steps 1-8 of its chain, in that order):
- * backlash (play of width b on the base input), rate_dependence (S -> S s,
- * r -> r / s, s = 1/(1 + alpha |dw/h|)), base output C x + D w, creep
- * (exact first-order state c), viscous (c du/h), thermal_drift
- * (1 - kappa W, W the input travel), saturation (tanh), sensor_lag (exact
- * first-order lag of the output, linear between samples).  The chain's state
- * at the anchor (w, c, W, m, y) is part of the FMU state.
+ * Effects (fitter.core.effects, steps 1-8 of its chain): one function
+ * effect_<name> per effect of fitter.core.effects.REGISTRY (EffectSpec.native),
+ * the C twin of its EffectSpec.apply, on a Chain of one sample (the anchor
+ * alone) or two (anchor and current point).  model_data.h lists them in chain
+ * order (DUHEM_EFFECTS); run_stage calls those the model has, stage by stage:
+ * input effects set the base input w (backlash), rate effects rescale the
+ * flow's r, S (rate_dependence), then the base output C x + D w goes through
+ * the output effects (creep, viscous, thermal_drift, saturation, sensor_lag).
+ * A model without effects runs the same chain with none.  The chain's state
+ * at the anchor (the present effects' state variables, in chain order) is
+ * part of the FMU state.
  */
 #include <math.h>
 #include <string.h>
@@ -66,19 +70,23 @@ enum {
 #error "model_data.h: unknown DUHEM_KIND"
 #endif
 
-#define HAS(effect) (DUHEM_EFFECT_##effect >= 0)
-#define EFFECT(m, effect) ((m)->par[DUHEM_EFFECT_##effect])
-#define HAS_EFFECTS (HAS(BACKLASH_B) || HAS(RATE_DEPENDENCE_ALPHA) || HAS(CREEP_K) \
-                     || HAS(VISCOUS_C) || HAS(THERMAL_DRIFT_KAPPA) || HAS(SATURATION_BETA) \
-                     || HAS(SENSOR_LAG_TAU))
+/* Size of the chain-state arrays (a C array is never empty). */
+#define STATES (DUHEM_EFFECT_STATES > 0 ? DUHEM_EFFECT_STATES : 1)
 
 /* Compile-time check that model_data.h was generated for this layout. */
 typedef char parameter_layout_matches_model_data[(P_BASE_END <= DUHEM_N_PARAMETERS) ? 1 : -1];
 
-/* State of the effect chain at a sample (fitter.core.effects.EffectState). */
+/*
+ * The samples of one run of the effect chain (fitter.core.effects.Chain): the
+ * anchor alone (n = 1) or the anchor and the current point (n = 2, an interval
+ * of length h).
+ */
 typedef struct {
-    double w, c, W, m, y;
-} EffectState;
+    int n;
+    double h;
+    double u[2], w[2], y[2];  /* input, base input, output at the samples */
+    double r, S;              /* coefficients of the flow on the interval (n = 2) */
+} Chain;
 
 #if DUHEM_KIND == DUHEM_RATE_DEPENDENT
 /* One side of the rate function: n nodes (origin included) with PCHIP slopes. */
@@ -92,11 +100,11 @@ struct ModelData {
     double par[DUHEM_N_PARAMETERS];
     double t_a, u_a, t, u;
     double x_a[N];
-    EffectState s_a;  /* chain state at the anchor, valid when has_s_a */
+    double s_a[STATES]; /* effect chain state at the anchor, valid when has_s_a */
     int has_s_a;
-    double x[N];      /* state and output at (t, u), valid when cached */
+    double x[N];        /* state, output and chain state at (t, u), valid when cached */
     double y;
-    EffectState s;
+    double s[STATES];
     int cached;
 #if DUHEM_KIND == DUHEM_RATE_DEPENDENT
     RateSide rate[2]; /* v < 0, v > 0; rebuilt from g_v, g_g when rate_dirty */
@@ -304,34 +312,133 @@ static double rate(const ModelData *m, double v)
 }
 #endif
 
+/* ---------------------------------------------------------------- effects */
+
+/* Exact samples of dz/dt = (target(t) - z)/tau over h, target linear from z0t to z1t. */
+static double first_order(double z0, double z0t, double z1t, double h, double tau)
+{
+    double x = h / tau, a = exp(-x), one_minus_a = -expm1(-x);
+    double q = x > 0 ? one_minus_a / x : 1.0;
+    return a * z0 + ((z1t - z0t) * (1.0 - q) + one_minus_a * z0t);
+}
+
+/*
+ * One function per effect, the twin of its EffectSpec.apply: p its
+ * parameters (in the order of EffectSpec.parameters), s0 its state at the
+ * anchor (EffectSpec.state; NULL: start afresh), s1 its state at the last
+ * sample of the chain c, which it updates in its stage.
+ */
+
+/* Step 1, stage input, parameters (b), state (w): the play operator on the base input. */
+static void effect_backlash(const double *p, const double *s0, double *s1, Chain *c)
+{
+    double hb = p[0] / 2;
+    c->w[0] = fmin(c->u[0] + hb, fmax(c->u[0] - hb, s0 ? s0[0] : c->u[0]));
+    if (c->n == 2)
+        c->w[1] = c->u[1] - c->u[0] < 0 ? fmin(c->w[0], c->u[1] + hb) : fmax(c->w[0], c->u[1] - hb);
+    s1[0] = c->w[c->n - 1];
+}
+
+/* Step 2, stage rate, parameters (alpha): S -> S s, r -> r / s, s = 1/(1 + alpha |dw/h|). */
+static void effect_rate_dependence(const double *p, const double *s0, double *s1, Chain *c)
+{
+    double s = 1.0 / (1.0 + p[0] * fabs((c->w[1] - c->w[0]) / c->h));
+    (void)s0;
+    (void)s1;
+    c->r = c->r / s;
+    c->S = c->S * s;
+}
+
+/* Step 4, stage output, parameters (k, tau), state (c): y += c, dc/dt = (k u - c)/tau. */
+static void effect_creep(const double *p, const double *s0, double *s1, Chain *c)
+{
+    double k = p[0], c0 = s0 ? s0[0] : k * c->u[0];
+    c->y[0] = c->y[0] + c0;
+    s1[0] = c0;
+    if (c->n == 2) {
+        s1[0] = first_order(c0, k * c->u[0], k * c->u[1], c->h, p[1]);
+        c->y[1] = c->y[1] + s1[0];
+    }
+}
+
+/* Step 5, stage output, parameters (c): y += c du/h (0 at the anchor alone). */
+static void effect_viscous(const double *p, const double *s0, double *s1, Chain *c)
+{
+    (void)s0;
+    (void)s1;
+    if (c->n == 2) c->y[1] = c->y[1] + p[0] * ((c->u[1] - c->u[0]) / c->h);
+}
+
+/* Step 6, stage output, parameters (kappa), state (W): y *= 1 - kappa W, W the input travel. */
+static void effect_thermal_drift(const double *p, const double *s0, double *s1, Chain *c)
+{
+    double W = s0 ? s0[0] : 0.0;
+    c->y[0] = c->y[0] * (1.0 - p[0] * W);
+    if (c->n == 2) {
+        W = W + fabs(c->u[1] - c->u[0]);
+        c->y[1] = c->y[1] * (1.0 - p[0] * W);
+    }
+    s1[0] = W;
+}
+
+/* Step 7, stage output, parameters (y_c, beta): y -> y_c + tanh(beta (y - y_c))/beta. */
+static void effect_saturation(const double *p, const double *s0, double *s1, Chain *c)
+{
+    double yc = p[0], beta = p[1];
+    int i;
+    (void)s0;
+    (void)s1;
+    for (i = 0; beta > 0 && i < c->n; i++) c->y[i] = yc + tanh(beta * (c->y[i] - yc)) / beta;
+}
+
+/* Step 8, stage output, parameters (tau), state (m, y): first-order lag of y, linear between samples. */
+static void effect_sensor_lag(const double *p, const double *s0, double *s1, Chain *c)
+{
+    double tau = p[0], target0 = s0 ? s0[1] : c->y[0], y_last = c->y[c->n - 1];
+    if (tau > 0) {
+        c->y[0] = s0 ? s0[0] : target0;
+        if (c->n == 2) c->y[1] = first_order(c->y[0], target0, y_last, c->h, tau);
+    }
+    s1[0] = c->y[c->n - 1];
+    s1[1] = y_last;
+}
+
+/* The model's effects of one stage, in chain order (DUHEM_EFFECTS of model_data.h). */
+static void run_stage(const ModelData *m, EffectStage stage, const double *s0, double *s1, Chain *c)
+{
+#define APPLY(name, effect_stage, present, index, offset) \
+    if ((present) && (effect_stage) == stage) \
+        effect_##name(m->par + (index), s0 ? s0 + (offset) : NULL, s1 + (offset), c);
+    DUHEM_EFFECTS(APPLY)
+#undef APPLY
+    (void)m;
+    (void)stage;
+    (void)s0;
+    (void)s1;
+    (void)c;
+}
+
 /* ---------------------------------------------------------------- stepping */
 
-/* Base state x from x_a over the interval on which the base input goes w0 -> w1 in time h. */
-static int base_flow(const ModelData *m, double w0, double w1, double h, double *x)
+/* State x from x_a over the chain's interval (n = 2), base input w[0] -> w[1]; rate stage included. */
+static int base_flow(const ModelData *m, Chain *c, const double *s0, double *s1, double *x)
 {
-    double dw = w1 - w0, r, S;
+    double dw = c->w[1] - c->w[0];
 #if DUHEM_KIND == DUHEM_RATE_INDEPENDENT
     const double *A = m->par + (dw < 0 ? P_A_MINUS : P_A_PLUS);
     const double *B = m->par + (dw < 0 ? P_B_MINUS : P_B_PLUS);
     const double *E = m->par + (dw < 0 ? P_E_MINUS : P_E_PLUS);
-    r = 1.0;
-    S = dw;
+    c->r = 1.0;
+    c->S = dw;
 #else
     const double *A = m->par + P_A, *B = m->par + P_B, *E = m->par + P_E;
-    double v = dw / h, g = rate(m, v);
-    r = g != 0.0 ? v / g : 0.0;
-    S = g * h;
+    double v = dw / c->h, g = rate(m, v);
+    c->r = g != 0.0 ? v / g : 0.0;
+    c->S = g * c->h;
 #endif
-#if HAS(RATE_DEPENDENCE_ALPHA)
-    {
-        double s = 1.0 / (1.0 + EFFECT(m, RATE_DEPENDENCE_ALPHA) * fabs(dw / h));
-        r = r / s;
-        S = S * s;
-    }
-#endif
-    (void)h;
-    if (!isfinite(r) || !isfinite(S)) return -1;
-    return flow(A, B, E, m->x_a, w0, r, S, x);
+    run_stage(m, STAGE_RATE, s0, s1, c);
+    if (!isfinite(c->r) || !isfinite(c->S)) return -1;
+    return flow(A, B, E, m->x_a, c->w[0], c->r, c->S, x);
 }
 
 static double base_output(const ModelData *m, const double *x, double w)
@@ -342,106 +449,34 @@ static double base_output(const ModelData *m, const double *x, double w)
     return y + m->par[P_D] * w;
 }
 
-#if HAS(CREEP_K) || HAS(SENSOR_LAG_TAU)
-/* Exact samples of dz/dt = (target(t) - z)/tau over h, target linear from z0t to z1t. */
-static double first_order(double z0, double z0t, double z1t, double h, double tau)
+/*
+ * The chain from the anchor (chain state s0 there; NULL: afresh) to the
+ * current point, as run_with_effects on its one or two samples: the state x,
+ * chain state s and output y at the current point; -1 if not finite.
+ */
+static int run_chain(const ModelData *m, const double *s0, double *x, double *s, double *y)
 {
-    double x = h / tau, a = exp(-x), one_minus_a = -expm1(-x);
-    double q = x > 0 ? one_minus_a / x : 1.0;
-    return a * z0 + ((z1t - z0t) * (1.0 - q) + one_minus_a * z0t);
-}
-#endif
-
-/* Steps 5-7 of the chain on one sample's y: viscous, thermal drift, saturation. */
-static double output_effects(const ModelData *m, double y, double v, double W)
-{
-#if HAS(VISCOUS_C)
-    y = y + EFFECT(m, VISCOUS_C) * v;
-#endif
-#if HAS(THERMAL_DRIFT_KAPPA)
-    y = y * (1.0 - EFFECT(m, THERMAL_DRIFT_KAPPA) * W);
-#endif
-#if HAS(SATURATION_BETA)
-    if (EFFECT(m, SATURATION_BETA) > 0) {
-        double yc = EFFECT(m, SATURATION_Y_C), beta = EFFECT(m, SATURATION_BETA);
-        y = yc + tanh(beta * (y - yc)) / beta;
+    Chain c;
+    c.n = m->t == m->t_a ? 1 : 2;
+    c.h = m->t - m->t_a;
+    c.u[0] = c.w[0] = m->u_a;
+    c.u[1] = c.w[1] = m->u;
+    run_stage(m, STAGE_INPUT, s0, s, &c);
+    c.y[0] = base_output(m, m->x_a, c.w[0]);
+    if (c.n == 1) {
+        memcpy(x, m->x_a, N * sizeof(double));
+    } else {
+        if (base_flow(m, &c, s0, s, x)) return -1;
+        c.y[1] = base_output(m, x, c.w[1]);
     }
-#endif
-    (void)m;
-    (void)v;
-    (void)W;
-    return y;
-}
-
-/* The chain at the anchor sample alone, from state s0 (NULL: afresh), as run_with_effects. */
-static EffectState anchor_chain(const ModelData *m, const EffectState *s0)
-{
-    EffectState e;
-    double u0 = m->u_a;
-    e.w = u0;
-#if HAS(BACKLASH_B)
-    {
-        double hb = EFFECT(m, BACKLASH_B) / 2, w_init = s0 ? s0->w : u0;
-        e.w = fmin(u0 + hb, fmax(u0 - hb, w_init));
-    }
-#endif
-    e.c = 0.0;
-    e.y = base_output(m, m->x_a, e.w);
-#if HAS(CREEP_K)
-    e.c = s0 ? s0->c : EFFECT(m, CREEP_K) * u0;
-    e.y = e.y + e.c;
-#endif
-    e.W = s0 ? s0->W : 0.0;
-    e.y = output_effects(m, e.y, 0.0, e.W);
-    e.m = e.y;
-#if HAS(SENSOR_LAG_TAU)
-    if (EFFECT(m, SENSOR_LAG_TAU) > 0 && s0) e.m = s0->m;
-#endif
-    return e;
-}
-
-/* The chain over the interval from the anchor (state s_a there; NULL: afresh) to the current point. */
-static int interval_chain(const ModelData *m, const EffectState *s_a, double *x, EffectState *e)
-{
-    double u0 = m->u_a, u1 = m->u, h = m->t - m->t_a, w0 = u0;
-    EffectState fresh;
-    const EffectState *s0 = s_a;
-    if (!s0) {
-        fresh = anchor_chain(m, NULL);
-        s0 = &fresh;
-    }
-    e->w = u1;
-#if HAS(BACKLASH_B)
-    {
-        double hb = EFFECT(m, BACKLASH_B) / 2;
-        w0 = fmin(u0 + hb, fmax(u0 - hb, s0->w));
-        e->w = u1 - u0 < 0 ? fmin(w0, u1 + hb) : fmax(w0, u1 - hb);
-    }
-#endif
-    if (base_flow(m, w0, e->w, h, x)) return -1;
-    e->y = base_output(m, x, e->w);
-    e->c = 0.0;
-#if HAS(CREEP_K)
-    {
-        double k = EFFECT(m, CREEP_K);
-        e->c = first_order(s0->c, k * u0, k * u1, h, EFFECT(m, CREEP_TAU));
-        e->y = e->y + e->c;
-    }
-#endif
-    e->W = s0->W + fabs(u1 - u0);
-    e->y = output_effects(m, e->y, (u1 - u0) / h, e->W);
-    e->m = e->y;
-#if HAS(SENSOR_LAG_TAU)
-    if (EFFECT(m, SENSOR_LAG_TAU) > 0)
-        e->m = first_order(s0->m, s0->y, e->y, h, EFFECT(m, SENSOR_LAG_TAU));
-#endif
-    return isfinite(e->m) ? 0 : -1;
+    run_stage(m, STAGE_OUTPUT, s0, s, &c);
+    *y = c.y[c.n - 1];
+    return isfinite(*y) ? 0 : -1;
 }
 
 /* State and output at the current point, cached; NULL or why it failed. */
 static const char *advance(ModelData *m)
 {
-    const char *failed = "the state is not finite after this input change (too large a step)";
     if (m->cached) return NULL;
 #if DUHEM_KIND == DUHEM_RATE_DEPENDENT
     if (m->rate_dirty) {
@@ -449,19 +484,8 @@ static const char *advance(ModelData *m)
         if (msg) return msg;
     }
 #endif
-    if (HAS_EFFECTS) {
-        if (m->t == m->t_a) {
-            memcpy(m->x, m->x_a, sizeof m->x);
-            m->s = anchor_chain(m, m->has_s_a ? &m->s_a : NULL);
-        } else if (interval_chain(m, m->has_s_a ? &m->s_a : NULL, m->x, &m->s)) {
-            return failed;
-        }
-        m->y = m->s.m;
-    } else {
-        if (m->t == m->t_a || m->u == m->u_a) memcpy(m->x, m->x_a, sizeof m->x);
-        else if (base_flow(m, m->u_a, m->u, m->t - m->t_a, m->x)) return failed;
-        m->y = base_output(m, m->x, m->u);
-    }
+    if (run_chain(m, m->has_s_a ? m->s_a : NULL, m->x, m->s, &m->y))
+        return "the state is not finite after this input change (too large a step)";
     m->cached = 1;
     return NULL;
 }
@@ -513,9 +537,10 @@ double model_time(const ModelData *m) { return m->t; }
 
 static const char *check_parameter(const DuhemVariable *var, double value)
 {
+    const Range *range = &var->range;
     if (!isfinite(value)) return "the value is not finite (NaN or infinite)";
-    if (var->constraint == NONNEGATIVE && value < 0) return "this parameter must be >= 0";
-    if (var->constraint == POSITIVE && value <= 0) return "this parameter must be positive";
+    if (value < range->lower || value > range->upper || (range->strict && value <= range->lower))
+        return range->rule;
     return NULL;
 }
 
@@ -533,9 +558,8 @@ const char *model_validate(ModelData *m)
         return "time or input is not finite";
     if (m->t < m->t_a) return "time is before the last communication point";
     if (m->has_s_a != 0 && m->has_s_a != 1) return "corrupt effect flag";
-    if (m->has_s_a && !(isfinite(m->s_a.w) && isfinite(m->s_a.c) && isfinite(m->s_a.W)
-                        && isfinite(m->s_a.m) && isfinite(m->s_a.y)))
-        return "the effect state is not finite";
+    for (i = 0; m->has_s_a && i < DUHEM_EFFECT_STATES; i++)
+        if (!isfinite(m->s_a[i])) return "the effect state is not finite";
     m->cached = 0;
 #if DUHEM_KIND == DUHEM_RATE_DEPENDENT
     m->rate_dirty = 1;
@@ -665,7 +689,7 @@ const char *model_do_step(ModelData *m, double h)
     if (msg) return msg;
     if (!isfinite(m->t + h)) return "the time would overflow";
     memcpy(m->x_a, m->x, sizeof m->x_a);
-    m->s_a = m->s;
+    memcpy(m->s_a, m->s, sizeof m->s_a);
     m->has_s_a = 1;
     m->t_a = m->t;
     m->u_a = m->u;
