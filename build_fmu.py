@@ -1,246 +1,42 @@
-"""FMU generator: a saved model JSON in, an FMI 2.0 Co-Simulation FMU out.
+"""FMU generator script: a saved model JSON in, an FMI 2.0 Co-Simulation FMU out.
 
 Usage::
 
     python build_fmu.py model.json -o model.fmu [--backend native|python]
 
-(the script's default backend is ``native``: the FMU then runs in simulators
-without Python), or `build_fmu(model_or_json_path, out_path, backend="python")`
-from Python.
-
-The ``python`` backend (pythonfmu)
-----------------------------------
-The FMU's ``resources/`` holds
-
-* ``duhem_slave_<code>.py``: the slave class of ``fmu_src/duhem_slave.py``,
-* ``duhem_core_<code>/``: a copy of the ``fitter/core`` package, the one
-  simulation kernel (numpy only, relative imports only),
-* ``model.json``: the model, as `fitter.core.save_model` writes it,
-* ``duhem_fmu.json``: the kernel package name, the model file name and the
-  variable table of `fitter.fmu.model_description.model_variables`,
-* ``pythonfmu/``: the pythonfmu runtime that pythonfmu embeds.
-
-``<code>`` is a hash of the slave and kernel sources.  pythonfmu's binary
-imports the slave module by name into the host's single Python interpreter, so
-FMUs built by different versions of this project would otherwise share the
-first-loaded slave and kernel; with the hash in the names each version brings
-its own, while FMUs of one version share the modules (each instance still reads
-its own model from its own resources).  The host needs only Python with numpy.
-
-What pythonfmu needs, and how it is given:
-
-* its binary finds the slave class with the regular expression
-  ``^class (\\w+)\\(\\s*Fmi2Slave\\s*\\)\\s*:`` in ``resources/<module>.py``;
-  ``fmu_src/duhem_slave.py`` keeps that literal class statement;
-* `FmuBuilder.build_FMU` imports the script and instantiates the class once
-  (it inserts directories into ``sys.path`` and adds modules to
-  ``sys.modules``); the build runs with the slave copied into a staging
-  directory next to the resources it reads, and ``sys.path`` and the modules it
-  imported are restored afterwards;
-* pythonfmu's own modelDescription omits ``InitialUnknowns``; the built zip is
-  rewritten with the complete modelDescription of
-  `fitter.fmu.model_description.model_description_xml`.
-
-The FMU is written under a temporary name beside `out_path` and renamed into
-place, so a failed build never leaves a partial file; it gets the usual mode
-(0o666 & ~umask) whichever backend wrote it.
-
-The ``native`` backend is `fitter.fmu.native.build_native_fmu`.
+prints the FMU's absolute path (exit status 0), or one line ``error: ...``
+on stderr (exit status 1).  The default backend is ``native``: the FMU then
+runs in simulators without Python.  The generator is `fitter.fmu.build`;
+``import build_fmu; build_fmu.build_fmu(model_or_json_path, out_path,
+backend=...)`` is the same function (``duhem export`` is the same export with
+the package's command line).
 """
 from __future__ import annotations
 
-import argparse
-import contextlib
-import hashlib
-import json
-import os
-import shutil
 import sys
-import tempfile
-import uuid
-import zipfile
-from pathlib import Path
+from typing import Sequence
 
-import fitter.core
-import fmu_src
-from fitter.core import load_model, save_model
-from fitter.fmu.model_description import model_description_xml, model_variables
+import click
 
-__all__ = ["build_fmu", "FmuBuildError", "MODEL_IDENTIFIER", "main"]
+from fitter.cli_support import backend_option, guarded, run_command
+from fitter.fmu.build import BACKENDS, MODEL_IDENTIFIER, FmuBuildError, build_fmu
 
-MODEL_IDENTIFIER = "semilinear_duhem"
-BACKENDS = ("python", "native")
-_SLAVE_SOURCE = Path(fmu_src.__file__).resolve().parent / "duhem_slave.py"
-_CORE_DIR = Path(fitter.core.__file__).resolve().parent
-_GUID_NAMESPACE = uuid.UUID("5b0c1f4e-3a9d-4c1e-9a57-2f3f8d6f1e21")
-_PYTHON_OPTIONS = ("model_name", "description", "version", "author")
+__all__ = ["build_fmu", "FmuBuildError", "MODEL_IDENTIFIER", "BACKENDS", "command", "main"]
 
 
-class FmuBuildError(RuntimeError):
-    """The FMU could not be built; the message says why."""
+@click.command(context_settings={"help_option_names": ["-h", "--help"]})
+@click.argument("model", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="FMU file to write")
+@backend_option
+@guarded
+def command(model: str, output: str, backend: str) -> None:
+    """Export a semilinear Duhem model JSON (duhem fit output) as an FMI 2.0 Co-Simulation FMU."""
+    click.echo(build_fmu(model, output, backend=backend))
 
 
-def _load(model_or_json_path):
-    if isinstance(model_or_json_path, (str, os.PathLike)):
-        return load_model(model_or_json_path)
-    if getattr(model_or_json_path, "kind", None) not in ("ri", "rd"):
-        raise TypeError(f"expected a model or a model JSON path, got {type(model_or_json_path).__name__}")
-    return model_or_json_path
-
-
-def _code_hash() -> str:
-    """Hash of the slave and kernel sources (names the modules shipped in the FMU)."""
-    h = hashlib.sha256(_SLAVE_SOURCE.read_bytes())
-    for path in sorted(_CORE_DIR.glob("*.py")):
-        h.update(path.name.encode())
-        h.update(path.read_bytes())
-    return h.hexdigest()[:12]
-
-
-def _guid(model_json: str, code: str, backend: str) -> str:
-    """Deterministic GUID: same model, same code, same backend -> same GUID."""
-    return "{" + str(uuid.uuid5(_GUID_NAMESPACE, f"{backend}:{code}:{model_json}")) + "}"
-
-
-def _stage(model, staging: Path, code: str) -> tuple[Path, list[Path]]:
-    """Write the slave script and the resources pythonfmu copies into the FMU."""
-    kernel = f"duhem_core_{code}"
-    script = staging / f"duhem_slave_{code}.py"
-    shutil.copyfile(_SLAVE_SOURCE, script)
-    shutil.copytree(_CORE_DIR, staging / kernel, ignore=shutil.ignore_patterns("__pycache__"))
-    save_model(model, staging / "model.json")
-    config = {"model_identifier": MODEL_IDENTIFIER, "kernel_package": kernel,
-              "model_file": "model.json",
-              "variables": [v.to_json() for v in model_variables(model)]}
-    (staging / "duhem_fmu.json").write_text(json.dumps(config, indent=1), encoding="utf-8")
-    return script, [staging / kernel, staging / "model.json", staging / "duhem_fmu.json"]
-
-
-@contextlib.contextmanager
-def _isolated_imports(code: str):
-    """Undo pythonfmu's changes to sys.path and its imports of the staged modules."""
-    saved_path = list(sys.path)
-    try:
-        yield
-    finally:
-        sys.path[:] = saved_path
-        for name in [m for m in sys.modules if m.endswith(code) or f"{code}." in m]:
-            del sys.modules[name]
-
-
-def _rewrite_zip(built: Path, target: Path, xml: str) -> None:
-    """Copy the pythonfmu zip to `target`, with our modelDescription.xml."""
-    with zipfile.ZipFile(built) as src, \
-            zipfile.ZipFile(target, "w", compression=zipfile.ZIP_DEFLATED) as dst:
-        for item in src.infolist():
-            if item.filename != "modelDescription.xml":
-                dst.writestr(item.filename, src.read(item.filename))
-        dst.writestr("modelDescription.xml", xml)
-        binaries = [n for n in src.namelist() if n.startswith("binaries/")]
-    if not any(Path(n).stem == MODEL_IDENTIFIER for n in binaries):
-        raise FmuBuildError(f"pythonfmu named the binaries {binaries}, not {MODEL_IDENTIFIER}.*")
-
-
-def _build_python(model, out_path: Path, **opts) -> None:
-    from pythonfmu.builder import FmuBuilder
-    from pythonfmu import __version__ as pythonfmu_version
-
-    code = _code_hash()
-    with tempfile.TemporaryDirectory(prefix="duhem_fmu_") as tmp:
-        staging = Path(tmp) / "staging"
-        staging.mkdir()
-        script, project_files = _stage(model, staging, code)
-        model_json = (staging / "model.json").read_text(encoding="utf-8")
-        with _isolated_imports(code):
-            built = FmuBuilder.build_FMU(script, dest=Path(tmp) / "pythonfmu.fmu",
-                                         project_files=project_files)
-        opts.setdefault("version", _package_version())
-        xml = model_description_xml(
-            model, model_identifier=MODEL_IDENTIFIER, guid=_guid(model_json, code, "python"),
-            backend="python", generation_tool=f"semilinear-duhem {_package_version()} "
-                                              f"(pythonfmu {pythonfmu_version})", **opts)
-        _rewrite_zip(Path(built), out_path, xml)
-
-
-def _package_version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-    try:
-        return version("semilinear-duhem")
-    except PackageNotFoundError:
-        return "unknown"
-
-
-def _build_native(model, out_path: Path, **opts) -> None:
-    try:
-        from fitter.fmu.native import build_native_fmu
-    except ImportError as exc:
-        raise FmuBuildError(f"the native FMU backend is not available ({exc}); "
-                            "use backend='python'") from None
-    build_native_fmu(model, str(out_path), **opts)
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def build_fmu(model_or_json_path, out_path, *, backend: str = "python", **opts) -> str:
-    """Build an FMI 2.0 Co-Simulation FMU of a model; return the FMU's path.
-
-    Parameters
-    ----------
-    model_or_json_path : model or path
-        A `RateIndependentModel`/`RateDependentModel`, or a model JSON file.
-    out_path : path
-        The FMU to write (replaced atomically).
-    backend : {"python", "native"}
-        ``python``: pythonfmu, needs Python with numpy in the host process.
-        ``native``: C shared library (`fitter.fmu.native`).
-    **opts
-        Python backend: ``model_name``, ``description``, ``version`` (default:
-        the version of semilinear-duhem that exports), ``author``
-        (modelDescription attributes).  Native backend: passed on.
-    """
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown FMU backend {backend!r} (expected one of {', '.join(BACKENDS)})")
-    if backend == "python":
-        unknown = sorted(set(opts) - set(_PYTHON_OPTIONS))
-        if unknown:
-            raise TypeError(f"unknown option(s) for the python backend: {', '.join(unknown)} "
-                            f"(known: {', '.join(_PYTHON_OPTIONS)})")
-    model = _load(model_or_json_path)
-    out = Path(out_path).resolve()
-    if not out.parent.is_dir():
-        raise FileNotFoundError(f"{out_path}: directory {out.parent} does not exist")
-    tmp = out.parent / f".tmp-{uuid.uuid4().hex}-{out.name}"
-    try:
-        (_build_python if backend == "python" else _build_native)(model, tmp, **opts)
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, out)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return str(out)
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Export a semilinear Duhem model JSON as an "
-                                                 "FMI 2.0 Co-Simulation FMU.")
-    parser.add_argument("model", help="model JSON file (duhem fit output)")
-    parser.add_argument("-o", "--output", required=True, help="FMU file to write")
-    parser.add_argument("--backend", choices=BACKENDS, default="native",
-                        help="native (default): C shared library, the simulator needs no Python "
-                             "(needs a C compiler now); python: pythonfmu (the simulator needs "
-                             "Python with numpy)")
-    args = parser.parse_args(argv)
-    try:
-        path = build_fmu(args.model, args.output, backend=args.backend)
-    except (ValueError, TypeError, OSError, FmuBuildError) as exc:
-        print("error: " + " ".join(str(exc).split()), file=sys.stderr)
-        return 1
-    print(path)
-    return 0
+def main(argv: Sequence[str] | None = None) -> int:
+    """`command` on `argv` (default ``sys.argv[1:]``); returns the exit status."""
+    return run_command(command, argv, "build_fmu.py")
 
 
 if __name__ == "__main__":

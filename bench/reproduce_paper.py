@@ -1,9 +1,11 @@
 """Reproduce Oh & Bernstein (2007) Examples 1-3 and print our figures beside the paper's.
 
 Usage: python bench/reproduce_paper.py [--json] [--figures DIR] [--seeds N]
-(the same as `duhem reproduce-paper`); see `fitter.paper.report`.
+runs ``duhem reproduce-paper`` (`fitter.paper.report.command`).
 """
-from fitter.paper.report import main
+import sys
+
+from fitter.cli import main
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    main(["reproduce-paper", *sys.argv[1:]], prog_name="duhem")

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from fitter.core import RateIndependentModel, simulate
-from fitter.data.metrics import compare, last_full_cycle, loop_area, max_error, noise_rms, nrmse
-from fitter.data.preparation import (PreparationError, branch_on_grid, find_holds, find_reversals, prepare,
-                                resample_time, settled_start, split_cycles)
+from fitter.data.cycles import PreparationError, find_reversals, last_full_cycle, split_cycles
+from fitter.data.metrics import compare, loop_area, max_error, nrmse
+from fitter.data.noise import noise_rms
+from fitter.data.preparation import branch_on_grid, find_holds, prepare, resample_time, settled_start
 from fitter.data.recordings import Recording, load_recording
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

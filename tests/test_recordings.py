@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from fitter.data.recordings import Recording, RecordingError, load_recording, load_recordings, split_unit
+from fitter.data.recordings import (Recording, RecordingError, check_samples, load_recording, load_recordings,
+                                    split_unit)
 
 
 def write(tmp_path, text, name="rec.csv"):
@@ -134,3 +135,38 @@ def test_load_recordings_checks_same_signals(tmp_path):
     assert len(load_recordings([a, a])) == 2
     with pytest.raises(RecordingError, match=r"b\.csv: input column is 'u' \[mV\] but .*a\.csv has 'u' \[V\]"):
         load_recordings([a, b], input="u", output="y")
+
+
+# --------------------------------------------------------------------------- samples checked at construction
+
+def test_recording_checks_time_finite_values_and_length():
+    t = np.array([0.0, 1.0, 1.0, 2.0])
+    with pytest.raises(RecordingError, match=r"^r: row 2, column 't': time 1\.0 does not increase "
+                                             r"\(row 1 has 1\.0\)$"):
+        Recording(t, np.zeros(4), np.zeros(4), name="r")
+    with pytest.raises(RecordingError, match=r"^data\.csv: row 3, column 'u': value nan is not finite"):
+        Recording(np.arange(5.0), [0, 1, 2, np.nan, 4], np.zeros(5), name="r", source="data.csv")
+    with pytest.raises(RecordingError, match=r"row 0, column 'y': value -inf is not finite"):
+        Recording(np.arange(3.0), np.zeros(3), [-np.inf, 0, np.nan])
+    with pytest.raises(RecordingError, match=r"too few samples: 1, at least 2 needed"):
+        Recording([0.0], [1.0], [2.0])
+    with pytest.raises(RecordingError,
+                       match=r"t, u, y must be 1-D arrays of equal length \(shapes \(3,\), \(3,\), \(2,\)\)"):
+        Recording(np.arange(3.0), np.zeros(3), np.zeros(2))
+
+
+def test_input_only_recording_has_all_nan_output(tmp_path):
+    rec = Recording(np.arange(3.0), [0.0, 1.0, 0.0], np.full(3, np.nan))
+    assert np.isnan(rec.y).all() and rec.label == "recording"
+    rec = load_recording(write(tmp_path, GOOD), output=None)
+    assert np.isnan(rec.y).all() and rec.label.endswith("rec.csv")
+
+
+def test_check_samples_names_file_lines_and_columns():
+    t, u, y = check_samples([0, 1, 2], [3, 4, 5], source="x")
+    assert t.dtype == float and u.tolist() == [3.0, 4.0, 5.0] and y is None
+    with pytest.raises(RecordingError, match=r"^f\.csv: line 4, column 'time_s': time 0\.5 does not increase "
+                                             r"\(line 3 has 2\.0\)$"):
+        check_samples([1, 2, 0.5], [0, 1, 2], source="f.csv", names=("time_s", "u_V"), rows=[2, 3, 4])
+    with pytest.raises(RecordingError, match=r"too few samples: 2 data rows, at least 3 needed"):
+        check_samples([0, 1], [0, 1], source="f.csv", rows=[2, 3], min_samples=3)

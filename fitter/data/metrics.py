@@ -11,25 +11,18 @@ Definitions (all on sampled signals, samples weighted equally)
   curve as traversed: positive when the loop runs counter-clockwise
   in the (u, y) plane, i.e. the rising branch lies below the falling one, as
   for the paper's loops and a piezo's P-E loop.  Its unit is unit(u)*unit(y).
-* ``noise_rms(y)``: the RMS of additive white noise, estimated from the
-  high-pass residual of a local quadratic fit (Savitzky-Golay, 7 samples):
-  for white noise of variance s^2 the residual has variance s^2 (1 - h0),
-  h0 = the filter's centre weight, so s = robust_rms(residual) / sqrt(1 - h0),
-  with robust_rms = 1.4826 * median |residual| (the median discards the few
-  samples at sharp reversals, where a quadratic does not fit the signal).
-  Assumes the noise-free signal is locally smooth on the 7-sample scale; for
-  quantised data it estimates the quantisation noise (step / sqrt(12)).
+* ``noise_rms``: the estimated RMS of white measurement noise
+  (`fitter.data.noise`); ``last_full_cycle``: the samples of the last full
+  input cycle (`fitter.data.cycles`).
 """
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import savgol_coeffs, savgol_filter
 
-__all__ = ["nrmse", "max_error", "rms", "loop_area", "last_full_cycle", "noise_rms", "compare",
-           "NOISE_WINDOW"]
+from fitter.data.cycles import PreparationError, last_full_cycle
+from fitter.data.noise import NOISE_WINDOW, noise_rms
 
-NOISE_WINDOW = 7
-"""Samples in the local quadratic fit of `noise_rms`."""
+__all__ = ["nrmse", "max_error", "rms", "loop_area", "compare"]
 
 
 def _pair(y, y_hat) -> tuple[np.ndarray, np.ndarray]:
@@ -73,35 +66,6 @@ def loop_area(u, y) -> float:
     return float(0.5 * np.sum(u * np.roll(y, -1) - np.roll(u, -1) * y))
 
 
-def last_full_cycle(u, *, threshold: float | None = None) -> slice:
-    """Samples of the last full input cycle: from the third-last reversal to the last.
-
-    Reversals come from `fitter.data.preparation.find_reversals`; the slice
-    includes both end reversals.  A record with two reversals that covers
-    one whole period gives that period (`fitter.data.preparation.period_cycle`).
-    Raises `PreparationError` when there is no full cycle.
-    """
-    from fitter.data.preparation import PreparationError, find_reversals, period_cycle
-    r = find_reversals(u, threshold=threshold)
-    if len(r) >= 3:
-        return slice(int(r[-3]), int(r[-1]) + 1)
-    whole = period_cycle(u, r)
-    if whole is None:
-        raise PreparationError(f"no full input cycle: the input reverses {len(r)} time(s) and does not "
-                               f"cover a whole period")
-    return whole
-
-
-def noise_rms(y) -> float:
-    """Estimated RMS of white measurement noise on y (see the module docstring)."""
-    y = np.asarray(y, dtype=float).ravel()
-    if y.size < 2 * NOISE_WINDOW:
-        raise ValueError(f"noise estimate needs at least {2 * NOISE_WINDOW} samples, got {y.size}")
-    residual = y - savgol_filter(y, NOISE_WINDOW, 2, mode="interp")
-    h0 = savgol_coeffs(NOISE_WINDOW, 2)[NOISE_WINDOW // 2]
-    return float(1.4826 * np.median(np.abs(residual)) / np.sqrt(1.0 - h0))
-
-
 def compare(rec, y_hat) -> dict:
     """Fit measures of a model output `y_hat` against recording `rec` (JSON-able dict).
 
@@ -122,7 +86,7 @@ def compare(rec, y_hat) -> dict:
            "loop_area": None, "loop_area_model": None, "loop_area_error": None}
     try:
         s = last_full_cycle(rec.u)
-    except ValueError:
+    except PreparationError:
         return out
     u = rec.u[s]
     a_data, a_model = loop_area(u, y[s]), loop_area(u, y_hat[s])

@@ -2,17 +2,11 @@
 
 Steps of `prepare` (each result is kept in the returned `Prepared`):
 
-1. **Reversals** of the input (`find_reversals`): a hysteresis (zig-zag)
-   detector.  While the input rises, its running maximum is tracked; the
-   maximum counts as a reversal only once the input has fallen below it by
-   more than a threshold, and vice versa.  The default threshold is
-   ``max(0.05 * range(u), 6 * noise_rms(u))``, so noise and quantisation steps
-   never create reversals, and minor loops smaller than 5% of the range are
-   not split off.  The reversal index is the first sample at the extreme.
-2. **Cycles** (`split_cycles`): a full cycle runs from one reversal to the
-   second next (min -> max -> min or max -> min -> max), both ends included;
-   consecutive cycles share their end sample.  The kind of start giving more
-   cycles is used (ties: minima).
+1. **Reversals** of the input (`fitter.data.cycles.find_reversals`, the
+   threshold policy documented there).
+2. **Cycles** (`fitter.data.cycles.cycle_reversals`): full cycles from one
+   reversal to the second next; a record that is one whole period from
+   mid-branch is one cycle (`fitter.data.cycles.period_cycle`).
 3. **Settling** (`settled_start`): successive cycles are compared at matched
    input: on each branch, cycle k+1's output is interpolated linearly in u at
    cycle k's input samples over the input range both cover (2% trimmed at
@@ -40,143 +34,20 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-
-from fitter.core.errors import DuhemError
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
-from fitter.data.metrics import NOISE_WINDOW, noise_rms
+from fitter.data.cycles import (PreparationError, closing_period, cycle_reversals, find_reversals,
+                                period_cycle, reversal_threshold)
+from fitter.data.noise import noise_or_zero
 from fitter.data.recordings import Recording
 
-__all__ = ["PreparationError", "Prepared", "find_reversals", "reversal_threshold", "split_cycles",
-           "period_cycle", "cycle_reversals", "settled_start", "cycle_differences", "find_holds", "branch_on_grid",
-           "resample_time", "prepare"]
+__all__ = ["Prepared", "settled_start", "cycle_differences", "find_holds", "branch_on_grid", "resample_time",
+           "prepare"]
 
-REVERSAL_FRACTION = 0.05
-REVERSAL_NOISE_FACTOR = 6.0
 SETTLE_FRACTION = 0.002
 SETTLE_BINS = 32
 HOLD_FRACTION = 0.002
 HOLD_MIN_SAMPLES = 9
-
-
-class PreparationError(DuhemError):
-    """A recording that cannot be prepared (e.g. too few input cycles)."""
-
-
-def _label(rec: Recording) -> str:
-    return rec.source if rec.source != "generated" else rec.name
-
-
-def _noise(a: np.ndarray) -> float:
-    return noise_rms(a) if a.size >= 2 * NOISE_WINDOW else 0.0
-
-
-def reversal_threshold(u) -> float:
-    """Default reversal threshold ``max(0.05 * range(u), 6 * noise_rms(u))``."""
-    u = np.asarray(u, dtype=float)
-    return max(REVERSAL_FRACTION * float(np.ptp(u)), REVERSAL_NOISE_FACTOR * _noise(u))
-
-
-def find_reversals(u, *, threshold: float | None = None) -> np.ndarray:
-    """Indices of the input's reversals (alternating maxima and minima).
-
-    An extreme counts once the input has moved back from it by more than
-    `threshold` (default `reversal_threshold`); the start and the end of
-    the signal are not reversals.
-    """
-    u = np.asarray(u, dtype=float).ravel()
-    if u.size < 3:
-        return np.zeros(0, dtype=int)
-    thr = reversal_threshold(u) if threshold is None else float(threshold)
-    if not thr > 0:
-        return np.zeros(0, dtype=int)
-    found = []
-    i_max = i_min = 0
-    direction = 0
-    ext = 0
-    for k in range(1, u.size):
-        v = u[k]
-        if direction == 0:
-            if v > u[i_max]:
-                i_max = k
-            if v < u[i_min]:
-                i_min = k
-            if v - u[i_min] > thr:
-                direction, ext = 1, k
-            elif u[i_max] - v > thr:
-                direction, ext = -1, k
-        elif direction > 0:
-            if v > u[ext]:
-                ext = k
-            elif u[ext] - v > thr:
-                found.append(ext)
-                direction, ext = -1, k
-        else:
-            if v < u[ext]:
-                ext = k
-            elif v - u[ext] > thr:
-                found.append(ext)
-                direction, ext = 1, k
-    return np.asarray(found, dtype=int)
-
-
-def _as_u(rec_or_u) -> np.ndarray:
-    return np.asarray(rec_or_u.u if isinstance(rec_or_u, Recording) else rec_or_u, dtype=float)
-
-
-def cycle_reversals(rec_or_u, *, threshold: float | None = None,
-                    reversals: np.ndarray | None = None) -> list[tuple[int, int, int]]:
-    """Full cycles as (start, middle, end) reversal indices (see `split_cycles`)."""
-    u = _as_u(rec_or_u)
-    r = find_reversals(u, threshold=threshold) if reversals is None else np.asarray(reversals)
-    if len(r) < 3:
-        return []
-    starts = [j for j in range(0, len(r) - 2, 2)], [j for j in range(1, len(r) - 2, 2)]
-    first_is_min = u[r[0]] < u[r[1]]
-    by_min = starts[0] if first_is_min else starts[1]
-    by_max = starts[1] if first_is_min else starts[0]
-    chosen = by_min if len(by_min) >= len(by_max) else by_max
-    return [(int(r[j]), int(r[j + 1]), int(r[j + 2])) for j in chosen]
-
-
-def period_cycle(u, reversals: np.ndarray) -> slice | None:
-    """The whole-period cycle of a record without a reversal-to-reversal cycle, or None.
-
-    A record that starts mid-branch, passes one maximum and one minimum and
-    comes back to its starting input in the starting direction (e.g. one
-    period of a triangle from 0 V) holds one full cycle: from sample 0 to the
-    first sample after the second reversal at which the input is back at
-    u[0], or to the last sample if it ends within ``0.01 * range(u)`` short
-    of u[0].
-    """
-    u = np.asarray(u, dtype=float)
-    r = np.asarray(reversals)
-    if len(r) < 2 or len(r) >= 3:
-        return None
-    rising = u[r[0]] > u[r[1]]
-    back = np.flatnonzero(u[r[1]:] >= u[0] if rising else u[r[1]:] <= u[0])
-    if back.size:
-        return slice(0, int(r[1] + back[0]) + 1)
-    if abs(u[-1] - u[0]) <= 0.01 * float(np.ptp(u)):
-        return slice(0, u.size)
-    return None
-
-
-def split_cycles(rec, *, threshold: float | None = None) -> list[slice]:
-    """Full input cycles of a recording (or input array) as slices.
-
-    A cycle runs from a reversal to the second next one, both included, so
-    u[s][0] and u[s][-1] are extremes of the same kind.  Without such a
-    cycle, a record covering one whole period from mid-branch gives one
-    cycle (`period_cycle`).
-    """
-    u = _as_u(rec)
-    r = find_reversals(u, threshold=threshold)
-    cycles = [slice(a, c + 1) for a, _, c in cycle_reversals(u, reversals=r)]
-    if not cycles:
-        whole = period_cycle(u, r)
-        cycles = [whole] if whole is not None else []
-    return cycles
 
 
 def _bin_stats(u: np.ndarray, v: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -264,7 +135,7 @@ def find_holds(t, u, *, min_samples: int = HOLD_MIN_SAMPLES, band: float | None 
     stays within `band` (default ``max(0.002 range(u), 8 noise_rms(u))``).
     """
     u = np.asarray(u, dtype=float)
-    band = max(HOLD_FRACTION * float(np.ptp(u)), 8.0 * _noise(u)) if band is None else band
+    band = max(HOLD_FRACTION * float(np.ptp(u)), 8.0 * noise_or_zero(u)) if band is None else band
     L = int(min_samples) | 1
     if u.size < L:
         return []
@@ -311,7 +182,7 @@ def resample_time(rec: Recording, dt: float | None = None) -> Recording:
     """
     step = float(np.median(np.diff(rec.t))) if dt is None else float(dt)
     if not step > 0:
-        raise PreparationError(f"{_label(rec)}: time step must be positive, got {step}")
+        raise PreparationError(f"{rec.label}: time step must be positive, got {step}")
     t = rec.t[0] + step * np.arange(int(np.floor((rec.t[-1] - rec.t[0]) / step + 1e-9)) + 1)
     return Recording(t, np.interp(t, rec.t, rec.u), np.interp(t, rec.t, rec.y), rec.name, rec.input,
                      rec.output, rec.source)
@@ -338,6 +209,26 @@ class Prepared:
     def n_cycles(self) -> int:
         return len(self.cycles)
 
+    def first_cycle(self) -> tuple[int, int]:
+        """(s0, s1): first and last sample, both included, of the first settled full cycle.
+
+        Without a full cycle: the whole recording when it is one closing
+        period (`fitter.data.cycles.closing_period`).  The indices refer to
+        `recording` (the trimmed recording; add `transient_end` for `original`).
+
+        Raises
+        ------
+        PreparationError
+            Neither a full cycle nor one closing period; the message names
+            the recording and its number of reversals.
+        """
+        s = self.cycles[0] if self.cycles else closing_period(self.recording.u, self.reversals)
+        if s is None:
+            raise PreparationError(f"{self.recording.name}: too few cycles: no full input cycle "
+                                   f"({len(self.reversals)} reversals) and the recording is not one "
+                                   f"closing period")
+        return s.start, s.stop - 1
+
     def to_dict(self) -> dict:
         """JSON-able summary (indices refer to the trimmed recording)."""
         r = self.recording
@@ -362,7 +253,7 @@ def prepare(rec: Recording, *, min_cycles: int = 1, threshold: float | None = No
     Raises `PreparationError` ("too few cycles") when fewer than
     `min_cycles` full input cycles remain.  See the module docstring.
     """
-    label = _label(rec)
+    label = rec.label
     thr = reversal_threshold(rec.u) if threshold is None else float(threshold)
     r = find_reversals(rec.u, threshold=thr)
     cycles = cycle_reversals(rec.u, reversals=r)
@@ -371,7 +262,7 @@ def prepare(rec: Recording, *, min_cycles: int = 1, threshold: float | None = No
     if n_cycles < min_cycles:
         raise PreparationError(f"{label}: too few cycles: the input has {n_cycles} full cycle(s) "
                                f"({len(r)} reversals by more than {thr:.4g}), at least {min_cycles} needed")
-    sigma, sigma_u = _noise(rec.y), _noise(rec.u)
+    sigma, sigma_u = noise_or_zero(rec.y), noise_or_zero(rec.u)
     notes = [f"{len(r)} input reversals (threshold {thr:.4g}), {n_cycles} full cycle(s)"]
     first, d, drift, tol = _settling(rec.u, rec.y, cycles) if cycles else (0, np.zeros(0), 0.0, 0.0)
     start = cycles[first][0] if (cycles and drop_transient) else 0

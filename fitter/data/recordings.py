@@ -40,7 +40,7 @@ import numpy as np
 from fitter.core.errors import DuhemError
 from fitter.core.models import Signal
 
-__all__ = ["Recording", "RecordingError", "load_recording", "load_recordings", "split_unit",
+__all__ = ["Recording", "RecordingError", "check_samples", "load_recording", "load_recordings", "split_unit",
            "MIN_SAMPLES"]
 
 MIN_SAMPLES = 3
@@ -58,12 +58,66 @@ class RecordingError(DuhemError):
     """A recording file or column that cannot be used; the message names file, column, line, value."""
 
 
+def check_samples(t, u, y=None, *, source: str, names: Sequence[str] = ("t", "u", "y"),
+                  rows: Sequence[int] | None = None,
+                  min_samples: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Check the samples of one experiment; return t, u, y as float arrays (y None if not given).
+
+    In this order: t, u (and y) are 1-D and of equal length; there are at
+    least `min_samples` samples; every value is finite, except that y may
+    be all NaN (no output recorded, e.g. an input to simulate); time
+    increases strictly, ``t[k+1] > t[k]``.
+
+    Parameters
+    ----------
+    t, u, y : the samples (y optional).
+    source : what the samples are, first in every message (file or recording name).
+    names : column names of t, u, y in the messages.
+    rows : position of each sample in the messages: ``line rows[k]`` (e.g.
+        the file's line numbers); by default ``row k`` (0-based).
+    min_samples : fewest samples accepted.
+
+    Raises
+    ------
+    RecordingError
+        One line naming `source`, the column, the row (or line) and the value.
+    """
+    arrays = [np.asarray(a, dtype=float) for a in ((t, u) if y is None else (t, u, y))]
+    if any(a.ndim != 1 for a in arrays) or len({a.size for a in arrays}) != 1:
+        raise RecordingError(f"{source}: {', '.join(names[:len(arrays)])} must be 1-D arrays of equal "
+                             f"length (shapes {', '.join(str(a.shape) for a in arrays)})")
+    if arrays[0].size < min_samples:
+        count = f"{arrays[0].size} data rows" if rows is not None else f"{arrays[0].size}"
+        raise RecordingError(f"{source}: too few samples: {count}, at least {min_samples} needed")
+    where = (lambda k: f"line {rows[k]}") if rows is not None else (lambda k: f"row {k}")
+    for i, (name, a) in enumerate(zip(names, arrays)):
+        bad = np.flatnonzero(~np.isfinite(a))
+        if bad.size and not (i == 2 and np.isnan(a).all()):
+            raise RecordingError(f"{source}: {where(bad[0])}, column {name!r}: value {float(a[bad[0]])!r} "
+                                 f"is not finite (NaN or infinity)")
+    _check_increasing(arrays[0], source, names[0], where)
+    return arrays[0], arrays[1], arrays[2] if y is not None else None
+
+
+def _check_increasing(t: np.ndarray, source: str, name: str, where) -> None:
+    """`RecordingError` at the first k with t[k] <= t[k-1]."""
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if back.size:
+        k = int(back[0]) + 1
+        raise RecordingError(f"{source}: {where(k)}, column {name!r}: time {float(t[k])!r} does not increase "
+                             f"({where(k - 1)} has {float(t[k - 1])!r})")
+
+
 @dataclass
 class Recording:
     """One experiment: time t, input u, output y (equal-length float arrays).
 
     `name` is a short label (the file stem); `input` and `output` carry the
     column names and units; `source` is the file path (or "generated").
+    The samples are checked at construction (`check_samples`: at least two,
+    finite, time strictly increasing; y all NaN when no output was
+    recorded); a bad sample is a `RecordingError` naming `label`, the
+    column, the row and the value.
     """
 
     t: np.ndarray
@@ -75,11 +129,12 @@ class Recording:
     source: str = "generated"
 
     def __post_init__(self):
-        self.t = np.asarray(self.t, dtype=float)
-        self.u = np.asarray(self.u, dtype=float)
-        self.y = np.asarray(self.y, dtype=float)
-        if not (self.t.shape == self.u.shape == self.y.shape and self.t.ndim == 1):
-            raise ValueError(f"{self.name}: t, u, y must be 1-D arrays of equal length")
+        self.t, self.u, self.y = check_samples(self.t, self.u, self.y, source=self.label)
+
+    @property
+    def label(self) -> str:
+        """The file the recording came from, or its name when it was generated."""
+        return self.source if self.source != "generated" else self.name
 
     def __len__(self) -> int:
         return len(self.t)
@@ -222,20 +277,11 @@ def load_recording(path: str | os.PathLike, time: str | int | None = "time", inp
         if spec is not None:
             cols[role] = _find_column(spec, header, path, role)
     values = {role: _column_values(rows, numbers, i, header[i], path) for role, i in cols.items()}
-    if len(rows) < min_samples:
-        raise RecordingError(f"{path}: too few samples: {len(rows)} data rows, at least {min_samples} needed")
+    t = values["time"] if "time" in values else np.arange(len(rows), dtype=float)
+    names = [header[cols["time"]] if "time" in cols else "sample index", header[cols["input"]]]
+    check_samples(t, values["input"], source=path, names=names, rows=numbers, min_samples=min_samples)
     if "time" in values:
-        t = values["time"]
-        tname, tunit = split_unit(header[cols["time"]])
-        bad = np.flatnonzero(np.diff(t) <= 0)
-        if bad.size:
-            k = bad[0] + 1
-            raise RecordingError(f"{path}: line {numbers[k]}, column {header[cols['time']]!r}: time "
-                                 f"{rows[k][cols['time']].strip()} does not increase (line {numbers[k - 1]} "
-                                 f"has {rows[k - 1][cols['time']].strip()})")
-        t = t * _TIME_SCALE.get(tunit, 1.0)
-    else:
-        t = np.arange(len(rows), dtype=float)
+        t = t * _TIME_SCALE.get(split_unit(header[cols["time"]])[1], 1.0)
     signals = {"output": Signal("y")}
     for role in ("input", "output"):
         if role in cols:

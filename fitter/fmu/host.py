@@ -9,19 +9,25 @@ that host the FMU reproduces `fitter.core.simulate` of the sampled input.
 """
 from __future__ import annotations
 
+import json
 import os
 import shutil
+import zipfile
 from ctypes import byref
 from pathlib import Path
 
 import numpy as np
 
+from fitter.core.errors import DuhemError
+from fitter.core.models import model_from_dict
+from fitter.data.recordings import check_samples
+
 _FMI2_FATAL = 4
 
-__all__ = ["simulate_fmu", "validate_fmu_file", "collecting_callbacks", "FmuRunError"]
+__all__ = ["simulate_fmu", "validate_fmu_file", "model_in_fmu", "collecting_callbacks", "FmuRunError"]
 
 
-class FmuRunError(RuntimeError):
+class FmuRunError(DuhemError, RuntimeError):
     """The FMU could not be loaded or driven; the message says why."""
 
 
@@ -38,21 +44,20 @@ def validate_fmu_file(fmu_path: str | os.PathLike) -> list[str]:
     return list(validate_fmu(str(fmu_path)))
 
 
-def _check_input(t, u) -> tuple[np.ndarray, np.ndarray]:
+def model_in_fmu(fmu_path: str | os.PathLike):
+    """The model stored in the FMU's ``resources/model.json`` (None when there is none)."""
+    with zipfile.ZipFile(fmu_path) as z:
+        if "resources/model.json" not in z.namelist():
+            return None
+        data = json.loads(z.read("resources/model.json").decode("utf-8"))
+    return model_from_dict(data, source=f"{fmu_path}!resources/model.json")
+
+
+def _check_input(t, u, fmu_path) -> tuple[np.ndarray, np.ndarray]:
+    """t (the sample index when None) and u as float arrays, checked by `check_samples`."""
     u = np.asarray(u, dtype=float).ravel()
-    t = np.arange(len(u), dtype=float) if t is None else np.asarray(t, dtype=float).ravel()
-    if len(t) != len(u):
-        raise ValueError(f"t and u differ in length ({len(t)} and {len(u)})")
-    if len(u) == 0:
-        raise ValueError("empty input")
-    for name, a in (("t", t), ("u", u)):
-        bad = np.flatnonzero(~np.isfinite(a))
-        if bad.size:
-            raise ValueError(f"{name}[{bad[0]}] is {a[bad[0]]} (NaN or infinite)")
-    bad = np.flatnonzero(np.diff(t) <= 0)
-    if bad.size:
-        raise ValueError(f"time must increase: t[{bad[0] + 1}] = {t[bad[0] + 1]} "
-                         f"after t[{bad[0]}] = {t[bad[0]]}")
+    t = np.arange(u.size, dtype=float) if t is None else np.asarray(t, dtype=float).ravel()
+    t, u, _ = check_samples(t, u, source=f"input of {Path(fmu_path).name}", min_samples=1)
     return t, u
 
 
@@ -113,7 +118,7 @@ def simulate_fmu(fmu_path: str | os.PathLike, t, u) -> np.ndarray:
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
-    t, u = _check_input(t, u)
+    t, u = _check_input(t, u, fmu_path)
     if not Path(fmu_path).is_file():
         raise FileNotFoundError(f"{fmu_path}: no such FMU file")
     md = read_model_description(str(fmu_path))

@@ -3,8 +3,8 @@
 One function, `model_variables`, fixes the FMU interface of a model (names,
 value references, start values and where each value lives in the model's JSON
 dictionary); `model_description_xml` writes the complete modelDescription from
-it.  Both the pythonfmu backend (`build_fmu`) and the native C backend use them,
-so the two FMUs of one model have the same interface.
+it.  Both the pythonfmu backend (`fitter.fmu.build`) and the native C backend
+use them, so the two FMUs of one model have the same interface.
 
 Interface
 ---------

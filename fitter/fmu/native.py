@@ -17,7 +17,10 @@ Layout of the C, after the Modelica Reference-FMUs:
 * ``model_data.h``: generated here, numbers only: kind, order, parameter start
   values, the value-reference table of
   `fitter.fmu.model_description.model_variables` (so both backends have the same
-  interface), and where each effect parameter lives.
+  interface) with each parameter's allowed range, and the effect chain: the
+  list DUHEM_EFFECTS of the effects of `fitter.core.effects.REGISTRY` that the C
+  implements, whether the model has each, where its parameters and its state
+  live (docs/developer.md, "Adding an effect").
 
 ``resources/model.json`` carries the model itself (not read by the C; `duhem
 validate` compares the FMU with its in-process simulation).
@@ -32,6 +35,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import shutil
 import struct
@@ -42,8 +46,11 @@ import uuid
 import zipfile
 from pathlib import Path
 
+import numpy as np
+
 import fmu_src.native
-from fitter.core.effects import EFFECTS
+from fitter.core.effects import REGISTRY, ParameterSpec
+from fitter.core.files import atomic_file
 from fitter.core.rates import TabulatedRate
 from fitter.fmu.model_description import U_REF, Y_REF, model_description_xml, model_variables
 
@@ -64,9 +71,8 @@ LOG_CATEGORIES = {
 OPTIMIZE = ("-O2",)
 SANITIZE = ("-O1", "-g", "-fno-omit-frame-pointer", "-fsanitize=address,undefined",
             "-fno-sanitize-recover=undefined")
-NATIVE_EFFECTS = frozenset({"backlash", "rate_dependence", "creep", "viscous", "thermal_drift",
-                            "saturation", "sensor_lag"})
-"""The effects of `fitter.core.effects` that duhem_model.c implements."""
+NATIVE_EFFECTS = frozenset(name for name, spec in REGISTRY.items() if spec.native)
+"""The effects of `fitter.core.effects.REGISTRY` that duhem_model.c implements (`EffectSpec.native`)."""
 _GUID_NAMESPACE = uuid.UUID("0f8a3c52-6f7e-4d0b-8e61-0c1f3b9d2a74")
 _COMPILERS = ("cc", "gcc", "clang")
 
@@ -110,27 +116,52 @@ def _c_string(text: str) -> str:
 
 
 def _effect_macros(model, real_index: dict) -> list[str]:
+    """DUHEM_EFFECT_STATES and the DUHEM_EFFECTS(X) list of duhem_model.h, from `REGISTRY`.
+
+    Every native effect appears, in chain order, as X(name, stage, present,
+    index of its first parameter, offset of its state); the C reads an
+    effect's parameters as one block, so they must be consecutive.
+    """
     present = {e.effect for e in getattr(model, "effects", None) or []}
-    lines = []
-    for effect, params in ((k, v) for k, v in EFFECTS.items() if k in NATIVE_EFFECTS):
-        for name in params:
-            index = real_index.get(f"{effect}.{name}", -1) if effect in present else -1
-            lines.append(f"#define DUHEM_EFFECT_{effect.upper()}_{name.upper()} {index}")
-    return lines
+    entries, offset = [], 0
+    for name, spec in REGISTRY.items():
+        if name not in NATIVE_EFFECTS:
+            continue
+        index = 0
+        if name in present:
+            indices = [real_index[f"{name}.{par.name}"] for par in spec.parameters]
+            if indices != list(range(indices[0], indices[0] + len(indices))):
+                raise RuntimeError(f"effect {name!r}: parameters are not consecutive in the C layout")
+            index = indices[0]
+        entries.append(f"    X({name}, STAGE_{spec.stage.upper()}, {int(name in present)}, {index}, "
+                       f"{offset if name in present else 0})")
+        offset += len(spec.state) if name in present else 0
+    return [f"#define DUHEM_EFFECT_STATES {offset}",
+            "#define DUHEM_EFFECTS(X)" + "".join(f" \\\n{entry}" for entry in entries)]
 
 
-def _constraint(name: str) -> str:
+def _parameter_spec(name: str) -> ParameterSpec | None:
+    """The `ParameterSpec` of an effect parameter variable ``<effect>.<parameter>``, else None."""
     effect, _, param = name.partition(".")
-    rng = EFFECTS.get(effect, {}).get(param)
-    if rng is None or rng[0] != 0.0:
+    spec = REGISTRY.get(effect)
+    return next((par for par in spec.parameters if par.name == param), None) if spec else None
+
+
+def _c_bound(value: float) -> str:
+    return _c_double(value) if math.isfinite(value) else ("HUGE_VAL" if value > 0 else "-HUGE_VAL")
+
+
+def _range(name: str) -> str:
+    """The C `Range` initializer of a Real parameter: an effect parameter's allowed range."""
+    par = _parameter_spec(name)
+    if par is None or (par.lower == -math.inf and par.upper == math.inf):
         return "ANY_FINITE"
-    return "POSITIVE" if len(rng) > 2 else "NONNEGATIVE"
+    return (f"{{{_c_bound(par.lower)}, {_c_bound(par.upper)}, {int(par.strict)}, "
+            f"{_c_string('this parameter must be ' + par.rule())}}}")
 
 
 def _base_paths(model) -> list[tuple]:
     """Paths of the base parameters in the C layout of duhem_model.c, in order."""
-    import numpy as np
-
     paths = []
     for key in model.PARAMS:
         value = np.asarray(getattr(model, key))
@@ -169,7 +200,7 @@ def model_data_header(model, guid: str) -> str:
             rows.append((v.name, v.value_reference, "r", "VAR_OUTPUT", 0, "ANY_FINITE"))
         elif v.type == "Real":
             rows.append((v.name, v.value_reference, "r", "VAR_PARAMETER", real_index[v.name],
-                         _constraint(v.name)))
+                         _range(v.name)))
         elif v.type == "Integer":
             rows.append((v.name, v.value_reference, "i", "VAR_INTEGER", int(v.start),
                          "ANY_FINITE"))
@@ -198,8 +229,8 @@ def model_data_header(model, guid: str) -> str:
     lines += [f"    {_c_double(v.start)}, /* {v.name} */" for v in params]
     lines += ["};", "", f"#define DUHEM_N_VARIABLES {len(rows)}",
               "static const DuhemVariable duhem_variables[DUHEM_N_VARIABLES] = {"]
-    lines += [f"    {{{_c_string(name)}, {vr}, '{t}', {role}, {index}, {constraint}}},"
-              for name, vr, t, role, index, constraint in rows]
+    lines += [f"    {{{_c_string(name)}, {vr}, '{t}', {role}, {index}, {allowed}}},"
+              for name, vr, t, role, index, allowed in rows]
     lines += ["};", "", "static const char *const duhem_strings[] = {" + _c_string(strings[0])
               + "};", "", "#endif", ""]
     return "\n".join(lines)
@@ -246,20 +277,13 @@ def _package(out_path: str | os.PathLike, xml: str, files: dict[str, str], c_fil
             (sources / name).write_text(text, encoding="utf-8")
         library = Path(tmp) / f"{model_identifier}{suffix}"
         _compile(compiler, sources, c_files, library, sanitize)
-        fd, staging = tempfile.mkstemp(prefix=".tmp-", suffix=".fmu", dir=out.parent)
-        os.close(fd)
-        try:
-            with zipfile.ZipFile(staging, "w", zipfile.ZIP_DEFLATED) as zf:
-                zf.writestr("modelDescription.xml", xml)
-                zf.write(library, f"binaries/{platform}/{library.name}")
-                for path in sorted(sources.iterdir()):
-                    zf.write(path, f"sources/{path.name}")
-                for name, text in (resources or {}).items():
-                    zf.writestr(f"resources/{name}", text)
-            os.replace(staging, out)
-        finally:
-            if os.path.exists(staging):
-                os.unlink(staging)
+        with atomic_file(out) as staging, zipfile.ZipFile(staging, "w", zipfile.ZIP_DEFLATED) as zf:
+            zf.writestr("modelDescription.xml", xml)
+            zf.write(library, f"binaries/{platform}/{library.name}")
+            for path in sorted(sources.iterdir()):
+                zf.write(path, f"sources/{path.name}")
+            for name, text in (resources or {}).items():
+                zf.writestr(f"resources/{name}", text)
     return str(out)
 
 

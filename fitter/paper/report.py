@@ -3,30 +3,32 @@
 `run` identifies all three examples (Example 1: `fitter.paper.example1`;
 Examples 2-3: `fitter.identification.rd_triangles` with the paper-literal and the
 improved estimator), checks the project's done-when figures, and optionally
-saves PNGs like the paper's Figs. 1, 3-6.  `main` is the command line
-(`bench/reproduce_paper.py`, `duhem reproduce-paper`): a readable table, or
-``--json``; its exit status is 1 when a done-when check fails.
+saves PNGs like the paper's Figs. 1, 3-6.  `command` is the command line
+(``duhem reproduce-paper``, ``bench/reproduce_paper.py``; `main` runs it as a
+function): a readable table, or ``--json``; its exit status is 1 when a
+done-when check fails.
 """
 from __future__ import annotations
 
-import argparse
-import json
 import time
 from pathlib import Path
+from typing import Sequence
 
-from fitter.paper import example2, example3
+import click
 
-__all__ = ["run", "checks", "format_table", "main", "TIME_LIMIT_S"]
+from fitter.cli_support import run_command
+from fitter.core.files import json_text
+from fitter.paper import example1, example2, example3
+
+__all__ = ["run", "checks", "format_table", "command", "main", "TIME_LIMIT_S", "DEFAULT_SEEDS"]
 
 TIME_LIMIT_S = 15.0
+DEFAULT_SEEDS = 20
+"""Noise seeds of Example 2 by default."""
 
 
 def _example1(figures_dir: str | None) -> tuple[dict, list[str]]:
-    """Example 1 from `fitter.paper.example1` (imported here: it is another module's work)."""
-    try:
-        from fitter.paper import example1
-    except ImportError as exc:
-        return {"error": f"fitter.paper.example1 unavailable: {exc}"}, []
+    """Example 1 from `fitter.paper.example1`."""
     result = example1.run_example1()
     paths = []
     if figures_dir is not None:
@@ -71,7 +73,7 @@ def checks(result: dict) -> list[dict]:
     return out
 
 
-def run(seeds: int = 20, figures_dir: str | None = None, workers: int = 2) -> dict:
+def run(seeds: int = DEFAULT_SEEDS, figures_dir: str | None = None, workers: int = 2) -> dict:
     """Run the three examples; JSON-able result with checks and the run time.
 
     Figures (when `figures_dir` is given, created if missing): fig1_example1,
@@ -176,19 +178,27 @@ def format_table(result: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Command line: print the table (or --json); exit status 1 when a check fails."""
-    parser = argparse.ArgumentParser(prog="reproduce-paper", description=__doc__.splitlines()[0])
-    parser.add_argument("--json", action="store_true", help="print the result as JSON")
-    parser.add_argument("--figures", metavar="DIR", help="save PNG figures (Figs. 1, 3-6) to DIR")
-    parser.add_argument("--seeds", type=int, default=20, help="noise seeds for Example 2 (default 20)")
-    args = parser.parse_args(argv)
-    if args.seeds < 1:
-        parser.error(f"--seeds must be >= 1, got {args.seeds}")
-    result = run(seeds=args.seeds, figures_dir=args.figures)
-    print(json.dumps(result, indent=2) if args.json else format_table(result))
-    return 0 if all(c["pass"] for c in result["checks"]) else 1
+def _positive(ctx: click.Context, param: click.Parameter, value: int) -> int:
+    if value < 1:
+        raise click.BadParameter(f"--seeds must be >= 1, got {value}", ctx, param)
+    return value
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+@click.command("reproduce-paper")
+@click.option("--json", "as_json", is_flag=True, help="print the figures as JSON")
+@click.option("--figures", type=click.Path(file_okay=False), metavar="DIR",
+              help="save PNG figures like the paper's (Figs. 1, 3-6) here")
+@click.option("--seeds", type=int, default=DEFAULT_SEEDS, show_default=True, callback=_positive,
+              help="number of noise seeds for Example 2")
+@click.pass_context
+def command(ctx: click.Context, as_json: bool, figures: str | None, seeds: int) -> None:
+    """Reproduce Examples 1-3 of Oh & Bernstein (2007): our figures beside the paper's."""
+    result = run(seeds=seeds, figures_dir=figures)
+    click.echo(json_text(result) if as_json else format_table(result))
+    if not all(c["pass"] for c in result["checks"]):
+        ctx.exit(1)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """`command` on `argv`: 0 when every check passes, else 1; a usage error exits with status 2."""
+    return run_command(command, argv, "reproduce-paper")

@@ -1,4 +1,4 @@
-"""HTML + PNG report of a `fitter.diagnosis.diagnose.Diagnosis`.
+"""HTML + PNG report of a `fitter.diagnosis.Diagnosis`.
 
 `write_diagnosis_report(diagnosis, recordings, directory)` writes
 
@@ -12,20 +12,22 @@
   table, the mismatch location tables, the figures.
 
 Everything is written into a temporary directory beside `directory`, which
-then replaces `directory` (rename), so a reader never sees a half-written report.
+then replaces `directory` (`fitter.core.files.atomic_directory`), so a reader
+never sees a half-written report; `fill_diagnosis_report` writes the same files
+into a directory the caller provides.
 """
 from __future__ import annotations
 
 import html
 import os
-import shutil
-import tempfile
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
-__all__ = ["write_diagnosis_report"]
+from fitter.core.files import atomic_directory
+
+__all__ = ["write_diagnosis_report", "fill_diagnosis_report"]
 
 
 def _split(diagnosis, recordings) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -148,26 +150,21 @@ def _html(diagnosis) -> str:
 
 
 def write_diagnosis_report(diagnosis, recordings, directory: str | os.PathLike) -> Path:
-    """Write the report (PNGs + ``index.html``) to `directory`, replacing it atomically; returns its path."""
+    """Write the report (PNGs + ``index.html``) as `directory` (created, or replaced as a
+    whole; missing parents are created); returns its absolute path."""
+    target = Path(directory).resolve()
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_directory(target) as tmp:
+        fill_diagnosis_report(diagnosis, recordings, tmp)
+    return target
+
+
+def fill_diagnosis_report(diagnosis, recordings, directory: Path) -> None:
+    """Write the report's files into the existing directory `directory`."""
     import matplotlib
 
     matplotlib.use("Agg")
-    target = Path(directory).resolve()
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".tmp-report-", dir=target.parent))
-    try:
-        _residual_map(diagnosis, recordings, tmp / "residual_map.png")
-        _loops(diagnosis, recordings, tmp / "loops.png")
-        _nrmse(diagnosis, tmp / "nrmse.png")
-        (tmp / "index.html").write_text(_html(diagnosis), encoding="utf-8")
-        old = None
-        if target.exists():
-            old = Path(tempfile.mkdtemp(prefix=".old-report-", dir=target.parent))
-            os.replace(target, old / "report")
-        os.replace(tmp, target)
-        if old is not None:
-            shutil.rmtree(old)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return target
+    _residual_map(diagnosis, recordings, directory / "residual_map.png")
+    _loops(diagnosis, recordings, directory / "loops.png")
+    _nrmse(diagnosis, directory / "nrmse.png")
+    (directory / "index.html").write_text(_html(diagnosis), encoding="utf-8")

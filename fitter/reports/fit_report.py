@@ -6,15 +6,14 @@ the data and model loops (y against u) with the model's uncertainty band
 covariance), and the residual against the input and against time, plus an
 `index.html` with the table of NRMSE, max error, loop-area error and residual
 RMS against the estimated noise level, the convergence condition and the
-preparation notes.  Everything is written to a temporary directory next to
-`directory` and renamed into place, so a reader never sees half a report.
+preparation notes.  The report is written into a temporary directory beside
+`directory` that then replaces it (`fitter.core.files.atomic_directory`), so a
+reader never sees half a report; `fill_fit_report` writes the same files into
+a directory the caller provides.
 """
 from __future__ import annotations
 
 import html
-import os
-import shutil
-import tempfile
 from pathlib import Path
 from typing import Sequence
 
@@ -24,10 +23,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from fitter.core.files import atomic_directory  # noqa: E402
 from fitter.data.metrics import compare  # noqa: E402
 from fitter.data.recordings import Recording  # noqa: E402
 
-__all__ = ["write_fit_report", "recording_metrics"]
+__all__ = ["write_fit_report", "fill_fit_report", "recording_metrics"]
 
 
 def _safe(name: str) -> str:
@@ -119,24 +119,24 @@ transient) are not compared.  NRMSE = RMS error / output range.</p>
 
 
 def write_fit_report(result, recordings: Sequence[Recording], directory) -> str:
-    """Write the report for `result` on `recordings` into `directory`; returns the index.html path."""
+    """Write the report for `result` on `recordings` as `directory` (created, or replaced
+    as a whole; missing parents are created); returns the index.html path."""
     directory = Path(directory)
     directory.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".report-", dir=directory.parent))
-    try:
-        rows = []
-        for i, rec in enumerate(recordings):
-            m, y_hat = recording_metrics(result, rec)
-            lo, hi = result.band(rec)
-            stem = f"{i:02d}_{_safe(rec.name)}"
-            _loop_figure(rec, y_hat, lo, hi, tmp / f"{stem}_loop.png")
-            _residual_figure(rec, y_hat, m.get("noise_rms"), tmp / f"{stem}_residual.png")
-            rows.append((rec.name, m, f"{stem}_loop.png", f"{stem}_residual.png"))
-        (tmp / "index.html").write_text(_page(result, rows), encoding="utf-8")
-        if directory.exists():
-            shutil.rmtree(directory)
-        os.replace(tmp, directory)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    with atomic_directory(directory) as tmp:
+        fill_fit_report(result, recordings, tmp)
     return str(directory / "index.html")
+
+
+def fill_fit_report(result, recordings: Sequence[Recording], directory: Path) -> None:
+    """Write the report's files (``index.html``, one loop and one residual PNG per
+    recording) into the existing directory `directory`."""
+    rows = []
+    for i, rec in enumerate(recordings):
+        m, y_hat = recording_metrics(result, rec)
+        lo, hi = result.band(rec)
+        stem = f"{i:02d}_{_safe(rec.name)}"
+        _loop_figure(rec, y_hat, lo, hi, directory / f"{stem}_loop.png")
+        _residual_figure(rec, y_hat, m.get("noise_rms"), directory / f"{stem}_residual.png")
+        rows.append((rec.name, m, f"{stem}_loop.png", f"{stem}_residual.png"))
+    (directory / "index.html").write_text(_page(result, rows), encoding="utf-8")

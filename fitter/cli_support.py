@@ -1,0 +1,111 @@
+"""Command-line plumbing shared by ``duhem`` (`fitter.cli`), ``build_fmu.py`` and the paper benchmark.
+
+One toolkit, click, and one error contract: an error is the single line
+``error: <message>`` on stderr with exit code 1 (`CliError`); a usage error
+is click's, exit code 2.  `one_line_errors` turns any exception of a
+command into a `CliError`: a `DuhemError` (the package's errors), an
+`OSError` or a `RuntimeError` keeps its message, anything else (a bug) is
+labelled ``internal error``; no traceback unless ``DUHEM_DEBUG`` is set.
+Numerical RuntimeWarnings (e.g. an overflow in a rejected trial step of an
+optimiser) are hidden too: a command's own result says whether it
+converged.
+"""
+from __future__ import annotations
+
+import contextlib
+import functools
+import os
+import warnings
+from typing import Callable, Iterator, Sequence
+
+import click
+
+from fitter.core.errors import DuhemError
+
+__all__ = ["CliError", "EXIT_ERROR", "one_line_errors", "guarded", "GuardedGroup", "backend_option",
+           "run_command"]
+
+EXIT_ERROR = 1
+
+
+class CliError(click.ClickException):
+    """An error reported as the single line ``error: <message>`` on stderr (exit code 1)."""
+
+    exit_code = EXIT_ERROR
+
+    def show(self, file=None) -> None:
+        click.echo(f"error: {self.message}", err=True)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    if isinstance(exc, (FileNotFoundError, PermissionError, IsADirectoryError)) and exc.filename:
+        text = f"{exc.filename}: {exc.strerror or text}"
+    return text or type(exc).__name__
+
+
+@contextlib.contextmanager
+def one_line_errors() -> Iterator[None]:
+    """Re-raise every exception of the block as a `CliError` (see the module docstring)."""
+    debug = bool(os.environ.get("DUHEM_DEBUG"))
+    try:
+        with warnings.catch_warnings():
+            if not debug:
+                warnings.simplefilter("ignore", RuntimeWarning)
+            yield
+    except (click.ClickException, click.exceptions.Exit, click.Abort):
+        raise
+    except KeyboardInterrupt:
+        raise CliError("interrupted") from None
+    except Exception as exc:  # every failure becomes one line, never a traceback
+        if debug:
+            raise
+        known = isinstance(exc, (DuhemError, ValueError, OSError, RuntimeError))
+        raise CliError(_one_line(exc) if known else
+                       f"internal error ({type(exc).__name__}): {_one_line(exc)}") from None
+
+
+def guarded(func: Callable) -> Callable:
+    """Decorate a command callback to run under `one_line_errors`."""
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        with one_line_errors():
+            return func(*args, **kwargs)
+    return wrapper
+
+
+class GuardedGroup(click.Group):
+    """A click group whose every subcommand runs under `one_line_errors`."""
+
+    def invoke(self, ctx: click.Context):
+        with one_line_errors():
+            return super().invoke(ctx)
+
+
+def backend_option(func: Callable) -> Callable:
+    """``--backend [native|python]`` (default native): the FMU backend."""
+    return click.option("--backend", type=click.Choice(["native", "python"]), default="native",
+                        show_default=True,
+                        help="native: C library, the simulator needs no Python (needs a C compiler "
+                             "now); python: pythonfmu, the simulator needs Python with numpy")(func)
+
+
+def run_command(command: click.Command, argv: Sequence[str] | None, prog_name: str) -> int:
+    """Run a click command as a function of its arguments (default ``sys.argv[1:]``).
+
+    Returns the exit status: 0, the status the command exits with
+    (``ctx.exit(n)``), or a `click.ClickException`'s exit code after showing
+    it.  A usage error is shown with the usage line and raises
+    ``SystemExit(2)``, as on the command line.
+    """
+    try:
+        status = command.main(args=None if argv is None else list(argv), prog_name=prog_name,
+                              standalone_mode=False)
+    except click.UsageError as exc:
+        exc.show()
+        raise SystemExit(exc.exit_code) from None
+    except click.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    return status if isinstance(status, int) else 0
