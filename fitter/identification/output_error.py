@@ -1,134 +1,175 @@
-"""Output-error refinement of a semilinear Duhem model on sampled recordings.
+"""The output-error engine: the one least-squares fitter of the package.
 
-Given a map ``build: theta -> model`` (any model `fitter.core.simulate` accepts)
-and recordings (t_k, u_k, y_k), `refine` minimises the stacked simulation error
+`refine(param, theta0, problem, options)` minimises the simulation error
 
     J(theta) = sum_i sum_k w_ik (y_ik - yhat_ik(theta))^2,
-    yhat_i = simulate(build(theta), t_i, u_i, x0=x0_i(theta)).y
+    yhat_i = simulate(param.build(theta), t_i, u_i, x0=x0_i(theta)).y
 
 with `scipy.optimize.least_squares` (trust-region reflective, parameters scaled
-by the Jacobian's column norms, forward-difference Jacobian).  The input is
-piecewise linear between samples, as in the kernel.
+by the Jacobian's column norms, forward-difference Jacobian, the bounds of the
+`Parametrisation`).  Used by `fit_recordings`, the diagnosis and the Section V
+estimator; each passes its `Options` (tolerances, budget, decimation).  The
+input is piecewise linear between samples, as in the kernel.
 
-Initial state (option ``x0``)
------------------------------
-The simulated state is affine in its initial value: x_k = Phi_k x_0 + c_k (every
-interval flow of the kernel is affine).  This gives three exact choices:
+Problems
+--------
+A problem turns (param, theta) into a residual vector.  `Recordings` is the
+general one (below); `fitter.identification.rd_triangles` defines the
+periodic triangle-wave problem of Section V.  Samples of weight 0 are left out
+of the objective (a mask), but their residuals are reported.
 
-* ``"model"``: x_0 = build(theta).x0 for every recording, all samples fitted.
+Initial state (``Recordings.x0``)
+---------------------------------
+The simulated state is affine in its initial value, x_k = Phi_k x_0 + c_k
+(`fitter.core.periodic.affine_response`):
+
+* ``"model"``: x_0 = build(theta).x0 for every recording (x0 may be part of
+  theta, e.g. `StateSpace`), all samples fitted.
 * ``"fit"``: x_0 of each recording is eliminated by linear least squares
-  (variable projection): x_0 = argmin ||y - C Phi x_0 - C c - D u||, so a
-  start-up transient is fitted without adding parameters to theta.  Phi_k is
-  computed over a prefix (twice the first cycle, doubled until
-  max|Phi| < 1e-9, i.e. until x_0 no longer matters), and x_0 is fitted on
-  that prefix; the rest of the recording is one plain simulation.
-* ``"periodic"`` (settled): each recording is fitted from the start of its
-  first settled cycle (sample s0; the samples before s0 are the transient and
-  are dropped), and x(s0) is the fixed point x* = (I - Phi)^-1 c of the affine
-  one-cycle map over [s0, s1] (Theorem 1).  When the measured cycle does not
-  close exactly (u[s1] != u[s0]) the map is taken over the samples as they are;
-  x* is then the state that the recorded cycle would return to.  This needs
-  rho(Phi) < 1 (the convergence condition); otherwise the recording is started
-  from the model's x0 and the result is flagged in ``RefineResult.rho``.
+  (variable projection): x_0 = argmin ||y - C Phi x_0 - C c - D u|| over a
+  prefix (twice the first cycle, doubled until max|Phi| < 1e-9, i.e. until x_0
+  no longer matters); the rest of the recording is one plain simulation.
+* ``"periodic"``: each recording is fitted from the start s0 of its first
+  settled cycle (samples before s0 are dropped) from the fixed point of the
+  cycle's affine map (Theorem 1, `fitter.core.periodic.fixed_point`); when
+  rho >= 1 the model's x0 is used and ``RefineResult.rho`` says so.  Cycles
+  come from `fitter.data.preparation` unless given.
 
-Speed
------
-Each residual evaluation costs one simulation per recording (plus order+1
-simulations of one cycle for ``"periodic"``, order+1 full ones for ``"fit"``).
-Recordings longer than ``max_samples`` are decimated for the optimisation:
-from each block of k consecutive samples the first one and the samples with
-the block's largest and smallest input are kept, so every input reversal
-survives to within a block.  For a rate-independent model the decimated
-simulation is exact at the kept samples wherever the input is monotone
-between them (Proposition 1); for a rate-dependent one the kept input is a
-piecewise-linear approximation.  The final residuals, Jacobian and covariance
-are evaluated on all samples; for a decimated problem the Jacobian is that of
-the kept samples and J^T J is scaled by N_all / N_kept (the information of an
-oversampled recording grows with its sample count).
+Failure policy
+--------------
+A theta whose model cannot be built or simulated, or whose simulation leaves
+1e6 output ranges, gives every residual of that recording the value
+`FAIL` x (output range): a huge but finite cost, so the optimiser backs off.
+
+Decimation
+----------
+Recordings longer than ``Options.max_samples`` are decimated for the
+optimisation: from each block of k samples the first one and those with the
+block's largest and smallest input are kept, so every input reversal survives
+to within a block (exact at the kept samples for a rate-independent model,
+Proposition 1).  Final residuals are on all samples.
 
 Uncertainty
 -----------
-sigma^2 = sum r^2 / (N - p), cov = sigma^2 (J^T J)^+ (pseudo-inverse, so
-redundant directions get no spurious precision), stderr = sqrt(diag cov).
+J is the solver's Jacobian at the optimum (in output units; of the kept samples
+when decimated, the information then scaled by N_all / N_kept).
+sigma^2 = RSS / (N - p), cov = sigma^2 (J^T J)^+ (N / n_eff), n_eff the
+effective sample size (N when not given; the diagnosis passes the AR(1)
+value of `effective_samples` for autocorrelated residuals).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
 
-from fitter.core.kernel import KernelError, flows, simulate
+from fitter.core.errors import DuhemError, KernelError
+from fitter.core.kernel import flows, simulate
+from fitter.core.periodic import affine_response, fixed_point
+from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording
+from fitter.identification.parametrisation import Parametrisation
+from fitter.progress import Progress, silent
 
-__all__ = ["RefineResult", "refine", "simulate_from", "cycle_fixed_point", "jacobian",
-           "X0_MODES"]
+__all__ = ["Options", "Recordings", "RefineResult", "refine", "simulate_from", "jacobian",
+           "effective_samples", "X0_MODES", "FAIL"]
 
 X0_MODES = ("model", "fit", "periodic")
-LSQ_METHOD = "trf"
-FTOL = 1e-6  # relative cost decrease below which the optimiser stops (noise-level gains)
-_FAIL = 1e3  # residual (in units of the output's std) returned where simulation fails
+FAIL = 1e3
+"""Residual, in output ranges, of a recording whose simulation fails."""
+
+
+@dataclass(frozen=True)
+class Options:
+    """Tolerances, budget and policies of `refine` (scipy ``least_squares`` names)."""
+
+    ftol: float = 1e-6
+    xtol: float = 1e-8
+    gtol: float = 1e-8
+    max_nfev: int | None = None
+    max_samples: int | None = 6000
+    normalise: bool = False
+    """Divide the residuals by the data's output range (scale-free tolerances)."""
 
 
 @dataclass
 class RefineResult:
     """Outcome of `refine`.
 
-    theta: optimum; model: build(theta); residuals: per recording, y - yhat on
-    the fitted samples (from `starts[i]` on); starts: first fitted sample per
-    recording; x0s: initial state used at `starts[i]`; cost: 0.5 sum w r^2;
-    jac: d(sqrt(w) r)/d theta on all fitted samples; cov, stderr, sigma: see
-    the module docstring; rho: spectral radius of each recording's one-cycle
-    map (``"periodic"`` only, else NaN).
+    theta: optimum; model: param.build(theta); residuals: per part, y - yhat on
+    the fitted samples (from `starts[i]` on; all samples, masked ones included);
+    starts, x0s, rho: per recording (see `Recordings`); cost: 0.5 sum w r^2 on
+    all samples; jac: Jacobian of the weighted residuals (output units);
+    info_scale: N_all / N_kept (decimation).
     """
 
     theta: np.ndarray
-    model: object
+    model: Any
     residuals: list[np.ndarray]
-    starts: list[int]
-    x0s: list[np.ndarray]
-    cost: float
+    weighted: np.ndarray
     jac: np.ndarray
-    cov: np.ndarray
-    stderr: np.ndarray
-    sigma: float
     nfev: int
     success: bool
     message: str = ""
+    starts: list[int] = field(default_factory=list)
+    x0s: list = field(default_factory=list)
     rho: list[float] = field(default_factory=list)
+    info_scale: float = 1.0
+
+    @property
+    def rss(self) -> float:
+        """Weighted residual sum of squares over the fitted samples."""
+        return float(np.sum(self.weighted ** 2))
+
+    @property
+    def cost(self) -> float:
+        return 0.5 * self.rss
+
+    @property
+    def sigma(self) -> float:
+        return float(np.sqrt(self.rss / max(len(self.weighted) - len(self.theta), 1)))
+
+    def covariance(self, n_eff: float | None = None) -> np.ndarray:
+        """sigma^2 (info_scale J^T J)^+ N / n_eff (module docstring)."""
+        n = len(self.weighted)
+        inflate = 1.0 if n_eff is None else n / max(n_eff, 1.0)
+        return self.sigma ** 2 * np.linalg.pinv(self.info_scale * (self.jac.T @ self.jac)) * inflate
+
+    def stderr(self, n_eff: float | None = None) -> np.ndarray:
+        return np.sqrt(np.clip(np.diag(self.covariance(n_eff)), 0, None))
 
 
-def _affine_parts(model, t, u, cache) -> tuple[np.ndarray, np.ndarray]:
-    """c_k (states from x0 = 0) and Phi_k (k, n, n): x_k = Phi_k x0 + c_k."""
-    n = model.order
-    c = simulate(model, t, u, x0=np.zeros(n), flow_cache=cache).x
-    Phi = np.stack([simulate(model, t, u, x0=e, flow_cache=cache).x - c for e in np.eye(n)],
-                   axis=2)
-    return c, Phi
+def effective_samples(residual: np.ndarray) -> float:
+    """AR(1) effective sample size N (1 - r1) / (1 + r1), r1 the lag-1 autocorrelation in [0, 0.98]."""
+    r = residual - residual.mean()
+    r1 = float(np.dot(r[1:], r[:-1]) / max(np.dot(r, r), 1e-300))
+    r1 = min(max(r1, 0.0), 0.98)
+    return len(r) * (1 - r1) / (1 + r1)
 
 
-def cycle_fixed_point(model, t, u, cache=None) -> tuple[np.ndarray, float]:
-    """Fixed point x* = (I - Phi)^-1 c of the one-cycle map over the given samples, and rho(Phi).
-
-    The samples are one cycle of input (u[-1] close to u[0]; not enforced).
-    Returns (model.x0, rho) when rho >= 1 (no fixed point to converge to).
-    """
-    cache = flows(model) if cache is None else cache
-    n = model.order
-    c = simulate(model, t, u, x0=np.zeros(n), flow_cache=cache).x[-1]
-    Phi = np.column_stack([simulate(model, t, u, x0=e, flow_cache=cache).x[-1] - c
-                           for e in np.eye(n)])
-    if not (np.all(np.isfinite(Phi)) and np.all(np.isfinite(c))):
-        return np.array(model.x0, dtype=float), np.inf
-    rho = float(np.max(np.abs(np.linalg.eigvals(Phi))))
-    if not rho < 1:
-        return np.array(model.x0, dtype=float), rho
-    return np.linalg.solve(np.eye(n) - Phi, c), rho
+# ----------------------------------------------------------------------------- initial states
+def _fitted_x0(model, t, u, y, cycle, cache):
+    """Initial state eliminated by linear least squares over a prefix (module docstring)."""
+    n_pre = len(u) if cycle is None else min(len(u), max(2 * (cycle[1] + 1), 64))
+    while True:
+        c, Phi = affine_response(model, t[:n_pre], u[:n_pre], cache)
+        if n_pre == len(u) or np.max(np.abs(Phi[-1])) < 1e-9:
+            break
+        n_pre = min(len(u), 2 * n_pre)
+    G = np.einsum("j,kjl->kl", model.C, Phi)
+    base = c @ model.C + model.D * u[:n_pre]
+    if not (np.all(np.isfinite(G)) and np.all(np.isfinite(base))):
+        raise KernelError("simulation overflowed")
+    x0, *_ = np.linalg.lstsq(G, y[:n_pre] - base, rcond=None)
+    if n_pre == len(u):
+        return x0, base + G @ x0
+    return x0, simulate(model, t, u, x0=x0, flow_cache=cache).y
 
 
 def simulate_from(model, t, u, y, mode: str, cycle: tuple[int, int] | None):
-    """Simulate one recording under an initial-state mode (see module docstring).
+    """Simulate one recording under an initial-state mode (module docstring).
 
     Returns (start, x0, yhat, rho): yhat covers samples start..end.
     """
@@ -136,27 +177,17 @@ def simulate_from(model, t, u, y, mode: str, cycle: tuple[int, int] | None):
     if mode == "model":
         return 0, np.array(model.x0, dtype=float), simulate(model, t, u, flow_cache=cache).y, np.nan
     if mode == "fit":
-        n_pre = len(u) if cycle is None else min(len(u), max(2 * (cycle[1] + 1), 64))
-        while True:
-            c, Phi = _affine_parts(model, t[:n_pre], u[:n_pre], cache)
-            if n_pre == len(u) or np.max(np.abs(Phi[-1])) < 1e-9:
-                break
-            n_pre = min(len(u), 2 * n_pre)
-        G = np.einsum("j,kjl->kl", model.C, Phi)
-        base = c @ model.C + model.D * u[:n_pre]
-        if not (np.all(np.isfinite(G)) and np.all(np.isfinite(base))):
-            raise KernelError("simulation overflowed")
-        x0, *_ = np.linalg.lstsq(G, y[:n_pre] - base, rcond=None)
-        if n_pre == len(u):
-            return 0, x0, base + G @ x0, np.nan
-        return 0, x0, simulate(model, t, u, x0=x0, flow_cache=cache).y, np.nan
+        x0, yhat = _fitted_x0(model, t, u, y, cycle, cache)
+        return 0, x0, yhat, np.nan
     if mode != "periodic":
         raise ValueError(f"x0 must be one of {X0_MODES}, not {mode!r}")
     s0, s1 = cycle
-    x0, rho = cycle_fixed_point(model, t[s0:s1 + 1], u[s0:s1 + 1], cache)
+    x0, rho = fixed_point(model, t[s0:s1 + 1], u[s0:s1 + 1], cache)
+    x0 = np.array(model.x0, dtype=float) if x0 is None else x0
     return s0, x0, simulate(model, t[s0:], u[s0:], x0=x0, flow_cache=cache).y, rho
 
 
+# ----------------------------------------------------------------------------- the recordings problem
 def _keep_indices(u: np.ndarray, max_samples: int | None, cycle) -> np.ndarray:
     """Decimation keeping each block's first, max-input and min-input samples."""
     n = len(u)
@@ -166,69 +197,89 @@ def _keep_indices(u: np.ndarray, max_samples: int | None, cycle) -> np.ndarray:
     nb = n // k
     blocks = u[:nb * k].reshape(nb, k)
     base = np.arange(nb) * k
-    keep = np.r_[base, base + blocks.argmax(axis=1), base + blocks.argmin(axis=1),
-                 np.arange(nb * k, n), n - 1]
+    keep = np.r_[base, base + blocks.argmax(axis=1), base + blocks.argmin(axis=1), np.arange(nb * k, n), n - 1]
     if cycle is not None:
         keep = np.r_[keep, cycle[0], cycle[1]]
     return np.unique(keep)
 
 
+def _first_cycle(rec: Recording) -> tuple[int, int]:
+    """(s0, s1) of the first settled cycle of `rec`, in its own sample index."""
+    prep = prepare(rec, min_cycles=0)
+    s0, s1 = prep.first_cycle()
+    return s0 + prep.transient_end, s1 + prep.transient_end
+
+
 @dataclass
-class _Problem:
-    """Recordings (possibly decimated) with their weights and cycles."""
+class Recordings:
+    """Recordings fitted by output error, with their initial-state mode, weights and cycles.
 
-    t: list[np.ndarray]
-    u: list[np.ndarray]
-    y: list[np.ndarray]
-    w: list[np.ndarray]
-    cycles: list[tuple[int, int] | None]
-    scale: list[float]
+    weights: per-recording scalars or per-sample arrays (default 1; 0 = masked).
+    cycles: for x0 = "periodic" (and as the prefix length of "fit"), the
+    (s0, s1) sample indices of each recording's first settled cycle; by default
+    `fitter.data.preparation.prepare(rec).first_cycle()` for "periodic".
+    """
 
+    recordings: Sequence[Recording]
+    x0: str = "periodic"
+    weights: Sequence | None = None
+    cycles: Sequence[tuple[int, int] | None] | None = None
 
-def _problem(recordings, weights, cycles, max_samples) -> _Problem:
-    p = _Problem([], [], [], [], [], [])
-    for i, rec in enumerate(recordings):
-        cyc = cycles[i]
-        keep = _keep_indices(rec.u, max_samples, cyc)
-        w = np.ones(len(rec.u)) if weights is None else np.broadcast_to(
-            np.asarray(weights[i], dtype=float), rec.u.shape)
-        p.t.append(rec.t[keep])
-        p.u.append(rec.u[keep])
-        p.y.append(rec.y[keep])
-        p.w.append(np.sqrt(w[keep]))
-        if cyc is not None:
-            pos = np.searchsorted(keep, cyc)
-            cyc = (int(pos[0]), int(pos[1]))
-        p.cycles.append(cyc)
-        p.scale.append(float(np.std(rec.y)) or 1.0)
-    return p
+    def __post_init__(self):
+        if self.x0 not in X0_MODES:
+            raise ValueError(f"x0 must be one of {X0_MODES}, not {self.x0!r}")
+        if not self.recordings:
+            raise DuhemError("output-error fit needs at least one recording")
+        if self.cycles is None:
+            self.cycles = [_first_cycle(rec) if self.x0 == "periodic" else None for rec in self.recordings]
+        w = [None] * len(self.recordings) if self.weights is None else self.weights
+        self._w = [np.ones(len(r.u)) if wi is None else np.broadcast_to(np.asarray(wi, dtype=float), r.u.shape)
+                   for r, wi in zip(self.recordings, w)]
+        self.scale = max(float(np.ptp(np.concatenate([r.y for r in self.recordings]))), 1e-300)
 
+    def decimated(self, max_samples: int | None) -> "Recordings":
+        """The problem on the kept samples of `_keep_indices` (self when nothing is dropped)."""
+        keeps = [_keep_indices(r.u, max_samples, c) for r, c in zip(self.recordings, self.cycles)]
+        if all(len(k) == len(r.u) for k, r in zip(keeps, self.recordings)):
+            return self
+        recs = [Recording(r.t[k], r.u[k], r.y[k], r.name, r.input, r.output, r.source)
+                for r, k in zip(self.recordings, keeps)]
+        cycles = [None if c is None else tuple(int(i) for i in np.searchsorted(k, c))
+                  for c, k in zip(self.cycles, keeps)]
+        return Recordings(recs, self.x0, [w[k] for w, k in zip(self._w, keeps)], cycles)
 
-def _residuals(build, theta, prob: _Problem, mode: str):
-    """Stacked weighted residuals, plus per-recording (start, x0, r, rho)."""
-    parts, info = [], []
-    try:
-        model = build(theta)
-    except (ValueError, np.linalg.LinAlgError, FloatingPointError):
-        model = None
-    for t, u, y, w, cyc, sc in zip(prob.t, prob.u, prob.y, prob.w, prob.cycles, prob.scale):
-        start = cyc[0] if (mode == "periodic" and cyc is not None) else 0
+    def residuals(self, param: Parametrisation, theta: np.ndarray):
+        """Stacked weighted residuals sqrt(w) (y - yhat) of the unmasked samples, and per
+        recording (start, x0, y - yhat from start, rho)."""
+        try:
+            model = param.build(theta)
+        except (ValueError, np.linalg.LinAlgError, FloatingPointError):
+            model = None
+        parts, info = [], []
+        for rec, w, cyc in zip(self.recordings, self._w, self.cycles):
+            s, x0, r, rho = self._one(model, rec, cyc)
+            keep = w[s:] > 0
+            parts.append((r * np.sqrt(w[s:]))[keep])
+            info.append((s, x0, r, rho))
+        return np.concatenate(parts), model, info
+
+    def _one(self, model, rec: Recording, cyc):
+        start = cyc[0] if (self.x0 == "periodic" and cyc is not None) else 0
+        fail = FAIL * max(float(np.ptp(rec.y)), 1e-300)
         try:
             if model is None:
                 raise KernelError("model could not be built")
             with np.errstate(all="ignore"):
-                s, x0, yhat, rho = simulate_from(model, t, u, y, mode, cyc)
-            r = y[s:] - yhat
-            if not np.all(np.abs(r) < _FAIL * sc * 1e3):
+                s, x0, yhat, rho = simulate_from(model, rec.t, rec.u, rec.y, self.x0, cyc)
+            r = rec.y[s:] - yhat
+            if not np.all(np.abs(r) < fail * 1e3):
                 raise KernelError("simulation diverged")
+            return s, x0, r, rho
         except (KernelError, ValueError, np.linalg.LinAlgError):
-            s, x0, rho = start, None, np.nan
-            r = np.full(len(y) - start, _FAIL * sc)
-        parts.append(r * w[s:])
-        info.append((s, x0, r, rho))
-    return np.concatenate(parts), model, info
+            return start, None, np.full(len(rec.y) - start, fail), np.nan
 
 
+# ----------------------------------------------------------------------------- refine
 def jacobian(fun: Callable[[np.ndarray], np.ndarray], theta: np.ndarray,
              f0: np.ndarray | None = None) -> np.ndarray:
     """Forward-difference Jacobian of a vector function, steps 1e-6 (1 + |theta_j|)."""
@@ -242,83 +293,53 @@ def jacobian(fun: Callable[[np.ndarray], np.ndarray], theta: np.ndarray,
     return J
 
 
-def refine(build: Callable[[np.ndarray], object], theta0: np.ndarray,
-           recordings: Sequence[Recording], *, x0: str = "periodic", weights=None,
-           max_nfev: int | None = None, progress: Callable[[str], None] | None = None,
-           cycles: Sequence[tuple[int, int] | None] | None = None,
-           penalty: Callable[[np.ndarray], np.ndarray] | None = None,
-           max_samples: int | None = 6000) -> RefineResult:
-    """Output-error least squares of `build(theta)` on `recordings`.
+def refine(param: Parametrisation, theta0: np.ndarray, problem, options: Options = Options(), *,
+           penalty: Callable[[np.ndarray], np.ndarray] | None = None, free: np.ndarray | None = None,
+           jac_sparsity=None, progress: Progress = silent) -> RefineResult:
+    """Output-error least squares of `param.build(theta)` on `problem`.
 
     Parameters
     ----------
-    build : theta -> model (RateIndependentModel or RateDependentModel); may
-        raise ValueError for an invalid theta (treated as a failed simulation).
-    theta0 : starting parameters.
-    recordings : the data; all samples are used (trim beforehand if needed).
-    x0 : "model", "fit" or "periodic" (see the module docstring).
-    weights : per-recording scalars or per-sample arrays (default 1).
-    max_nfev : cap on residual evaluations (default scipy's, 100 p).
-    progress : called with a one-line status after the optimisation stages.
-    cycles : for x0="periodic", the (s0, s1) sample indices of each recording's
-        first settled cycle; by default found by `fitter.data.preparation`.
-    penalty : optional theta -> extra residuals (e.g. a barrier that keeps the
-        convergence condition satisfied); appended to the objective.
-    max_samples : decimate longer recordings during the optimisation.
+    param : the theta -> model map (its bounds are the optimisation's bounds).
+    theta0 : start (moved inside the bounds by 1e-9 (1 + |theta|) where needed).
+    problem : `Recordings` or any object with ``residuals(param, theta) -> (r, model, info)``,
+        ``decimated(max_samples)`` and ``scale`` (output range).
+    options : tolerances, budget, decimation, normalisation.
+    penalty : optional theta -> extra residuals (e.g. a convergence barrier).
+    free : boolean mask of the entries of theta that move (default all).
+    jac_sparsity : sparsity structure of the Jacobian (scipy's argument).
+    progress : `fitter.progress.Progress`, called with a one-line status at the end.
     """
-    if x0 not in X0_MODES:
-        raise ValueError(f"x0 must be one of {X0_MODES}, not {x0!r}")
-    if not recordings:
-        raise ValueError("refine needs at least one recording")
     theta0 = np.asarray(theta0, dtype=float)
-    if cycles is None:
-        cycles = [_first_cycle(rec) for rec in recordings] if x0 == "periodic" \
-            else [None] * len(recordings)
+    lo, hi = param.bounds()
+    pad = 1e-9 * (np.abs(theta0) + 1)
+    theta0 = np.minimum(np.maximum(theta0, lo + pad), hi - pad)
+    free = np.ones(len(theta0), bool) if free is None else np.asarray(free, bool)
+    coarse = problem.decimated(options.max_samples)
+    scale = problem.scale if options.normalise else 1.0
 
-    def objective(prob):
-        def fun(theta):
-            r, _, _ = _residuals(build, theta, prob, x0)
-            return r if penalty is None else np.r_[r, penalty(theta)]
-        return fun
+    def full_theta(z):
+        theta = theta0.copy()
+        theta[free] = z
+        return theta
 
-    coarse = _problem(recordings, weights, cycles, max_samples)
-    budget = None if max_nfev is None else (max_nfev * (len(theta0) + 1) if LSQ_METHOD == "lm" else max_nfev)
-    sol = least_squares(objective(coarse), theta0, method=LSQ_METHOD, x_scale="jac", max_nfev=budget,
-                        ftol=FTOL)
-    if progress:
-        progress(f"output-error refinement: cost {sol.cost:.4g} after {sol.nfev} evaluations")
-    full = _problem(recordings, weights, cycles, None)
-    r, model, info = _residuals(build, sol.x, full, x0)
-    n_full = len(r)
-    if sum(len(y) for y in coarse.y) < sum(len(y) for y in full.y):
-        r_kept, _, _ = _residuals(build, sol.x, coarse, x0)
-        J = jacobian(lambda th: _residuals(build, th, coarse, x0)[0], sol.x, r_kept)
-        J_scale = n_full / len(r_kept)
-    else:
-        J = jacobian(lambda th: _residuals(build, th, full, x0)[0], sol.x, r * np.concatenate(
-            [w[s:] for w, s in zip(full.w, [i[0] for i in info])]))
-        J_scale = 1.0
-    dof = max(n_full - len(sol.x), 1)
-    sigma = float(np.sqrt(np.sum(r ** 2) / dof))
-    cov = sigma ** 2 * np.linalg.pinv(J_scale * (J.T @ J))
-    return RefineResult(theta=sol.x, model=model, residuals=[i[2] for i in info],
-                        starts=[i[0] for i in info], x0s=[i[1] for i in info],
-                        cost=float(0.5 * np.sum(r ** 2)), jac=J, cov=cov,
-                        stderr=np.sqrt(np.clip(np.diag(cov), 0, None)), sigma=sigma,
+    def fun(z):
+        theta = full_theta(z)
+        r = coarse.residuals(param, theta)[0] / scale
+        return r if penalty is None else np.r_[r, penalty(theta)]
+
+    with np.errstate(all="ignore"):
+        sol = least_squares(fun, theta0[free], bounds=(lo[free], hi[free]), method="trf", x_scale="jac",
+                            ftol=options.ftol, xtol=options.xtol, gtol=options.gtol, max_nfev=options.max_nfev,
+                            jac_sparsity=jac_sparsity)
+    progress(f"output-error refinement: cost {sol.cost:.4g} after {sol.nfev} evaluations", None)
+    theta = full_theta(sol.x)
+    weighted, model, info = problem.residuals(param, theta)
+    J_free = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
+    n_kept = J_free.shape[0] - (0 if penalty is None else len(penalty(theta)))
+    J = np.zeros((n_kept, len(theta)))
+    J[:, free] = J_free[:n_kept] * scale
+    return RefineResult(theta=theta, model=model, residuals=[i[2] for i in info], weighted=weighted, jac=J,
                         nfev=int(sol.nfev), success=bool(sol.success), message=str(sol.message),
-                        rho=[float(i[3]) for i in info])
-
-
-def _first_cycle(rec: Recording) -> tuple[int, int]:
-    """(s0, s1) of the first settled cycle, from `fitter.data.preparation`."""
-    from fitter.data.preparation import prepare
-    prep = prepare(rec)
-    return first_settled_cycle(prep)
-
-
-def first_settled_cycle(prep) -> tuple[int, int]:
-    """First cycle that starts at or after the transient's end, in the original sample index."""
-    cycles = [tuple(map(int, c)) for c in prep.cycles]
-    if not cycles:
-        raise ValueError(f"{prep.recording.name}: no complete input cycle to start from")
-    return cycles[0]
+                        starts=[i[0] for i in info], x0s=[i[1] for i in info],
+                        rho=[float(i[3]) for i in info], info_scale=len(weighted) / n_kept)

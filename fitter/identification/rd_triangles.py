@@ -84,18 +84,18 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 
 from fitter.core import (CallableRate, ConvergenceError, KernelError, RateDependentModel, TabulatedRate,
-                   periodic_response)
+                         periodic_response)
+from fitter.identification.output_error import FAIL, Options, refine
+from fitter.identification.parametrisation import Parametrisation
 
 __all__ = ["ESTIMATORS", "TriangleWave", "triangle_wave", "triangle_response", "periodic_triangle_output",
            "identify_rd_triangles", "RDIdentification", "WaveFit", "bilinear_d2c"]
 
 ESTIMATORS = ("literal", "improved")
 _TOL = 1e-6
-_PENALTY = 1e3
 
 
 # ----------------------------------------------------------------------------- triangle waves
@@ -526,19 +526,17 @@ def _ramp_exact_start(recs: list[_Record], order: int):
     return alpha_ref, g, disc
 
 
-class _OutputError:
-    """Residuals of the output-error problem; see the module docstring (improved, step 3).
+class _WaveParameters(Parametrisation):
+    """Parameters of the improved estimator, step 3: theta = [alpha (n), beta (n), g_plus of
+    waves 2..p, g_minus of waves 1..p]; `build` gives one model per wave, the common (A, B, C)
+    of the canonical form (49) with the two-level rate function of that wave."""
 
-    theta = [alpha (n), beta (n), g_plus of waves 2..p, g_minus of waves 1..p].
-    """
-
-    def __init__(self, recs: list[_Record], order: int):
-        self.recs, self.n = recs, order
-        self.sizes = [len(r.y) for r in recs]
-        self.offsets = np.r_[0, np.cumsum(self.sizes)]
+    def __init__(self, order: int, waves: int):
+        self.n, self.p = order, waves
+        self.size = 2 * order + 2 * waves - 1
 
     def unpack(self, theta: np.ndarray):
-        n, p = self.n, len(self.recs)
+        n, p = self.n, self.p
         alpha, beta = theta[:n], theta[n:2 * n]
         gp = np.r_[1.0, theta[2 * n:2 * n + p - 1]]
         gm = theta[2 * n + p - 1:]
@@ -547,55 +545,76 @@ class _OutputError:
     def pack(self, alpha, beta, gp, gm) -> np.ndarray:
         return np.r_[alpha, beta, gp[1:], gm]
 
-    def wave_output(self, i: int, A, B, C, gp: float, gm: float) -> np.ndarray:
-        rec = self.recs[i]
-        return periodic_triangle_output(_model(A, B, C, _two_level_rate(gp, gm)), rec.wave, rec.t)
-
-    def __call__(self, theta: np.ndarray) -> np.ndarray:
+    def build(self, theta: np.ndarray) -> list[RateDependentModel]:
         alpha, beta, gp, gm = self.unpack(theta)
         A, B, C = _canonical(alpha, beta)
-        out = np.empty(self.offsets[-1])
-        for i, rec in enumerate(self.recs):
-            sl = slice(self.offsets[i], self.offsets[i + 1])
-            try:
-                out[sl] = self.wave_output(i, A, B, C, gp[i], gm[i]) - rec.y
-            except (ConvergenceError, KernelError, np.linalg.LinAlgError):
-                out[sl] = _PENALTY
-        return out
+        return [_model(A, B, C, _two_level_rate(a, b)) for a, b in zip(gp, gm)]
 
-    def sparsity(self) -> lil_matrix:
-        n, p = self.n, len(self.recs)
-        S = lil_matrix((self.offsets[-1], 2 * n + 2 * p - 1), dtype=int)
+    def sparsity(self, sizes: list[int]) -> lil_matrix:
+        """Block structure of the Jacobian: wave i depends on (alpha, beta) and its own g values."""
+        n, p = self.n, self.p
+        offsets = np.r_[0, np.cumsum(sizes)]
+        S = lil_matrix((offsets[-1], self.size), dtype=int)
         for i in range(p):
-            rows = slice(self.offsets[i], self.offsets[i + 1])
+            rows = slice(offsets[i], offsets[i + 1])
             S[rows, :2 * n] = 1
             if i > 0:
                 S[rows, 2 * n + i - 1] = 1
             S[rows, 2 * n + p - 1 + i] = 1
         return S
 
-    def best_beta(self, alpha, gp, gm) -> np.ndarray:
+
+@dataclass
+class _WaveRecords:
+    """The output-error problem of the improved estimator: every sample of every record
+    against the model's limiting periodic output (`periodic_triangle_output`)."""
+
+    recs: list[_Record]
+
+    @property
+    def sizes(self) -> list[int]:
+        return [len(r.y) for r in self.recs]
+
+    @property
+    def scale(self) -> float:
+        return max(float(np.ptp(np.concatenate([r.y for r in self.recs]))), 1e-300)
+
+    def decimated(self, max_samples) -> "_WaveRecords":
+        return self
+
+    def residuals(self, param: _WaveParameters, theta: np.ndarray):
+        """y - yhat stacked over the records (the engine's failure value where a record's
+        periodic response does not exist), the per-wave models and the per-record residuals."""
+        models = param.build(theta)
+        parts = []
+        for rec, model in zip(self.recs, models):
+            try:
+                parts.append(rec.y - periodic_triangle_output(model, rec.wave, rec.t))
+            except (ConvergenceError, KernelError, np.linalg.LinAlgError):
+                parts.append(np.full(len(rec.y), FAIL * max(float(np.ptp(rec.y)), 1e-300)))
+        return np.concatenate(parts), models, [(0, None, r, np.nan) for r in parts]
+
+    def best_beta(self, param: _WaveParameters, alpha, gp, gm) -> np.ndarray:
         """Variable projection: the periodic response is linear in B for fixed A and g."""
-        n = self.n
-        cols = []
-        for j in range(n):
-            A, _, C = _canonical(alpha, np.zeros(n))
-            e = np.zeros(n)
-            e[j] = 1.0
-            cols.append(np.concatenate([self.wave_output(i, A, e, C, gp[i], gm[i])
-                                        for i in range(len(self.recs))]))
-        Y = np.concatenate([r.y for r in self.recs])
-        return _lstsq(np.column_stack(cols), Y)
+        n = param.n
+        A, _, C = _canonical(alpha, np.zeros(n))
+        cols = [np.concatenate([periodic_triangle_output(_model(A, e, C, _two_level_rate(gp[i], gm[i])), rec.wave,
+                                                         rec.t) for i, rec in enumerate(self.recs)])
+                for e in np.eye(n)]
+        return _lstsq(np.column_stack(cols), np.concatenate([r.y for r in self.recs]))
+
+
+_OPTIONS = Options(ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=200, max_samples=None)
 
 
 def _improved(recs: list[_Record], order: int):
     n = order
     alpha0, g0, disc = _ramp_exact_start(recs, n)
-    oe = _OutputError(recs, n)
-    beta0 = oe.best_beta(alpha0, g0[:, 0], g0[:, 1])
-    sol = least_squares(oe, oe.pack(alpha0, beta0, g0[:, 0], g0[:, 1]), jac_sparsity=oe.sparsity(),
-                        method="trf", x_scale="jac", xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=200)
-    alpha, beta, gp, gm = oe.unpack(sol.x)
+    param, problem = _WaveParameters(n, len(recs)), _WaveRecords(recs)
+    beta0 = problem.best_beta(param, alpha0, g0[:, 0], g0[:, 1])
+    res = refine(param, param.pack(alpha0, beta0, g0[:, 0], g0[:, 1]), problem, _OPTIONS,
+                 jac_sparsity=param.sparsity(problem.sizes))
+    alpha, beta, gp, gm = param.unpack(res.theta)
     waves = [WaveFit(a=rec.wave.a, b=rec.wave.b, samples=len(rec.t), discrete_plus=dp, discrete_minus=dm,
                      continuous_plus=np.r_[gp[i] ** np.arange(1, n + 1) * alpha,
                                            gp[i] ** np.arange(1, n + 1) * beta],
@@ -603,8 +622,9 @@ def _improved(recs: list[_Record], order: int):
                                             gm[i] ** np.arange(1, n + 1) * beta],
                      g_plus=float(gp[i]), g_minus=float(gm[i]))
              for i, (rec, (dp, dm)) in enumerate(zip(recs, disc))]
-    info = {"method": "least_squares trf, output error", "nfev": int(sol.nfev), "status": int(sol.status),
-            "cost": float(sol.cost)}
+    info = {"method": "least_squares trf, output error (fitter.identification.output_error)", "nfev": res.nfev,
+            "success": res.success, "message": res.message,
+            "cost": res.cost}
     return alpha, beta, waves, info
 
 
@@ -660,8 +680,9 @@ def identify_rd_triangles(records: list[tuple[np.ndarray, np.ndarray, np.ndarray
     model = RateDependentModel(A=A, B=B, C=C, g=TabulatedRate(slopes, g_hat), fit_info={
         "method": "Oh & Bernstein 2007, Section V (triangle waves)", "estimator": estimator,
         "normalisation": "g_hat(a_1) = 1 at the smallest rising slope; A_hat = g(a_1) A"})
-    oe = _OutputError(recs, order)
-    resid = oe(oe.pack(alpha, beta, np.array([w.g_plus for w in waves]), np.array([w.g_minus for w in waves])))
+    param = _WaveParameters(order, len(recs))
+    resid = _WaveRecords(recs).residuals(param, param.pack(alpha, beta, np.array([w.g_plus for w in waves]),
+                                                           np.array([w.g_minus for w in waves])))[0]
     return RDIdentification(model=model, slopes=slopes, g_hat=g_hat, A_hat=A, B_hat=B, C_hat=C,
                             estimator=estimator, waves=waves, rms_residual=float(np.sqrt(np.mean(resid ** 2))),
                             optimizer=optimizer)

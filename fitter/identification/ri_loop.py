@@ -426,8 +426,9 @@ def identify_ri_loop(u_grid, y_rising, y_falling, *, m: int = 2, q: float = 7.0,
     rho_c = _continuous_rho(model, u[0], u[-1])
     refined = method == "improved" and rho_c < 1
     if refined:
-        model.B_plus, model.B_minus = refit_b(model, u, yr, yf)
-    model.x0 = _initial_state(model, u, X[0], rho_c)
+        B_plus, B_minus = refit_b(model, u, yr, yf)
+        model = model.replace(B_plus=B_plus, B_minus=B_minus)
+    model = model.replace(x0=_initial_state(model, u, X[0], rho_c))
     result = RIIdentification(
         model=model, Ad_plus=Ap, Ad_minus=Am, Bd_plus=Bp, Bd_minus=Bm, Cd=Cd,
         cost=cost_p + cost_m, cost_plus=cost_p, cost_minus=cost_m,
@@ -439,5 +440,5 @@ def identify_ri_loop(u_grid, y_rising, y_falling, *, m: int = 2, q: float = 7.0,
         ell=ell, delta=delta, m=m, order=n, u_min=float(u[0]), u_max=float(u[-1]),
         method=method, b_refined=refined, loop_max_error=_loop_error(model, u, yr, yf, rho_c),
         solvers={"plus": sol_p, "minus": sol_m})
-    model.fit_info = {"ri_identification": result.to_dict()}
+    result.model = model.replace(fit_info={"ri_identification": result.to_dict()})
     return result

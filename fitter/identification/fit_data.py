@@ -1,0 +1,181 @@
+"""Recordings made ready for `fit_recordings`: cleaned, normalised, with cycles and loops.
+
+1. Preparation (`fitter.data.preparation.prepare`): input reversals, settled
+   cycles (the start-up transient is dropped), holds, drift; the notes go into
+   the summary.  A recording whose input never reverses twice, or that holds
+   neither a full cycle nor one closing period, is rejected (`FitError`).
+2. The input is made monotone between reversals (isotonic regression,
+   `monotone_input`), so that measurement noise on u creates no spurious
+   branch switches.
+3. Normalisation (`Normalisation`, mid-range and half-range of all recordings).
+4. The averaged loop: the settled branches resampled on a uniform input grid
+   and averaged over cycles and recordings (the input-domain
+   reparameterisation of Section III), a start for rate-independent fits.
+5. Rate levels: the distinct input rates (median |du/dt| per recording,
+   grouped when within a factor 1.5), the reference rate and the knots of g.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from scipy.optimize import isotonic_regression
+
+from fitter.core.errors import DuhemError
+from fitter.data.preparation import PreparationError, Prepared, branch_on_grid, find_reversals, prepare
+from fitter.data.recordings import Recording
+from fitter.identification.scaling import Normalisation
+
+__all__ = ["FitError", "FitData", "RateLevels", "prepare_for_fit", "monotone_input", "averaged_loop",
+           "rate_levels", "GRID_POINTS"]
+
+GRID_POINTS = 101
+
+
+class FitError(DuhemError):
+    """Recordings that cannot be fitted (too few cycles, an input that never reverses, ...)."""
+
+
+@dataclass
+class FitData:
+    """Prepared recordings: physical (trimmed, monotone input) and normalised, with cycles.
+
+    x0_mode: "periodic" when every recording holds a single cycle (transient and
+    loop cannot be told apart, so each is taken as settled), else "fit".
+    """
+
+    preps: list[Prepared]
+    recs: list[Recording]
+    norm: list[Recording]
+    cycles: list[tuple[int, int]]
+    loops: list[list[Recording]]
+    notes: list[list[str]]
+    scaling: Normalisation
+    x0_mode: str = "fit"
+
+    def input_range(self) -> tuple[float, float]:
+        """Smallest and largest normalised input over all recordings."""
+        return min(r.u.min() for r in self.norm), max(r.u.max() for r in self.norm)
+
+
+def monotone_input(u: np.ndarray, reversals: np.ndarray) -> np.ndarray:
+    """u made monotone between successive reversals by isotonic regression (least squares).
+
+    Segments run from one reversal to the next (and from the ends to the
+    first and last reversal); each is replaced by its best non-decreasing or
+    non-increasing approximation.  A noise-free piecewise-monotone input is
+    returned unchanged.
+    """
+    u = np.asarray(u, dtype=float)
+    out = u.copy()
+    cuts = np.r_[0, np.asarray(reversals, dtype=int), len(u) - 1]
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        if b - a < 1:
+            continue
+        seg = u[a:b + 1]
+        out[a:b + 1] = isotonic_regression(seg, increasing=bool(seg[-1] >= seg[0])).x
+    return out
+
+
+def _loop_pieces(rec: Recording, prep: Prepared, cycle: tuple[int, int]) -> list[Recording]:
+    """Each settled cycle as one loop min -> max -> min (rotated to start at its minimum;
+    the cycle's end sample is taken as equal to its first)."""
+    slices = prep.cycles or [slice(cycle[0], cycle[1] + 1)]
+    pieces = []
+    for s in slices:
+        u, y = rec.u[s], rec.y[s]
+        k = int(np.argmin(u))
+        idx = np.r_[np.arange(k, len(u)), np.arange(1, k + 1)] if k else np.arange(len(u))
+        pieces.append(Recording(np.arange(len(idx), dtype=float), u[idx], y[idx], rec.name))
+    return pieces
+
+
+def _prepare_one(rec: Recording) -> tuple[Prepared, Recording, tuple[int, int], list[str]]:
+    reversals = find_reversals(rec.u)
+    if len(reversals) < 2:
+        raise FitError(f"{rec.name}: the input never reverses twice (it must go up and down "
+                       f"periodically; found {len(reversals)} reversal(s))")
+    try:
+        prep = prepare(rec, min_cycles=0)
+        cycle = prep.first_cycle()
+    except PreparationError as exc:
+        raise FitError(str(exc)) from None
+    r = prep.recording
+    um = monotone_input(r.u, prep.reversals)
+    changed = int(np.sum(np.abs(um - r.u) > 0))
+    notes = list(prep.notes)
+    if changed:
+        notes.append(f"input made monotone between reversals (isotonic regression): {changed} samples "
+                     f"moved by at most {np.max(np.abs(um - r.u)):.3g}")
+    return prep, Recording(r.t, um, r.y, r.name, r.input, r.output, r.source), cycle, notes
+
+
+def prepare_for_fit(recordings: Sequence[Recording]) -> FitData:
+    """Steps 1-3 of the module docstring for every recording."""
+    if not recordings:
+        raise FitError("no recordings to fit")
+    preps, recs, cycles, loops, notes = [], [], [], [], []
+    for rec in recordings:
+        prep, clean, cycle, n = _prepare_one(rec)
+        preps.append(prep)
+        recs.append(clean)
+        cycles.append(cycle)
+        loops.append(_loop_pieces(clean, prep, cycle))
+        notes.append(n)
+    try:
+        scaling = Normalisation.of(recs)
+    except DuhemError as exc:
+        raise FitError(str(exc)) from None
+    norm = [scaling.normalise(r) for r in recs]
+    loops = [[scaling.normalise(p) for p in pieces] for pieces in loops]
+    x0_mode = "periodic" if all(len(p.cycles) <= 1 for p in preps) else "fit"
+    return FitData(preps, recs, norm, cycles, loops, notes, scaling, x0_mode)
+
+
+def averaged_loop(loops: list[list[Recording]], points: int = GRID_POINTS):
+    """Rising and falling branches on a common uniform input grid, averaged over all cycles."""
+    lo = max(p.u.min() for ps in loops for p in ps)
+    hi = min(p.u.max() for ps in loops for p in ps)
+    span = hi - lo
+    grid = np.linspace(lo + 0.01 * span, hi - 0.01 * span, points)
+    rising, falling = [], []
+    for ps in loops:
+        for p in ps:
+            k = int(np.argmax(p.u))
+            rising.append(branch_on_grid(p.u[:k + 1], p.y[:k + 1], grid))
+            falling.append(branch_on_grid(p.u[k:], p.y[k:], grid))
+    return grid, np.mean(rising, axis=0), np.mean(falling, axis=0)
+
+
+@dataclass(frozen=True)
+class RateLevels:
+    """Input rates of the data (normalised units): reference rate, log-rate knots of g, the
+    number of distinct levels and whether all inputs are triangle waves (|du/dt| constant
+    within 15 %); for other inputs the knots are 7 quantiles of the pooled log-rates."""
+
+    v_ref: float
+    knots: np.ndarray
+    levels: int
+    triangle: bool
+
+
+def rate_levels(norm: Sequence[Recording]) -> RateLevels:
+    """Step 5 of the module docstring."""
+    meds, pooled, triangle = [], [], True
+    for r in norm:
+        v = np.abs(np.diff(r.u) / np.diff(r.t))
+        v = v[v > 1e-3 * np.median(v[v > 0])]
+        meds.append(np.median(v))
+        pooled.append(v)
+        inner = (v > np.quantile(v, 0.1)) & (v < np.quantile(v, 0.9))
+        if not inner.any() or np.std(v[inner]) > 0.15 * np.median(v):
+            triangle = False
+    meds = np.sort(meds)
+    groups = np.split(meds, np.flatnonzero(meds[1:] / meds[:-1] > 1.5) + 1)
+    levels = np.array([np.exp(np.mean(np.log(g))) for g in groups])
+    if not triangle:
+        v = np.concatenate(pooled)
+        levels = np.exp(np.unique(np.quantile(np.log(v), np.linspace(0.02, 0.99, 7))))
+    v_ref = float(levels[len(levels) // 2])
+    return RateLevels(v_ref, np.log(levels / v_ref), len(groups), triangle)

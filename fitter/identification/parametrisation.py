@@ -1,0 +1,327 @@
+"""Parametrisations: the one way to map a parameter vector theta to a model.
+
+Every fitter in the package (`fit_recordings`, the diagnosis, the Section V
+estimator) optimises a `Parametrisation`: ``size``, ``names()``,
+``bounds()``, ``build(theta) -> model`` and ``theta(model) -> theta``.  The
+models it builds are validated, immutable `fitter.core` models.
+
+Canonical forms (order n, observability canonical form of (A+, C) or (A, C):
+C = e1, A+ (or A) a companion matrix with free last row):
+
+* `RICanonical`, eqs (1)-(2):
+  theta = [a+ (n), A- (n^2), B+, B-, E+, E- (n each), D].
+* `RDCanonical`, eqs (18)-(19): theta = [p (n), B, E (n each), D, c], A the
+  companion matrix of a Hurwitz polynomial parametrised by p (`hurwitz_poly`:
+  every theta gives a Hurwitz A, so the convergence condition holds by
+  construction), and the rate function
+  g(v) = |v| exp(c_s [v < 0] + h(ln(|v|/v_ref))), h piecewise linear in the
+  log-rate between knots, h = 0 at the reference rate (g(v_ref) = v_ref, the one
+  normalisation of rate dependence in a fitted model), constant beyond the
+  outer knots; tabulated as a `TabulatedRate` at `RATE_NODES`.
+
+Wrappers:
+
+* `StateSpace`: the free entries of a template model's matrices (RI: A+-, B+-,
+  E+-, x0; RD: A, B, E, x0), with optional bounds (used by the diagnosis).
+* `WithEffects`: a base parametrisation plus effects of the registry
+  `fitter.core.effects.REGISTRY`; parameters declared ``log`` enter theta as
+  their logarithm; bounds come from the registry.
+* `Physical`: a parametrisation fitted in normalised units, built in physical
+  units by a `Normalisation` (exact map, `fitter.identification.scaling`).
+"""
+from __future__ import annotations
+
+import itertools
+import math
+from typing import Sequence
+
+import numpy as np
+
+from fitter.core.effects import REGISTRY, Effect, EffectContext
+from fitter.core.models import RateDependentModel, RateIndependentModel
+from fitter.core.periodic import convergence_rho
+from fitter.core.rates import TabulatedRate
+
+__all__ = ["Parametrisation", "RICanonical", "RDCanonical", "StateSpace", "WithEffects", "Physical",
+           "companion", "observability", "hurwitz_poly", "hurwitz_theta", "RATE_NODES", "RHO_MARGIN"]
+
+RATE_NODES = np.logspace(-3, 3, 97)
+"""Positive rate nodes (multiples of v_ref) at which a fitted g is tabulated."""
+RHO_MARGIN = 0.99
+"""Largest spectral radius of condition (5) accepted during a rate-independent fit."""
+
+
+class Parametrisation:
+    """theta -> model map; subclasses set `size` and implement `names`, `build`, `theta`."""
+
+    size: int
+
+    def names(self) -> list[str]:
+        raise NotImplementedError
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds of theta (default: unbounded)."""
+        return np.full(self.size, -np.inf), np.full(self.size, np.inf)
+
+    def build(self, theta: np.ndarray):
+        raise NotImplementedError
+
+    def theta(self, model) -> np.ndarray:
+        raise NotImplementedError
+
+
+def companion(a: np.ndarray) -> np.ndarray:
+    """Companion matrix with ones on the superdiagonal and last row `a`."""
+    n = len(a)
+    A = np.zeros((n, n))
+    A[np.arange(n - 1), np.arange(1, n)] = 1.0
+    A[-1] = a
+    return A
+
+
+def observability(A: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """Observability matrix [C; C A; ...; C A^{n-1}]."""
+    rows = [C]
+    for _ in range(len(C) - 1):
+        rows.append(rows[-1] @ A)
+    return np.array(rows)
+
+
+def hurwitz_poly(th: np.ndarray) -> np.ndarray:
+    """Coefficients p_0..p_{n-1} of a Hurwitz polynomial s^n + p_{n-1} s^{n-1} + ... + p_0.
+
+    n = 1: s + e^th0; n = 2: s^2 + e^th1 s + e^th0; n = 3: (s + r)(s^2 + b s + c) with
+    (r, c, b) = e^th.  Every theta gives a Hurwitz polynomial and every Hurwitz
+    polynomial of order <= 3 has a theta.
+    """
+    e = np.exp(np.clip(th, -30, 30))
+    if len(th) <= 2:
+        return e
+    r, c, b = e
+    return np.array([r * c, c + r * b, r + b])
+
+
+def hurwitz_theta(lam: np.ndarray) -> np.ndarray:
+    """Inverse of `hurwitz_poly` for the eigenvalues `lam` (unstable ones reflected)."""
+    lam = np.where(lam.real >= 0, -np.abs(lam.real) - 1e-3 + 1j * lam.imag, lam)
+    if len(lam) == 3:
+        k = int(np.argmin(np.abs(lam.imag)))
+        quad = np.real(np.poly(np.delete(lam, k)))
+        return np.log([-lam[k].real, quad[2], quad[1]])
+    return np.log(np.real(np.poly(lam))[1:][::-1])
+
+
+class RICanonical(Parametrisation):
+    """Rate-independent canonical parameters of order n (module docstring)."""
+
+    kind = "ri"
+
+    def __init__(self, n: int):
+        self.n = n
+        self.size = n * n + 5 * n + 1
+
+    def names(self) -> list[str]:
+        n = self.n
+        return ([f"A_plus[{n - 1},{j}]" for j in range(n)]
+                + [f"A_minus[{i},{j}]" for i in range(n) for j in range(n)]
+                + [f"{p}[{i}]" for p in ("B_plus", "B_minus", "E_plus", "E_minus") for i in range(n)]
+                + ["D"])
+
+    def build(self, theta: np.ndarray) -> RateIndependentModel:
+        n = self.n
+        a, rest = theta[:n], theta[n:]
+        Am, rest = rest[:n * n].reshape(n, n), rest[n * n:]
+        Bp, Bm, Ep, Em = (rest[i * n:(i + 1) * n] for i in range(4))
+        return RateIndependentModel(A_plus=companion(a), A_minus=Am, B_plus=Bp, B_minus=Bm,
+                                    C=np.eye(n)[0], E_plus=Ep, E_minus=Em, D=rest[4 * n])
+
+    def theta(self, model: RateIndependentModel) -> np.ndarray:
+        """Canonical theta of an observable model of order n (state x -> O x)."""
+        T = observability(model.A_plus, model.C)
+        Ti = np.linalg.inv(T)
+        return np.r_[(T @ model.A_plus @ Ti)[-1], (T @ model.A_minus @ Ti).ravel(), T @ model.B_plus,
+                     T @ model.B_minus, T @ model.E_plus, T @ model.E_minus, model.D]
+
+    @staticmethod
+    def convergence(model, u_min: float, u_max: float) -> float:
+        """rho(e^{beta A+} e^{-beta A-}) of condition (5), beta = u_max - u_min (inf on overflow)."""
+        span = u_max - u_min
+        with np.errstate(all="ignore"):
+            ok = (np.all(np.isfinite(model.A_plus)) and np.abs(model.A_plus).max() * span < 600
+                  and np.abs(model.A_minus).max() * span < 600)
+            return convergence_rho(model, u_min, u_max) if ok else np.inf
+
+    @staticmethod
+    def converges(value: float) -> bool:
+        return value < 1
+
+    LIMIT = RHO_MARGIN
+    QUANTITY = "rho(e^{beta A+} e^{-beta A-}) (condition 5)"
+
+
+class RDCanonical(Parametrisation):
+    """Rate-dependent canonical parameters of order n with g tabulated (module docstring)."""
+
+    kind = "rd"
+
+    def __init__(self, n: int, v_ref: float, knots: np.ndarray):
+        self.n, self.v_ref, self.knots = n, float(v_ref), np.asarray(knots, dtype=float)
+        self.n_c = len(self.knots) - 1
+        self.size = 3 * n + 2 + self.n_c
+
+    def names(self) -> list[str]:
+        n = self.n
+        rates = [f"g_log_at_{self.v_ref * np.exp(k):.4g}" for k in self.knots if k != 0.0]
+        return ([f"A_poly[{j}]" for j in range(n)] + [f"B[{i}]" for i in range(n)]
+                + [f"E[{i}]" for i in range(n)] + ["D", "g_sign"] + rates)
+
+    def g_values(self, c: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """g(v) = |v| exp(c_s [v<0] + h(s)), s = ln(|v|/v_ref), h linear between the knots."""
+        s = np.log(np.abs(v) / self.v_ref)
+        k0 = int(np.argmin(np.abs(self.knots)))
+        h = np.interp(s, self.knots, np.insert(np.asarray(c[1:], dtype=float), k0, 0.0))
+        return np.abs(v) * np.exp(np.clip(c[0] * (v < 0) + h, -30, 30))
+
+    def build(self, theta: np.ndarray) -> RateDependentModel:
+        n = self.n
+        nodes = np.r_[-self.v_ref * RATE_NODES[::-1], self.v_ref * RATE_NODES]
+        g = TabulatedRate(nodes, self.g_values(theta[3 * n + 1:], nodes))
+        return RateDependentModel(A=companion(-hurwitz_poly(theta[:n])), B=theta[n:2 * n],
+                                  E=theta[2 * n:3 * n], C=np.eye(n)[0], D=theta[3 * n], g=g)
+
+    def theta(self, model: RateDependentModel, c: np.ndarray | None = None) -> np.ndarray:
+        """Canonical theta of (A, B, E, C, D); the rate part is `c` (default zeros: g = |v|)."""
+        T = observability(model.A, model.C)
+        c = np.zeros(1 + self.n_c) if c is None else c
+        return np.r_[hurwitz_theta(np.linalg.eigvals(model.A)), T @ model.B, T @ model.E, model.D, c]
+
+    @staticmethod
+    def convergence(model, u_min: float, u_max: float) -> float:
+        """max Re eig(A): rho(period map) < 1 iff A is Hurwitz, since g >= 0."""
+        return float(np.max(np.linalg.eigvals(model.A).real))
+
+    @staticmethod
+    def converges(value: float) -> bool:
+        return value < 0
+
+    LIMIT = -1e-3
+    QUANTITY = "max Re eig(A) (< 0 <=> rho(period map) < 1 since g >= 0)"
+
+
+def _free_keys(model) -> list[str]:
+    if isinstance(model, RateIndependentModel):
+        return ["A_plus", "A_minus", "B_plus", "B_minus", "E_plus", "E_minus", "x0"]
+    return ["A", "B", "E", "x0"]
+
+
+class StateSpace(Parametrisation):
+    """The free entries of a template model (C, D, g, effects fixed): theta = [A.., B.., E.., x0]."""
+
+    def __init__(self, template, lower: np.ndarray | None = None, upper: np.ndarray | None = None):
+        self.template = template
+        self.keys = _free_keys(template)
+        self.shapes = [np.shape(getattr(template, k)) for k in self.keys]
+        self.size = int(sum(int(np.prod(s)) for s in self.shapes))
+        self._lower = np.full(self.size, -np.inf) if lower is None else np.asarray(lower, dtype=float)
+        self._upper = np.full(self.size, np.inf) if upper is None else np.asarray(upper, dtype=float)
+
+    def names(self) -> list[str]:
+        return [f"{k}[{i}]" for k, s in zip(self.keys, self.shapes) for i in range(int(np.prod(s)))]
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return self._lower.copy(), self._upper.copy()
+
+    def values(self, theta: np.ndarray) -> dict:
+        out, i = {}, 0
+        for k, s in zip(self.keys, self.shapes):
+            n = int(np.prod(s))
+            out[k] = np.reshape(theta[i:i + n], s)
+            i += n
+        return out
+
+    def build(self, theta: np.ndarray):
+        return self.template.replace(**self.values(theta))
+
+    def theta(self, model) -> np.ndarray:
+        return np.concatenate([np.ravel(getattr(model, k)) for k in self.keys])
+
+
+class WithEffects(Parametrisation):
+    """A base parametrisation plus effects of the registry: theta = [base..., effects...].
+
+    Effect parameters declared ``log`` in their `ParameterSpec` enter theta as
+    log(value).  Bounds: the registry's ``bounds(ctx)`` (in theta's coordinates).
+    """
+
+    def __init__(self, base: Parametrisation, effects: Sequence[str], ctx: EffectContext):
+        self.base, self.effects, self.ctx = base, list(effects), ctx
+        self.specs = [REGISTRY[e] for e in self.effects]
+        self.keys = [(s.name, p) for s in self.specs for p in s.parameters]
+        self.n_base = base.size
+        self.size = base.size + len(self.keys)
+
+    def names(self) -> list[str]:
+        return self.base.names() + [f"{e}.{p.name}" for e, p in self.keys]
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = self.base.bounds()
+        elo, ehi = [], []
+        for spec in self.specs:
+            b = spec.bounds(self.ctx)
+            for p in spec.parameters:
+                a, z = b[p.name]
+                elo.append(math.log(a) if p.log else a)
+                ehi.append(math.log(z) if p.log else z)
+        return np.r_[lo, elo], np.r_[hi, ehi]
+
+    def starts(self) -> list[np.ndarray]:
+        """The effect part of theta at every combination of the effects' starting values
+        (registry order, the last effect varying fastest)."""
+        combos = itertools.product(*[spec.starts(self.ctx) for spec in self.specs])
+        return [self.encode(combo) for combo in combos]
+
+    def null(self) -> np.ndarray:
+        """The effect part of theta at which every effect (almost) vanishes: the nested model."""
+        return self.encode([spec.null(self.ctx) for spec in self.specs])
+
+    def encode(self, values: Sequence[dict]) -> np.ndarray:
+        """theta-coordinates of one parameter dict per effect (physical units)."""
+        return np.array([math.log(v[p.name]) if p.log else float(v[p.name])
+                         for spec, v in zip(self.specs, values) for p in spec.parameters])
+
+    def effect_list(self, theta: np.ndarray) -> list[Effect]:
+        vals = iter(theta[self.n_base:])
+        out = []
+        for spec in self.specs:
+            params = {}
+            for p in spec.parameters:
+                v = float(next(vals))
+                params[p.name] = math.exp(v) if p.log else v
+            out.append(Effect(spec.name, params))
+        return out
+
+    def build(self, theta: np.ndarray):
+        model = self.base.build(theta[:self.n_base])
+        return model.replace(effects=list(model.effects) + self.effect_list(theta))
+
+    def theta(self, model) -> np.ndarray:
+        own = {e.effect: e.parameters for e in model.effects if e.effect in self.effects}
+        base = model.replace(effects=[e for e in model.effects if e.effect not in self.effects])
+        return np.r_[self.base.theta(base), self.encode([own[e] for e in self.effects])]
+
+
+class Physical(Parametrisation):
+    """`param` fitted in normalised units, built in physical units by `scaling.to_physical`."""
+
+    def __init__(self, param: Parametrisation, scaling):
+        self.param, self.scaling = param, scaling
+        self.size = param.size
+
+    def names(self) -> list[str]:
+        return self.param.names()
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.param.bounds()
+
+    def build(self, theta: np.ndarray):
+        return self.scaling.to_physical(self.param.build(theta))

@@ -1,0 +1,126 @@
+"""The output-error engine: every initial-state mode, bounds, masks, covariance, parametrisations."""
+import numpy as np
+import pytest
+
+from fitter.core import RateIndependentModel, simulate
+from fitter.core.effects import EffectContext
+from fitter.data.recordings import Recording
+from fitter.identification.output_error import Options, Recordings, effective_samples, refine
+from fitter.identification.parametrisation import (Parametrisation, RDCanonical, RICanonical, StateSpace,
+                                                   WithEffects)
+
+TRUE = np.array([-3.0, 2.5, 1.0, 1.2, 0.3])
+
+
+class _Five(Parametrisation):
+    """First-order RI model with C = 1: theta = [A+, A-, B+, B-, D]."""
+
+    size = 5
+
+    def names(self):
+        return ["A_plus", "A_minus", "B_plus", "B_minus", "D"]
+
+    def build(self, th):
+        return RateIndependentModel(A_plus=[[th[0]]], A_minus=[[th[1]]], B_plus=[th[2]], B_minus=[th[3]],
+                                    C=[1.0], D=th[4])
+
+
+def _recording(x0: float, seed: int = 0, cycles: float = 10.0, noise: float = 0.01) -> Recording:
+    t = np.linspace(0, 2 * np.pi * cycles, int(600 * cycles) + 1)
+    u = np.sin(t)
+    y = simulate(_Five().build(TRUE), t, u, x0=[x0]).y
+    return Recording(t, u, y + noise * np.random.default_rng(seed).standard_normal(len(t)))
+
+
+START = np.array([-1.0, 1.0, 0.5, 0.5, 0.0])
+
+
+def test_fitted_initial_state_recovers_parameters_and_x0():
+    res = refine(_Five(), START, Recordings([_recording(0.5)], x0="fit"))
+    assert res.success
+    assert np.all(np.abs(res.theta - TRUE) < 4 * res.stderr() + 1e-12)
+    assert np.all(res.stderr() < 0.02)
+    assert abs(res.x0s[0][0] - 0.5) < 0.05
+    assert abs(res.sigma - 0.01) < 1e-3
+
+
+def test_periodic_mode_default_cycles_starts_at_the_first_settled_cycle():
+    """The default call (x0="periodic", cycles found by preparation) runs and fits."""
+    rec = _recording(0.0, cycles=6.0)
+    res = refine(_Five(), START, Recordings([rec]))
+    assert res.starts[0] > 0 and len(res.residuals[0]) == len(rec.y) - res.starts[0]
+    assert 0 < res.rho[0] < 1
+    np.testing.assert_allclose(res.theta, TRUE, atol=0.05)
+
+
+def test_model_mode_uses_the_models_x0_and_a_wrong_x0_biases_the_fit():
+    rec = _recording(0.8, noise=0.0, cycles=2.0)
+    res = refine(_Five(), TRUE, Recordings([rec], x0="model"), Options(max_nfev=5))
+    assert res.x0s[0][0] == 0.0
+    assert res.starts == [0]
+    fitted = refine(_Five(), TRUE, Recordings([rec], x0="fit"), Options(max_nfev=5))
+    assert fitted.rss < 1e-20 < res.rss
+
+
+def test_unknown_mode_is_refused():
+    with pytest.raises(ValueError, match="x0 must be one of"):
+        Recordings([_recording(0.0)], x0="first")
+
+
+def test_bounds_hold_and_masked_samples_do_not_count():
+    rec = _recording(0.0, noise=0.0, cycles=2.0)
+    y = rec.y.copy()
+    y[100:200] += 5.0
+    bad = Recording(rec.t, rec.u, y)
+    w = np.ones(len(y))
+    w[100:200] = 0
+    param = StateSpace(_Five().build(TRUE).replace(x0=[0.0]),
+                       lower=[-10, 0, -10, -10, -10, -10, -1], upper=[0, 10, 10, 10, 10, 10, 1])
+    start = param.theta(_Five().build(START))
+    res = refine(param, start, Recordings([bad], x0="model", weights=[w]), Options(normalise=True))
+    lo, hi = param.bounds()
+    assert np.all(res.theta >= lo) and np.all(res.theta <= hi)
+    np.testing.assert_allclose(res.theta[:4], TRUE[:4], atol=1e-5)
+    assert len(res.weighted) == len(y) - 100
+    assert abs(np.mean(res.residuals[0][100:200]) - 5.0) < 1e-4
+
+
+def test_free_mask_moves_only_free_parameters():
+    rec = _recording(0.0, noise=0.0, cycles=2.0)
+    free = np.array([True, True, False, False, False])
+    start = np.r_[-1.0, 1.0, TRUE[2:]]
+    res = refine(_Five(), start, Recordings([rec], x0="model"), free=free)
+    np.testing.assert_array_equal(res.theta[2:], TRUE[2:])
+    np.testing.assert_allclose(res.theta[:2], TRUE[:2], atol=1e-6)
+    assert np.all(res.jac[:, ~free] == 0)
+
+
+def test_effective_samples_inflates_the_covariance():
+    r = np.cumsum(np.random.default_rng(3).standard_normal(2000)) * 0.01
+    n_eff = effective_samples(r)
+    assert 2000 * 0.02 / 1.98 - 1e-9 <= n_eff < 200
+    res = refine(_Five(), START, Recordings([_recording(0.5)], x0="fit"))
+    np.testing.assert_allclose(res.covariance(n_eff=len(res.weighted) / 4), 4 * res.covariance(), rtol=1e-12)
+
+
+def test_canonical_parametrisations_round_trip():
+    ri = RICanonical(2)
+    th = np.arange(ri.size) * 0.1 - 0.3
+    np.testing.assert_allclose(ri.theta(ri.build(th)), th, atol=1e-12)
+    rd = RDCanonical(3, 1.0, np.log([0.5, 1.0, 2.0]))
+    th = np.r_[np.log([1.0, 2.0, 1.0]), 0.1 * np.arange(3 * 3 - 2 + 1 + rd.n_c)]
+    m = rd.build(th)
+    assert np.max(np.linalg.eigvals(m.A).real) < 0
+    np.testing.assert_allclose(rd.theta(m, th[-1 - rd.n_c:]), th, atol=1e-10)
+
+
+def test_with_effects_log_parameters_and_null_model():
+    base = StateSpace(_Five().build(TRUE))
+    ctx = EffectContext(dt_min=0.01, duration=10.0, u_span=2.0, y_min=-1.0, y_max=1.0, y_mean=0.0, v95=1.0)
+    param = WithEffects(base, ["creep"], ctx)
+    lo, hi = param.bounds()
+    np.testing.assert_allclose([lo[-1], hi[-1]], np.log([0.05 * 0.01, 100.0]))
+    theta = np.r_[base.theta(base.template), param.encode([{"k": 0.2, "tau": 0.5}])]
+    m = param.build(theta)
+    assert m.effects[0].parameters == {"k": 0.2, "tau": pytest.approx(0.5)}
+    np.testing.assert_allclose(param.theta(m), theta, atol=1e-12)
