@@ -5,7 +5,7 @@
     python bench/diagnose_speed.py --piezo DIR     # diagnose the measured piezo data, reports in DIR
     python bench/diagnose_speed.py --piezo DIR --base-order auto   # ... with a fit_recordings base
 
-The experiments come from `fitter.diagnosis.diagnose.synthetic_experiment` (the project's
+The experiments come from `fitter.diagnosis.synthetic_experiment` (the project's
 own simulator; timing: effect max 2% of the output range, noise 1/15 of that;
 sweep: per seed a different base loop, effect size 1.5-2.5% of the range and
 noise 1/10-1/20 of it, `_varied`).  The
@@ -36,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fitter.core.effects import EFFECTS
-from fitter.diagnosis.diagnose import diagnose, rich_progress, synthetic_experiment
+from fitter.core.effects import REGISTRY
+from fitter.diagnosis import diagnose, rich_progress, synthetic_experiment
 from fitter.reports.diagnosis_report import write_diagnosis_report
 from fitter.data.preparation import find_holds
 from fitter.data.recordings import Recording, load_recording
@@ -73,7 +73,7 @@ def _varied(seed: int) -> dict:
 
 def sweep(seeds: int, samples: int) -> None:
     right = total = clean_ok = clean = near_noise = 0
-    for effect in list(EFFECTS) + [None]:
+    for effect in list(REGISTRY) + [None]:
         for seed in range(seeds):
             recordings, truth = synthetic_experiment(effect, seed=100 + seed, samples=samples,
                                                      **_varied(seed))
@@ -142,7 +142,7 @@ def piezo(out: Path, base_order: int | None) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--effect", default="rate_dependence", choices=list(EFFECTS))
+    ap.add_argument("--effect", default="rate_dependence", choices=list(REGISTRY))
     ap.add_argument("--sweep", type=int, default=0, help="seeds per effect for the success-rate sweep")
     ap.add_argument("--samples", type=int, default=1000, help="samples per recording in the sweep")
     ap.add_argument("--piezo", type=Path, default=None, help="diagnose the piezo data; reports in this folder")

@@ -1,18 +1,28 @@
-"""`fitter.diagnosis.diagnose`: the right effect on generated experiments, nothing on clean ones, clear errors.
+"""`fitter.diagnosis`: the right effect on generated experiments, nothing on clean ones, clear errors.
 
 The experiments come from the project's own simulator (`synthetic_experiment`):
 4 recordings (0.025, 0.125, 0.5 Hz and a repeat of the first), effect max 2% of
 the output range, noise 1/15 of that.  The larger sweep (several seeds, larger
-recordings) is `bench/diagnose_speed.py --sweep`.
+recordings) is `bench/diagnose_speed.py --sweep`.  The pieces: the family's
+theta coordinates from the effect registry (log for time constants), the
+likelihood-ratio report, the AR(1) effective sample size, the effect context.
 """
 import json
+import math
 
 import numpy as np
 import pytest
+from scipy.stats import chi2
 
 from fitter.core import load_model, save_model, simulate
-from fitter.core.effects import EFFECTS
-from fitter.diagnosis.diagnose import DiagnoseError, diagnose, synthetic_experiment
+from fitter.core.effects import REGISTRY, Effect, EffectContext
+from fitter.core.models import Signal
+from fitter.diagnosis import DiagnoseError, JoinedExperiment, diagnose, synthetic_experiment
+from fitter.diagnosis.experiment import join_recordings
+from fitter.diagnosis.fitting import Fit, first_order_ri
+from fitter.diagnosis.statistics import effect_report
+from fitter.identification.output_error import RefineResult, effective_samples as effective_sample_size
+from fitter.identification.parametrisation import StateSpace, WithEffects
 from fitter.reports.diagnosis_report import write_diagnosis_report
 from fitter.data.recordings import Recording
 
@@ -30,7 +40,7 @@ def run(effect, seed):
     return _CACHE[key]
 
 
-@pytest.mark.parametrize("effect", list(EFFECTS))
+@pytest.mark.parametrize("effect", list(REGISTRY))
 def test_concealed_effect_is_the_first_finding(effect):
     recs, truth, d = run(effect, 0)
     assert d.findings, f"{effect}: nothing found"
@@ -39,8 +49,7 @@ def test_concealed_effect_is_the_first_finding(effect):
     assert d.extended["residual_rms"] <= 1.2 * truth["noise_rms"]
     assert d.baseline["residual_rms"] >= 1.5 * truth["noise_rms"]
     true_params = truth["effect"]["parameters"]
-    strength = {"backlash": "b", "rate_dependence": "alpha", "creep": "k", "viscous": "c",
-                "thermal_drift": "kappa", "saturation": "beta", "sensor_lag": "tau"}[effect]
+    strength = REGISTRY[effect].strength_parameter
     found = d.findings[0]["parameters"][strength]
     assert abs(found - true_params[strength]) <= 0.25 * abs(true_params[strength])
 
@@ -87,7 +96,7 @@ def test_progress_is_reported_in_order():
     fractions = [f for _, f in d.steps]
     assert fractions[0] == 0.0 and fractions[-1] == 1.0
     assert all(b >= a for a, b in zip(fractions, fractions[1:]))
-    assert {f"testing {name}" for name in EFFECTS} <= {m for m, _ in d.steps}
+    assert {f"testing {name}" for name in REGISTRY} <= {m for m, _ in d.steps}
 
 
 def test_report_is_written(tmp_path):
@@ -101,7 +110,6 @@ def test_report_is_written(tmp_path):
 
 
 def _rec(t, u, y, name="r", out="y"):
-    from fitter.core.models import Signal
     return Recording(t, u, y, name=name, source=f"{name}.csv", output=Signal(out))
 
 
@@ -120,3 +128,88 @@ def test_bad_input_is_a_clear_error():
         diagnose([a, _rec(t, np.sin(t), np.sin(t), "b")])
     with pytest.raises(DiagnoseError, match="unknown candidate effect 'friction'"):
         diagnose([a], candidates=["friction"])
+
+
+# --------------------------------------------------------------------------- the pieces
+CTX = EffectContext(dt_min=0.01, duration=100.0, u_span=2.0, y_min=-1.0, y_max=3.0, y_mean=0.5, v95=4.0)
+BASE = first_order_ri(-3.0, 3.0, 3.0, -3.0, -1.5, -1.5, -1 / 6)
+
+
+def _family(effects, template=BASE):
+    return WithEffects(StateSpace(template), effects, CTX)
+
+
+def test_family_fits_time_constants_as_logarithms():
+    fam = _family(["creep"])
+    assert fam.n_base == 7
+    taus = np.geomspace(0.03, 10.0, 4)
+    np.testing.assert_allclose(fam.starts(), [[0.0, math.log(tau)] for tau in taus], rtol=1e-14)
+    lower, upper = fam.bounds()
+    assert lower[7:].tolist() == [-math.inf, pytest.approx(math.log(5e-4))]
+    assert upper[7:].tolist() == [math.inf, pytest.approx(math.log(1000.0))]
+    assert fam.null().tolist() == [0.0, pytest.approx(math.log(0.1))]
+    theta = np.r_[fam.base.theta(BASE), 0.2, math.log(3.0)]
+    model = fam.build(theta)
+    assert model.effects[0].parameters == {"k": pytest.approx(0.2), "tau": pytest.approx(3.0)}
+    t = np.linspace(0.0, 10.0, 400)
+    u = np.sin(t)
+    direct = BASE.replace(effects=[Effect("creep", {"k": 0.2, "tau": 3.0})])
+    np.testing.assert_allclose(simulate(model, t, u).y, simulate(direct, t, u).y, atol=1e-12)
+
+
+def test_family_combines_starts_of_two_effects_in_registry_order():
+    fam = _family(["backlash", "saturation"], BASE.replace(effects=[Effect("viscous", {"c": 0.1})]))
+    starts = fam.starts()
+    assert [s.tolist() for s in starts] == [[0.02, 0.5, 0.25], [0.02, 0.5, 0.75], [0.1, 0.5, 0.25],
+                                            [0.1, 0.5, 0.75]]
+    lower, upper = fam.bounds()
+    assert (lower[7:].tolist(), upper[7:].tolist()) == ([0.0, -1.0, 0.0], [math.inf, 3.0, math.inf])
+    assert fam.null().tolist() == [0.0, 0.5, 0.0]
+    model = fam.build(np.r_[fam.base.theta(BASE), starts[-1]])
+    assert [e.effect for e in model.effects] == ["viscous", "backlash", "saturation"]
+
+
+def test_effect_report_gives_physical_values_and_the_likelihood_ratio():
+    rng = np.random.default_rng(7)
+    fam = _family(["sensor_lag"])
+    n = 500
+    jac = rng.normal(size=(n, 8))
+    residual = rng.normal(0.0, 0.1, n)
+    result = RefineResult(theta=np.r_[fam.base.theta(BASE), math.log(2.0)], model=None, residuals=[residual],
+                          weighted=residual, jac=jac, nfev=0, success=True)
+    fit = Fit(fam, result, np.ones(n, bool))
+    rss = float(np.sum(residual ** 2))
+    rep = effect_report(fit, base_rss=2 * rss, n_eff=100.0, df=1)
+    assert rep["parameters"] == {"tau": pytest.approx(2.0)}
+    se_log = math.sqrt((rss / (n - 8)) * np.linalg.inv(jac.T @ jac)[7, 7] * n / 100.0)
+    assert rep["stderr"]["tau"] == pytest.approx(2.0 * se_log, rel=1e-9)
+    assert rep["lr"] == pytest.approx(100.0 * math.log(2.0))
+    assert rep["p_value"] == pytest.approx(chi2.sf(100.0 * math.log(2.0), 1))
+    assert rep["explained_fraction"] == pytest.approx(0.5)
+    assert rep["residual_rms"] == pytest.approx(math.sqrt(rss / n))
+
+
+def test_effective_sample_size_of_ar1_residuals():
+    rng = np.random.default_rng(3)
+    e = rng.normal(size=40000)
+    ar = np.empty_like(e)
+    ar[0] = e[0]
+    for k in range(1, len(e)):
+        ar[k] = 0.5 * ar[k - 1] + e[k]
+    assert effective_sample_size(ar) == pytest.approx(40000 / 3, rel=0.03)        # (1 - 0.5) / (1 + 0.5)
+    assert effective_sample_size(e) == pytest.approx(40000, rel=0.03)
+    assert effective_sample_size((-1.0) ** np.arange(1000)) == 1000               # rho < 0 clipped to 0
+    assert effective_sample_size(np.cumsum(e)) == pytest.approx(40000 * 0.02 / 1.98)   # rho clipped to 0.98
+
+
+def test_effect_context_of_a_joined_experiment():
+    recs, _ = synthetic_experiment(None, samples=300)
+    ex = join_recordings(recs)
+    ctx = ex.effect_context(0.25)
+    assert ctx.dt_min == pytest.approx(4.0 / 299)                 # the 0.5 Hz run: 2 periods of 2 s
+    assert ctx.duration == pytest.approx(80 + 16 + 4 + 80 + 3)     # 4 runs of 2 periods, 3 gaps of 1 s
+    assert ctx.u_span == pytest.approx(2.0, abs=1e-12)
+    assert (ctx.y_min, ctx.y_max, ctx.y_mean) == (ex.y.min(), ex.y.max(), 0.25)
+    t = np.linspace(0.0, 1.0, 300)
+    still = JoinedExperiment([_rec(t, np.zeros(300), t)], t, np.zeros(300), t, np.zeros(300, int), [(0, 300)])
+    assert still.effect_context(0.0).v95 == 1.0

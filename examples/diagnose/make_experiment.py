@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fitter.diagnosis.diagnose import synthetic_experiment
+from fitter.diagnosis import synthetic_experiment
 
 HERE = Path(__file__).resolve().parent
 EFFECT = "rate_dependence"

@@ -1,0 +1,107 @@
+"""One experiment: recordings joined on one clock, checked before a diagnosis.
+
+One experiment is a list of recordings whose time is the experiment clock: it
+runs on from file to file (gaps allowed).  The recordings are simulated as one
+signal: the input is piecewise linear between all samples, including across a
+gap (the straight line from the last sample of one file to the first of the
+next), so model states, creep and the input travel of a thermal drift carry
+over from file to file.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from fitter.core.effects import EffectContext
+from fitter.core.errors import DuhemError
+from fitter.data.cycles import count_reversals
+from fitter.data.recordings import Recording
+
+__all__ = ["DiagnoseError", "JoinedExperiment", "MIN_SAMPLES", "join_recordings"]
+
+MIN_SAMPLES = 200
+
+
+class DiagnoseError(DuhemError):
+    """Input that cannot be diagnosed (named file, column, row, value)."""
+
+
+@dataclass
+class JoinedExperiment:
+    """The recordings of one experiment, concatenated on the experiment clock."""
+
+    recordings: list
+    t: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+    index: np.ndarray          # recording number of each sample
+    bounds: list               # [start, stop) of each recording in the arrays
+
+    def part(self, i: int) -> slice:
+        """The samples of recording `i` in the joined arrays."""
+        return slice(*self.bounds[i])
+
+    def min_dt(self) -> float:
+        """The shortest of the recordings' median sample periods."""
+        return float(min(np.median(np.diff(r.t)) for r in self.recordings))
+
+    def effect_context(self, y_mean: float) -> EffectContext:
+        """The experiment's `EffectContext`, `y_mean` the mean output of the model an effect would extend.
+
+        v95 is the 95th percentile of |du/dt| over all intervals (1.0 when it is 0).
+        """
+        v95 = float(np.percentile(np.abs(np.diff(self.u) / np.diff(self.t)), 95)) or 1.0
+        return EffectContext(dt_min=self.min_dt(), duration=float(np.ptp(self.t)), u_span=float(np.ptp(self.u)),
+                             y_min=float(self.y.min()), y_max=float(self.y.max()), y_mean=y_mean, v95=v95)
+
+
+def join_recordings(recordings: Sequence[Recording]) -> JoinedExperiment:
+    """Check the recordings of one experiment and join them on its clock.
+
+    Raises
+    ------
+    DiagnoseError : no recordings, different columns, a non-finite output, time not running on from
+        file to file, fewer than `MIN_SAMPLES` samples, an input reversing fewer than twice.
+    """
+    recs = list(recordings)
+    if not recs:
+        raise DiagnoseError("no recordings given")
+    _check_columns(recs)
+    for r in recs:
+        _check_output(r)
+    for a, b in zip(recs[:-1], recs[1:]):
+        if b.t[0] <= a.t[-1]:
+            raise DiagnoseError(f"{b.source}: starts at t = {b.t[0]} before {a.source} ends (t = {a.t[-1]}); "
+                                "the recordings of one experiment must share one clock that runs on from "
+                                "file to file (shift the time of later files)")
+    n = sum(len(r.t) for r in recs)
+    if n < MIN_SAMPLES:
+        raise DiagnoseError(f"{n} samples in all ({', '.join(r.source for r in recs)}): too short to "
+                            f"diagnose (at least {MIN_SAMPLES} needed)")
+    u = np.concatenate([r.u for r in recs])
+    if count_reversals(u, threshold=0.1 * np.ptp(u)) < 2:
+        raise DiagnoseError(f"the input ({recs[0].input.name}) reverses fewer than twice over the experiment "
+                            f"({', '.join(r.source for r in recs)}): no hysteresis loop to diagnose")
+    stops = np.cumsum([len(r.t) for r in recs])
+    bounds = [(int(s - len(r.t)), int(s)) for s, r in zip(stops, recs)]
+    return JoinedExperiment(recs, np.concatenate([r.t for r in recs]), u, np.concatenate([r.y for r in recs]),
+                            np.concatenate([np.full(len(r.t), i) for i, r in enumerate(recs)]), bounds)
+
+
+def _check_columns(recs: list[Recording]) -> None:
+    first = recs[0]
+    for r in recs[1:]:
+        if (r.input.name, r.output.name) != (first.input.name, first.output.name):
+            raise DiagnoseError(f"{r.source}: columns ({r.input.name}, {r.output.name}) differ from "
+                                f"{first.source}: ({first.input.name}, {first.output.name}); one experiment "
+                                "needs the same input and output in every recording")
+
+
+def _check_output(r: Recording) -> None:
+    """A diagnosis needs the output everywhere (`Recording` checks time and input at construction)."""
+    bad = np.flatnonzero(~np.isfinite(r.y))
+    if bad.size:
+        raise DiagnoseError(f"{r.source}: column {r.output.name or 'y'}, row {bad[0]}: value {r.y[bad[0]]} "
+                            "is not finite")

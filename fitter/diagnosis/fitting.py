@@ -1,0 +1,145 @@
+"""Output-error fits of the diagnosis: the base model and each candidate effect.
+
+Every fit is `fitter.identification.output_error.refine` on the joined
+experiment as one recording (x0 = "model": the initial state is part of
+theta), with the mask as 0/1 weights, residuals normalised by the output range
+and the tolerances of `OPTIONS`.  The parametrisation (`family`) is
+`WithEffects(StateSpace(template), effects, ctx)`: the template's free
+matrices and x0, then the candidate effects' parameters (registry order; a
+``log`` parameter such as a time constant enters as its logarithm); the
+template's own effects (those already found) are kept fixed.
+
+Base model (`fit_base`): a first-order rate-independent model, eqs (1)-(2)
+with C = 1, D = 0 (D is redundant at order 1): a grid over A+ = -A- < 0 (both
+branches converge, condition (5)) with B+-, E+-, x0 solved by linear least
+squares, since the output is affine in them for fixed A, then a joint
+nonlinear least-squares refinement; or a given model whose A, B, E (per
+branch) and x0 are refined.
+
+Candidates (`fit_family`): the base parameters and the effect's parameters
+fitted jointly, started from the best of the effect's starting values.
+
+Bounds: the effects' fitting bounds from the registry (`EffectSpec.bounds`);
+for a first-order rate-independent base, A+ <= 0 <= A- (both branches
+converge, condition (5)) and |A| <= 1000 / input range.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from fitter.core.effects import EffectContext
+from fitter.core.kernel import simulate
+from fitter.core.models import RateIndependentModel, Signals
+from fitter.data.recordings import Recording
+from fitter.diagnosis.experiment import JoinedExperiment
+from fitter.identification.output_error import Options, Recordings, RefineResult, refine
+from fitter.identification.parametrisation import StateSpace, WithEffects
+
+__all__ = ["Fit", "family", "fit_base", "fit_family", "first_order_ri", "OPTIONS"]
+
+OPTIONS = Options(xtol=1e-7, ftol=1e-7, gtol=1e-8, max_samples=None, normalise=True)
+"""Tolerances of every diagnosis fit; the budget is 30 (free parameters + 1) evaluations."""
+
+
+@dataclass
+class Fit:
+    """A refinement of `family` on the experiment: residual y - yhat on every sample, the mask fitted."""
+
+    family: WithEffects
+    result: RefineResult
+    mask: np.ndarray
+
+    @property
+    def theta(self) -> np.ndarray:
+        return self.result.theta
+
+    @property
+    def residual(self) -> np.ndarray:
+        return self.result.residuals[0]
+
+    @property
+    def rss(self) -> float:
+        """Residual sum of squares over the fitted samples (`mask`)."""
+        return self.result.rss
+
+    @property
+    def model(self):
+        return self.result.model
+
+
+def first_order_ri(a_plus: float, a_minus: float, b_plus: float, b_minus: float, e_plus: float,
+                   e_minus: float, x0: float, signals: Signals | None = None) -> RateIndependentModel:
+    """The first-order rate-independent model dx = (A+- x + B+- u + E+-) du, y = x (C = 1, D = 0)."""
+    return RateIndependentModel(A_plus=[[a_plus]], A_minus=[[a_minus]], B_plus=[b_plus], B_minus=[b_minus],
+                                C=[1.0], E_plus=[e_plus], E_minus=[e_minus], x0=[x0],
+                                signals=signals or Signals())
+
+
+def _base_bounds(template, ex: JoinedExperiment) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """A+ in [-a_max, 0], A- in [0, a_max] for a first-order RI template; otherwise unbounded."""
+    if not (isinstance(template, RateIndependentModel) and template.order == 1):
+        return None, None
+    a_max = 1e3 / max(np.ptp(ex.u), 1e-300)
+    lo, hi = np.full(7, -np.inf), np.full(7, np.inf)
+    lo[:2], hi[:2] = [-a_max, 0.0], [0.0, a_max]
+    return lo, hi
+
+
+def family(template, effects: Sequence[str], ex: JoinedExperiment, ctx: EffectContext | None) -> WithEffects:
+    """The parametrisation of `template` extended by `effects` (module docstring)."""
+    return WithEffects(StateSpace(template, *_base_bounds(template, ex)), effects, ctx)
+
+
+def _refine(fam: WithEffects, theta0: np.ndarray, ex: JoinedExperiment, mask: np.ndarray,
+            free: np.ndarray | None = None) -> Fit:
+    """Minimise the sum over `mask` of (y - yhat(theta))^2; only the `free` entries of theta move."""
+    n_free = len(theta0) if free is None else int(np.count_nonzero(free))
+    problem = Recordings([Recording(ex.t, ex.u, ex.y, "experiment")], x0="model", weights=[mask.astype(float)])
+    options = Options(**{**vars(OPTIONS), "max_nfev": 30 * (n_free + 1)})
+    return Fit(fam, refine(fam, theta0, problem, options, free=free), mask)
+
+
+def fit_family(template, effects: Sequence[str], base: np.ndarray, ex: JoinedExperiment, mask: np.ndarray,
+               y_fit: np.ndarray) -> Fit:
+    """Joint fit of `template`'s parameters (from `base`) and `effects`, from the best effect start.
+
+    The starts are screened with the base parameters held (cheap: only the
+    effect parameters move); the joint fit starts from the best one.  Should
+    it end above the nested model (the base with the effects switched off),
+    it is refitted from there, so a candidate never explains a negative
+    fraction.  `y_fit` is the output of the model the family extends.
+    """
+    fam = family(template, effects, ex, ex.effect_context(float(np.mean(y_fit))))
+    starts = fam.starts()
+    theta0 = np.r_[base, starts[0]]
+    if len(starts) > 1:
+        effect_only = np.r_[np.zeros(fam.n_base, bool), np.ones(len(theta0) - fam.n_base, bool)]
+        screened = [_refine(fam, np.r_[base, s], ex, mask, effect_only) for s in starts]
+        theta0 = min(screened, key=lambda f: f.rss).theta
+    fit = _refine(fam, theta0, ex, mask)
+    null = np.r_[base, fam.null()]
+    null_rss = float(np.sum((ex.y - simulate(fam.build(null), ex.t, ex.u).y)[mask] ** 2))
+    if fit.rss > null_rss * (1 + 1e-4):
+        fit = _refine(fam, null, ex, mask)
+    return fit
+
+
+def fit_base(ex: JoinedExperiment, model, mask: np.ndarray) -> Fit:
+    """Base fit: refine a given model, or a first-order RI model (grid over A, linear in B, E, x0)."""
+    if model is not None:
+        fam = family(model.replace(fit_info={}), [], ex, None)
+        return _refine(fam, fam.theta(model), ex, mask)
+    span = max(np.ptp(ex.u), 1e-300)
+    best = None
+    for a in -np.geomspace(0.5, 64, 8) * 2 / span:  # inside the bounds of `_base_bounds`
+        basis = np.column_stack([simulate(first_order_ri(a, -a, *(np.eye(5)[j])), ex.t, ex.u).y for j in range(5)])
+        coef, *_ = np.linalg.lstsq(basis[mask], ex.y[mask], rcond=None)
+        rss = float(np.sum((ex.y[mask] - basis[mask] @ coef) ** 2))
+        if best is None or rss < best[0]:
+            best = (rss, a, coef)
+    _, a, (bp, bm, ep, em, x0) = best
+    fam = family(first_order_ri(a, -a, bp, bm, ep, em, x0), [], ex, None)
+    return _refine(fam, np.array([a, -a, bp, bm, ep, em, x0]), ex, mask)

@@ -1,0 +1,83 @@
+"""The verdict in prose: the paragraph of a `Diagnosis` and the winner-versus-runner-up comparison."""
+from __future__ import annotations
+
+from fitter.diagnosis.result import Diagnosis
+from fitter.diagnosis.statistics import NOISE_MARGIN
+
+__all__ = ["comparison_text", "summary_paragraph"]
+
+
+def summary_paragraph(d: Diagnosis) -> str:
+    """The diagnosis in one paragraph: the base residual against the noise, where it lies, what was found."""
+    b, e = d.baseline, d.extended
+    m = d.mismatch
+    text = (f"The base model leaves a residual of {b['residual_rms']:.3g} RMS against a noise level of "
+            f"{d.noise_rms:.3g} estimated from the data ({_times(b['residual_rms'], d.noise_rms)}); "
+            f"the largest mismatch is in {m['worst_recording']}.")
+    g = m["growth"]
+    trends = [f"{'increases' if v > 0 else 'decreases'} with {k.split('_')[1]} (r = {v:.2f})"
+              for k, v in g.items() if v is not None and abs(v) >= 0.7]
+    if trends and b["residual_rms"] > NOISE_MARGIN * d.noise_rms:
+        text += " Across recordings it " + ", ".join(trends) + "."
+    rep = m.get("repeat")
+    if rep:
+        text += (f" The repeated run {rep['repeat']} differs from {rep['original']} by {rep['data_difference_rms']:.3g}"
+                 f" RMS (noise alone: {rep['expected_from_noise']:.3g}).")
+    if not d.findings and d.verdict == "nothing_missing":
+        return text + " No candidate effect explains a significant part of it: nothing is missing."
+    if not d.findings:
+        best = d.candidates[0] if d.candidates else None
+        more = (f" (the best, {best['effect']}, explains {100 * best['explained_fraction']:.0f}%, "
+                f"p = {best['p_value']:.2g} with an effective sample size of {best['n_eff']:.0f})") if best else ""
+        return text + (" The residual is above the noise, but no candidate effect explains a significant part of "
+                       f"it{more}: what is missing is not in the catalogue (or the base model is too simple).")
+    for f in d.findings:
+        params = ", ".join(f"{k} = {v:.3g} ± {f['stderr'][k]:.2g}" for k, v in f["parameters"].items())
+        text += (f" The model had no {f['effect'].replace('_', ' ')}; adding it ({params}) removes "
+                 f"{100 * f['explained_fraction']:.0f}% of the residual ({_p_text(f['p_value'])}).")
+    if d.comparison:
+        text += " " + d.comparison + "."
+    text += (f" The extended model leaves {e['residual_rms']:.3g} RMS ({_times(e['residual_rms'], d.noise_rms)}); "
+             f"NRMSE {100 * b['nrmse']:.2f}% -> {100 * e['nrmse']:.2f}%.")
+    return text
+
+
+def comparison_text(winner: dict, runner: dict | None, hold_out: dict, noise: float, worst: str) -> str:
+    """Why the winner wins: residuals, explained fractions, hold-out errors, where the runner-up errs more.
+
+    Parameters
+    ----------
+    winner, runner : the first finding and the runner-up candidate (None: no runner-up).
+    hold_out : `validation` of the diagnosis: "held_out" (recording name), "base", the winner's and the
+        runner-up's RMS error on it, "confirmed".
+    worst : where the runner-up's extra error is largest (`locate.where_differs`).
+    """
+    win = winner["effect"]
+    text = f"{win} leaves a residual of {winner['residual_rms']:.3g} (noise {noise:.3g})"
+    if runner is None:
+        return text
+    other, held = runner["effect"], hold_out["held_out"]
+    text += (f"; the runner-up {other} leaves {runner['residual_rms']:.3g}"
+             f" (explains {100 * runner['explained_fraction']:.0f}% against "
+             f"{100 * winner['explained_fraction']:.0f}%)")
+    text += (f". Refitted without {held}, {win} predicts it with a residual of {hold_out[win]:.3g}, "
+             f"{other} with {hold_out[other]:.3g}, the base model with {hold_out['base']:.3g}")
+    text += f". The runner-up's extra error is largest {worst}"
+    if not hold_out["confirmed"]:
+        text += (f". Caution: on the held-out run {win} does not predict better than "
+                 f"{'the base model' if hold_out[win] >= hold_out['base'] else other}, so the hold-out "
+                 "check does not confirm it")
+    return text
+
+
+def _p_text(p: float) -> str:
+    return "p < 1e-300" if p == 0 else f"p = {p:.2g}"
+
+
+def _times(value: float, noise: float) -> str:
+    if noise <= 0:
+        return "no noise level"
+    ratio = value / noise
+    if ratio > 100:
+        return "over 100 times the noise: a systematic misfit"
+    return f"{ratio:.2f} times the noise"
