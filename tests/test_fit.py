@@ -10,39 +10,24 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import noisy_recording, rd_model, ri_model, sine_input
 
-from fitter.core import (RateDependentModel, RateIndependentModel, TabulatedRate, periodic_response,
-                         simulate)
+from fitter.core import model_from_dict, periodic_response, simulate
 from fitter.identification.fit import FitError, fit_recordings, monotone_input
-from fitter.identification.output_error import refine
 from fitter.data.recordings import Recording
+from fitter.reports.fit_report import write_fit_report
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 OMEGAS = (0.5, 2.0, 8.0)
 
 
-def ri_true() -> RateIndependentModel:
-    return RateIndependentModel(A_plus=[[-3.0]], A_minus=[[2.0]], B_plus=[3.0], B_minus=[2.0], C=[4.0],
-                                E_plus=[1.0], E_minus=[-1.0], D=0.5, x0=[2.0])
-
-
-def rd_true() -> RateDependentModel:
-    v = np.logspace(-3, 3, 121)
-    g = v / (1 + v / 2)
-    return RateDependentModel(A=[[-1.0]], B=[1.0], C=[3.0], E=[0.2], D=0.3,
-                              g=TabulatedRate(np.r_[-v[::-1], v], np.r_[g[::-1], g]), x0=[1.5])
-
-
 def sine_recordings(model, seed: int, noise: float = 0.01, periods: int = 4, per: int = 200):
-    """u = 1 + 2 sin(w t) at three rates; output noise `noise` x range; x0 = model.x0 (transient)."""
+    """u = 1 + 2 sin(w t) at three rates; output noise `noise` x range; x0 = model.x0 (transient).
+
+    The three recordings draw their noise from one stream seeded with `seed`."""
     rng = np.random.default_rng(seed)
-    recs = []
-    for w in OMEGAS:
-        t = np.linspace(0, periods * 2 * np.pi / w, periods * per + 1)
-        u = 1.0 + 2.0 * np.sin(w * t)
-        y = simulate(model, t, u).y
-        recs.append(Recording(t, u, y + noise * np.ptp(y) * rng.standard_normal(len(y)), name=f"w{w}"))
-    return recs
+    return [noisy_recording(model, *sine_input(w, periods, per, 1.0, 2.0), noise=noise, seed=rng,
+                            name=f"w{w}") for w in OMEGAS]
 
 
 def loop_errors(true, fitted) -> list[float]:
@@ -59,17 +44,17 @@ def loop_errors(true, fitted) -> list[float]:
 
 @pytest.fixture(scope="module")
 def ri_fit():
-    return fit_recordings(sine_recordings(ri_true(), seed=3), kind="ri", order=1)
+    return fit_recordings(sine_recordings(ri_model(1), seed=3), kind="ri", order=1)
 
 
 @pytest.fixture(scope="module")
 def rd_fit():
-    return fit_recordings(sine_recordings(rd_true(), seed=4), kind="auto", order=1)
+    return fit_recordings(sine_recordings(rd_model(1), seed=4), kind="auto", order=1)
 
 
 def test_rate_independent_loop_recovered(ri_fit):
     assert ri_fit.model.kind == "ri"
-    assert max(loop_errors(ri_true(), ri_fit.model)) < 0.02
+    assert max(loop_errors(ri_model(1), ri_fit.model)) < 0.02
 
 
 def test_rate_independent_summary_is_honest(ri_fit):
@@ -87,12 +72,11 @@ def test_rate_independent_summary_is_honest(ri_fit):
 def test_rate_dependent_loops_recovered_and_chosen(rd_fit):
     assert rd_fit.summary["kind"] == "rd"
     assert {c["kind"] for c in rd_fit.summary["candidates"]} == {"ri", "rd"}
-    assert max(loop_errors(rd_true(), rd_fit.model)) < 0.02
+    assert max(loop_errors(rd_model(1), rd_fit.model)) < 0.02
     assert rd_fit.summary["convergence"]["satisfied"] is True
 
 
 def test_fitted_model_round_trips_json(rd_fit):
-    from fitter.core import model_from_dict
     m = model_from_dict(json.loads(json.dumps(rd_fit.model.to_dict())))
     t = np.linspace(0, 10, 501)
     u = 1 + 2 * np.sin(2 * t)
@@ -102,7 +86,7 @@ def test_fitted_model_round_trips_json(rd_fit):
 
 
 def test_band_contains_prediction_and_truth(ri_fit):
-    rec = sine_recordings(ri_true(), seed=5)[1]
+    rec = sine_recordings(ri_model(1), seed=5)[1]
     lo, hi = ri_fit.band(rec)
     y = ri_fit.predict(rec)
     ok = np.isfinite(y)
@@ -114,7 +98,7 @@ def test_band_contains_prediction_and_truth(ri_fit):
 
 def test_normalisation_maps_back_exactly():
     """Fitting y' = a y + b against u' = c u + d gives the same loops, rescaled."""
-    recs = sine_recordings(ri_true(), seed=6, noise=0.002)
+    recs = sine_recordings(ri_model(1), seed=6, noise=0.002)
     base = fit_recordings(recs, kind="ri", order=1)
     scaled = [Recording(r.t, 1e3 * r.u + 72.0, 10.0 * r.y - 5.0, r.name) for r in recs]
     big = fit_recordings(scaled, kind="ri", order=1)
@@ -123,23 +107,6 @@ def test_normalisation_maps_back_exactly():
     a = periodic_response(base.model, t, u).sim.y
     b = periodic_response(big.model, t, 1e3 * u + 72.0).sim.y
     np.testing.assert_allclose(b, 10 * a - 5, atol=2e-3 * np.ptp(b))
-
-
-def test_refine_recovers_parameters_with_fitted_initial_state():
-    def build(th):
-        return RateIndependentModel(A_plus=[[th[0]]], A_minus=[[th[1]]], B_plus=[th[2]],
-                                    B_minus=[th[3]], C=[1.0], D=th[4])
-    true = np.array([-3.0, 2.5, 1.0, 1.2, 0.3])
-    t = np.linspace(0, 60, 6001)
-    u = np.sin(t)
-    rng = np.random.default_rng(0)
-    y = simulate(build(true), t, u, x0=[0.5]).y + 0.01 * rng.standard_normal(len(t))
-    res = refine(build, np.array([-1.0, 1.0, 0.5, 0.5, 0.0]), [Recording(t, u, y)], x0="fit")
-    assert res.success
-    assert np.all(np.abs(res.theta - true) < 4 * res.stderr + 1e-12)
-    assert np.all(res.stderr < 0.02)
-    assert abs(res.x0s[0][0] - 0.5) < 0.05
-    assert abs(res.sigma - 0.01) < 1e-3
 
 
 def test_monotone_input_removes_noise_reversals_only():
@@ -164,8 +131,7 @@ def test_rejects_half_a_cycle():
 
 
 def test_report_writes_html_and_figures(ri_fit, tmp_path):
-    from fitter.reports.fit_report import write_fit_report
-    recs = sine_recordings(ri_true(), seed=3)
+    recs = sine_recordings(ri_model(1), seed=3)
     index = Path(write_fit_report(ri_fit, recs, tmp_path / "rep"))
     html = index.read_text()
     assert index.name == "index.html"

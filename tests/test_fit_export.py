@@ -6,30 +6,16 @@ kernel to 1e-9 and match the data within the fit's own error.
 """
 import numpy as np
 import pytest
+from conftest import noisy_recording, ri_model, sine_input
 
-import build_fmu
-from fitter.core import RateIndependentModel, limiting_loop, periodic_response, simulate
+from fitter.core import limiting_loop, periodic_response, simulate
 from fitter.identification.fit import fit_recordings
 from fitter.fmu.host import simulate_fmu, validate_fmu_file
 from fitter.paper import example1, example3
 from fitter.identification.rd_triangles import identify_rd_triangles
-from fitter.data.recordings import Recording
 from fitter.identification.ri_loop import identify_ri_loop
 
 BACKENDS = ("native", "python")
-
-
-def noisy_recording() -> tuple[Recording, RateIndependentModel]:
-    """Three periods of a sine through a second-order RI model, with a transient and 1% noise."""
-    truth = RateIndependentModel(A_plus=[[-3.0, 1.0], [0.0, -1.5]], A_minus=[[2.5, 0.0], [1.0, 1.2]],
-                                 B_plus=[2.0, 1.0], B_minus=[1.5, 1.2], C=[1.0, 0.5], D=0.2,
-                                 x0=[0.4, -0.3])
-    t = np.linspace(0.0, 3.0, 1201)
-    u = np.sin(2 * np.pi * t)
-    y = simulate(truth, t, u).y
-    rng = np.random.default_rng(7)
-    y = y + 0.01 * np.ptp(y) * rng.standard_normal(len(y))
-    return Recording(t=t, u=u, y=y, name="noisy"), truth
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +32,8 @@ def fitted():
     t3, u3 = example3.sine_period(2.0, 801)
     y3 = periodic_response(example3.true_model(), t3, u3).sim.y
     out["example3"] = (rd, t3, u3, y3, 0.01 * np.ptp(y3))
-    rec, _ = noisy_recording()
+    # three periods of a sine through `ri_model(2)`, with a transient and 1% noise
+    rec = noisy_recording(ri_model(2), *sine_input(2 * np.pi, 3, 400), noise=0.01, seed=7, name="noisy")
     fit = fit_recordings([rec], kind="ri", order=2)
     resid = rec.y - fit.predict(rec)
     last = slice(800, None)
@@ -54,24 +41,17 @@ def fitted():
     return out
 
 
-@pytest.fixture(scope="module")
-def fmus(fitted, tmp_path_factory):
-    d = tmp_path_factory.mktemp("fitted")
-    return {(name, b): build_fmu.build_fmu(m[0], d / f"{name}_{b}.fmu", backend=b)
-            for name, m in fitted.items() for b in BACKENDS}
-
-
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("name", ["example1", "example3", "noisy"])
-def test_fitted_model_fmu(fitted, fmus, name, backend):
+def test_fitted_model_fmu(fitted, fmu_cache, name, backend):
     model, t, u, y_data, tol = fitted[name]
-    path = fmus[(name, backend)]
+    path = fmu_cache.build(model, backend)
     assert validate_fmu_file(path) == []
     if name == "noisy":
         y_ref = simulate(model, t, u).y
     else:  # start the FMU on the limiting cycle: x0 = periodic state of the identified model
-        model.x0 = periodic_response(model, t, u).x_periodic
-        path = build_fmu.build_fmu(model, str(path).replace(".fmu", "_cycle.fmu"), backend=backend)
+        model = model.replace(x0=periodic_response(model, t, u).x_periodic)
+        path = fmu_cache.build(model, backend)
         y_ref = periodic_response(model, t, u).sim.y
     y_fmu = simulate_fmu(path, t, u)
     assert np.abs(y_fmu - y_ref).max() < 1e-9

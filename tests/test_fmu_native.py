@@ -5,7 +5,8 @@ The FMU's output must equal the Python kernel's (`fitter.core.simulate`,
 must need no Python; it must refuse bad calls with fmi2Error and a logged
 message and never crash, also under random call sequences (hypothesis, run in
 a subprocess so that a crash fails the test instead of killing pytest) and
-under AddressSanitizer and UBSan.
+under AddressSanitizer and UBSan.  The stepping contract it shares with the
+kernel and the pythonfmu FMU is in test_contract.py.
 
 Run as a script (``python tests/test_fmu_native.py fuzz FMU MODEL EXAMPLES`` or
 ``... check FMU MODEL``, MODEL a key of `MODELS`) this file is the driver that
@@ -26,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fmu_host import Instance as FmuInstance, unzip_all
+from fmu_host import Instance as FmuInstance
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -39,9 +40,11 @@ from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE,  # noqa: E402
 
 from fitter.core import (RateDependentModel, RateIndependentModel, Stepper,  # noqa: E402
                          TabulatedRate, model_from_dict, simulate)
+from fitter.core.effects import REGISTRY  # noqa: E402
 from fitter.fmu.host import collecting_callbacks, simulate_fmu, validate_fmu_file  # noqa: E402
 from fitter.fmu.model_description import model_variables  # noqa: E402
-from fitter.fmu.native import NativeBuildError, build_native_fmu  # noqa: E402
+from fitter.fmu.native import NATIVE_EFFECTS, NativeBuildError, build_native_fmu  # noqa: E402
+from conftest import sampled_input  # noqa: E402
 
 ALL_EFFECTS = [
     {"effect": "backlash", "parameters": {"b": 0.15}},
@@ -117,24 +120,14 @@ MODELS = {
 }
 
 
-def sampled_input(n=400, seed=3):
-    """Irregular sampling, reversals, and held stretches (du = 0)."""
-    rng = np.random.default_rng(seed)
-    t = np.r_[0.0, np.cumsum(rng.uniform(0.01, 0.06, n - 1))]
-    u = 1.4 * np.sin(1.7 * t) + 0.5 * np.sin(4.3 * t + 0.3)
-    u[n // 4:n // 4 + n // 20] = u[n // 4]
-    return t, u
+@pytest.fixture(scope="module")
+def fmus(fmu_cache):
+    return {name: fmu_cache.build(make(), "native") for name, make in MODELS.items()}
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    out = tmp_path_factory.mktemp("native")
-    return {name: build_native_fmu(make(), out / f"{name}.fmu") for name, make in MODELS.items()}
-
-
-@pytest.fixture(scope="module")
-def unzipped(fmus, tmp_path_factory):
-    return unzip_all(fmus, tmp_path_factory)
+def unzipped(fmu_cache):
+    return {name: fmu_cache.unzipped(make(), "native") for name, make in MODELS.items()}
 
 
 class Instance(FmuInstance):
@@ -156,7 +149,7 @@ def status_of(call, *args) -> int:
 # --------------------------------------------------------------------- results
 
 
-@pytest.mark.parametrize("name", MODELS)
+@pytest.mark.parametrize("name", [name for name in MODELS if name not in ("ri", "rd")])  # test_contract.py
 def test_output_equals_python_kernel(fmus, name):
     t, u = sampled_input()
     ref = simulate(MODELS[name](), t, u).y
@@ -292,14 +285,13 @@ def test_python_free_c_host_runs_the_fmu(unzipped, tmp_path):
 # --------------------------------------------------------------------- FMI behaviour
 
 
-@pytest.mark.parametrize("name", ["rd", "ri_effects"])
-def test_fmu_state_rollback_and_serialisation_are_exact(unzipped, name):
-    md, unzipdir = unzipped[name]
+def test_fmu_state_rollback_and_serialisation_with_effects_are_exact(unzipped):
+    md, unzipdir = unzipped["ri_effects"]
     inst = Instance(md, unzipdir)
     t, u = sampled_input(160)
     first, again, third = inst.rollback_runs(t, u, 69)
     assert np.array_equal(first, again) and np.array_equal(first, third)
-    assert np.abs(first - simulate(MODELS[name](), t, u).y[69:]).max() < 1e-10
+    assert np.abs(first - simulate(MODELS["ri_effects"](), t, u).y[69:]).max() < 1e-10
     inst.free()
 
 
@@ -314,8 +306,9 @@ def test_reset_restores_the_start(unzipped):
     inst.free()
     model = ri_model(ALL_EFFECTS)
     assert np.abs(default - simulate(model, t, u).y).max() < 1e-10
-    model.x0[0] = 0.9
-    model.effects[2].parameters["k"] = 0.5
+    effects = [e.to_dict() for e in model.effects]
+    effects[2]["parameters"]["k"] = 0.5
+    model = model.replace(x0=np.r_[0.9, model.x0[1:]], effects=effects)
     assert np.abs(changed - simulate(model, t, u).y).max() < 1e-10
 
 
@@ -332,49 +325,18 @@ def test_instances_with_different_parameters_do_not_interfere(unzipped):
         if k + 1 < len(u):
             for inst in (a, b, c):
                 inst.step(t[k + 1] - t[k])
-    model_b = ri_model()
-    model_b.C[0], model_b.x0[1], model_b.A_plus[0, 0] = 0.5, -0.3, -2.5
-    model_c = rd_model()
-    table = model_c.g
-    model_c.g = TabulatedRate(table.v, np.r_[table.g[:11], 0.9, table.g[12:]])
+    base = ri_model()
+    C, x0, A_plus = base.C.copy(), base.x0.copy(), base.A_plus.copy()
+    C[0], x0[1], A_plus[0, 0] = 0.5, -0.3, -2.5
+    model_b = base.replace(C=C, x0=x0, A_plus=A_plus)
+    table = rd_model().g
+    model_c = rd_model().replace(g=TabulatedRate(table.v, np.r_[table.g[:11], 0.9, table.g[12:]]))
     assert np.abs(ys[0] - simulate(ri_model(), t, u).y).max() < 1e-10
     assert np.abs(ys[1] - simulate(model_b, t, u).y).max() < 1e-10
     assert np.abs(ys[2] - simulate(model_c, t, u).y).max() < 1e-10
     assert np.abs(ys[0] - ys[1]).max() > 0.1 and np.abs(ys[2] - simulate(rd_model(), t, u).y).max() > 1e-3
     for inst in (a, b, c):
         inst.free()
-
-
-def test_output_at_communication_points_does_not_depend_on_step_size(unzipped):
-    md, unzipdir = unzipped["ri"]
-    t = np.arange(41) * 0.1
-    u = np.interp(t, [0, 1.0, 2.5, 4.0], [0.0, 1.2, -0.8, 0.6])   # reversals at samples
-    outputs = []
-    for m in (1, 10, 100):
-        inst = Instance(md, unzipdir, u0=u[0])
-        y = [inst.sample(u[0])]
-        for k in range(len(u) - 1):
-            for j in range(1, m + 1):
-                inst.step((t[k + 1] - t[k]) / m)
-                value = inst.sample(u[k] + (u[k + 1] - u[k]) * j / m)
-            y.append(value)
-        inst.free()
-        outputs.append(np.array(y))
-    assert np.abs(outputs[1] - outputs[0]).max() < 1e-10
-    assert np.abs(outputs[2] - outputs[0]).max() < 1e-10
-    assert np.abs(outputs[0] - simulate(ri_model(), t, u).y).max() < 1e-10
-
-
-def test_output_right_after_initialisation_and_held_input(unzipped):
-    md, unzipdir = unzipped["rd"]
-    model = rd_model()
-    inst = Instance(md, unzipdir, u0=0.7)
-    assert inst.y() == pytest.approx(model.C @ model.x0 + model.D * 0.7, abs=1e-15)
-    inst.step(0.1)
-    y1 = inst.sample(0.9)
-    inst.step(0.1)                       # held input: the state does not move
-    assert inst.y() == y1 and inst.sample(0.5) != y1
-    inst.free()
 
 
 def _expect_error(inst, fragment, call, *args):
@@ -470,10 +432,36 @@ def test_instantiate_rejects_wrong_guid_and_type(unzipped):
 
 
 def test_every_core_effect_runs_natively():
-    from fitter.core.effects import EFFECTS
+    from fitter.core.effects import REGISTRY
     from fitter.fmu.native import NATIVE_EFFECTS
 
-    assert NATIVE_EFFECTS == set(EFFECTS) == {e["effect"] for e in ALL_EFFECTS}
+    assert NATIVE_EFFECTS == {name for name, spec in REGISTRY.items() if spec.native}
+    assert NATIVE_EFFECTS == set(REGISTRY) == {e["effect"] for e in ALL_EFFECTS}
+
+
+@pytest.mark.parametrize("name", sorted(NATIVE_EFFECTS))
+def test_each_native_effect_equals_python_and_checks_its_ranges(name, tmp_path):
+    """Every native effect of the registry alone, at its example, and its parameter ranges in C."""
+    spec = REGISTRY[name]
+    model = ri_model([{"effect": name, "parameters": dict(spec.example)}])
+    path = build_native_fmu(model, tmp_path / f"{name}.fmu")
+    t, u = sampled_input(200)
+    ref = simulate(model, t, u).y
+    assert np.abs(simulate_fmu(path, t, u) - ref).max() <= 1e-10 * max(1.0, np.abs(ref).max())
+    assert np.abs(ref - simulate(ri_model(), t, u).y).max() > 1e-4
+    md = read_model_description(path)
+    inst = Instance(md, extract(path, str(tmp_path / "unzipped")), initialise=False)
+    for par in spec.parameters:
+        for value in (math.nan, math.inf):
+            _expect_error(inst, "not finite", inst.fmu.setReal, [inst.vr[f"{name}.{par.name}"]], [value])
+        if par.lower > -math.inf:
+            low = par.lower if par.strict else par.lower - 1e-9 * max(1.0, abs(par.lower))
+            _expect_error(inst, f"must be {par.rule()}", inst.fmu.setReal,
+                          [inst.vr[f"{name}.{par.name}"]], [low])
+        if par.upper < math.inf:
+            _expect_error(inst, f"must be {par.rule()}", inst.fmu.setReal,
+                          [inst.vr[f"{name}.{par.name}"]], [par.upper * (1 + 1e-9) + 1e-9])
+    inst.free()
 
 
 def test_effect_without_native_implementation_is_refused(tmp_path, monkeypatch):
@@ -500,8 +488,7 @@ def test_missing_compiler_and_failed_build_leave_no_file(tmp_path):
     from fitter.core import CallableRate
 
     target = tmp_path / "m.fmu"
-    model = rd_model()
-    model.g = CallableRate(g3)
+    model = rd_model().replace(g=CallableRate(g3))
     with pytest.raises(TypeError, match="tabulate"):
         build_native_fmu(model, target)
     with pytest.raises(NativeBuildError, match="--backend python"):
@@ -584,12 +571,11 @@ class Reference:
 
     @staticmethod
     def accepts(name, value):
-        """Finite, and within an effect parameter's range (`fitter.core.effects.EFFECTS`)."""
-        from fitter.core.effects import EFFECTS
-
+        """Finite, and within an effect parameter's range (`fitter.core.effects.REGISTRY`)."""
         effect, _, param = name.partition(".")
-        rng = EFFECTS.get(effect, {}).get(param, (-math.inf, math.inf))
-        return math.isfinite(value) and value >= rng[0] and not (len(rng) > 2 and value <= rng[0])
+        spec = REGISTRY.get(effect)
+        par = next((p for p in spec.parameters if p.name == param), None) if spec else None
+        return par.allows(value) if par else math.isfinite(value)
 
     def set_parameter(self, name, value):
         node = self.values
