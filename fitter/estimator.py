@@ -16,7 +16,7 @@ Example
 from __future__ import annotations
 
 import os
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -27,6 +27,7 @@ from fitter.data.recordings import Recording
 from fitter.diagnosis import Diagnosis, diagnose
 from fitter.fmu.build import build_fmu
 from fitter.identification.fit import FitResult, fit_recordings
+from fitter.progress import Progress, silent
 
 __all__ = ["DuhemEstimator", "NotFittedError"]
 
@@ -43,7 +44,7 @@ class DuhemEstimator:
     kind : "auto" (BIC), "ri" (eqs 1-2) or "rd" (eqs 18-19).
     order : state dimension; None chooses it by BIC among 1, 2, 3.
     q : bound of the Section III constrained least squares (a start only); None chooses it.
-    progress : optional callback receiving one-line status messages.
+    progress : `fitter.progress.Progress` callback for one-line status messages.
 
     Attributes (after `fit`)
     ------------------------
@@ -53,7 +54,7 @@ class DuhemEstimator:
     """
 
     def __init__(self, kind: str = "auto", order: int | None = None, q: float | None = None,
-                 progress: Callable[[str], None] | None = None):
+                 progress: Progress = silent):
         self.kind, self.order, self.q, self.progress = kind, order, q, progress
 
     def fit(self, recordings: Sequence[Recording]) -> "DuhemEstimator":
