@@ -42,6 +42,7 @@ from fitter.diagnosis import diagnose as run_diagnosis
 from fitter.fmu.build import build_fmu
 from fitter.fmu.host import model_in_fmu, simulate_fmu
 from fitter.fmu.native import find_c_compiler
+from fitter.identification.exported import range_warnings
 from fitter.identification.fit import fit_recordings
 from fitter.paper.report import command as reproduce_paper
 from fitter.progress import stderr_progress
@@ -52,7 +53,7 @@ from fitter.reports.validation_plot import write_validation_plot
 __all__ = ["main", "CliError", "DEFAULT_THRESHOLD", "EXIT_ERROR", "EXIT_VALIDATION_FAILED"]
 
 DEFAULT_THRESHOLD = 0.05
-"""Default `duhem validate` threshold on the NRMSE over the last full cycle (5% of the output range)."""
+"""Default `duhem validate` threshold on the NRMSE over all samples (5% of the output range)."""
 EXIT_VALIDATION_FAILED = 3
 
 
@@ -80,6 +81,10 @@ def _fmt(v) -> str:
     if isinstance(v, (float, np.floating)):
         return f"{v:.4g}"
     return str(v)
+
+
+def _fmt_list(values) -> str:
+    return ", ".join(_fmt(v) for v in values or []) or "-"
 
 
 # --------------------------------------------------------------------------- model files and names
@@ -138,6 +143,12 @@ def _column_options(func: Callable) -> Callable:
     return func
 
 
+def _allow_unstable_option(func: Callable) -> Callable:
+    return click.option("--allow-unstable", is_flag=True,
+                        help="export even when the fit recorded a violated convergence condition "
+                             "(the FMU's description then says so)")(func)
+
+
 # --------------------------------------------------------------------------- commands
 
 @click.group(cls=GuardedGroup, context_settings={"help_option_names": ["-h", "--help"]})
@@ -164,9 +175,14 @@ main.add_command(reproduce_paper)
 @click.option("--report", type=click.Path(file_okay=False), help="write a fit report (HTML, PNG) here")
 @click.option("--order", type=int, help="state dimension n (default: chosen by BIC)")
 @click.option("--q", type=float, help="bound on sigma_max(A+-) of the Section III least squares")
+@click.option("--x0", "x0_policy", type=click.Choice(["fitted", "periodic"]), default="fitted", show_default=True,
+              help="stored initial state at the first sample of the first recording: fitted to it (least "
+                   "squares), or leading onto the periodic response of its first cycle")
+@_allow_unstable_option
 @_column_options
 @click.option("--json", "as_json", is_flag=True, help="print the fit summary as JSON")
-def fit(recordings, kind, out, fmu, backend, report, order, q, time_col, input_col, output_col, as_json):
+def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, allow_unstable, time_col, input_col,
+        output_col, as_json):
     """Fit a model to one or more recordings (one CSV file per experiment, e.g. per rate)."""
     _check_fmu_name(fmu)
     if fmu:
@@ -177,14 +193,14 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, time_col, input_c
         report_tmp = outputs.enter_context(atomic_directory(report)) if report else None
         fmu_tmp = outputs.enter_context(atomic_file(fmu, suffix=".fmu")) if fmu else None
         say(f"fitting {len(recs)} recording(s)", None)
-        result = fit_recordings(recs, kind=kind, order=order, q=q, progress=say)
+        result = fit_recordings(recs, kind=kind, order=order, q=q, x0=x0_policy, progress=say)
         save_model(result.model, model_tmp)
         if report_tmp:
             say("writing the fit report", None)
             fill_fit_report(result, recs, report_tmp)
         if fmu_tmp:
             say(f"building the {backend} FMU", None)
-            build_fmu(result.model, fmu_tmp, backend=backend)
+            build_fmu(result.model, fmu_tmp, backend=backend, allow_unstable=allow_unstable)
     summary = result.summary
     if as_json:
         _emit_json({"model": out, "fmu": fmu, "backend": backend if fmu else None, "report": report,
@@ -197,26 +213,33 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, time_col, input_c
     conv = summary.get("convergence") or {}
     if conv:
         click.echo(f"convergence condition: {'satisfied' if conv.get('satisfied') else 'VIOLATED'} "
-                   f"({conv.get('quantity')} = {_fmt(conv.get('value'))})")
+                   f"({conv.get('quantity')} = {_fmt(conv.get('value'))}, margin {_fmt(conv.get('margin'))}; "
+                   f"spectral radius on the raw input {_fmt_list(conv.get('rho_raw_input_per_recording'))})")
+        if not conv.get("satisfied"):
+            click.echo("warning: the convergence condition is violated: a wrong initial state need not die out; "
+                       "the FMU is exported only with --allow-unstable", err=True)
+    click.echo(f"NRMSE: {summary.get('nrmse_convention')}")
     rows = [[r.get("recording"), r.get("nrmse"), r.get("nrmse_last_cycle"), r.get("max_error"),
              r.get("loop_area_error"), r.get("residual_rms"), r.get("noise_rms")]
             for r in summary.get("recordings", [])]
-    _table("fit per recording", ["recording", "NRMSE", "NRMSE last cycle", "max error", "loop area err",
-                                 "residual RMS", "noise RMS"], rows)
+    _table("the saved model on each recording (from its stored x0)",
+           ["recording", "NRMSE (all samples)", "NRMSE last cycle", "max error", "loop area err", "residual RMS",
+            "noise RMS"], rows)
 
 
 @main.command()
 @click.argument("model", type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False), help="FMU file to write")
 @backend_option
+@_allow_unstable_option
 @click.option("--json", "as_json", is_flag=True, help="print the result as JSON")
-def export(model, out, backend, as_json):
+def export(model, out, backend, allow_unstable, as_json):
     """Export a model JSON as an FMI 2.0 Co-Simulation FMU."""
     m = _load_model_json(model)
     _check_fmu_name(out)
     with stderr_progress("duhem export") as say, atomic_file(out, suffix=".fmu") as tmp:
         say(f"building the {backend} FMU", None)
-        build_fmu(m, tmp, backend=backend)
+        build_fmu(m, tmp, backend=backend, allow_unstable=allow_unstable)
     if as_json:
         _emit_json({"model": model, "fmu": out, "backend": backend, "kind": m.kind, "order": m.order})
     else:
@@ -228,30 +251,31 @@ def _validation_row(rec, y_fmu: np.ndarray, model, threshold: float) -> dict:
     m = compare(rec, y_fmu)
     m["fmu_vs_in_process_max_abs"] = None if model is None else \
         float(np.max(np.abs(y_fmu - simulate_model(model, rec.t, rec.u).y)))
-    key = m["nrmse_last_cycle"] if m["nrmse_last_cycle"] is not None else m["nrmse"]
-    m.update(recording=rec.name, source=rec.source, passed=bool(key <= threshold),
-             judged_on="last full cycle" if m["nrmse_last_cycle"] is not None else "all samples")
+    m.update(recording=rec.name, source=rec.source, passed=bool(m["nrmse"] <= threshold), judged_on="all samples",
+             warnings=[] if model is None else range_warnings(model, rec.t, rec.u))
     return m
 
 
 def _judged(row: dict) -> float:
-    return row["nrmse_last_cycle"] if row["nrmse_last_cycle"] is not None else row["nrmse"]
+    return row["nrmse"]
 
 
 @main.command()
 @click.argument("fmu", type=click.Path(dir_okay=False))
 @click.argument("recordings", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--threshold", type=float, default=DEFAULT_THRESHOLD, show_default=True,
-              help="fail (exit code 3) when the NRMSE over a recording's last full cycle exceeds this")
+              help="fail (exit code 3) when the NRMSE over all samples of a recording exceeds this")
 @click.option("--plot", type=click.Path(dir_okay=False), help="write a PNG overlay of the loops")
 @_column_options
 @click.option("--json", "as_json", is_flag=True, help="print the comparison as JSON")
 def validate(fmu, recordings, threshold, plot, time_col, input_col, output_col, as_json):
     """Drive an FMU with recorded inputs (fmpy) and compare its closed curves with the data.
 
-    Per recording: NRMSE and max error over the last full input cycle and
-    overall, the loop-area error, and the largest difference between the
-    FMU and the in-process simulation of the model stored in the FMU.
+    Per recording: NRMSE (RMS error / output range) over all samples, the
+    FMU started from its stored x0 (the figure `duhem fit` reports, and the
+    one judged), NRMSE and max error over the last full input cycle, the
+    loop-area error, and the largest difference between the FMU and the
+    in-process simulation of the model stored in the FMU.
     """
     if not threshold > 0:
         raise CliError(f"--threshold must be positive, got {threshold}")
@@ -273,12 +297,15 @@ def validate(fmu, recordings, threshold, plot, time_col, input_col, output_col, 
     if as_json:
         _emit_json({"fmu": fmu, "threshold": threshold, "passed": passed, "plot": plot, "recordings": rows})
     else:
-        _table(f"validation of {fmu} (threshold NRMSE {threshold:g} over the last full cycle)",
-               ["recording", "NRMSE last cycle", "max err last cycle", "NRMSE all", "loop area err",
+        _table(f"validation of {fmu} (threshold NRMSE {threshold:g} over all samples)",
+               ["recording", "NRMSE all", "NRMSE last cycle", "max err last cycle", "loop area err",
                 "FMU vs in-process", "pass"],
-               [[r["recording"], r["nrmse_last_cycle"], r["max_error_last_cycle"], r["nrmse"],
+               [[r["recording"], r["nrmse"], r["nrmse_last_cycle"], r["max_error_last_cycle"],
                  r["loop_area_error"], r["fmu_vs_in_process_max_abs"], "yes" if r["passed"] else "NO"]
                 for r in rows])
+    for r in rows:
+        for w in r["warnings"]:
+            click.echo(f"warning: {r['source']}: {w}", err=True)
     if not passed:
         worst = max(rows, key=_judged)
         click.echo(f"error: {worst['source']}: NRMSE {_judged(worst):.4g} over the {worst['judged_on']} "
@@ -306,14 +333,18 @@ def simulate(model, input_csv, out, time_col, input_col, as_json):
         if _is_zip(model):
             _check_fmu(model)
             y = simulate_fmu(model, rec.t, rec.u)
-            engine = "fmu"
+            engine, stored = "fmu", model_in_fmu(model)
         else:
-            y = simulate_model(_load_model_json(model), rec.t, rec.u).y
+            stored = _load_model_json(model)
+            y = simulate_model(stored, rec.t, rec.u).y
             engine = "in-process"
+        warnings = [] if stored is None else range_warnings(stored, rec.t, rec.u)
         np.savetxt(tmp, np.column_stack([rec.t, rec.u, y]), delimiter=",", fmt="%.17g",
                    header="time,u,y", comments="")
     info = {"model": model, "input": input_csv, "out": out, "engine": engine, "samples": len(rec),
-            "y_min": float(np.min(y)), "y_max": float(np.max(y))}
+            "y_min": float(np.min(y)), "y_max": float(np.max(y)), "warnings": warnings}
+    for w in warnings:
+        click.echo(f"warning: {input_csv}: {w}", err=True)
     if as_json:
         _emit_json(info)
     else:

@@ -71,15 +71,14 @@ class DuhemEstimator:
         return self.result_
 
     def predict(self, recording: Recording) -> np.ndarray:
-        """Model output on the samples of `recording` (`FitResult.predict`: started from the
-        periodic state of its first settled cycle; NaN before it)."""
-        return self._fitted().predict(recording)
+        """The fitted model's output on every sample of `recording`, from its stored x0
+        (`FitResult.simulate`: what the exported FMU gives)."""
+        return self._fitted().simulate(recording)
 
     def score(self, recording: Recording) -> float:
-        """NRMSE (RMS error / output range) of `predict` over the samples it covers."""
-        y_hat = self.predict(recording)
-        ok = np.isfinite(y_hat)
-        return nrmse(recording.y[ok], y_hat[ok])
+        """NRMSE (RMS error / output range) of `predict` over all samples: the figure of the fit
+        summary and of `duhem validate`."""
+        return nrmse(recording.y, self.predict(recording))
 
     def diagnose(self, recordings: Sequence[Recording], **options) -> Diagnosis:
         """`fitter.diagnosis.diagnose` with this fitted model as the base model."""

@@ -88,11 +88,11 @@ def test_fitted_model_round_trips_json(rd_fit):
 def test_band_contains_prediction_and_truth(ri_fit):
     rec = sine_recordings(ri_model(1), seed=5)[1]
     lo, hi = ri_fit.band(rec)
-    y = ri_fit.predict(rec)
+    y = ri_fit.simulate(rec)
     ok = np.isfinite(y)
-    assert ok.sum() > len(y) // 2
-    assert np.all(lo[ok] <= y[ok]) and np.all(y[ok] <= hi[ok])
-    width = np.median(hi[ok] - lo[ok])
+    assert ok.all()
+    assert np.all(lo <= y) and np.all(y <= hi)
+    width = np.median(hi - lo)
     assert 0 < width < 0.02 * np.ptp(rec.y)
 
 
@@ -164,7 +164,10 @@ def test_piezo_rate_dependent_beats_rate_independent_on_each_rate():
     ri = fit_recordings(recs, kind="ri", order=1)  # the order BIC picks among 1-3
     assert rd.summary["convergence"]["satisfied"] is True
     assert rd.model.to_dict()["g"]["type"] == "table"
-    rd_err = [r["nrmse"] for r in rd.summary["recordings"]]
-    ri_err = [r["nrmse"] for r in ri.summary["recordings"]]
+    # the model class compared on each rate with its own initial state (the optimiser's figure); the saved
+    # model's one stored x0 (fitted on the first recording) is scored too, and stays below 10 % on each rate
+    rd_err = [r["nrmse_prepared"] for r in rd.summary["recordings"]]
+    ri_err = [r["nrmse_prepared"] for r in ri.summary["recordings"]]
     assert all(a < b for a, b in zip(rd_err, ri_err)), (rd_err, ri_err)
     assert max(rd_err) < 0.1
+    assert max(r["nrmse"] for r in rd.summary["recordings"]) < 0.1

@@ -67,7 +67,7 @@ import numpy as np
 from .errors import EffectError, KernelError
 from .flow import check_increasing, integrate, interval_coefficients, linear_recurrence
 
-__all__ = ["REGISTRY", "STAGES", "EffectSpec", "ParameterSpec", "EffectContext", "Chain", "EffectError",
+__all__ = ["play_operator", "REGISTRY", "STAGES", "EffectSpec", "ParameterSpec", "EffectContext", "Chain", "EffectError",
            "Effect", "EffectState", "effects_from_list", "run_with_effects"]
 
 EffectState = tuple
@@ -226,7 +226,7 @@ def _first_order(m0: float, target: np.ndarray, h: np.ndarray, tau: float) -> np
     return out
 
 
-def _play(u: np.ndarray, b: float, w0: float) -> np.ndarray:
+def play_operator(u: np.ndarray, b: float, w0: float) -> np.ndarray:
     """Play operator of width b, vectorised over monotone runs of u.
 
     Within a run where u does not fall, w_k = max(w_start, u_k - b/2); where
@@ -270,7 +270,7 @@ class Backlash(EffectSpec):
     example = {"b": 0.1}
 
     def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
-        chain.w = _play(chain.u, p["b"], chain.u[0] if s0 is None else s0[0])
+        chain.w = play_operator(chain.u, p["b"], chain.u[0] if s0 is None else s0[0])
         return (float(chain.w[-1]),)
 
     def starts(self, ctx: EffectContext) -> list[dict[str, float]]:

@@ -64,7 +64,7 @@ import fmu_src
 from fitter.core import load_model, save_model
 from fitter.core.errors import DuhemError
 from fitter.core.files import atomic_file, write_json
-from fitter.fmu.model_description import model_description_xml, model_variables
+from fitter.fmu.model_description import converges, model_description_xml, model_variables
 from fitter.fmu.native import build_native_fmu
 
 __all__ = ["build_fmu", "FmuBuildError", "MODEL_IDENTIFIER", "BACKENDS"]
@@ -175,7 +175,8 @@ def _build_native(model, out_path: Path, **opts) -> None:
     build_native_fmu(model, str(out_path), **opts)
 
 
-def build_fmu(model_or_json_path, out_path: str | os.PathLike, *, backend: str = "python", **opts) -> str:
+def build_fmu(model_or_json_path, out_path: str | os.PathLike, *, backend: str = "python",
+              allow_unstable: bool = False, **opts) -> str:
     """Build an FMI 2.0 Co-Simulation FMU of a model; return the FMU's absolute path.
 
     Parameters
@@ -187,6 +188,10 @@ def build_fmu(model_or_json_path, out_path: str | os.PathLike, *, backend: str =
     backend : {"python", "native"}
         ``python``: pythonfmu, needs Python with numpy in the host process.
         ``native``: C shared library (`fitter.fmu.native`).
+    allow_unstable : bool
+        Export a model whose fit recorded a violated convergence condition
+        (``fit_info["convergence"]["satisfied"]`` false); the FMU's description
+        then carries a warning.  Without it such a model is refused.
     **opts
         Python backend: ``model_name``, ``description``, ``version`` (default:
         the version of semilinear-duhem that exports), ``author``
@@ -199,7 +204,7 @@ def build_fmu(model_or_json_path, out_path: str | os.PathLike, *, backend: str =
     TypeError
         Unknown option of the python backend; not a model.
     FmuBuildError
-        The backend failed (or the native backend cannot be imported).
+        The backend failed, or the model is unstable and `allow_unstable` is false.
     """
     if backend not in BACKENDS:
         raise ValueError(f"unknown FMU backend {backend!r} (expected one of {', '.join(BACKENDS)})")
@@ -209,6 +214,13 @@ def build_fmu(model_or_json_path, out_path: str | os.PathLike, *, backend: str =
             raise TypeError(f"unknown option(s) for the python backend: {', '.join(unknown)} "
                             f"(known: {', '.join(_PYTHON_OPTIONS)})")
     model = _load(model_or_json_path)
+    if not converges(model) and not allow_unstable:
+        raise FmuBuildError("the model's convergence condition is violated (fit_info.convergence: "
+                            f"{model.fit_info['convergence'].get('quantity')} = "
+                            f"{model.fit_info['convergence'].get('value')}, raw-input spectral radius "
+                            f"{model.fit_info['convergence'].get('rho_raw_input_per_recording')}): a wrong initial "
+                            "state need not die out; not exported (allow_unstable / --allow-unstable exports it "
+                            "with a warning in its description)")
     out = Path(out_path).resolve()
     with atomic_file(out) as tmp:
         (_build_python if backend == "python" else _build_native)(model, tmp, **opts)

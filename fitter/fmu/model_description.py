@@ -43,7 +43,7 @@ import numpy as np
 
 from fitter.core.rates import TabulatedRate
 
-__all__ = ["FmiVariable", "model_variables", "model_description_xml", "semantics_text",
+__all__ = ["FmiVariable", "model_variables", "model_description_xml", "semantics_text", "converges",
            "capabilities", "LOG_CATEGORIES", "U_REF", "Y_REF"]
 
 U_REF = 0
@@ -172,6 +172,13 @@ def _effects(model) -> list:
     return list(getattr(model, "effects", None) or [])
 
 
+def converges(model) -> bool:
+    """False only when the model's fit recorded a violated convergence condition
+    (``fit_info["convergence"]["satisfied"]`` is false); models without that record pass."""
+    conv = model.fit_info.get("convergence") if isinstance(model.fit_info, dict) else None
+    return not (isinstance(conv, dict) and conv.get("satisfied") is False)
+
+
 def semantics_text(model) -> str:
     """The model-level description: what the FMU computes and its input semantics."""
     kind = {"ri": "rate-independent, eqs (1)-(2)", "rd": "rate-dependent, eqs (18)-(19)"}[model.kind]
@@ -184,6 +191,14 @@ def semantics_text(model) -> str:
             "the in-process simulation of the sampled input. An input that is not set again "
             "holds its value, and a held input does not move the state. Setting u before the "
             "first step does not move the state: x0 is the state at the first input.")
+    if not converges(model):
+        text += (" WARNING: exported with --allow-unstable: the convergence condition of the fit is "
+                 "violated, so a wrong initial state need not die out and the output may drift or grow.")
+    rng = model.fit_info.get("fitted_range") if isinstance(model.fit_info, dict) else None
+    if isinstance(rng, dict) and rng.get("input"):
+        text += (f" Fitted on inputs in [{rng['input'][0]:.6g}, {rng['input'][1]:.6g}]"
+                 + (f", |du/dt| in [{rng['rate'][0]:.4g}, {rng['rate'][1]:.4g}] (5-95 %)" if rng.get("rate") else "")
+                 + "; outside that range the model extrapolates.")
     names = [e.effect for e in _effects(model)]
     if names:
         text += f" Effect extensions (fitter.core.effects): {', '.join(names)}."

@@ -39,6 +39,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from fitter.core.effects import Effect
 from fitter.core.files import jsonable
 from fitter.core.kernel import simulate
 from fitter.core.models import Experiment, Signals
@@ -48,6 +49,8 @@ from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording
 from fitter.identification.fit_data import (FitData, FitError, RateLevels, averaged_loop, monotone_input,
                                             prepare_for_fit, rate_levels)
+from fitter.identification.exported import (NRMSE_CONVENTION, X0_POLICIES, fitted_range, initial_state,
+                                            raw_input_rho, score)
 from fitter.identification.output_error import Options, Recordings, RefineResult, jacobian, refine
 from fitter.identification.parametrisation import Parametrisation, Physical, RDCanonical, RICanonical
 from fitter.identification.starts import Q_CANDIDATES, ri_starts, rd_starts
@@ -58,8 +61,7 @@ __all__ = ["FitError", "FitResult", "fit_recordings", "monotone_input", "ORDERS"
 ORDERS = (1, 2, 3)
 MAX_NFEV = 60
 FIT_OPTIONS = Options(ftol=1e-6, max_nfev=MAX_NFEV, max_samples=6000)
-X0_TEXT = {"fit": "fitted per recording (linear least squares) at its first kept sample; the per-recording "
-                  "metrics are those of the fit (FitResult.predict starts from the periodic state instead)",
+X0_TEXT = {"fit": "during the fit, the state at each recording's first kept sample is fitted (linear least squares)",
            "periodic": "every recording holds a single cycle, so transient and loop cannot be told apart: "
                        "each is taken as settled and starts from the fixed point of its one-cycle map"}
 
@@ -77,8 +79,10 @@ class _Candidate:
         return float(N * np.log(self.res.rss / N) + self.param.size * np.log(N))
 
 
-def _barrier(param: RICanonical, data: FitData) -> Callable[[np.ndarray], np.ndarray]:
-    """1e3 max(0, rho - RHO_MARGIN) for condition (5) (1e3 where it cannot be evaluated)."""
+def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.ndarray], np.ndarray]:
+    """1e3 max(0, value - LIMIT) of the convergence quantity (1e3 where it cannot be evaluated):
+    rate-independent, rho of condition (5) <= 0.99; rate-dependent, max Re eig(A) <= -1e-3 (normalised
+    units; A is Hurwitz by construction, the barrier keeps a margin from 0)."""
     lo, hi = data.input_range()
 
     def pen(th):
@@ -92,10 +96,9 @@ def _barrier(param: RICanonical, data: FitData) -> Callable[[np.ndarray], np.nda
 
 
 def _candidate(param, starts, data: FitData, info, progress: Progress) -> _Candidate:
-    """Best refinement over the starts (rate-independent: with the condition (5) barrier;
-    the rate-dependent parametrisation satisfies its condition by construction)."""
+    """Best refinement over the starts, with the convergence barrier."""
     problem = Recordings(data.norm, x0=data.x0_mode, cycles=data.cycles)
-    pen = _barrier(param, data) if param.kind == "ri" else None
+    pen = _barrier(param, data)
     best = None
     for th0 in starts:
         try:
@@ -143,10 +146,12 @@ def _search(data: FitData, kind: str, orders, q, levels: RateLevels, progress: P
 class FitResult:
     """A fitted model (physical units) and its JSON-able summary.
 
-    `predict(rec)` and `band(rec)` give the model output for any recording
-    with the same columns (input made monotone between reversals), started
-    from the periodic state of its first settled cycle: a prediction, nothing
-    is fitted to `rec` (NaN before that cycle, the dropped transient).
+    `simulate(rec)` is the saved model on the samples of `rec` from its stored
+    x0 (the one definition of the model's output: what the summary's NRMSE,
+    the report and `duhem validate` use); `band(rec)` its uncertainty band.
+    `predict(rec)` is a prediction independent of the initial state: the model
+    started from the periodic state of the first settled cycle of `rec` (NaN
+    before it, the dropped transient).
     """
 
     model: object
@@ -156,41 +161,28 @@ class FitResult:
     param: Parametrisation
 
     def build(self, theta: np.ndarray):
-        return self.param.build(theta)
+        """The saved model with parameters `theta` (its x0 and effects kept)."""
+        return self.param.build(theta).replace(x0=self.model.x0, effects=self.model.effects)
 
-    def _start(self, rec: Recording) -> tuple[int, tuple[int, int], np.ndarray]:
-        """First kept sample, first settled cycle (relative to it) and the monotone input."""
-        prep = prepare(rec, min_cycles=0)
-        u = monotone_input(prep.recording.u, prep.reversals)
-        return prep.transient_end, prep.first_cycle(), u
-
-    def _simulate(self, model, rec: Recording, start: int, cyc, u) -> np.ndarray:
-        t = rec.t[start:]
-        x0, _ = fixed_point(model, t[cyc[0]:cyc[1] + 1], u[cyc[0]:cyc[1] + 1])
-        y = np.full(len(rec.u), np.nan)
-        y[start + cyc[0]:] = simulate(model, t[cyc[0]:], u[cyc[0]:], x0=model.x0 if x0 is None else x0).y
-        return y
+    def simulate(self, rec: Recording) -> np.ndarray:
+        """The saved model's output on every sample of `rec`, from its stored x0."""
+        return simulate(self.model, rec.t, rec.u).y
 
     def predict(self, rec: Recording) -> np.ndarray:
-        """Model output on the samples of `rec` (NaN on the dropped transient)."""
-        start, cyc, u = self._start(rec)
-        return self._simulate(self.model, rec, start, cyc, u)
+        """Output from the periodic state of the first settled cycle of `rec` (NaN before it)."""
+        prep = prepare(rec, min_cycles=0)
+        s0, s1 = prep.first_cycle()
+        a = prep.transient_end + s0
+        x0, _ = fixed_point(self.model, rec.t[a:prep.transient_end + s1 + 1], rec.u[a:prep.transient_end + s1 + 1])
+        y = np.full(len(rec.u), np.nan)
+        y[a:] = simulate(self.model, rec.t[a:], rec.u[a:], x0=self.model.x0 if x0 is None else x0).y
+        return y
 
     def band(self, rec: Recording, level: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
-        """Uncertainty band y_hat -+ level * sd, sd^2 = diag(J cov J^T) (linearised, J by differences)."""
-        start, cyc, u = self._start(rec)
-        ok = None
-
-        def fun(th):
-            nonlocal ok
-            y = self._simulate(self.build(th), rec, start, cyc, u)
-            ok = np.isfinite(y)
-            return np.where(ok, y, 0.0)
-        y0 = fun(self.theta)
-        mask = ok.copy()
-        J = jacobian(fun, self.theta, y0)
+        """`simulate(rec)` -+ level * sd, sd^2 = diag(J cov J^T) (linearised, J by differences)."""
+        y0 = self.simulate(rec)
+        J = jacobian(lambda th: simulate(self.build(th), rec.t, rec.u).y, self.theta, y0)
         sd = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", J, self.cov, J), 0, None))
-        y0 = np.where(mask, y0, np.nan)
         return y0 - level * sd, y0 + level * sd
 
 
@@ -201,7 +193,7 @@ def _experiment(recordings: Sequence[Recording]) -> Experiment:
 
 
 def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order: int | None = None,
-                   q: float | None = None, progress: Progress = silent) -> FitResult:
+                   q: float | None = None, x0: str = "fitted", progress: Progress = silent) -> FitResult:
     """Fit a semilinear Duhem model to one or more recordings (see the module docstring).
 
     Parameters
@@ -210,6 +202,7 @@ def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order
     kind : "ri" (rate-independent, eqs 1-2), "rd" (rate-dependent, eqs 18-19) or "auto" (BIC).
     order : state dimension n; default chosen by BIC among 1, 2, 3.
     q : bound of the Section III constrained least squares; default chosen by loop error.
+    x0 : the stored initial state, "fitted" or "periodic" (`fitter.identification.exported`).
     progress : `fitter.progress.Progress` callback, called with one-line status messages.
 
     Returns
@@ -220,35 +213,51 @@ def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order
         raise ValueError(f"kind must be 'auto', 'ri' or 'rd', not {kind!r}")
     if order is not None and order not in ORDERS:
         raise ValueError(f"order must be one of {ORDERS}, not {order!r}")
+    if x0 not in X0_POLICIES:
+        raise ValueError(f"x0 must be one of {X0_POLICIES}, not {x0!r}")
     data = prepare_for_fit(recordings)
     levels = rate_levels(data.norm)
     cands = _search(data, kind, ORDERS if order is None else (order,), q, levels, progress)
     best = min(cands, key=lambda c: c.bic)
-    return _result(best, cands, data, recordings, kind, q, levels)
+    return _result(best, cands, data, recordings, kind, q, levels, x0)
 
 
-def _per_recording(res: RefineResult, data: FitData) -> list[dict]:
+def _per_recording(model, res: RefineResult, data: FitData, recordings) -> list[dict]:
+    """The saved model's score on each raw recording (`exported.score`), with the optimiser's own
+    NRMSE on the prepared samples beside it (``nrmse_prepared``)."""
     out = []
-    for rec, prep, r, s in zip(data.recs, data.preps, res.residuals, res.starts):
-        y_hat = rec.y[s:] - r * data.scaling.y_s
-        m = compare(rec.slice(slice(s, None)), y_hat)
-        m.update(recording=rec.name, transient_end=prep.transient_end)
+    for m, rec, prep, r, s in zip(score(model, recordings), data.recs, data.preps, res.residuals, res.starts):
+        m.update(nrmse_prepared=compare(rec.slice(slice(s, None)), rec.y[s:] - r * data.scaling.y_s)["nrmse"],
+                 transient_end=prep.transient_end)
         out.append(m)
     return out
 
 
-def _convergence(best: _Candidate, data: FitData) -> dict:
+def _convergence(best: _Candidate, data: FitData, model, recordings, scores: list[dict]) -> dict:
+    """The condition with its fitting margin (normalised units) and on each raw input (physical model)."""
     param, res = best.param, best.res
     val = param.convergence(res.model, *data.input_range())
-    rhos = [fixed_point(res.model, r.t[a:b + 1], r.u[a:b + 1])[1] for r, (a, b) in zip(data.norm, data.cycles)]
-    return {"satisfied": bool(param.converges(val)), "quantity": param.QUANTITY, "value": val,
-            "rho_per_recording": rhos}
+    raw = raw_input_rho(model, recordings)
+    ok = (param.converges(val) and all(r is None or r < 1 for r in raw)
+          and not any(m.get("diverged") for m in scores))
+    return {"satisfied": bool(ok), "quantity": param.QUANTITY, "value": val, "margin": param.LIMIT,
+            "rho_raw_input_per_recording": raw,
+            "rule": "the structural condition holds within its fitting margin and the period map of every raw "
+                    "recording's last full cycle has spectral radius < 1"}
 
 
-def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels: RateLevels) -> FitResult:
+def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels: RateLevels,
+            x0_policy: str) -> FitResult:
     param, res = best.param, best.res
     physical = Physical(param, data.scaling)
     stderr = res.stderr()
+    bare = physical.build(res.theta)
+    if data.deadband > 0:
+        bare = bare.replace(effects=[Effect("backlash", {"b": data.deadband})])
+    r0 = recordings[0]
+    model = bare.replace(x0=initial_state(bare, r0, x0_policy), signals=Signals(input=r0.input, output=r0.output),
+                         experiment=_experiment(recordings))
+    per_recording = _per_recording(model, res, data, recordings)
     summary = {
         "kind": param.kind, "order": param.n,
         "q": q if q is not None else next((c.start_info["q"] for c in cands if "q" in c.start_info), None),
@@ -258,21 +267,23 @@ def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels:
         "candidates": [{"kind": c.param.kind, "order": c.param.n, "parameters": c.param.size,
                         "rss_normalised": c.res.rss, "bic": c.bic, "start": c.start_info.get("start")}
                        for c in cands],
-        "recordings": _per_recording(res, data),
+        "recordings": per_recording,
+        "nrmse_convention": NRMSE_CONVENTION,
         "parameters_normalised": {k: {"value": v, "stderr": e}
                                   for k, v, e in zip(param.names(), res.theta.tolist(), stderr.tolist())},
         "normalisation": vars(data.scaling),
-        "convergence": _convergence(best, data),
+        "convergence": _convergence(best, data, model, recordings, per_recording),
+        "fitted_range": fitted_range(recordings),
+        "input_deadband": data.deadband,
         "rate_levels": levels.levels, "triangle_inputs": levels.triangle,
         "v_ref": levels.v_ref * data.scaling.u_s if param.kind == "rd" else None,
-        "x0": X0_TEXT[data.x0_mode],
+        "x0": {"policy": x0_policy, "stored": model.x0.tolist(), "recording": r0.name,
+               "fit": X0_TEXT[data.x0_mode]},
         "optimiser": {"success": res.success, "nfev": res.nfev, "message": res.message},
         "preparation": [dict(p.to_dict(), notes=n) for p, n in zip(data.preps, data.notes)],
     }
-    r0 = recordings[0]
-    model = physical.build(res.theta).replace(
-        signals=Signals(input=r0.input, output=r0.output), experiment=_experiment(recordings),
-        fit_info=jsonable({k: summary[k] for k in ("kind", "order", "why", "convergence")}))
+    model = model.replace(fit_info=jsonable({k: summary[k] for k in ("kind", "order", "why", "convergence",
+                                                                     "fitted_range", "x0", "nrmse_convention")}))
     return FitResult(model=model, summary=jsonable(summary), theta=res.theta, cov=res.covariance(), param=physical)
 
 

@@ -4,9 +4,19 @@
    cycles (the start-up transient is dropped), holds, drift; the notes go into
    the summary.  A recording whose input never reverses twice, or that holds
    neither a full cycle nor one closing period, is rejected (`FitError`).
-2. The input is made monotone between reversals (isotonic regression,
-   `monotone_input`), so that measurement noise on u creates no spurious
-   branch switches.
+2. The model is fitted on the *raw* input (what an FMU will be driven with).
+   Where measurement noise on u makes it reverse at many more samples than
+   its true reversals (more than `NOISY_RUNS` times), the noise reversals
+   would switch the branches of a rate-independent model at every sample; the
+   fitted model then carries a dead band on its input, the play operator
+   (`backlash` effect) of width b = `DEADBAND_SIGMAS` x the input's noise RMS,
+   so that the model itself ignores reversals smaller than the noise, in the
+   fit and in the FMU alike (``FitData.deadband``, stated in the notes).  b is
+   fixed, so the fit runs the base model on the play operator's output
+   (computed once) and the exported model carries the `backlash` effect: the
+   same input-output map.  The
+   input made monotone between reversals (isotonic regression,
+   `monotone_input`) is used only for the loops that give starting values.
 3. Normalisation (`Normalisation`, mid-range and half-range of all recordings).
 4. The averaged loop: the settled branches resampled on a uniform input grid
    and averaged over cycles and recordings (the input-domain
@@ -22,6 +32,7 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import isotonic_regression
 
+from fitter.core.effects import play_operator
 from fitter.core.errors import DuhemError
 from fitter.data.preparation import PreparationError, Prepared, branch_on_grid, find_reversals, prepare
 from fitter.data.recordings import Recording
@@ -31,6 +42,8 @@ __all__ = ["FitError", "FitData", "RateLevels", "prepare_for_fit", "monotone_inp
            "rate_levels", "GRID_POINTS"]
 
 GRID_POINTS = 101
+NOISY_RUNS = 2.0
+DEADBAND_SIGMAS = 6.0
 
 
 class FitError(DuhemError):
@@ -39,7 +52,8 @@ class FitError(DuhemError):
 
 @dataclass
 class FitData:
-    """Prepared recordings: physical (trimmed, monotone input) and normalised, with cycles.
+    """Prepared recordings: physical (trimmed, raw input) and normalised, with cycles and the
+    loops (monotone input) that give starting values.
 
     x0_mode: "periodic" when every recording holds a single cycle (transient and
     loop cannot be told apart, so each is taken as settled), else "fit".
@@ -53,6 +67,8 @@ class FitData:
     notes: list[list[str]]
     scaling: Normalisation
     x0_mode: str = "fit"
+    deadband: float = 0.0
+    """Width b of the input dead band (physical input units; 0: none), step 2 of the module docstring."""
 
     def input_range(self) -> tuple[float, float]:
         """Smallest and largest normalised input over all recordings."""
@@ -103,26 +119,54 @@ def _prepare_one(rec: Recording) -> tuple[Prepared, Recording, tuple[int, int], 
         raise FitError(str(exc)) from None
     r = prep.recording
     um = monotone_input(r.u, prep.reversals)
-    changed = int(np.sum(np.abs(um - r.u) > 0))
-    notes = list(prep.notes)
-    if changed:
-        notes.append(f"input made monotone between reversals (isotonic regression): {changed} samples "
-                     f"moved by at most {np.max(np.abs(um - r.u)):.3g}")
-    return prep, Recording(r.t, um, r.y, r.name, r.input, r.output, r.source), cycle, notes
+    return prep, Recording(r.t, um, r.y, r.name, r.input, r.output, r.source), cycle, list(prep.notes)
+
+
+def _direction_changes(u: np.ndarray) -> int:
+    """Sign changes of du (held samples skipped)."""
+    d = np.sign(np.diff(u))
+    d = d[d != 0]
+    return int(np.count_nonzero(d[1:] != d[:-1]))
+
+
+def _deadband(preps: list[Prepared], notes: list[list[str]]) -> float:
+    """Step 2 of the module docstring: b = DEADBAND_SIGMAS x input noise RMS, or 0."""
+    noisy = [p for p in preps if _direction_changes(p.recording.u) > NOISY_RUNS * (len(p.reversals) + 1)]
+    if not noisy:
+        return 0.0
+    b = DEADBAND_SIGMAS * max(p.input_noise_rms for p in preps)
+    for p, n in zip(preps, notes):
+        if p in noisy:
+            n.append(f"the input reverses at {_direction_changes(p.recording.u)} samples but has "
+                     f"{len(p.reversals)} true reversals (noise on the input, RMS {p.input_noise_rms:.3g}): "
+                     f"the model carries an input dead band (play operator) of width {b:.3g} "
+                     f"({DEADBAND_SIGMAS:g} x the noise), in the fit and in the exported model")
+    return b
+
+
+def _fit_input(prep: Prepared, b: float) -> Recording:
+    """The trimmed raw recording, its input through the dead band of width b (from the first raw
+    sample, w_0 = u_0, as the exported model runs it) when b > 0."""
+    r = prep.recording
+    if b <= 0:
+        return r
+    w = play_operator(prep.original.u, b, float(prep.original.u[0]))[prep.transient_end:]
+    return Recording(r.t, w, r.y, r.name, r.input, r.output, r.source)
 
 
 def prepare_for_fit(recordings: Sequence[Recording]) -> FitData:
     """Steps 1-3 of the module docstring for every recording."""
     if not recordings:
         raise FitError("no recordings to fit")
-    preps, recs, cycles, loops, notes = [], [], [], [], []
+    preps, cycles, loops, notes = [], [], [], []
     for rec in recordings:
         prep, clean, cycle, n = _prepare_one(rec)
         preps.append(prep)
-        recs.append(clean)
         cycles.append(cycle)
         loops.append(_loop_pieces(clean, prep, cycle))
         notes.append(n)
+    b = _deadband(preps, notes)
+    recs = [_fit_input(p, b) for p in preps]
     try:
         scaling = Normalisation.of(recs)
     except DuhemError as exc:
@@ -130,7 +174,7 @@ def prepare_for_fit(recordings: Sequence[Recording]) -> FitData:
     norm = [scaling.normalise(r) for r in recs]
     loops = [[scaling.normalise(p) for p in pieces] for pieces in loops]
     x0_mode = "periodic" if all(len(p.cycles) <= 1 for p in preps) else "fit"
-    return FitData(preps, recs, norm, cycles, loops, notes, scaling, x0_mode)
+    return FitData(preps, recs, norm, cycles, loops, notes, scaling, x0_mode, b)
 
 
 def averaged_loop(loops: list[list[Recording]], points: int = GRID_POINTS):

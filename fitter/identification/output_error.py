@@ -73,7 +73,7 @@ from fitter.data.recordings import Recording
 from fitter.identification.parametrisation import Parametrisation
 from fitter.progress import Progress, silent
 
-__all__ = ["Options", "Recordings", "RefineResult", "refine", "simulate_from", "jacobian",
+__all__ = ["Options", "Recordings", "RefineResult", "refine", "simulate_from", "fitted_initial_state", "jacobian",
            "effective_samples", "X0_MODES", "FAIL"]
 
 X0_MODES = ("model", "fit", "periodic")
@@ -150,8 +150,14 @@ def effective_samples(residual: np.ndarray) -> float:
 
 
 # ----------------------------------------------------------------------------- initial states
-def _fitted_x0(model, t, u, y, cycle, cache):
-    """Initial state eliminated by linear least squares over a prefix (module docstring)."""
+def fitted_initial_state(model, t, u, y, cycle: tuple[int, int] | None = None, cache: dict | None = None):
+    """Initial state x_0 = argmin ||y - C Phi x_0 - C c - D u|| and the output from it.
+
+    Least squares over a prefix (module docstring, ``"fit"``): the whole
+    recording when `cycle` is None.  Raises `KernelError` when the simulation
+    overflows.
+    """
+    cache = flows(model) if cache is None else cache
     n_pre = len(u) if cycle is None else min(len(u), max(2 * (cycle[1] + 1), 64))
     while True:
         c, Phi = affine_response(model, t[:n_pre], u[:n_pre], cache)
@@ -177,7 +183,7 @@ def simulate_from(model, t, u, y, mode: str, cycle: tuple[int, int] | None):
     if mode == "model":
         return 0, np.array(model.x0, dtype=float), simulate(model, t, u, flow_cache=cache).y, np.nan
     if mode == "fit":
-        x0, yhat = _fitted_x0(model, t, u, y, cycle, cache)
+        x0, yhat = fitted_initial_state(model, t, u, y, cycle, cache)
         return 0, x0, yhat, np.nan
     if mode != "periodic":
         raise ValueError(f"x0 must be one of {X0_MODES}, not {mode!r}")

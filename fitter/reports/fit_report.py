@@ -35,13 +35,10 @@ def _safe(name: str) -> str:
 
 
 def recording_metrics(result, rec: Recording) -> tuple[dict, np.ndarray]:
-    """`fitter.data.metrics.compare` on the samples the model predicts (after the dropped transient)."""
-    y_hat = result.predict(rec)
-    ok = np.isfinite(y_hat)
-    first = int(np.argmax(ok))
-    m = compare(rec.slice(slice(first, None)), y_hat[first:])
-    m["first_sample"] = first
-    return m, y_hat
+    """`fitter.data.metrics.compare` of the saved model (from its stored x0) on all samples of `rec`:
+    the figures of the fit summary and of `duhem validate`."""
+    y_hat = result.simulate(rec)
+    return compare(rec, y_hat), y_hat
 
 
 def _loop_figure(rec: Recording, y_hat, lo, hi, path: Path) -> None:
@@ -108,9 +105,9 @@ td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}img{{max-width:10
 Chosen by: {html.escape(s['why'])}.</p>
 <p>Convergence condition: <b>{'satisfied' if conv['satisfied'] else 'NOT satisfied'}</b>
 ({html.escape(conv['quantity'])} = {_fmt(conv['value'])}).</p>
-<h2>Errors per recording</h2><p>The model is started from the periodic state of each recording's first
-settled cycle (a prediction: nothing is fitted to the recording shown); samples before it (the start-up
-transient) are not compared.  NRMSE = RMS error / output range.</p>
+<h2>Errors per recording</h2><p>The saved model, simulated from its stored initial state over all samples
+of each recording (what the FMU gives and what <code>duhem validate</code> reports).  NRMSE = RMS error /
+output range; the last full input cycle beside it.</p>
 <table>{head}{''.join(body)}</table>
 <h2>Figures</h2>{figs}
 <h2>Preparation</h2><ul>{notes}</ul>

@@ -1,0 +1,153 @@
+"""The model a fit writes, scored the way a user will run it.
+
+The fit optimises on prepared recordings (start-up transient dropped, input
+made monotone between reversals, normalised units).  What the user takes away
+is the model JSON and the FMU, driven by the *raw* recording from the model's
+stored initial state.  This module makes the two the same:
+
+* **Initial state** (`initial_state`), the model's ``x0``, is the state at the
+  first sample of the first recording:
+
+  - ``"fitted"`` (default): x0 = argmin over all samples of the raw recording
+    of ||y - yhat(x0)|| with the parameters fixed (linear least squares: the
+    output is affine in x0, `fitted_initial_state`);
+  - ``"periodic"``: the state at the first sample that leads onto the limiting
+    periodic response (Theorem 1) of the recording's first full input cycle
+    [s0, s1]: x(s0) = x* = (I - Phi)^-1 c, and x0 solves x(s0) = Phi_s0 x0 + c_s0
+    by least squares (exact when s0 = 0).
+
+* **Score** (`score`): every recording is simulated by the saved model from
+  its stored x0 on the raw samples, and compared over all samples
+  (``nrmse`` = RMS error / output range, the figure `duhem validate` reports),
+  with the last full input cycle beside it (``nrmse_last_cycle``).
+
+* **Convergence on the raw input** (`raw_input_rho`): the spectral radius of the
+  period map of each raw recording's last full cycle (noise reversals
+  included): the model converges on the user's input when it is < 1.
+
+* **Fitted range** (`fitted_range`): the input range and the 5-95 % range of
+  |du/dt| over all recordings, so that `simulate` and `validate` can warn when
+  an input leaves them.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from fitter.core.errors import DuhemError, KernelError
+from fitter.core.kernel import flows, simulate
+from fitter.core.periodic import affine_response, fixed_point
+from fitter.data.cycles import last_full_cycle
+from fitter.data.metrics import compare
+from fitter.data.preparation import prepare
+from fitter.data.recordings import Recording
+from fitter.identification.output_error import fitted_initial_state
+
+__all__ = ["X0_POLICIES", "NRMSE_CONVENTION", "initial_state", "score", "raw_input_rho", "fitted_range",
+           "range_warnings"]
+
+X0_POLICIES = ("fitted", "periodic")
+NRMSE_CONVENTION = ("nrmse: RMS error / output range over all samples of the raw recording, the saved model "
+                    "simulated from its stored x0 (what `duhem validate` reports for its FMU); nrmse_last_cycle: "
+                    "the same over the last full input cycle")
+
+
+def _periodic_x0(model, rec: Recording) -> np.ndarray:
+    """x0 leading onto the periodic state of the first full cycle (module docstring)."""
+    prep = prepare(rec, min_cycles=0, drop_transient=False)
+    s0, s1 = prep.first_cycle()
+    cache = flows(model)
+    xs, rho = fixed_point(model, rec.t[s0:s1 + 1], rec.u[s0:s1 + 1], cache)
+    if xs is None:
+        raise DuhemError(f"{rec.name}: no periodic state (spectral radius of the cycle's map {rho:.4g} >= 1); "
+                         "use the fitted initial state")
+    if s0 == 0:
+        return xs
+    c, Phi = affine_response(model, rec.t[:s0 + 1], rec.u[:s0 + 1], cache)
+    x0, *_ = np.linalg.lstsq(Phi[-1], xs - c[-1], rcond=None)
+    return x0
+
+
+def initial_state(model, rec: Recording, policy: str = "fitted") -> np.ndarray:
+    """The model's x0 for the first sample of `rec` under `policy` (module docstring)."""
+    if policy not in X0_POLICIES:
+        raise DuhemError(f"x0 policy must be one of {X0_POLICIES}, not {policy!r}")
+    with np.errstate(all="ignore"):
+        if policy == "periodic":
+            return _periodic_x0(model, rec)
+        try:
+            return fitted_initial_state(model, rec.t, rec.u, rec.y)[0]
+        except (KernelError, np.linalg.LinAlgError):
+            return np.array(model.x0, dtype=float)
+
+
+def score(model, recordings: Sequence[Recording]) -> list[dict]:
+    """`fitter.data.metrics.compare` of the saved model on each raw recording, from its stored x0.
+
+    A simulation that overflows scores None (and ``"diverged": True``).
+    """
+    out = []
+    for rec in recordings:
+        with np.errstate(all="ignore"):
+            try:
+                y_hat = simulate(model, rec.t, rec.u).y
+            except KernelError:
+                y_hat = np.full(len(rec.y), np.nan)
+        if not np.all(np.isfinite(y_hat)):
+            out.append({"recording": rec.name, "nrmse": None, "nrmse_last_cycle": None, "diverged": True})
+            continue
+        m = compare(rec, y_hat)
+        m.update(recording=rec.name, diverged=False)
+        out.append(m)
+    return out
+
+
+def raw_input_rho(model, recordings: Sequence[Recording]) -> list[float | None]:
+    """Spectral radius of the period map of each raw recording's last full cycle (None: no full cycle)."""
+    rhos = []
+    for rec in recordings:
+        try:
+            s = last_full_cycle(rec.u)
+        except DuhemError:
+            rhos.append(None)
+            continue
+        with np.errstate(all="ignore"):
+            try:
+                rhos.append(fixed_point(model, rec.t[s], rec.u[s])[1])
+            except (KernelError, np.linalg.LinAlgError):
+                rhos.append(np.inf)
+    return rhos
+
+
+def fitted_range(recordings: Sequence[Recording]) -> dict:
+    """Input range and 5-95 % range of |du/dt| over all recordings."""
+    u = np.concatenate([r.u for r in recordings])
+    v = np.concatenate([np.abs(np.diff(r.u) / np.diff(r.t)) for r in recordings])
+    v = v[v > 0]
+    rates = [float(np.percentile(v, 5)), float(np.percentile(v, 95))] if v.size else None
+    return {"input": [float(u.min()), float(u.max())], "rate": rates}
+
+
+def range_warnings(model, t: np.ndarray, u: np.ndarray) -> list[str]:
+    """Sentences naming where an input leaves the model's fitted range (`fitted_range`, stored in
+    ``fit_info``): its amplitude beyond 5 % of the fitted span, and for a rate-dependent model its
+    rates (5-95 %) beyond a factor 1.5.  Empty when inside, or when the model has no fitted range."""
+    rng = model.fit_info.get("fitted_range") if isinstance(model.fit_info, dict) else None
+    if not isinstance(rng, dict) or not rng.get("input"):
+        return []
+    out = []
+    lo, hi = rng["input"]
+    slack = 0.05 * (hi - lo)
+    if u.min() < lo - slack or u.max() > hi + slack:
+        out.append(f"the input spans [{u.min():.6g}, {u.max():.6g}] but the model was fitted on "
+                   f"[{lo:.6g}, {hi:.6g}]: outside it the model extrapolates")
+    v = np.abs(np.diff(u) / np.diff(t))
+    v = v[v > 0]
+    if model.kind == "rd" and rng.get("rate") and v.size:
+        v_lo, v_hi = np.percentile(v, [5, 95])
+        f_lo, f_hi = rng["rate"]
+        if v_hi > 1.5 * f_hi or v_lo < f_lo / 1.5:
+            out.append(f"the input's rates |du/dt| span [{v_lo:.4g}, {v_hi:.4g}] (5-95 %) but the model was "
+                       f"fitted on [{f_lo:.4g}, {f_hi:.4g}]: its rate function g is extrapolated")
+    return out
