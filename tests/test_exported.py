@@ -128,3 +128,24 @@ def test_exported_fmu_reproduces_the_fit_on_measured_recordings(case, tmp_path):
     assert fit.summary["convergence"]["satisfied"] is True
     assert all(math.isfinite(r["nrmse"]) for r in fit.summary["recordings"])
     _reproduces(fit, recs, tmp_path)
+
+
+def test_rates_spread_over_1_9x_are_not_chained_into_one_level():
+    from fitter.identification.fit_data import rate_levels
+    recs = []
+    for k, w in enumerate(np.geomspace(1.0, 1.9, 5)):       # consecutive ratios 1.17 < 1.5, span 1.9
+        t, u = sine_input(w, 2, 200, 0.0, 1.0)
+        recs.append(Recording(t, u, np.sin(u), f"r{k}"))
+    levels = rate_levels(recs)
+    assert levels.levels == 2
+
+
+def test_a_dropped_transient_is_stated_with_its_share_of_the_samples():
+    from fitter.data.preparation import prepare
+    from fitter.core import RateIndependentModel, simulate as run
+    slow = RateIndependentModel(A_plus=[[-0.1]], A_minus=[[0.1]], B_plus=[0.1], B_minus=[0.1], C=[1.0], x0=[6.0])
+    t, u = sine_input(1.0, 6, 200, 0.0, 1.0)
+    prep = prepare(Recording(t, u, run(slow, t, u).y, "slow"), min_cycles=0)
+    share = 100 * prep.transient_end / len(t)
+    (note,) = [n for n in prep.notes if n.startswith("dropped the start-up transient")]
+    assert prep.transient_end > 0 and f"{share:.0f}% of the samples" in note

@@ -270,8 +270,9 @@ def prepare(rec: Recording, *, min_cycles: int = 1, threshold: float | None = No
         drift = _closure(rec, cycles[0])
     if start:
         notes.append(f"dropped the start-up transient before the first settled cycle: samples "
-                     f"0-{start - 1} (t < {rec.t[start]:.6g}), {first} unsettled full cycle(s)")
-    if d.size and d[-1] > tol:
+                     f"0-{start - 1} (t < {rec.t[start]:.6g}, {100 * start / len(rec.u):.0f}% of the samples), "
+                     f"{first} unsettled full cycle(s)")
+    if d.size and np.isfinite(d[-1]) and d[-1] > tol:
         notes.append(f"successive cycles still differ by {d[-1]:.3g} RMS beyond the drift "
                      f"({100 * d[-1] / np.ptp(rec.y):.2g}% of the output range) at the end: "
                      f"cycle-to-cycle variation, or not fully settled")

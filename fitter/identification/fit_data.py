@@ -22,7 +22,9 @@
    and averaged over cycles and recordings (the input-domain
    reparameterisation of Section III), a start for rate-independent fits.
 5. Rate levels: the distinct input rates (median |du/dt| per recording,
-   grouped when within a factor 1.5), the reference rate and the knots of g.
+   grouped so that no level spans more than a factor 1.5: five rates spread
+   over 1.9x are two levels, not one chain), the reference rate and the knots
+   of g.
 """
 from __future__ import annotations
 
@@ -204,6 +206,18 @@ class RateLevels:
     triangle: bool
 
 
+def _rate_groups(meds: np.ndarray, factor: float = 1.5) -> list[np.ndarray]:
+    """Sorted rates grouped so that no group spans more than `factor` (a new group starts where a
+    rate exceeds `factor` x its group's first: rates are not chained into one level)."""
+    groups = [[meds[0]]]
+    for v in meds[1:]:
+        if v > factor * groups[-1][0]:
+            groups.append([v])
+        else:
+            groups[-1].append(v)
+    return [np.array(g) for g in groups]
+
+
 def rate_levels(norm: Sequence[Recording]) -> RateLevels:
     """Step 5 of the module docstring."""
     meds, pooled, triangle = [], [], True
@@ -215,8 +229,7 @@ def rate_levels(norm: Sequence[Recording]) -> RateLevels:
         inner = (v > np.quantile(v, 0.1)) & (v < np.quantile(v, 0.9))
         if not inner.any() or np.std(v[inner]) > 0.15 * np.median(v):
             triangle = False
-    meds = np.sort(meds)
-    groups = np.split(meds, np.flatnonzero(meds[1:] / meds[:-1] > 1.5) + 1)
+    groups = _rate_groups(np.sort(meds))
     levels = np.array([np.exp(np.mean(np.log(g))) for g in groups])
     if not triangle:
         v = np.concatenate(pooled)
