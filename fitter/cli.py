@@ -135,7 +135,19 @@ def _check_backend(backend: str) -> None:
 
 # --------------------------------------------------------------------------- shared options
 
+def _no_time(ctx: click.Context, param: click.Parameter, value: bool) -> None:
+    ctx.meta["no_time"] = value
+
+
+def _time_column(time_col: str) -> str | None:
+    """The --time column, or None (sample index as time) under --no-time."""
+    return None if click.get_current_context().meta.get("no_time") else time_col
+
+
 def _column_options(func: Callable) -> Callable:
+    func = click.option("--no-time", is_flag=True, expose_value=False, callback=_no_time,
+                        help="the file has no time column: use the sample index as time (rate-independent "
+                             "models only depend on the input's path)")(func)
     for name, default, role in (("output", "y", "output"), ("input", "u", "input"),
                                 ("time", "time", "time")):
         func = click.option(f"--{name}", f"{name}_col", default=default, show_default=True, metavar="COL",
@@ -187,7 +199,7 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, allow_
     _check_fmu_name(fmu)
     if fmu:
         _check_backend(backend)
-    recs = load_recordings(list(recordings), time_col, input_col, output_col)
+    recs = load_recordings(list(recordings), _time_column(time_col), input_col, output_col)
     with stderr_progress("duhem fit") as say, contextlib.ExitStack() as outputs:
         model_tmp = outputs.enter_context(atomic_file(out, suffix=".json"))
         report_tmp = outputs.enter_context(atomic_directory(report)) if report else None
@@ -282,7 +294,7 @@ def validate(fmu, recordings, threshold, plot, time_col, input_col, output_col, 
     if plot and Path(plot).suffix.lower() != ".png":
         raise CliError(f"{plot}: the plot file name must end in .png")
     _check_fmu(fmu)
-    recs = load_recordings(list(recordings), time_col, input_col, output_col)
+    recs = load_recordings(list(recordings), _time_column(time_col), input_col, output_col)
     model = model_in_fmu(fmu)
     rows, outputs = [], []
     with stderr_progress("duhem validate") as say:
@@ -377,7 +389,7 @@ def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order,
     if fmu:
         _check_backend(backend)
     base = _load_model_json(model_path) if model_path else None
-    recs = load_recordings(list(recordings), time_col, input_col, output_col)
+    recs = load_recordings(list(recordings), _time_column(time_col), input_col, output_col)
     with contextlib.ExitStack() as outputs:
         json_tmp = outputs.enter_context(atomic_file(json_out, suffix=".json")) \
             if json_out and json_out != "-" else None

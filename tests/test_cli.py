@@ -402,3 +402,16 @@ def test_package_does_not_import_the_script():
     for path in sources:
         text = path.read_text(encoding="utf-8")
         assert not re.search(r"^\s*(import build_fmu\b|from build_fmu import)", text, re.MULTILINE), path
+
+
+def test_fit_without_a_time_column(tmp_path):
+    t = np.linspace(0, 4 * 2 * np.pi, 801)
+    u = np.sin(t)
+    y = simulate(true_model(), t, u).y
+    csv = tmp_path / "no_time.csv"
+    np.savetxt(csv, np.column_stack([u, y]), delimiter=",", header="u,y", comments="")
+    refused = invoke("fit", csv, "-o", tmp_path / "m.json")
+    assert refused.exit_code == 1 and "--no-time" in refused.stderr and not (tmp_path / "m.json").exists()
+    out = json.loads(ok(invoke("fit", csv, "--no-time", "-o", tmp_path / "m.json", "--kind", "ri", "--order", "1",
+                               "--json")).stdout)
+    assert out["summary"]["recordings"][0]["nrmse"] < 1e-6

@@ -189,7 +189,8 @@ def _find_column(spec: str | int, header: list[str], path: str, role: str) -> in
         if len(hits) > 1:
             raise RecordingError(f"{path}: {role} column {spec!r} is ambiguous: it matches "
                                  + ", ".join(repr(header[i]) for i in hits))
-    raise RecordingError(f"{path}: {role} column {spec!r} not found (available: {available})")
+    hint = "; a file without time: time=None (duhem: --no-time) uses the sample index" if role == "time" else ""
+    raise RecordingError(f"{path}: {role} column {spec!r} not found (available: {available}){hint}")
 
 
 def _read_rows(path: str) -> tuple[list[str], list[list[str]], list[int]]:
