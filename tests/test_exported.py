@@ -149,3 +149,15 @@ def test_a_dropped_transient_is_stated_with_its_share_of_the_samples():
     share = 100 * prep.transient_end / len(t)
     (note,) = [n for n in prep.notes if n.startswith("dropped the start-up transient")]
     assert prep.transient_end > 0 and f"{share:.0f}% of the samples" in note
+
+
+def test_a_single_loop_is_fitted_and_exported(tmp_path):
+    """One settled loop from the input's minimum to its maximum and back (a B-H or magnetometer loop)."""
+    t = np.linspace(0.0, 2.0, 801)
+    u = -np.cos(np.pi * t)                                      # -1 -> 1 -> -1
+    truth = ri_model(1)
+    truth = truth.replace(x0=periodic_response(truth, t, u).x_periodic)
+    rec = noisy_recording(truth, t, u, noise=0.003, seed=2, name="one loop")
+    fit = fit_recordings([rec], kind="ri", order=1)
+    assert fit.summary["recordings"][0]["nrmse"] < 0.01
+    _reproduces(fit, [rec], tmp_path)

@@ -42,7 +42,7 @@ from fitter.data.recordings import Recording
 
 __all__ = ["PreparationError", "REVERSAL_FRACTION", "REVERSAL_NOISE_FACTOR", "reversal_threshold",
            "find_reversals", "count_reversals", "cycle_reversals", "period_cycle", "closing_period",
-           "split_cycles", "last_full_cycle"]
+           "single_loop", "split_cycles", "last_full_cycle"]
 
 REVERSAL_FRACTION = 0.05
 REVERSAL_NOISE_FACTOR = 6.0
@@ -158,11 +158,29 @@ def closing_period(u, reversals: np.ndarray) -> slice | None:
 
     Closing: at least two reversals, ``|u[-1] - u[0]| < 0.1 * range(u)`` and
     the same direction of motion at both ends, ``sign(u[1] - u[0]) ==
-    sign(u[-1] - u[-2])``.
+    sign(u[-1] - u[-2])``; or a `single_loop`.
     """
     u = np.asarray(u, dtype=float)
     if len(reversals) >= 2 and abs(u[-1] - u[0]) < LOOSE_CLOSURE * np.ptp(u) \
             and np.sign(u[1] - u[0]) == np.sign(u[-1] - u[-2]):
+        return slice(0, u.size)
+    return single_loop(u, reversals)
+
+
+def single_loop(u, reversals: np.ndarray) -> slice | None:
+    """The whole record as one cycle when it is a single loop from one extreme to the other and back.
+
+    One reversal, both ends within ``0.1 * range(u)`` of each other and on the
+    side opposite the reversal (e.g. a B-H loop from -H_max to +H_max and back),
+    so that the record closes: the cycle runs from the first to the last sample.
+    """
+    u = np.asarray(u, dtype=float)
+    if len(reversals) != 1:
+        return None
+    span = float(np.ptp(u))
+    k = int(reversals[0])
+    ends_opposite = min(abs(u[0] - u[k]), abs(u[-1] - u[k])) > (1 - LOOSE_CLOSURE) * span
+    if ends_opposite and abs(u[-1] - u[0]) < LOOSE_CLOSURE * span:
         return slice(0, u.size)
     return None
 

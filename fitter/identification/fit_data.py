@@ -2,8 +2,9 @@
 
 1. Preparation (`fitter.data.preparation.prepare`): input reversals, settled
    cycles (the start-up transient is dropped), holds, drift; the notes go into
-   the summary.  A recording whose input never reverses twice, or that holds
-   neither a full cycle nor one closing period, is rejected (`FitError`).
+   the summary.  A recording whose input never reverses, or that holds
+   neither a full cycle nor one closing period (a single loop from one
+   extreme to the other and back counts), is rejected (`FitError`).
 2. The model is fitted on the *raw* input (what an FMU will be driven with).
    Where measurement noise on u makes it reverse at many more samples than
    its true reversals (more than `NOISY_RUNS` times), the noise reversals
@@ -111,9 +112,9 @@ def _loop_pieces(rec: Recording, prep: Prepared, cycle: tuple[int, int]) -> list
 
 def _prepare_one(rec: Recording) -> tuple[Prepared, Recording, tuple[int, int], list[str]]:
     reversals = find_reversals(rec.u)
-    if len(reversals) < 2:
-        raise FitError(f"{rec.name}: the input never reverses twice (it must go up and down "
-                       f"periodically; found {len(reversals)} reversal(s))")
+    if len(reversals) < 1:
+        raise FitError(f"{rec.name}: the input never reverses (it must go up and down at least once: "
+                       f"a single loop, or periodically)")
     try:
         prep = prepare(rec, min_cycles=0)
         cycle = prep.first_cycle()
