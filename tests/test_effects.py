@@ -41,17 +41,25 @@ def signal(n=400, seed=0):
     return t, u
 
 
+def stepped(st: Stepper, t, u, keep: int | None = None) -> tuple[list, tuple | None]:
+    """Outputs of `st` driven sample by sample (step, then set the next input), and its state at `keep`."""
+    out, saved = [st.output()], None
+    for k in range(1, len(t)):
+        st.do_step(t[k] - t[k - 1])
+        st.set_input(u[k])
+        out.append(st.output())
+        if k == keep:
+            saved = st.get_state()
+    return out, saved
+
+
 @pytest.mark.parametrize("make", [ri, rd])
 def test_stepper_equals_simulate_with_all_effects(make):
     model = make(ALL.items())
     t, u = signal()
     y = simulate(model, t, u).y
     st = Stepper(model, t0=t[0], u0=u[0])
-    out = [st.output()]
-    for k in range(1, len(t)):
-        st.do_step(t[k] - t[k - 1])
-        st.set_input(u[k])
-        out.append(st.output())
+    out, _ = stepped(st, t, u)
     np.testing.assert_allclose(out, y, rtol=0, atol=1e-12)
     saved = st.get_state()
     st.do_step(0.02)
@@ -294,14 +302,8 @@ def test_serialisation_round_trip_and_stepper(name, make, tmp_path):
     y = simulate(model, t, u).y
     np.testing.assert_array_equal(simulate(back, t, u).y, y)
     st = Stepper(back, t0=t[0], u0=u[0])
-    out = [st.output()]
-    for k in range(1, len(t)):
-        st.do_step(t[k] - t[k - 1])
-        st.set_input(u[k])
-        out.append(st.output())
-        if k == 60:
-            saved = st.get_state()
-            assert len(saved[-1]) == len(REGISTRY[name].state)
+    out, saved = stepped(st, t, u, keep=60)
+    assert len(saved[-1]) == len(REGISTRY[name].state)
     np.testing.assert_allclose(out, y, rtol=0, atol=1e-12)
     st.set_state(json.loads(json.dumps([list(v) if isinstance(v, (tuple, np.ndarray)) else v for v in saved])))
     assert st.output() == out[60]
