@@ -35,8 +35,10 @@ def _reproduces(fit, recordings, tmp_path, backend="native"):
     """Validate the exported FMU over all samples of every raw recording against the fit's summary."""
     fmu = build_fmu(fit.model, tmp_path / "m.fmu", backend=backend)
     for rec, row in zip(recordings, fit.summary["recordings"]):
-        got = nrmse(rec.y, simulate_fmu(fmu, rec.t, rec.u))
-        assert got == pytest.approx(row["nrmse"], rel=1e-8, abs=1e-12)
+        y_fmu = simulate_fmu(fmu, rec.t, rec.u)
+        assert np.abs(y_fmu - fit.simulate(rec)).max() <= 1e-8 * np.ptp(rec.y)
+        got = nrmse(rec.y, y_fmu)
+        assert got == pytest.approx(row["nrmse"], rel=1e-6)
         prepared = row["nrmse_prepared"]
         assert got <= max(1.5 * prepared, prepared + 0.01), (rec.name, got, prepared)
 
@@ -161,3 +163,17 @@ def test_a_single_loop_is_fitted_and_exported(tmp_path):
     fit = fit_recordings([rec], kind="ri", order=1)
     assert fit.summary["recordings"][0]["nrmse"] < 0.01
     _reproduces(fit, [rec], tmp_path)
+
+
+def test_dead_band_is_shared_when_only_some_recordings_have_a_noisy_input():
+    """A clean and a noisy-input recording fitted together: one dead band, stated for the noisy one."""
+    from fitter.identification.fit_data import prepare_for_fit
+    t, u = sine_input(1.0, 4, 200, 0.0, 1.0)
+    clean = noisy_recording(ri_model(1), t, u, noise=0.002, seed=1)
+    rng = np.random.default_rng(2)
+    u_noisy = u + 0.01 * rng.standard_normal(len(u))
+    noisy = noisy_recording(ri_model(1), t, u_noisy, noise=0.002, seed=3)
+    data = prepare_for_fit([clean, noisy])
+    assert data.deadband > 0
+    assert not any("dead band" in n for n in data.notes[0])
+    assert any("dead band" in n for n in data.notes[1])

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1] / "fitter"
-ORDER = ["core", "data", "progress", "identification", "diagnosis", "fmu", "reports", "cli_support", "paper",
+ORDER = ["core", "data", "progress", "identification", "baselines", "diagnosis", "fmu", "reports", "cli_support", "paper",
          "estimator", "cli"]
 
 

@@ -16,7 +16,8 @@ over one sample interval, where s is the interval's own independent variable:
   With s = g(v) tau: S = g(v) h, p = u_k, r = v / g(v) (r = 0 when g(v) = 0,
   where nothing moves).
 
-(K) is solved in the eigenbasis A = V diag(lambda) V^-1 with the phi-functions
+(K) is solved in the eigenbasis A = V diag(lambda) V^-1 (in real arithmetic
+when every eigenvalue is real) with the phi-functions
 phi1(z) = (e^z - 1)/z and phi2(z) = (e^z - 1 - z)/z^2:
 
     w(S) = e^{lambda S} w(0) + S phi1(lambda S) c0 + S^2 phi2(lambda S) c1,
@@ -26,8 +27,9 @@ recurrences w_{k+1} = a_k w_k + f_k are summed in closed form (cumulative
 products as exponentials of cumulative sums), in chunks short enough that no
 exponential overflows.  When V is ill-conditioned (defective A, e.g. the
 Jordan blocks that a bilinear transform makes of a shift register) the kernel
-falls back to the matrix exponential of the augmented matrix
-[[A, B r, B p + E], [0, 0, 1], [0, 0, 0]] one interval at a time.
+falls back to the same phi-functions as matrices, blocks of
+expm([[A S, I, 0], [0, 0, I], [0, 0, 0]]) (`AffineFlow.affine_maps`, the
+native FMU's flow), for all intervals at once.
 
 `kernel.simulate` (base model) and `effects.run_with_effects` (effect chain)
 both run on these functions; `check_finite` and `check_increasing` are the
@@ -50,8 +52,8 @@ _CHUNK_SPAN = 300.0
 
 
 def phi1(z: np.ndarray) -> np.ndarray:
-    """(e^z - 1)/z, equal to 1 at z = 0; accurate for small |z|."""
-    z = np.asarray(z, dtype=complex)
+    """(e^z - 1)/z, equal to 1 at z = 0; accurate for small |z| (real for real z)."""
+    z = np.asarray(z, dtype=complex if np.iscomplexobj(z) else float)
     out = np.ones_like(z)
     big = np.abs(z) >= 1e-8
     out[big] = np.expm1(z[big]) / z[big]
@@ -64,8 +66,8 @@ _PHI2_SERIES = np.array([1.0 / np.prod(np.arange(1.0, k + 1)) for k in range(2, 
 
 
 def phi2(z: np.ndarray) -> np.ndarray:
-    """(e^z - 1 - z)/z^2, equal to 1/2 at z = 0; Taylor series for |z| < 0.5."""
-    z = np.asarray(z, dtype=complex)
+    """(e^z - 1 - z)/z^2, equal to 1/2 at z = 0; Taylor series for |z| < 0.5 (real for real z)."""
+    z = np.asarray(z, dtype=complex if np.iscomplexobj(z) else float)
     out = np.empty_like(z)
     small = np.abs(z) < 0.5
     zb = z[~small]
@@ -82,23 +84,34 @@ _PHI2_POWERS = np.arange(len(_PHI2_SERIES))
 
 
 def expm(M: np.ndarray) -> np.ndarray:
-    """Matrix exponential by scaling and squaring of a degree-18 Taylor series.
+    """Matrix exponential of one (m, m) matrix or of a stack (N, m, m), by scaling and squaring
+    of a degree-18 Taylor series.
 
-    The matrix is scaled to 1-norm <= 0.5, where the truncation error is below
-    1e-20 relative; used only by the fallback path and by tests.
+    Each matrix is scaled to 1-norm <= 0.5, where the truncation error is below
+    1e-20 relative; a matrix with a NaN or infinite entry gives NaN.  Used by the
+    fallback path of `integrate` (a stack of interval flows), by `AffineFlow.step`
+    and by condition (5).
     """
     M = np.asarray(M, dtype=float)
-    norm = np.abs(M).sum(axis=0).max() if M.size else 0.0
-    s = max(0, int(np.ceil(np.log2(norm / 0.5)))) if norm > 0.5 else 0
-    X = M / (2.0 ** s)
-    result = np.eye(M.shape[0])
-    term = np.eye(M.shape[0])
+    stack = M if M.ndim == 3 else M[None]
+    m = stack.shape[-1]
+    result = np.broadcast_to(np.eye(m), stack.shape).copy()
+    if stack.size == 0:
+        return result if M.ndim == 3 else result[0]
+    norm = np.abs(stack).sum(axis=-2).max(axis=-1)
+    finite = np.isfinite(norm)
+    norm = np.where(finite, norm, 0.0)
+    s = np.where(norm > 0.5, np.ceil(np.log2(np.maximum(norm, 0.5) / 0.5)), 0).astype(np.int64)
+    X = stack / np.exp2(s)[:, None, None]
+    term = result.copy()
     for k in range(1, 19):
         term = term @ X / k
-        result = result + term
-    for _ in range(s):
-        result = result @ result
-    return result
+        result += term
+    for i in range(int(s.max())):
+        sel = s > i
+        result[sel] = result[sel] @ result[sel]
+    result[~finite] = np.nan
+    return result if M.ndim == 3 else result[0]
 
 
 class AffineFlow:
@@ -129,22 +142,13 @@ class AffineFlow:
             self._lam_max = float(np.abs(lam).max())
             self._phi2_terms = lam[:, None] ** _PHI2_POWERS * _PHI2_SERIES
 
-    def _augmented(self, p: float, r: float) -> np.ndarray:
-        n = self.n
-        M = np.zeros((n + 2, n + 2))
-        M[:n, :n] = self.A
-        M[:n, n] = self.B * r
-        M[:n, n + 1] = self.B * p + self.E
-        M[n, n + 1] = 1.0
-        return M
-
     def step(self, x: np.ndarray, p: float, r: float, S: float) -> np.ndarray:
         """x(S) of (K) from x(0) = x."""
         if S == 0.0:
             return np.array(x, dtype=float)
         if not self.modal:
-            Z = expm(self._augmented(p, r) * S)
-            return Z[:self.n, :self.n] @ x + Z[:self.n, self.n + 1]
+            M, g = self.affine_maps(np.array([p]), np.array([r]), np.array([S]))
+            return M[0] @ x + g[0]
         z = self.lam * S
         if abs(S) * self._lam_max < 0.5:
             # the Taylor series of `phi2`, summed as (c_k lambda^k) S^k, c_k lambda^k precomputed
@@ -156,24 +160,47 @@ class AffineFlow:
             + (S * S * r) * p2 * self.beta
         return (self.V @ w).real
 
+    def modal_terms(self, p: np.ndarray, r: np.ndarray, S: np.ndarray,
+                    forcing: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Per interval, in modal coordinates w = V^-1 x: exponents z = lambda S (N, n) and forcing
+        f with w(S) = e^z w(0) + f (module docstring), (N, n); with `forcing` = (B, E), m forcing
+        columns of shape (n, m) in place of the flow's own, f is (N, n, m)."""
+        z = np.outer(S, self.lam)
+        c1, c2 = S[:, None] * phi1(z), S[:, None] ** 2 * phi2(z)
+        if forcing is None:
+            return z, (c1 * p[:, None] + c2 * r[:, None]) * self.beta + c1 * self.eps
+        beta, eps = self.Vinv @ forcing[0], self.Vinv @ forcing[1]
+        return z, (c1 * p[:, None] + c2 * r[:, None])[:, :, None] * beta + c1[:, :, None] * eps
+
+    def affine_maps(self, p: np.ndarray, r: np.ndarray, S: np.ndarray,
+                    forcing: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Per interval, x(S) = M x(0) + g with M = e^{A S}, g = S K1 (B p + E) + S^2 K2 B r, where
+        [[M, K1, K2], ...] = expm([[A S, I, 0], [0, 0, I], [0, 0, 0]]) (one stacked `expm`).
+
+        This is the phi-function form of the module docstring (S K1 = S phi1(A S),
+        S^2 K2 = S^2 phi2(A S)), balanced so that the input level p does not enter the
+        matrix: its norm, and the number of squarings, is that of A S (the native FMU's
+        flow is the same).  M is (N, n, n); g is (N, n), or (N, n, m) for m forcing
+        columns (B, E) as in `modal_terms`.
+        """
+        n = self.n
+        G = np.zeros((len(S), 3 * n, 3 * n))
+        G[:, :n, :n] = self.A * S[:, None, None]
+        G[:, :n, n:2 * n] = np.eye(n)
+        G[:, n:2 * n, 2 * n:] = np.eye(n)
+        Z = expm(G)
+        M, K1, K2 = Z[:, :n, :n], Z[:, :n, n:2 * n] * S[:, None, None], Z[:, :n, 2 * n:] * (S ** 2)[:, None, None]
+        if forcing is None:
+            return M, (np.einsum("kij,j->ki", K1, self.B) * p[:, None] + K1 @ self.E
+                       + np.einsum("kij,j->ki", K2, self.B) * r[:, None])
+        B, E = forcing
+        g = (np.einsum("kij,jm->kim", K1, B) * p[:, None, None] + np.einsum("kij,jm->kim", K1, E)
+             + np.einsum("kij,jm->kim", K2, B) * r[:, None, None])
+        return M, g
+
     def run(self, x0: np.ndarray, p: np.ndarray, r: np.ndarray, S: np.ndarray) -> np.ndarray:
         """States after each of N intervals, shape (N, n), from x0 before the first."""
-        N = len(S)
-        if N == 0:
-            return np.zeros((0, self.n))
-        if not self.modal:
-            out = np.empty((N, self.n))
-            x = np.asarray(x0, dtype=float)
-            for k in range(N):
-                x = self.step(x, p[k], r[k], S[k])
-                out[k] = x
-            return out
-        z = np.outer(S, self.lam)
-        a = np.exp(z)
-        f = (S[:, None] * phi1(z)) * (np.outer(p, self.beta) + self.eps) \
-            + (S[:, None] ** 2 * phi2(z)) * np.outer(r, self.beta)
-        W = linear_recurrence(self.Vinv @ np.asarray(x0, dtype=float), z, a, f)
-        return (W @ self.V.T).real
+        return integrate({1.0: self}, x0, np.ones(len(S)), p, r, S)[1:]
 
 
 def linear_recurrence(w0: np.ndarray, z: np.ndarray, a: np.ndarray, f: np.ndarray) -> np.ndarray:
@@ -277,12 +304,124 @@ def flows(model) -> dict:
 
 
 def integrate(fl: dict, x0: np.ndarray, branch: np.ndarray, p: np.ndarray, r: np.ndarray,
-              S: np.ndarray) -> np.ndarray:
-    """States (N+1, n) at the samples from x0, given the N intervals' (branch, p, r, S) of (K)."""
-    X = np.empty((len(S) + 1, fl[1.0].n))
-    X[0] = x0
-    cuts = np.r_[0, np.flatnonzero(np.diff(branch)) + 1, len(S)]
-    for s0, s1 in zip(cuts[:-1], cuts[1:]):
-        if s1 > s0:
-            X[s0 + 1:s1 + 1] = fl[branch[s0]].run(X[s0], p[s0:s1], r[s0:s1], S[s0:s1])
+              S: np.ndarray, forcing: dict | None = None) -> np.ndarray:
+    """States at the samples given the N intervals' (branch, p, r, S) of (K).
+
+    x0 is one initial state (n,) or m of them as the columns of an (n, m)
+    array; the result is (N+1, n) or (N+1, n, m).  `forcing` (with m columns
+    only) replaces the flows' B and E per column: {branch: (B, E)}, each (n, m);
+    column j is then the response to x0[:, j] and the forcing B[:, j] u + E[:, j]
+    (the responses the output-error engine needs to eliminate parameters that
+    enter linearly).
+
+    When every flow used is modal, the intervals are cut into segments (a
+    branch change, or the span limit of `linear_recurrence`), each segment is
+    summed in closed form and only the segments' end states are chained one
+    after another.  Otherwise every interval's affine map comes from the
+    block matrix exponential of `AffineFlow.affine_maps` and the maps are
+    composed by a blocked prefix scan.
+    """
+    X0 = np.asarray(x0, dtype=float)
+    out = np.empty((len(S) + 1,) + X0.shape)
+    out[0] = X0
+    if len(S) == 0:
+        return out
+    used = {b: fl[b] for b in np.unique(branch)}
+    force = {b: None if forcing is None else forcing[b] for b in used}
+    if all(flow.modal for flow in used.values()):
+        out[1:] = _integrate_modal(used, force, X0, branch, p, r, S)
+    else:
+        out[1:] = _integrate_dense(used, force, X0, branch, p, r, S)
+    return out
+
+
+def _columns(a: np.ndarray, extra: int) -> np.ndarray:
+    """`a` with `extra` trailing axes of length 1 (broadcast over initial states)."""
+    return a.reshape(a.shape + (1,) * extra)
+
+
+def _segmented_cumsum(x: np.ndarray, head: np.ndarray) -> np.ndarray:
+    """Cumulative sum along axis 0 restarting at every True of `head`.
+
+    Segments of many entries on average (>= 256): one `np.cumsum` per segment;
+    otherwise a Hillis-Steele scan over the whole array (log2 of the longest
+    segment passes), which costs less than a Python loop over many tiny segments.
+    """
+    first = np.flatnonzero(head)
+    if 256 * len(first) <= x.size:
+        out = np.empty_like(x)
+        for a, b in zip(first, np.r_[first[1:], len(x)]):
+            np.cumsum(x[a:b], axis=0, out=out[a:b])
+        return out
+    v, h = x.copy(), head.copy()
+    d = 1
+    while d < len(x) and not h[d:].all():
+        add = np.where(_columns(h[d:], v.ndim - 1), 0, v[:-d])
+        h[d:] = h[d:] | h[:-d]
+        v[d:] = v[d:] + add
+        d *= 2
+    return v
+
+
+def _integrate_modal(used: dict, force: dict, X0: np.ndarray, branch, p, r, S) -> np.ndarray:
+    """States after each interval, all flows modal (see `integrate`)."""
+    N, n, extra = len(S), X0.shape[0], X0.ndim - 1
+    dtype = complex if any(np.iscomplexobj(flow.lam) for flow in used.values()) else float
+    z = np.empty((N, n), dtype=dtype)
+    f = np.empty((N, n) + X0.shape[1:], dtype=dtype)
+    for b, flow in used.items():
+        sel = branch == b
+        z[sel], fb = flow.modal_terms(p[sel], r[sel], S[sel], force[b])
+        f[sel] = fb if fb.ndim == f.ndim else _columns(fb, extra)
+    chunk = np.floor(np.cumsum(np.abs(z.real).max(axis=1)) / _CHUNK_SPAN)
+    head = np.r_[True, (branch[1:] != branch[:-1]) | (chunk[1:] != chunk[:-1])]
+    first = np.flatnonzero(head)
+    last = np.r_[first[1:] - 1, N - 1]
+    L = _segmented_cumsum(np.where(head[:, None], 0, z), head)
+    F = _segmented_cumsum(np.where(_columns(head, 1 + extra), 0, f * _columns(np.exp(-L), extra)), head)
+    # the map of segment s on modal coordinates: W0 = e^{z_first} w_in + f_first, w_out = P (W0 + F_last)
+    ez0, f0 = _columns(np.exp(z[first]), extra), f[first]
+    PL, FL = _columns(np.exp(L[last]), extra), F[last]
+    W0 = np.empty((len(first), n) + X0.shape[1:], dtype=dtype)
+    flow_of = [used[b] for b in branch[first]]
+    x, w, prev = X0, None, None
+    for s, flow in enumerate(flow_of):
+        if flow is not prev:
+            w = flow.Vinv @ (x if prev is None else (prev.V @ w).real)
+            prev = flow
+        W0[s] = ez0[s] * w + f0[s]
+        w = PL[s] * (W0[s] + FL[s])
+    seg = np.cumsum(head) - 1
+    W = _columns(np.exp(L), extra) * (W0[seg] + F)
+    X = np.empty((N, n) + X0.shape[1:])
+    for b, flow in used.items():
+        sel = branch == b
+        X[sel] = (np.matmul(flow.V, W[sel]) if extra else W[sel] @ flow.V.T).real
     return X
+
+
+def _integrate_dense(used: dict, force: dict, X0: np.ndarray, branch, p, r, S, block: int = 32) -> np.ndarray:
+    """States after each interval from the intervals' affine maps x_{k+1} = M_k x_k + g_k:
+    prefix compositions within blocks of `block` intervals (log2(block) stacked products),
+    then the blocks chained one after another."""
+    N, n, extra = len(S), X0.shape[0], X0.ndim - 1
+    nb = -(-N // block)
+    M = np.broadcast_to(np.eye(n), (nb * block, n, n)).copy()
+    g = np.zeros((nb * block, n) + X0.shape[1:])
+    for b, flow in used.items():
+        sel = np.flatnonzero(branch == b)
+        M[sel], gb = flow.affine_maps(p[sel], r[sel], S[sel], force[b])
+        g[sel] = gb if gb.ndim == g.ndim else _columns(gb, extra)
+    P, c = M.reshape(nb, block, n, n), g.reshape((nb, block, n) + X0.shape[1:])
+    d = 1
+    while d < block:
+        P_new, c_new = P.copy(), c.copy()
+        P_new[:, d:] = P[:, d:] @ P[:, :-d]
+        c_new[:, d:] = np.einsum("bkij,bkj...->bki...", P[:, d:], c[:, :-d]) + c[:, d:]
+        P, c, d = P_new, c_new, 2 * d
+    out = np.empty((nb, block, n) + X0.shape[1:])
+    x = X0
+    for i in range(nb):
+        out[i] = P[i] @ x + c[i]
+        x = out[i, -1]
+    return out.reshape((nb * block, n) + X0.shape[1:])[:N]

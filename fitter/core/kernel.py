@@ -21,7 +21,7 @@ from .flow import (AffineFlow, check_finite, check_increasing, expm, flows, inte
                    interval_coefficients, one_interval, phi1, phi2)
 
 __all__ = ["AffineFlow", "check_finite", "check_increasing", "expm", "flows", "integrate",
-           "interval_coefficients", "one_interval", "phi1", "phi2", "simulate", "Simulation",
+           "interval_coefficients", "one_interval", "phi1", "phi2", "simulate", "state_response", "Simulation",
            "KernelError"]
 
 
@@ -65,3 +65,25 @@ def simulate(model, t, u, x0=None, flow_cache: dict | None = None) -> Simulation
     X = integrate(fl, x0, branch, p, r, S)
     y = X @ model.C + model.D * u
     return Simulation(t=t, u=u, x=X, y=y)
+
+
+def state_response(model, t, u, X0, flow_cache: dict | None = None, forcing: dict | None = None) -> np.ndarray:
+    """States (N, n, m) of `simulate` from each of the m initial states in the columns of X0 (n, m).
+
+    A base model runs all columns in one pass of the kernel (`flow.integrate`
+    takes a matrix of initial states and, optionally, per-column forcings
+    {branch: (B, E)} that replace the model's own); a model with effects runs
+    the effect chain once per column (forcings are then refused).
+    """
+    X0 = np.asarray(X0, dtype=float)
+    fl = flow_cache if flow_cache is not None else flows(model)
+    if getattr(model, "effects", None):
+        if forcing is not None:
+            raise KernelError("per-column forcings need a model without effects")
+        return np.stack([simulate(model, t, u, x0=x, flow_cache=fl).x for x in X0.T], axis=2)
+    u = check_finite("u", u)
+    t = check_finite("t", t) if t is not None else np.arange(len(u), dtype=float)
+    if len(t) != len(u):
+        raise KernelError(f"t and u differ in length ({len(t)} and {len(u)})")
+    branch, p, r, S = interval_coefficients(model, t, u)
+    return integrate(fl, X0, branch, p, r, S, forcing)

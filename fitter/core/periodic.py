@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import ConvergenceError, KernelError
-from .kernel import Simulation, expm, flows, simulate
+from .kernel import Simulation, expm, flows, simulate, state_response
 
 __all__ = ["ConvergenceError", "PeriodicResponse", "periodic_response", "convergence_rho",
            "limiting_loop", "affine_response", "period_map", "fixed_point"]
@@ -28,11 +28,10 @@ def affine_response(model, t, u, cache: dict | None = None) -> tuple[np.ndarray,
     Returns c (N, n), the states from x_0 = 0, and Phi (N, n, n), column j the
     states from x_0 = e_j minus c (every interval flow of the kernel is affine).
     """
-    cache = flows(model) if cache is None else cache
-    c = simulate(model, t, u, x0=np.zeros(model.order), flow_cache=cache).x
-    Phi = np.stack([simulate(model, t, u, x0=e, flow_cache=cache).x - c for e in np.eye(model.order)],
-                   axis=2)
-    return c, Phi
+    n = model.order
+    X = state_response(model, t, u, np.hstack([np.zeros((n, 1)), np.eye(n)]), cache)
+    c = X[:, :, 0]
+    return c, X[:, :, 1:] - c[:, :, None]
 
 
 def period_map(model, t, u, cache: dict | None = None) -> tuple[np.ndarray, np.ndarray]:

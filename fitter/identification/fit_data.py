@@ -5,7 +5,11 @@
    the summary.  A recording whose input never reverses, or that holds
    neither a full cycle nor one closing period (a single loop from one
    extreme to the other and back counts), is rejected (`FitError`).
-2. The model is fitted on the *raw* input (what an FMU will be driven with).
+2. The model is fitted on the *raw* input (what an FMU will be driven with),
+   on every sample when the initial state is fitted (``x0_mode = "fit"``,
+   several cycles: the start-up transient is then the initial state's to
+   explain, and what is optimised is what `exported.score` reports); from the
+   first settled cycle when each recording holds a single cycle (``"periodic"``).
    Where measurement noise on u makes it reverse at many more samples than
    its true reversals (more than `NOISY_RUNS` times), the noise reversals
    would switch the branches of a rate-independent model at every sample; the
@@ -134,12 +138,12 @@ def _direction_changes(u: np.ndarray) -> int:
 
 def _deadband(preps: list[Prepared], notes: list[list[str]]) -> float:
     """Step 2 of the module docstring: b = DEADBAND_SIGMAS x input noise RMS, or 0."""
-    noisy = [p for p in preps if _direction_changes(p.recording.u) > NOISY_RUNS * (len(p.reversals) + 1)]
-    if not noisy:
+    noisy = [_direction_changes(p.recording.u) > NOISY_RUNS * (len(p.reversals) + 1) for p in preps]
+    if not any(noisy):
         return 0.0
     b = DEADBAND_SIGMAS * max(p.input_noise_rms for p in preps)
-    for p, n in zip(preps, notes):
-        if p in noisy:
+    for p, n, is_noisy in zip(preps, notes, noisy):
+        if is_noisy:
             n.append(f"the input reverses at {_direction_changes(p.recording.u)} samples but has "
                      f"{len(p.reversals)} true reversals (noise on the input, RMS {p.input_noise_rms:.3g}): "
                      f"the model carries an input dead band (play operator) of width {b:.3g} "
@@ -147,13 +151,14 @@ def _deadband(preps: list[Prepared], notes: list[list[str]]) -> float:
     return b
 
 
-def _fit_input(prep: Prepared, b: float) -> Recording:
-    """The trimmed raw recording, its input through the dead band of width b (from the first raw
-    sample, w_0 = u_0, as the exported model runs it) when b > 0."""
-    r = prep.recording
+def _fit_input(prep: Prepared, b: float, whole: bool) -> Recording:
+    """The recording the model is fitted on: all raw samples (`whole`) or the trimmed ones, its
+    input through the dead band of width b (from the first raw sample, w_0 = u_0, as the
+    exported model runs it) when b > 0."""
+    r = prep.original if whole else prep.recording
     if b <= 0:
         return r
-    w = play_operator(prep.original.u, b, float(prep.original.u[0]))[prep.transient_end:]
+    w = play_operator(prep.original.u, b, float(prep.original.u[0]))[0 if whole else prep.transient_end:]
     return Recording(r.t, w, r.y, r.name, r.input, r.output, r.source)
 
 
@@ -169,14 +174,17 @@ def prepare_for_fit(recordings: Sequence[Recording]) -> FitData:
         loops.append(_loop_pieces(clean, prep, cycle))
         notes.append(n)
     b = _deadband(preps, notes)
-    recs = [_fit_input(p, b) for p in preps]
+    x0_mode = "periodic" if all(len(p.cycles) <= 1 for p in preps) else "fit"
+    whole = x0_mode == "fit"
+    recs = [_fit_input(p, b, whole) for p in preps]
+    if whole:
+        cycles = [(s0 + p.transient_end, s1 + p.transient_end) for (s0, s1), p in zip(cycles, preps)]
     try:
         scaling = Normalisation.of(recs)
     except DuhemError as exc:
         raise FitError(str(exc)) from None
     norm = [scaling.normalise(r) for r in recs]
     loops = [[scaling.normalise(p) for p in pieces] for pieces in loops]
-    x0_mode = "periodic" if all(len(p.cycles) <= 1 for p in preps) else "fit"
     return FitData(preps, recs, norm, cycles, loops, notes, scaling, x0_mode, b)
 
 

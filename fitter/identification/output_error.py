@@ -25,15 +25,32 @@ The simulated state is affine in its initial value, x_k = Phi_k x_0 + c_k
 
 * ``"model"``: x_0 = build(theta).x0 for every recording (x0 may be part of
   theta, e.g. `StateSpace`), all samples fitted.
-* ``"fit"``: x_0 of each recording is eliminated by linear least squares
-  (variable projection): x_0 = argmin ||y - C Phi x_0 - C c - D u|| over a
-  prefix (twice the first cycle, doubled until max|Phi| < 1e-9, i.e. until x_0
-  no longer matters); the rest of the recording is one plain simulation.
+* ``"fit"``: x_0 of each recording is eliminated by linear least squares over
+  all its samples: x_0 = argmin ||y - C Phi x_0 - C c - D u|| (Phi and c from
+  one pass of the kernel with n + 1 initial states).
 * ``"periodic"``: each recording is fitted from the start s0 of its first
   settled cycle (samples before s0 are dropped) from the fixed point of the
   cycle's affine map (Theorem 1, `fitter.core.periodic.fixed_point`); when
   rho >= 1 the model's x0 is used and ``RefineResult.rho`` says so.  Cycles
   come from `fitter.data.preparation` unless given.
+
+Variable projection (``Options.eliminate``)
+-------------------------------------------
+For a fixed A (and g), the states are linear in the forcing vectors B, E and
+in x_0, and y = C x + D u is linear in D: with theta = (eta, theta_L), theta_L
+the entries listed by `Parametrisation.linear_entries`,
+
+    yhat_i = b_i(eta) + Psi_i(eta) theta_L + G_i(eta) x0_i,
+
+where the columns of Psi are the responses to unit forcing vectors, b the
+response to the remaining forcing and G the responses to unit initial states,
+all from one pass of the kernel (`fitter.core.flow.integrate` takes several
+initial states and forcings at once).  theta_L (shared by the recordings) and,
+for ``"fit"``, each x0_i are the weighted linear least-squares solution; the
+optimiser moves eta only (Golub & Pereyra's variable projection).  For
+``"periodic"`` every column carries its own fixed point of the cycle map, so
+the periodic state stays linear in theta_L.  Models with effects are not
+eliminated (an effect may make the output nonlinear in B or E).
 
 Failure policy
 --------------
@@ -48,6 +65,12 @@ optimisation: from each block of k samples the first one and those with the
 block's largest and smallest input are kept, so every input reversal survives
 to within a block (exact at the kept samples for a rate-independent model,
 Proposition 1).  Final residuals are on all samples.
+
+Threads
+-------
+The evaluations are many small array operations: BLAS runs single-threaded
+during `refine` (threadpoolctl), since its worker threads only cost CPU on
+matrices this small (measured: twice the CPU, the same wall time).
 
 Uncertainty
 -----------
@@ -64,9 +87,10 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
+from threadpoolctl import threadpool_limits
 
 from fitter.core.errors import DuhemError, KernelError
-from fitter.core.kernel import flows, simulate
+from fitter.core.kernel import flows, simulate, state_response
 from fitter.core.periodic import affine_response, fixed_point
 from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording
@@ -92,6 +116,9 @@ class Options:
     max_samples: int | None = 6000
     normalise: bool = False
     """Divide the residuals by the data's output range (scale-free tolerances)."""
+    eliminate: bool = False
+    """Eliminate the parameters in which the model is linear (`Parametrisation.linear_entries`)
+    by linear least squares at every evaluation (variable projection, module docstring)."""
 
 
 @dataclass
@@ -150,28 +177,97 @@ def effective_samples(residual: np.ndarray) -> float:
 
 
 # ----------------------------------------------------------------------------- initial states
-def fitted_initial_state(model, t, u, y, cycle: tuple[int, int] | None = None, cache: dict | None = None):
-    """Initial state x_0 = argmin ||y - C Phi x_0 - C c - D u|| and the output from it.
-
-    Least squares over a prefix (module docstring, ``"fit"``): the whole
-    recording when `cycle` is None.  Raises `KernelError` when the simulation
-    overflows.
-    """
-    cache = flows(model) if cache is None else cache
-    n_pre = len(u) if cycle is None else min(len(u), max(2 * (cycle[1] + 1), 64))
-    while True:
-        c, Phi = affine_response(model, t[:n_pre], u[:n_pre], cache)
-        if n_pre == len(u) or np.max(np.abs(Phi[-1])) < 1e-9:
-            break
-        n_pre = min(len(u), 2 * n_pre)
-    G = np.einsum("j,kjl->kl", model.C, Phi)
-    base = c @ model.C + model.D * u[:n_pre]
+def fitted_initial_state(model, t, u, y, cache: dict | None = None):
+    """Initial state x_0 = argmin ||y - yhat(0) - G x_0|| over all samples, and the output from it
+    (module docstring, ``"fit"``): yhat is affine in x_0, G its columns.  A model with effects
+    is simulated once per unit initial state (its output is y = C x + D w after its input
+    stage, not D u).  Raises `KernelError` when the simulation overflows."""
+    n = model.order
+    if getattr(model, "effects", None):
+        ys = [simulate(model, t, u, x0=x, flow_cache=cache).y for x in np.hstack([np.zeros((n, 1)), np.eye(n)]).T]
+        base, G = ys[0], np.column_stack(ys[1:]) - ys[0][:, None]
+    else:
+        c, Phi = affine_response(model, t, u, cache)
+        G = np.einsum("j,kjl->kl", model.C, Phi)
+        base = c @ model.C + model.D * u
     if not (np.all(np.isfinite(G)) and np.all(np.isfinite(base))):
         raise KernelError("simulation overflowed")
-    x0, *_ = np.linalg.lstsq(G, y[:n_pre] - base, rcond=None)
-    if n_pre == len(u):
-        return x0, base + G @ x0
-    return x0, simulate(model, t, u, x0=x0, flow_cache=cache).y
+    x0 = _lstsq_scaled(G, y - base)
+    return x0, base + G @ x0
+
+
+def _lstsq_scaled(M: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """argmin ||M z - b|| with the columns of M scaled to unit norm first (the states' responses
+    differ by orders of magnitude; unscaled, the SVD cut-off would drop weak but real directions)."""
+    norms = np.linalg.norm(M, axis=0)
+    norms = np.where(norms > 0, norms, 1.0)
+    z, *_ = np.linalg.lstsq(M / norms, b, rcond=None)
+    return z / norms
+
+
+def _forcing_fields(model) -> dict[float, tuple[str, str]]:
+    """The (B, E) fields of each branch."""
+    if model.kind == "ri":
+        return {1.0: ("B_plus", "E_plus"), -1.0: ("B_minus", "E_minus")}
+    return {1.0: ("B", "E"), -1.0: ("B", "E")}
+
+
+def response_columns(model, lin: dict[int, tuple[str, int]], t, u, mode: str, cycle):
+    """Output columns of `model` on one recording for variable projection (module docstring).
+
+    Returns (start, base (N,), Psi (N, L), G (N, n) or None, x0 parts, rho): base is the
+    output with theta_L = 0 (from x0 = model.x0 for ``"model"``), Psi the response to each
+    linear entry in the order of `lin`, G the response to unit initial states (``"fit"`` only);
+    x0 parts (x0_base (n,), X0_L (n, L)) give the initial state x0_base + X0_L theta_L.
+    """
+    n = model.order
+    start = cycle[0] if mode == "periodic" else 0
+    t, u = (None if t is None else t[start:]), u[start:]
+    forcing_lin = [(k, f, i) for k, (f, i) in enumerate(lin.values()) if f != "D"]
+    n_x0 = 0 if mode == "model" else n
+    m = 1 + len(forcing_lin) + n_x0
+    fields = _forcing_fields(model)
+    own = {f: np.array(getattr(model, f), dtype=float) for pair in fields.values() for f in pair}
+    for f, i in lin.values():
+        if f != "D":
+            own[f][i] = 0.0
+    cols = {f: np.zeros((n, m)) for f in own}
+    for f in own:
+        cols[f][:, 0] = own[f]
+    for j, (_, f, i) in enumerate(forcing_lin):
+        cols[f][i, 1 + j] = 1.0
+    X0 = np.zeros((n, m))
+    X0[:, m - n_x0:] = np.eye(n)[:, :n_x0]
+    if mode == "model":
+        X0[:, 0] = model.x0
+    forcing = {b: (cols[fb], cols[fe]) for b, (fb, fe) in fields.items()}
+    X = state_response(model, t, u, X0, forcing=forcing)
+    Y = np.einsum("i,kim->km", model.C, X)
+    d_linear = any(f == "D" for f, _ in lin.values())
+    base = Y[:, 0] + (0.0 if d_linear else model.D * u)
+    Psi = np.empty((len(u), len(lin)))
+    x0_base, X0_L = np.array(X0[:, 0]), np.zeros((n, len(lin)))
+    forcing_col = {k: 1 + j for j, (k, _, _) in enumerate(forcing_lin)}
+    for k, (f, _) in enumerate(lin.values()):
+        Psi[:, k] = u if f == "D" else Y[:, forcing_col[k]]
+    rho = np.nan
+    if mode == "periodic":
+        c = cycle[1] - cycle[0]
+        Phi = X[c][:, m - n:]
+        rho = float(np.max(np.abs(np.linalg.eigvals(Phi)))) if np.all(np.isfinite(Phi)) else np.inf
+        G = Y[:, m - n:]
+        if rho < 1:
+            fix = np.linalg.solve(np.eye(n) - Phi, X[c][:, :m - n])
+            x0_base = fix[:, 0]
+            base = base + G @ x0_base
+            for k, col in forcing_col.items():
+                X0_L[:, k] = fix[:, col]
+                Psi[:, k] += G @ X0_L[:, k]
+        else:
+            x0_base = np.array(model.x0, dtype=float)
+            base = base + G @ x0_base
+        return start, base, Psi, None, (x0_base, X0_L), rho
+    return start, base, Psi, (Y[:, m - n:] if mode == "fit" else None), (x0_base, X0_L), rho
 
 
 def simulate_from(model, t, u, y, mode: str, cycle: tuple[int, int] | None):
@@ -183,7 +279,7 @@ def simulate_from(model, t, u, y, mode: str, cycle: tuple[int, int] | None):
     if mode == "model":
         return 0, np.array(model.x0, dtype=float), simulate(model, t, u, flow_cache=cache).y, np.nan
     if mode == "fit":
-        x0, yhat = fitted_initial_state(model, t, u, y, cycle, cache)
+        x0, yhat = fitted_initial_state(model, t, u, y, cache)
         return 0, x0, yhat, np.nan
     if mode != "periodic":
         raise ValueError(f"x0 must be one of {X0_MODES}, not {mode!r}")
@@ -221,8 +317,7 @@ class Recordings:
     """Recordings fitted by output error, with their initial-state mode, weights and cycles.
 
     weights: per-recording scalars or per-sample arrays (default 1; 0 = masked).
-    cycles: for x0 = "periodic" (and as the prefix length of "fit"), the
-    (s0, s1) sample indices of each recording's first settled cycle; by default
+    cycles: for x0 = "periodic", the (s0, s1) sample indices of each recording's first settled cycle; by default
     `fitter.data.preparation.prepare(rec).first_cycle()` for "periodic".
     """
 
@@ -268,6 +363,56 @@ class Recordings:
             parts.append((r * np.sqrt(w[s:]))[keep])
             info.append((s, x0, r, rho))
         return np.concatenate(parts), model, info
+
+    def projected(self, param: Parametrisation, theta: np.ndarray):
+        """Variable projection (module docstring): like `residuals`, with the linear entries of
+        theta (and x0 for ``"fit"``) at their weighted least-squares values; returns
+        (weighted residuals, theta with those values, model, info)."""
+        lin = param.linear_entries()
+        try:
+            model = param.build(theta)
+            if getattr(model, "effects", None):
+                raise DuhemError("variable projection needs a model without effects")
+            with np.errstate(all="ignore"):
+                parts = [response_columns(model, lin, rec.t, rec.u, self.x0, cyc)
+                         for rec, cyc in zip(self.recordings, self.cycles)]
+            solution = self._solve(parts, len(lin), model.order)
+        except (DuhemError, ValueError, np.linalg.LinAlgError, FloatingPointError):
+            info = [self._one(None, rec, cyc) for rec, cyc in zip(self.recordings, self.cycles)]
+            weighted = np.concatenate([(r * np.sqrt(w[s:]))[w[s:] > 0] for (s, _, r, _), w in zip(info, self._w)])
+            return weighted, np.asarray(theta, dtype=float), None, info
+        theta = np.array(theta, dtype=float)
+        theta[list(lin)] = solution[:len(lin)]
+        weighted, info = [], []
+        for i, (rec, w, (start, base, Psi, G, (xb, XL), rho)) in enumerate(zip(self.recordings, self._w, parts)):
+            x0 = xb + XL @ solution[:len(lin)]
+            yhat = base + Psi @ solution[:len(lin)]
+            if G is not None:
+                x0 = solution[len(lin) + i * model.order:len(lin) + (i + 1) * model.order]
+                yhat = yhat + G @ x0
+            r = rec.y[start:] - yhat
+            keep = w[start:] > 0
+            weighted.append((r * np.sqrt(w[start:]))[keep])
+            info.append((start, x0, r, rho))
+        return np.concatenate(weighted), theta, param.build(theta), info
+
+    def _solve(self, parts, n_lin: int, n: int) -> np.ndarray:
+        """Weighted least squares for [theta_L, x0_1, x0_2, ...] (x0 blocks for ``"fit"`` only)."""
+        n_x0 = n * len(parts) if self.x0 == "fit" else 0
+        rows, rhs = [], []
+        for i, (rec, w, (start, base, Psi, G, _, _)) in enumerate(zip(self.recordings, self._w, parts)):
+            sw = np.sqrt(w[start:])
+            keep = sw > 0
+            M = np.zeros((len(base), n_lin + n_x0))
+            M[:, :n_lin] = Psi
+            if G is not None:
+                M[:, n_lin + i * n:n_lin + (i + 1) * n] = G
+            rows.append((M * sw[:, None])[keep])
+            rhs.append(((rec.y[start:] - base) * sw)[keep])
+        M, b = np.concatenate(rows), np.concatenate(rhs)
+        if not (np.all(np.isfinite(M)) and np.all(np.isfinite(b)) and np.abs(M).max() < 1e150):
+            raise KernelError("simulation overflowed")
+        return _lstsq_scaled(M, b)
 
     def _one(self, model, rec: Recording, cyc):
         start = cyc[0] if (self.x0 == "periodic" and cyc is not None) else 0
@@ -323,29 +468,48 @@ def refine(param: Parametrisation, theta0: np.ndarray, problem, options: Options
     free = np.ones(len(theta0), bool) if free is None else np.asarray(free, bool)
     coarse = problem.decimated(options.max_samples)
     scale = problem.scale if options.normalise else 1.0
+    lin = np.zeros(len(theta0), bool)
+    if options.eliminate and hasattr(coarse, "projected"):
+        lin[list(param.linear_entries())] = True
+        lin &= bool(free[lin].all())
+    moving = free & ~lin
 
     def full_theta(z):
         theta = theta0.copy()
-        theta[free] = z
+        theta[moving] = z
         return theta
 
     def fun(z):
         theta = full_theta(z)
-        r = coarse.residuals(param, theta)[0] / scale
+        r = (coarse.projected(param, theta)[0] if lin.any() else coarse.residuals(param, theta)[0]) / scale
         return r if penalty is None else np.r_[r, penalty(theta)]
 
-    with np.errstate(all="ignore"):
-        sol = least_squares(fun, theta0[free], bounds=(lo[free], hi[free]), method="trf", x_scale="jac",
+    with np.errstate(all="ignore"), threadpool_limits(limits=1, user_api="blas"):
+        sol = least_squares(fun, theta0[moving], bounds=(lo[moving], hi[moving]), method="trf", x_scale="jac",
                             ftol=options.ftol, xtol=options.xtol, gtol=options.gtol, max_nfev=options.max_nfev,
                             jac_sparsity=jac_sparsity)
     progress(f"output-error refinement: cost {sol.cost:.4g} after {sol.nfev} evaluations", None)
     theta = full_theta(sol.x)
+    if lin.any():
+        theta = coarse.projected(param, theta)[1]
+        J_free = _free_jacobian(coarse, param, theta, free) / scale
+    else:
+        J_free = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
     weighted, model, info = problem.residuals(param, theta)
-    J_free = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
-    n_kept = J_free.shape[0] - (0 if penalty is None else len(penalty(theta)))
+    n_kept = J_free.shape[0] - (0 if penalty is None or lin.any() else len(penalty(theta)))
     J = np.zeros((n_kept, len(theta)))
     J[:, free] = J_free[:n_kept] * scale
     return RefineResult(theta=theta, model=model, residuals=[i[2] for i in info], weighted=weighted, jac=J,
                         nfev=int(sol.nfev), success=bool(sol.success), message=str(sol.message),
                         starts=[i[0] for i in info], x0s=[i[1] for i in info],
                         rho=[float(i[3]) for i in info], info_scale=len(weighted) / n_kept)
+
+
+def _free_jacobian(problem, param: Parametrisation, theta: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """Forward-difference Jacobian of `problem.residuals` in the free entries of theta."""
+    def fun(z):
+        th = theta.copy()
+        th[free] = z
+        with np.errstate(all="ignore"):
+            return problem.residuals(param, th)[0]
+    return jacobian(fun, theta[free])

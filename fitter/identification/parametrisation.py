@@ -69,6 +69,18 @@ class Parametrisation:
     def theta(self, model) -> np.ndarray:
         raise NotImplementedError
 
+    def linear_entries(self) -> dict[int, tuple[str, int]]:
+        """Entries of theta in which the built model is linear, as {index: (field, component)}:
+        theta[index] is ``getattr(model, field)[component]`` for a forcing field (B, E and their
+        branch versions) or D, and no other entry changes those fields.  The output-error
+        engine eliminates them by linear least squares (`Options.eliminate`).  Default: none."""
+        return {}
+
+
+def _forcing_entries(offset: int, n: int, fields: Sequence[str]) -> dict[int, tuple[str, int]]:
+    """{offset + k n + i: (fields[k], i)}: the consecutive forcing blocks of a canonical theta."""
+    return {offset + k * n + i: (f, i) for k, f in enumerate(fields) for i in range(n)}
+
 
 def companion(a: np.ndarray) -> np.ndarray:
     """Companion matrix with ones on the superdiagonal and last row `a`."""
@@ -142,6 +154,13 @@ class RICanonical(Parametrisation):
         return np.r_[(T @ model.A_plus @ Ti)[-1], (T @ model.A_minus @ Ti).ravel(), T @ model.B_plus,
                      T @ model.B_minus, T @ model.E_plus, T @ model.E_minus, model.D]
 
+    def linear_entries(self) -> dict[int, tuple[str, int]]:
+        """B+, B-, E+, E- and D (see `Parametrisation.linear_entries`)."""
+        n = self.n
+        out = _forcing_entries(n + n * n, n, ("B_plus", "B_minus", "E_plus", "E_minus"))
+        out[self.size - 1] = ("D", 0)
+        return out
+
     @staticmethod
     def convergence(model, u_min: float, u_max: float) -> float:
         """rho(e^{beta A+} e^{-beta A-}) of condition (5), beta = u_max - u_min (inf on overflow)."""
@@ -195,6 +214,13 @@ class RDCanonical(Parametrisation):
         T = observability(model.A, model.C)
         c = np.zeros(1 + self.n_c) if c is None else c
         return np.r_[hurwitz_theta(np.linalg.eigvals(model.A)), T @ model.B, T @ model.E, model.D, c]
+
+    def linear_entries(self) -> dict[int, tuple[str, int]]:
+        """B, E and D (see `Parametrisation.linear_entries`)."""
+        n = self.n
+        out = _forcing_entries(n, n, ("B", "E"))
+        out[3 * n] = ("D", 0)
+        return out
 
     @staticmethod
     def convergence(model, u_min: float, u_max: float) -> float:

@@ -16,9 +16,12 @@
  * re-anchors the input without moving the state.
  *
  * Exact flow (kernel module docstring, eq (K)): over one interval
- * dx/ds = A x + B (p + r s) + E for 0 <= s <= S, so
- *   [x(S); s; 1] = expm(S [[A, B r, B p + E], [0, 0, 1], [0, 0, 0]]) [x(0); 0; 1]
- * with, for the rate-independent model, p = u_a, r = 1, S = u - u_a and the
+ * dx/ds = A x + B (p + r s) + E for 0 <= s <= S,
+ *   x(S) = Z00 x(0) + S Z01 (B p + E) + S^2 Z02 B r,
+ *   Z = expm([[A S, I, 0], [0, 0, I], [0, 0, 0]])   (3n x 3n, blocks n x n),
+ * the balanced form of the phi-functions (flow.AffineFlow.affine_maps): the
+ * input level p does not enter the matrix, so its norm, and the number of
+ * squarings, is that of A S; with, for the rate-independent model, p = u_a, r = 1, S = u - u_a and the
  * branch chosen by the sign of u - u_a (a held input keeps the + branch,
  * where S = 0); for the rate-dependent model v = (u - u_a)/(t - t_a),
  * p = u_a, S = g(v) (t - t_a), r = v / g(v) (r = 0 when g(v) = 0, where
@@ -50,7 +53,7 @@
 #include "model_data.h"
 
 #define N DUHEM_ORDER
-#define M (DUHEM_ORDER + 2)
+#define M3 (3 * DUHEM_ORDER)
 #define TAYLOR_DEGREE 18
 #define EXPM_NORM_LIMIT 1e250
 
@@ -115,20 +118,17 @@ struct ModelData {
 /* ---------------------------------------------------------------- exact flow */
 
 /*
- * Z = e^X for the augmented matrix X of flow() (X is overwritten); -1 when X is
- * not finite or too large to scale.  Rows N and N+1 of X are zero but for
- * X[N][N+1] = sigma, so the rows N, N+1 of every power X^k (k >= 2) are zero
- * and those of e^X are [0 .. 0 1 sigma] and [0 .. 0 0 1]: only the top N rows
- * are computed.  The terms left out are exact zeros, so Z is the full
- * algorithm's, at about half the cost.
+ * Z = e^X, X (M3 x M3) overwritten; -1 when X is not finite or too large to scale.
+ * The kernel's algorithm (flow.expm): scaling to 1-norm <= 0.5, degree-18
+ * Taylor series, squaring.
  */
-static int expm(double X[M][M], double Z[M][M])
+static int expm(double X[M3][M3], double Z[M3][M3])
 {
-    double T[N][M], P[N][M], norm = 0.0, scale = 1.0, sigma;
+    double T[M3][M3], P[M3][M3], norm = 0.0, scale = 1.0;
     int i, j, c, k, s = 0;
-    for (j = 0; j < M; j++) {
+    for (j = 0; j < M3; j++) {
         double column = 0.0;
-        for (i = 0; i < M; i++) column += fabs(X[i][j]);
+        for (i = 0; i < M3; i++) column += fabs(X[i][j]);
         if (!(column <= EXPM_NORM_LIMIT)) return -1;
         if (column > norm) norm = column;
     }
@@ -137,41 +137,34 @@ static int expm(double X[M][M], double Z[M][M])
         scale *= 2.0;
         s++;
     }
-    for (i = 0; i < M; i++)
-        for (j = 0; j < M; j++) X[i][j] /= scale;
-    for (i = 0; i < N; i++)
-        for (j = 0; j < M; j++) {
-            T[i][j] = X[i][j];
-            Z[i][j] = (i == j ? 1.0 : 0.0) + X[i][j];
+    for (i = 0; i < M3; i++)
+        for (j = 0; j < M3; j++) {
+            X[i][j] /= scale;
+            T[i][j] = (i == j ? 1.0 : 0.0);
+            Z[i][j] = T[i][j];
         }
-    for (k = 2; k <= TAYLOR_DEGREE; k++) {
-        for (i = 0; i < N; i++)
-            for (c = 0; c < M; c++) {
+    for (k = 1; k <= TAYLOR_DEGREE; k++) {
+        for (i = 0; i < M3; i++)
+            for (c = 0; c < M3; c++) {
                 double acc = 0.0;
-                for (j = 0; j <= N; j++) acc += T[i][j] * X[j][c];
-                P[i][c] = acc;
+                for (j = 0; j < M3; j++) acc += T[i][j] * X[j][c];
+                P[i][c] = acc / k;
             }
-        for (i = 0; i < N; i++)
-            for (j = 0; j < M; j++) {
-                T[i][j] = P[i][j] / k;
+        for (i = 0; i < M3; i++)
+            for (j = 0; j < M3; j++) {
+                T[i][j] = P[i][j];
                 Z[i][j] += T[i][j];
             }
     }
-    sigma = X[N][N + 1];
-    for (j = 0; j < M; j++) Z[N][j] = Z[N + 1][j] = 0.0;
-    Z[N][N] = Z[N + 1][N + 1] = 1.0;
     for (; s > 0; s--) {
-        Z[N][N + 1] = sigma;
-        for (i = 0; i < N; i++)
-            for (c = 0; c < M; c++) {
+        for (i = 0; i < M3; i++)
+            for (c = 0; c < M3; c++) {
                 double acc = 0.0;
-                for (j = 0; j < M; j++) acc += Z[i][j] * Z[j][c];
+                for (j = 0; j < M3; j++) acc += Z[i][j] * Z[j][c];
                 P[i][c] = acc;
             }
         memcpy(Z, P, sizeof P);
-        sigma = sigma + sigma;
     }
-    Z[N][N + 1] = sigma;
     return 0;
 }
 
@@ -179,7 +172,7 @@ static int expm(double X[M][M], double Z[M][M])
 static int flow(const double *A, const double *B, const double *E, const double *x, double p,
                 double r, double S, double *out)
 {
-    double X[M][M], Z[M][M];
+    double X[M3][M3], Z[M3][M3];
     int i, j;
     if (S == 0.0) {
         memcpy(out, x, N * sizeof(double));
@@ -188,15 +181,15 @@ static int flow(const double *A, const double *B, const double *E, const double 
     memset(X, 0, sizeof X);
     for (i = 0; i < N; i++) {
         for (j = 0; j < N; j++) X[i][j] = A[i * N + j] * S;
-        X[i][N] = B[i] * r * S;
-        X[i][N + 1] = (B[i] * p + E[i]) * S;
+        X[i][N + i] = 1.0;
+        X[N + i][2 * N + i] = 1.0;
     }
-    X[N][N + 1] = S;
     if (expm(X, Z)) return -1;
     for (i = 0; i < N; i++) {
         double acc = 0.0;
-        for (j = 0; j < N; j++) acc += Z[i][j] * x[j];
-        out[i] = acc + Z[i][N + 1];
+        for (j = 0; j < N; j++)
+            acc += Z[i][j] * x[j] + S * Z[i][N + j] * (B[j] * p + E[j]) + S * S * Z[i][2 * N + j] * B[j] * r;
+        out[i] = acc;
         if (!isfinite(out[i])) return -1;
     }
     return 0;
