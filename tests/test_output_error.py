@@ -124,3 +124,26 @@ def test_with_effects_log_parameters_and_null_model():
     m = param.build(theta)
     assert m.effects[0].parameters == {"k": 0.2, "tau": pytest.approx(0.5)}
     np.testing.assert_allclose(param.theta(m), theta, atol=1e-12)
+
+
+@pytest.mark.parametrize("mode", ["fit", "periodic"])
+def test_variable_projection_finds_the_linear_parameters_and_matches_the_plain_residuals(mode):
+    """Options.eliminate: only A+- move; B+-, E+-, D (and x0) come from linear least squares, so a
+    start with wrong linear parameters reaches the truth's A+- and its output (the linear part is
+    identifiable only up to D: z = x + D u is a state of the same model), and the projected
+    residuals at the optimum are the plain `residuals` of the returned theta."""
+    truth = RateIndependentModel(A_plus=[[-3.0]], A_minus=[[2.5]], B_plus=[1.0], B_minus=[1.2], C=[1.0],
+                                 E_plus=[0.2], E_minus=[-0.1], D=0.3)
+    param = RICanonical(1)
+    t = np.linspace(0, 2 * np.pi * 8, 4001)
+    u = np.sin(t)
+    y = simulate(truth, t, u, x0=[0.7]).y + 0.005 * np.random.default_rng(1).standard_normal(len(t))
+    problem = Recordings([Recording(t, u, y)], x0=mode)
+    start = param.theta(truth.replace(A_plus=[[-1.0]], A_minus=[[1.0]], B_plus=[0.0], B_minus=[0.0],
+                                      E_plus=[0.0], E_minus=[0.0], D=0.0))
+    res = refine(param, start, problem, Options(eliminate=True))
+    np.testing.assert_allclose(res.theta[:2], [-3.0, 2.5], atol=0.03)
+    assert np.sqrt(np.mean(res.weighted ** 2)) == pytest.approx(0.005, rel=0.05)
+    projected = problem.projected(param, res.theta)[0]
+    assert np.abs(projected - res.weighted).max() < 1e-9
+    assert res.stderr().shape == (param.size,) and np.all(res.stderr() > 0)
