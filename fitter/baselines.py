@@ -119,9 +119,10 @@ from fitter.data.cycles import find_reversals
 from fitter.data.metrics import compare
 from fitter.data.recordings import Recording
 from fitter.identification.fit_data import prepare_for_fit
+from fitter.identification.output_error import fitted_initial_state
 
 __all__ = ["BaselineError", "Baseline", "Preisach", "PrandtlIshlinskii", "BoucWen", "BASELINES", "MIN_SAMPLES",
-           "check_recordings", "compare_baselines"]
+           "check_recordings", "compare_baselines", "comparison", "duhem_nrmse"]
 
 MIN_SAMPLES = 10
 """Fewest samples a recording needs to be fitted by a baseline."""
@@ -449,7 +450,8 @@ class _HysteronBaseline(Baseline):
         differ = np.flatnonzero(np.any(lo != hi, axis=1))
         t_star = int(differ[-1]) + 1 if differ.size else 0
         merged = lo[:t_star] == hi[:t_star]
-        tau = np.where(merged.any(axis=0), merged.argmax(axis=0), t_star)
+        tau = (np.where(merged.any(axis=0), merged.argmax(axis=0), t_star) if t_star
+               else np.zeros(lo.shape[1], dtype=np.int64))
         steps = self._step * np.arange(self.levels + 1)
         histories = [("below", float(u[0] + s)) for s in steps] + [("above", float(u[0] - s)) for s in steps]
         s0 = np.array([self._after(side, m) for side, m in histories])
@@ -1121,6 +1123,22 @@ def compare_baselines(recordings: Sequence[Recording], *, per_recording: bool = 
         entry["cpu_seconds"]["one_for_all"] = seconds
         out[name] = entry
     return out
+
+
+def duhem_nrmse(model, rec: Recording) -> float:
+    """NRMSE of a Duhem model on `rec` under the baselines' initial-state policy: x0 fitted to this
+    recording over all its samples (`fitted_initial_state`), every sample scored."""
+    return compare(rec, fitted_initial_state(model, rec.t, rec.u, rec.y)[1])["nrmse"]
+
+
+def comparison(model, recordings: Sequence[Recording]) -> dict:
+    """The Duhem model beside the baselines on the same recordings and error measure:
+    ``{"duhem": {rec.name: nrmse}, "baselines": compare_baselines(...)}``; each baseline is fitted
+    once for all recordings and, when there are several, to each recording alone."""
+    recs = check_recordings(recordings)
+    return {"duhem": {rec.name: duhem_nrmse(model, rec) for rec in recs},
+            "baselines": compare_baselines(recs, per_recording=len(recs) > 1),
+            "measure": "RMS error / output range over all samples, initial state fitted per recording"}
 
 
 def _timed_fit(cls: type[Baseline], recs: list[Recording]) -> tuple[Baseline, float]:

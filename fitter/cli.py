@@ -32,6 +32,7 @@ from typing import Callable
 import click
 import numpy as np
 
+from fitter.baselines import comparison
 from fitter.cli_support import EXIT_ERROR, CliError, GuardedGroup, backend_option
 from fitter.core.files import atomic_directory, atomic_file, json_text, jsonable
 from fitter.core.kernel import simulate as simulate_model
@@ -192,9 +193,12 @@ main.add_command(reproduce_paper)
                    "squares), or leading onto the periodic response of its first cycle")
 @_allow_unstable_option
 @_column_options
+@click.option("--compare", is_flag=True,
+              help="also fit the classical models (Preisach, Prandtl-Ishlinskii, Bouc-Wen) to the same recordings "
+                   "and show their NRMSE beside the Duhem model's (summary key 'comparison', and in the report)")
 @click.option("--json", "as_json", is_flag=True, help="print the fit summary as JSON")
 def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, allow_unstable, time_col, input_col,
-        output_col, as_json):
+        output_col, compare, as_json):
     """Fit a model to one or more recordings (one CSV file per experiment, e.g. per rate)."""
     _check_fmu_name(fmu)
     if fmu:
@@ -206,6 +210,9 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, allow_
         fmu_tmp = outputs.enter_context(atomic_file(fmu, suffix=".fmu")) if fmu else None
         say(f"fitting {len(recs)} recording(s)", None)
         result = fit_recordings(recs, kind=kind, order=order, q=q, x0=x0_policy, progress=say)
+        if compare:
+            say("fitting the classical models (Preisach, Prandtl-Ishlinskii, Bouc-Wen)", None)
+            result.summary["comparison"] = jsonable(comparison(result.model, recs))
         save_model(result.model, model_tmp)
         if report_tmp:
             say("writing the fit report", None)
@@ -237,6 +244,20 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, allow_
     _table("the saved model on each recording (from its stored x0)",
            ["recording", "NRMSE (all samples)", "NRMSE last cycle", "max error", "loop area err", "residual RMS",
             "noise RMS"], rows)
+    if "comparison" in summary:
+        _comparison_tables(summary["comparison"])
+
+
+def _comparison_tables(comp: dict) -> None:
+    """`duhem fit --compare`: the Duhem model beside each classical model, one row per recording."""
+    names = list(comp["baselines"])
+    recs = list(comp["duhem"])
+    _table(f"NRMSE beside the classical models, one parameter set for all recordings ({comp['measure']})",
+           ["recording", "Duhem", *names],
+           [[r, comp["duhem"][r], *[comp["baselines"][n]["one_for_all"][r] for n in names]] for r in recs])
+    if len(recs) > 1:
+        _table("classical models fitted to each recording alone", ["recording", *names],
+               [[r, *[comp["baselines"][n]["per_recording"][r] for n in names]] for r in recs])
 
 
 @main.command()

@@ -235,3 +235,26 @@ def test_preisach_fits_each_measured_piezo_triangle_within_3_percent(stem):
         pytest.skip("shared piezo data absent")
     rec = load_recording(PIEZO / f"{stem}.csv", time="time_s", input="voltage_V", output="polarization_uC_per_cm2")
     assert Preisach().fit([rec]).score(rec)["nrmse"] < 0.03
+
+
+@pytest.mark.parametrize("name", ["preisach", "prandtl_ishlinskii"])
+def test_an_input_that_starts_at_its_minimum_fixes_every_element_at_the_first_sample(name):
+    """All relays/plays are determined at the first sample (no free history): still fitted, exactly."""
+    t = np.linspace(0.0, 3.0, 301)
+    u = -np.cos(2 * np.pi * t)                      # starts at its minimum
+    rec = noisy_recording(classical_loop_model(), t, u, noise=0.0, seed=0, name="from the minimum")
+    model = BASELINES[name]().fit([rec])
+    assert model.score(rec)["nrmse"] < 0.06
+
+
+def test_comparison_scores_the_duhem_model_with_its_initial_state_fitted_per_recording():
+    from fitter.baselines import comparison
+    model = classical_loop_model()
+    recs = [noisy_recording(model.replace(x0=[x0]), *sine_input(2.0, 2, 100), noise=0.0, seed=1, name=f"x0 {x0}")
+            for x0 in (0.0, 0.5)]
+    comp = comparison(model, recs)
+    assert list(comp["duhem"]) == ["x0 0.0", "x0 0.5"]
+    assert max(comp["duhem"].values()) < 1e-9          # the generating model, each x0 recovered
+    assert set(comp["baselines"]) == set(BASELINES)
+    assert all(math.isfinite(v) for b in comp["baselines"].values() for v in b["one_for_all"].values())
+    assert all(len(b["per_recording"]) == 2 for b in comp["baselines"].values())

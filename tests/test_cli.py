@@ -415,3 +415,21 @@ def test_fit_without_a_time_column(tmp_path):
     out = json.loads(ok(invoke("fit", csv, "--no-time", "-o", tmp_path / "m.json", "--kind", "ri", "--order", "1",
                                "--json")).stdout)
     assert out["summary"]["recordings"][0]["nrmse"] < 1e-6
+
+
+def test_fit_compare_puts_the_classical_models_beside_the_duhem_fit(tmp_path):
+    """`fit --compare`: the same recording, the same NRMSE for the Duhem model and each classical model,
+    in the JSON summary, the printed table and the HTML report."""
+    t = np.linspace(0, 4 * 2 * np.pi, 801)
+    u = np.sin(t)
+    y = simulate(true_model(), t, u).y
+    csv = write_csv(tmp_path / "rec.csv", t, u, y + 0.01 * np.random.default_rng(0).standard_normal(len(t)))
+    args = ("fit", csv, "-o", tmp_path / "m.json", "--kind", "ri", "--order", "1", "--compare")
+    comp = json.loads(ok(invoke(*args, "--json")).stdout)["summary"]["comparison"]
+    assert set(comp["baselines"]) == {"preisach", "prandtl_ishlinskii", "bouc_wen"}
+    assert comp["duhem"]["rec"] < 0.01                            # the generating model class, 1 % noise
+    assert all(0 < b["one_for_all"]["rec"] < 0.2 for b in comp["baselines"].values())
+    assert all(b["per_recording"] is None for b in comp["baselines"].values())   # one recording: one table
+    text = ok(invoke(*args, "--report", tmp_path / "rep")).stdout
+    assert "beside the classical models" in text and "bouc_wen" in text
+    assert "Beside the classical models" in (tmp_path / "rep" / "index.html").read_text()

@@ -109,10 +109,30 @@ Chosen by: {html.escape(s['why'])}.</p>
 of each recording (what the FMU gives and what <code>duhem validate</code> reports).  NRMSE = RMS error /
 output range; the last full input cycle beside it.</p>
 <table>{head}{''.join(body)}</table>
+{_comparison_html(s.get("comparison"))}
 <h2>Figures</h2>{figs}
 <h2>Preparation</h2><ul>{notes}</ul>
 <h2>Parameters (normalised units) and standard errors</h2><table><tr><th>name</th><th>value</th>
 <th>stderr</th></tr>{params}</table></body></html>"""
+
+
+def _comparison_html(comp: dict | None) -> str:
+    """The `duhem fit --compare` table: the Duhem model beside the classical models."""
+    if not comp:
+        return ""
+    names = list(comp["baselines"])
+    several = any(comp["baselines"][n]["per_recording"] for n in names)
+    head = "<tr><th>recording</th><th>Duhem</th>" + "".join(f"<th>{html.escape(n)}</th>" for n in names)
+    head += "".join(f"<th>{html.escape(n)} (alone)</th>" for n in names) if several else ""
+    rows = []
+    for r, value in comp["duhem"].items():
+        cells = [_fmt(value, ".3%")] + [_fmt(comp["baselines"][n]["one_for_all"][r], ".3%") for n in names]
+        if several:
+            cells += [_fmt(comp["baselines"][n]["per_recording"][r], ".3%") for n in names]
+        rows.append(f"<tr><td>{html.escape(r)}</td>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
+    return (f"<h2>Beside the classical models</h2><p>NRMSE, {html.escape(comp['measure'])}; one parameter "
+            f"set for all recordings{', and each classical model fitted to each recording alone' if several else ''}."
+            f"</p><table>{head}</tr>{''.join(rows)}</table>")
 
 
 def write_fit_report(result, recordings: Sequence[Recording], directory) -> str:
