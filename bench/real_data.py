@@ -13,6 +13,13 @@ voltage_V -> polarization_uC_per_cm2):
 (c) a rate-dependent model fitted on two rates, predicting the third (all three
     hold-outs).
 
+Beside the classical models (``piezo.best``, ``piezo.baselines``,
+``friction.baselines``; `fitter.baselines`): every model scored the same way,
+RMS error / output range over all samples with its initial state fitted per
+recording.  ``piezo.best`` is the single model `duhem fit` gives for all
+three rates (``--kind auto``), with the same structure refitted on two rates
+predicting the third (``holdout``).
+
 "fit" NRMSE is the fit's own (state fitted at the first kept sample);
 "pred" NRMSE is `FitResult.predict`: the model started from the periodic
 state of the recording's first cycle, nothing fitted to that recording.
@@ -46,6 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fitter.baselines import compare_baselines, duhem_nrmse
 from fitter.core import RateDependentModel, RateIndependentModel, TabulatedRate, simulate
 from fitter.core.models import Signal
 from fitter.identification.fit import fit_recordings
@@ -132,6 +140,31 @@ def piezo_part(report: Path | None) -> dict:
                                    "fit_on": [k for k in labels if k != held]}
     out["rd_beats_ri_on_each_rate"] = all(out["joint_rd"]["fit"][k] < out["joint_ri"]["fit"][k]
                                           for k in labels)
+    out["best"] = _best(recs, labels)
+    _log("piezo: classical baselines")
+    out["baselines"] = _baselines(recs)
+    return out
+
+
+def _baselines(recs: dict[str, Recording]) -> dict:
+    """Each classical model per recording and one for all (`fitter.baselines.compare_baselines`)."""
+    res = compare_baselines(list(recs.values()))
+    return {name: {"per_recording": dict(zip(recs, b["per_recording"].values())),
+                   "one_for_all": dict(zip(recs, b["one_for_all"].values()))} for name, b in res.items()}
+
+
+def _best(recs: dict[str, Recording], labels: list[str]) -> dict:
+    """The best single Duhem model (one parameter set) for all rates that `duhem fit` gives without
+    hand-tuning (``--kind auto``), scored as the baselines are (x0 fitted per recording, all samples),
+    and the same structure refitted on two rates predicting the third (x0 fitted, parameters not)."""
+    _log("piezo: best single model, fitted on all three rates")
+    r = fit_recordings([recs[k] for k in labels])
+    out = {"model": _model_tag(r), "effects": [e.effect for e in r.model.effects],
+           "fit": {k: duhem_nrmse(r.model, recs[k]) for k in labels}, "holdout": {}}
+    for held in labels:
+        _log(f"piezo: best structure without {held}")
+        h = fit_recordings([recs[k] for k in labels if k != held], kind=r.model.kind, order=r.model.order)
+        out["holdout"][held] = duhem_nrmse(h.model, recs[held])
     return out
 
 
@@ -148,6 +181,13 @@ def friction_part(report: Path | None) -> dict:
     out["joint_ri"] = {"model": _model_tag(r), "seconds": time.perf_counter() - t0,
                        "fit": dict(zip(recs, _fit_nrmse(r))),
                        "pred": {k: _pred(r, v) for k, v in recs.items()}}
+    out["per_pressure_auto"] = {}
+    for lab, rec in recs.items():
+        _log(f"friction: duhem fit (auto order) at {lab}")
+        a = fit_recordings([rec])
+        out["per_pressure_auto"][lab] = {"model": _model_tag(a), "fit": duhem_nrmse(a.model, rec)}
+    _log("friction: classical baselines")
+    out["baselines"] = _baselines(recs)
     if report is not None:
         from fitter.reports.fit_report import write_fit_report
         write_fit_report(r, list(recs.values()), report / "friction_joint_ri")
@@ -212,10 +252,34 @@ def _print(res: dict) -> None:
             a, j = f["per_pressure_ri"][k], f["joint_ri"]
             print(f"{k:10s}{a['model']:>6s} {a['fit']:8.2%} /{a['pred']:7.2%}   "
                   f"{j['model']:>8s} {j['fit'][k]:8.2%} /{j['pred'][k]:7.2%}")
+    _print_baselines(res)
     print("\nFit of one generated 1e5-sample recording (sine, transient, 1% noise):")
     for k, v in res["timing"].items():
         print(f"  {k} fit on data from a true {v['true_model']}1 model: {v['seconds']:.2f} s "
               f"(target < 10 s), NRMSE {v['nrmse']:.2%}")
+
+
+def _print_baselines(res: dict) -> None:
+    """Side by side: the Duhem fit and each classical model, NRMSE with x0 fitted per recording."""
+    p, f = res.get("piezo"), res.get("friction")
+    if p is not None:
+        b = p["best"]
+        print("\nPiezo beside the classical models (NRMSE, all samples, initial state fitted per recording)")
+        print(f"{'model':44s}" + "".join(f"{k:>10s}" for k in b["fit"]))
+        print(f"{'Duhem, one ' + b['model'] + ' for all three rates':44s}"
+              + "".join(f"{v:10.2%}" for v in b["fit"].values()))
+        print(f"{'  same structure, rate held out (prediction)':44s}"
+              + "".join(f"{v:10.2%}" for v in b["holdout"].values()))
+        for name, v in p["baselines"].items():
+            print(f"{name + ', one per record':44s}" + "".join(f"{x:10.2%}" for x in v["per_recording"].values()))
+            print(f"{name + ', one for all three':44s}" + "".join(f"{x:10.2%}" for x in v["one_for_all"].values()))
+    if f is not None:
+        print("\nFriction beside the classical models (one model per pressure, NRMSE as above)")
+        labels = list(f["per_pressure_auto"])
+        print(f"{'model':30s}" + "".join(f"{k:>9s}" for k in labels))
+        print(f"{'Duhem (duhem fit, auto)':30s}" + "".join(f"{f['per_pressure_auto'][k]['fit']:9.2%}" for k in labels))
+        for name, v in f["baselines"].items():
+            print(f"{name:30s}" + "".join(f"{v['per_recording'][k]:9.2%}" for k in labels))
 
 
 def main() -> None:

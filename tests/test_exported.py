@@ -177,3 +177,36 @@ def test_dead_band_is_shared_when_only_some_recordings_have_a_noisy_input():
     assert data.deadband > 0
     assert not any("dead band" in n for n in data.notes[0])
     assert any("dead band" in n for n in data.notes[1])
+
+
+def _random_input(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A band-limited random input (white noise through an exponential filter), range [-1.5, 1.5]."""
+    w = np.random.default_rng(seed).standard_normal(n)
+    u = np.convolve(w, np.exp(-np.arange(60) / 15.0), mode="same")
+    return np.linspace(0.0, 30.0, n), 1.5 * u / np.abs(u).max()
+
+
+def test_a_random_input_is_fitted_as_a_general_input_on_every_sample(tmp_path):
+    """No cycles: every sample fitted from generic starts with x0 fitted; the FMU reproduces it."""
+    t, u = _random_input(2000, 0)
+    rec = noisy_recording(ri_model(1).replace(x0=[1.0]), t, u, noise=0.01, seed=5)
+    fit = fit_recordings([rec], kind="ri")
+    row = fit.summary["recordings"][0]
+    assert row["transient_end"] == 0 and row["samples"] == len(u)
+    assert any("general input" in n for n in fit.summary["preparation"][0]["notes"])
+    assert row["nrmse"] < 0.02                                  # 1 % noise, a first-order truth
+    _reproduces(fit, [rec], tmp_path)
+
+
+def test_planned_blocks_of_different_amplitude_are_all_kept(tmp_path):
+    """A small-amplitude block then a large one: nothing dropped as 'transient', both fitted."""
+    t, u = sine_input(1.0, 8, 200, 0.0, 1.0)
+    u = np.where(t < t[len(t) // 2], 0.4 * u, u)
+    rec = noisy_recording(ri_model(1), t, u, noise=0.005, seed=6)
+    fit = fit_recordings([rec], kind="ri", order=1)
+    row = fit.summary["recordings"][0]
+    assert row["transient_end"] == 0
+    small = slice(0, len(u) // 2)
+    y = fit.simulate(rec)
+    assert np.sqrt(np.mean((y[small] - rec.y[small]) ** 2)) < 0.02 * np.ptp(rec.y[small])
+    _reproduces(fit, [rec], tmp_path)

@@ -23,8 +23,9 @@ Pipeline of `fit_recordings`
    rho < 1 iff A is Hurwitz, which the parametrisation guarantees; for the
    rate-independent model rho(e^{beta A+} e^{-beta A-}) < 1, condition (5),
    is kept by a barrier residual 1e3 max(0, rho - 0.99) added to the
-   objective.  Starts race: each gets `RACE_NFEV` evaluations, the best one
-   continues to `MAX_NFEV` in all.
+   objective.  The linear parameters (B, E, D, x0) are eliminated by least
+   squares at every evaluation (variable projection).  Starts race: each gets
+   `RACE_NFEV` evaluations, the best one continues to `MAX_NFEV` in all.
 5. **Selection**: orders n = 1, 2, 3 are fitted upward, each started from
    the order n-1 fit and the other starts; for ``kind="auto"`` RI vs RD, and
    the order, by BIC = N ln(RSS/N) + p ln N on the stacked residuals (the
@@ -55,7 +56,7 @@ from fitter.identification.exported import (NRMSE_CONVENTION, X0_POLICIES, fitte
                                             raw_input_rho, score)
 from fitter.identification.output_error import Options, Recordings, RefineResult, jacobian, refine
 from fitter.identification.parametrisation import Parametrisation, Physical, RDCanonical, RICanonical
-from fitter.identification.starts import Q_CANDIDATES, ri_starts, rd_starts
+from fitter.identification.starts import Q_CANDIDATES, generic_ri_starts, ri_starts, rd_starts
 from fitter.progress import Progress, silent
 
 __all__ = ["FitError", "FitResult", "fit_recordings", "monotone_input", "ORDERS"]
@@ -102,38 +103,43 @@ def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.nd
 def _candidate(param, starts, data: FitData, info, progress: Progress) -> _Candidate:
     """Best refinement over the starts, with the convergence barrier.
 
-    With several starts, each first gets `RACE_NFEV` evaluations; only the
+    With several starts, each first gets `RACE_NFEV` evaluations (no covariance); only the
     lowest-cost one is refined further, with the rest of the `MAX_NFEV` budget.
     """
     problem = Recordings(data.norm, x0=data.x0_mode, cycles=data.cycles)
     pen = _barrier(param, data)
 
-    def run(theta0, nfev):
+    def run(theta0, options):
         try:
-            return refine(param, theta0, problem, replace(FIT_OPTIONS, max_nfev=nfev), penalty=pen,
-                          progress=progress)
+            return refine(param, theta0, problem, options, penalty=pen, progress=progress)
         except (ValueError, np.linalg.LinAlgError):
             return None
 
-    race = [r for r in (run(th0, RACE_NFEV if len(starts) > 1 else MAX_NFEV) for th0 in starts) if r is not None]
+    if len(starts) == 1:
+        race = [run(starts[0], FIT_OPTIONS)]
+    else:
+        race = [run(th0, replace(FIT_OPTIONS, max_nfev=RACE_NFEV, covariance=False)) for th0 in starts]
+    race = [r for r in race if r is not None]
     if not race:
         raise FitError(f"{param.kind} order {param.n}: every start failed to simulate")
     best = min(race, key=lambda r: r.cost)
-    if len(starts) > 1 and best.nfev >= RACE_NFEV:
-        more = run(best.theta, MAX_NFEV - RACE_NFEV)
-        best = more if more is not None and more.cost <= best.cost else best
+    if len(starts) > 1:
+        more = run(best.theta, replace(FIT_OPTIONS, max_nfev=MAX_NFEV - RACE_NFEV))
+        best = more if more is not None and more.cost <= best.cost else run(best.theta, replace(FIT_OPTIONS, max_nfev=1))
     return _Candidate(param, best, info)
 
 
 def _search(data: FitData, kind: str, orders, q, levels: RateLevels, progress: Progress) -> list[_Candidate]:
     """Candidates of the order (and kind) search of the module docstring, item 5."""
-    grid, yr, yf = averaged_loop(data.loops)
+    loop = averaged_loop(data.loops) if data.loops is not None else None
     cands: list[_Candidate] = []
     ri_fits: dict[int, _Candidate] = {}
     for n in (orders if kind != "rd" else orders[:1]):
         progress(f"rate-independent model, order {n}", None)
         lower = ri_fits.get(n - 1)
-        starts, info = ri_starts(grid, yr, yf, n, q, lower.res.model if lower else None)
+        lower_model = lower.res.model if lower else None
+        starts, info = (ri_starts(*loop, n, q, lower_model) if loop is not None
+                        else generic_ri_starts(n, lower_model))
         ri_fits[n] = _candidate(RICanonical(n), starts, data, info, progress)
         if kind in ("auto", "ri"):
             cands.append(ri_fits[n])

@@ -1,5 +1,11 @@
 """Recordings made ready for `fit_recordings`: cleaned, normalised, with cycles and loops.
 
+0. Periodic or general input: an experiment that repeats one cycle has its
+   peaks (and its troughs) at nearly the same input (spread at most
+   `PERIODIC_SPREAD` of the input range); anything else (random or
+   broadband inputs, planned blocks of different amplitude) is a *general*
+   input: no cycles or loops are taken from it, every sample is fitted with
+   the initial state fitted, from generic starts (``FitData.loops`` None).
 1. Preparation (`fitter.data.preparation.prepare`): input reversals, settled
    cycles (the start-up transient is dropped), holds, drift; the notes go into
    the summary.  A recording whose input never reverses, or that holds
@@ -46,11 +52,14 @@ from fitter.data.recordings import Recording
 from fitter.identification.scaling import Normalisation
 
 __all__ = ["FitError", "FitData", "RateLevels", "prepare_for_fit", "monotone_input", "averaged_loop",
-           "rate_levels", "GRID_POINTS"]
+           "rate_levels", "extremes_spread", "GRID_POINTS", "PERIODIC_SPREAD"]
 
 GRID_POINTS = 101
 NOISY_RUNS = 2.0
 DEADBAND_SIGMAS = 6.0
+PERIODIC_SPREAD = 0.1
+"""Largest spread of an input's peaks (and of its troughs), as a fraction of its range, for a
+repeated-cycle experiment; beyond it the input is fitted as a general one (step 0)."""
 
 
 class FitError(DuhemError):
@@ -69,8 +78,9 @@ class FitData:
     preps: list[Prepared]
     recs: list[Recording]
     norm: list[Recording]
-    cycles: list[tuple[int, int]]
-    loops: list[list[Recording]]
+    cycles: list[tuple[int, int] | None]
+    loops: list[list[Recording]] | None
+    """The settled cycles as loops (starting values); None for a general input (step 0)."""
     notes: list[list[str]]
     scaling: Normalisation
     x0_mode: str = "fit"
@@ -162,10 +172,45 @@ def _fit_input(prep: Prepared, b: float, whole: bool) -> Recording:
     return Recording(r.t, w, r.y, r.name, r.input, r.output, r.source)
 
 
+def extremes_spread(u: np.ndarray) -> float:
+    """Largest range of the input's peaks or of its troughs, as a fraction of its range (0 with at most
+    one of each): small for a repeated cycle, large for a random input or blocks of different amplitude."""
+    r = find_reversals(u)
+    if len(r) < 3:
+        return 0.0
+    first_is_peak = u[r[0]] > u[r[1]]
+    peaks, troughs = (r[0::2], r[1::2]) if first_is_peak else (r[1::2], r[0::2])
+    return float(max(np.ptp(u[peaks]), np.ptp(u[troughs])) / max(np.ptp(u), 1e-300))
+
+
+def _prepare_general(recordings: Sequence[Recording]) -> FitData:
+    """Step 0, a general input: every sample fitted, initial state fitted, no loops."""
+    preps, notes = [], []
+    for rec in recordings:
+        if len(find_reversals(rec.u)) < 1:
+            raise FitError(f"{rec.name}: the input never reverses (it must go up and down at least once)")
+        prep = prepare(rec, min_cycles=0, drop_transient=False)
+        preps.append(prep)
+        notes.append(list(prep.notes) + [
+            f"the input does not repeat one cycle (its peaks or troughs spread over "
+            f"{100 * extremes_spread(rec.u):.0f}% of the input range): fitted as a general input, on every "
+            f"sample, with the initial state fitted and generic starting values (no input dead band: the "
+            f"reversals of such an input cannot be told from noise)"])
+    recs = [_fit_input(p, 0.0, True) for p in preps]
+    try:
+        scaling = Normalisation.of(recs)
+    except DuhemError as exc:
+        raise FitError(str(exc)) from None
+    return FitData(preps, recs, [scaling.normalise(r) for r in recs], [None] * len(recs), None, notes, scaling,
+                   "fit", 0.0)
+
+
 def prepare_for_fit(recordings: Sequence[Recording]) -> FitData:
-    """Steps 1-3 of the module docstring for every recording."""
+    """Steps 0-3 of the module docstring for every recording."""
     if not recordings:
         raise FitError("no recordings to fit")
+    if any(extremes_spread(rec.u) > PERIODIC_SPREAD for rec in recordings):
+        return _prepare_general(recordings)
     preps, cycles, loops, notes = [], [], [], []
     for rec in recordings:
         prep, clean, cycle, n = _prepare_one(rec)

@@ -116,6 +116,9 @@ class Options:
     max_samples: int | None = 6000
     normalise: bool = False
     """Divide the residuals by the data's output range (scale-free tolerances)."""
+    covariance: bool = True
+    """Compute the Jacobian at the optimum for `RefineResult.covariance` (with elimination, p more
+    evaluations); False leaves ``jac`` zero (a start's trial run)."""
     eliminate: bool = False
     """Eliminate the parameters in which the model is linear (`Parametrisation.linear_entries`)
     by linear least squares at every evaluation (variable projection, module docstring)."""
@@ -461,48 +464,63 @@ def refine(param: Parametrisation, theta0: np.ndarray, problem, options: Options
     jac_sparsity : sparsity structure of the Jacobian (scipy's argument).
     progress : `fitter.progress.Progress`, called with a one-line status at the end.
     """
-    theta0 = np.asarray(theta0, dtype=float)
+    obj = _Objective(param, theta0, problem, options, penalty, free)
     lo, hi = param.bounds()
-    pad = 1e-9 * (np.abs(theta0) + 1)
-    theta0 = np.minimum(np.maximum(theta0, lo + pad), hi - pad)
-    free = np.ones(len(theta0), bool) if free is None else np.asarray(free, bool)
-    coarse = problem.decimated(options.max_samples)
-    scale = problem.scale if options.normalise else 1.0
-    lin = np.zeros(len(theta0), bool)
-    if options.eliminate and hasattr(coarse, "projected"):
-        lin[list(param.linear_entries())] = True
-        lin &= bool(free[lin].all())
-    moving = free & ~lin
-
-    def full_theta(z):
-        theta = theta0.copy()
-        theta[moving] = z
-        return theta
-
-    def fun(z):
-        theta = full_theta(z)
-        r = (coarse.projected(param, theta)[0] if lin.any() else coarse.residuals(param, theta)[0]) / scale
-        return r if penalty is None else np.r_[r, penalty(theta)]
-
     with np.errstate(all="ignore"), threadpool_limits(limits=1, user_api="blas"):
-        sol = least_squares(fun, theta0[moving], bounds=(lo[moving], hi[moving]), method="trf", x_scale="jac",
-                            ftol=options.ftol, xtol=options.xtol, gtol=options.gtol, max_nfev=options.max_nfev,
-                            jac_sparsity=jac_sparsity)
+        sol = least_squares(obj, obj.theta0[obj.moving], bounds=(lo[obj.moving], hi[obj.moving]), method="trf",
+                            x_scale="jac", ftol=options.ftol, xtol=options.xtol, gtol=options.gtol,
+                            max_nfev=options.max_nfev, jac_sparsity=jac_sparsity)
     progress(f"output-error refinement: cost {sol.cost:.4g} after {sol.nfev} evaluations", None)
-    theta = full_theta(sol.x)
-    if lin.any():
-        theta = coarse.projected(param, theta)[1]
-        J_free = _free_jacobian(coarse, param, theta, free) / scale
+    theta = obj.full_theta(sol.x)
+    if obj.lin.any():
+        theta = obj.coarse.projected(param, theta)[1]
+    weighted, model, info = problem.residuals(param, theta)
+    if not options.covariance:
+        J_free = np.zeros((len(weighted), int(obj.free.sum())))
+    elif obj.lin.any():
+        J_free = _free_jacobian(obj.coarse, param, theta, obj.free) / obj.scale
     else:
         J_free = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
-    weighted, model, info = problem.residuals(param, theta)
-    n_kept = J_free.shape[0] - (0 if penalty is None or lin.any() else len(penalty(theta)))
-    J = np.zeros((n_kept, len(theta)))
-    J[:, free] = J_free[:n_kept] * scale
+        J_free = J_free[:len(J_free) - (0 if penalty is None else len(penalty(theta)))]
+    J = np.zeros((len(J_free), len(theta)))
+    J[:, obj.free] = J_free * obj.scale
+    n_kept = len(J_free)
     return RefineResult(theta=theta, model=model, residuals=[i[2] for i in info], weighted=weighted, jac=J,
                         nfev=int(sol.nfev), success=bool(sol.success), message=str(sol.message),
                         starts=[i[0] for i in info], x0s=[i[1] for i in info],
                         rho=[float(i[3]) for i in info], info_scale=len(weighted) / n_kept)
+
+
+class _Objective:
+    """The residual function `refine` minimises, of the moving entries z of theta: theta0 moved
+    inside the bounds, the problem decimated, the linear entries eliminated when asked
+    (`Options.eliminate`), the penalty appended."""
+
+    def __init__(self, param: Parametrisation, theta0, problem, options: Options, penalty=None, free=None):
+        self.param, self.penalty = param, penalty
+        theta0 = np.asarray(theta0, dtype=float)
+        lo, hi = param.bounds()
+        pad = 1e-9 * (np.abs(theta0) + 1)
+        self.theta0 = np.minimum(np.maximum(theta0, lo + pad), hi - pad)
+        self.free = np.ones(len(theta0), bool) if free is None else np.asarray(free, bool)
+        self.coarse = problem.decimated(options.max_samples)
+        self.scale = problem.scale if options.normalise else 1.0
+        self.lin = np.zeros(len(theta0), bool)
+        if options.eliminate and hasattr(self.coarse, "projected"):
+            self.lin[list(param.linear_entries())] = True
+            self.lin &= bool(self.free[self.lin].all())
+        self.moving = self.free & ~self.lin
+
+    def full_theta(self, z: np.ndarray) -> np.ndarray:
+        theta = self.theta0.copy()
+        theta[self.moving] = z
+        return theta
+
+    def __call__(self, z: np.ndarray) -> np.ndarray:
+        theta = self.full_theta(z)
+        fit = self.coarse.projected if self.lin.any() else self.coarse.residuals
+        r = fit(self.param, theta)[0] / self.scale
+        return r if self.penalty is None else np.r_[r, self.penalty(theta)]
 
 
 def _free_jacobian(problem, param: Parametrisation, theta: np.ndarray, free: np.ndarray) -> np.ndarray:

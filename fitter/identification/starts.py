@@ -24,9 +24,11 @@ from fitter.identification.parametrisation import RDCanonical, RICanonical
 from fitter.identification.rd_triangles import identify_rd_triangles
 from fitter.identification.ri_loop import identify_ri_loop
 
-__all__ = ["ri_starts", "rd_starts", "embed", "Q_CANDIDATES"]
+__all__ = ["ri_starts", "rd_starts", "generic_ri_starts", "embed", "Q_CANDIDATES", "GENERIC_RATES"]
 
 Q_CANDIDATES = (1.0, 3.0, 7.0, 20.0)
+GENERIC_RATES = (0.5, 2.0, 8.0)
+"""Relaxation rates (per normalised input unit) of the generic first-order starts."""
 _STARTS_KEPT = {"ri": 3, "rd": 2}
 
 
@@ -113,6 +115,22 @@ def ri_starts(grid, yr, yf, n: int, q: float | None, lower=None) -> tuple[list[n
     info["start"] = cands[0][2]
     info["start_loop_error"] = cands[0][0]
     return [c[1] for c in cands[:_STARTS_KEPT["ri"]]], info
+
+
+def generic_ri_starts(n: int, lower=None) -> tuple[list[np.ndarray], dict]:
+    """Starts for a general input (no loop to read them from): the order-(n-1) fit embedded, and,
+    for each rate a of `GENERIC_RATES`, the model whose n modes relax at rates a, 2a, ..., n a on
+    both branches (A+ = -diag(a, 2a, ...), A- = -A+, B = C = ones).  B, E, D and x0 are left to
+    the fit's linear least squares (variable projection), so only the relaxation needs a start."""
+    par = RICanonical(n)
+    starts = [par.theta(embed(lower, n))] if lower is not None else []
+    ones = np.ones(n)
+    for a in GENERIC_RATES:
+        A = -a * np.diag(np.arange(1.0, n + 1))
+        starts.append(par.theta(RateIndependentModel(A_plus=A, A_minus=-A, B_plus=ones, B_minus=ones, C=ones)))
+    info = {"start": f"order {n - 1} fit, embedded" if lower is not None else
+            f"generic relaxations (rates {list(GENERIC_RATES)} x 1..{n})"}
+    return starts, info
 
 
 def _section5(param: RDCanonical, norm) -> np.ndarray:
