@@ -27,4 +27,5 @@ bench: install
 	$(BIN)/python bench/reproduce_paper.py
 	$(BIN)/python bench/fmu_throughput.py
 	$(BIN)/python bench/real_data.py
+	$(BIN)/python bench/real_fit_speed.py
 	$(BIN)/python bench/export_agreement.py

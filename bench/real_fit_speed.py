@@ -9,7 +9,8 @@ transient, x0 away from the loop):
 * generated from a second-order rate-independent model (`_RI2`): a sine of 400
   samples; a triangle of 2 000; a sine of 10 000 with noise on the input too
   (the fit then carries an input dead band); 50 000 samples in two planned
-  blocks of different amplitude; and 1e5 samples (the README's claim);
+  blocks of different amplitude; 1e5 samples (the README's claim); and a
+  band-limited random input of 3 000 samples (a general input);
 * generated from a first-order rate-dependent model, two recordings at input
   rates 5x apart (3 000 samples each);
 * the shipped demo (``examples/demo.csv``) and, when ``../shared/data`` is
@@ -66,6 +67,13 @@ def _triangle(n: int, cycles: float) -> tuple[np.ndarray, np.ndarray]:
     return t, 1.5 * (2 * np.abs(2 * ((t + 0.25) % 1.0) - 1) - 1)
 
 
+def _random(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """A band-limited random input: white noise through an exponential filter (time constant 15 samples)."""
+    w = np.random.default_rng(n).standard_normal(n)
+    u = np.convolve(w, np.exp(-np.arange(60) / 15.0), mode="same")
+    return np.linspace(0.0, 30.0, n), 1.5 * u / np.abs(u).max()
+
+
 def cases() -> dict[str, list[Recording]]:
     """The benchmark's recordings, by case name (module docstring)."""
     out = {"ri2 sine 400": [_recording(_RI2, *_sine(400, 5), "sine 400", 1)],
@@ -75,6 +83,7 @@ def cases() -> dict[str, list[Recording]]:
     u = np.where(t < 20, 0.5 * u, u)
     out["ri2 two amplitude blocks 50000"] = [_recording(_RI2, t, u, "blocks 50000", 4)]
     out["ri2 sine 1e5"] = [_recording(_RI2, *_sine(100_000, 20), "sine 1e5", 5)]
+    out["ri2 random input 3000"] = [_recording(_RI2, *_random(3000), "random 3000", 8)]
     slow, fast = _triangle(3000, 6), _triangle(3000, 6)
     out["rd1 two rates, 2 x 3000"] = [_recording(_RD1, slow[0] * 5.0, slow[1], "slow", 6),
                                       _recording(_RD1, fast[0], fast[1], "fast", 7)]

@@ -379,18 +379,19 @@ def _integrate_modal(used: dict, force: dict, X0: np.ndarray, branch, p, r, S) -
     last = np.r_[first[1:] - 1, N - 1]
     L = _segmented_cumsum(np.where(head[:, None], 0, z), head)
     F = _segmented_cumsum(np.where(_columns(head, 1 + extra), 0, f * _columns(np.exp(-L), extra)), head)
-    # the map of segment s on modal coordinates: W0 = e^{z_first} w_in + f_first, w_out = P (W0 + F_last)
-    ez0, f0 = _columns(np.exp(z[first]), extra), f[first]
-    PL, FL = _columns(np.exp(L[last]), extra), F[last]
-    W0 = np.empty((len(first), n) + X0.shape[1:], dtype=dtype)
-    flow_of = [used[b] for b in branch[first]]
-    x, w, prev = X0, None, None
-    for s, flow in enumerate(flow_of):
-        if flow is not prev:
-            w = flow.Vinv @ (x if prev is None else (prev.V @ w).real)
-            prev = flow
-        W0[s] = ez0[s] * w + f0[s]
-        w = PL[s] * (W0[s] + FL[s])
+    # segment s maps its entry state x_s to its exit state: in modal coordinates w = V^-1 x_s,
+    # W0 = e^{z_first} w + f_first (its first interval), w_out = P_last (W0 + F_last); as a map on x,
+    # x_{s+1} = V diag(P_last e^{z_first}) V^-1 x_s + V P_last (f_first + F_last): chained by `_affine_scan`
+    ez0, f0 = np.exp(z[first]), f[first]
+    PL, FL = np.exp(L[last]), F[last]
+    keys = list(used)
+    index = np.searchsorted(np.array(keys), branch[first]) if len(keys) > 1 else np.zeros(len(first), int)
+    V = np.stack([used[b].V for b in keys])[index]
+    Vinv = np.stack([used[b].Vinv for b in keys])[index]
+    M = np.einsum("sij,sj,sjk->sik", V, PL * ez0, Vinv).real
+    c = np.einsum("sij,sj...->si...", V, _columns(PL, extra) * (f0 + FL)).real
+    entry = np.concatenate([X0[None], _affine_scan(M, c, X0)[:-1]])
+    W0 = _columns(ez0, extra) * np.einsum("sij,sj...->si...", Vinv, entry) + f0
     seg = np.cumsum(head) - 1
     W = _columns(np.exp(L), extra) * (W0[seg] + F)
     X = np.empty((N, n) + X0.shape[1:])
@@ -400,19 +401,28 @@ def _integrate_modal(used: dict, force: dict, X0: np.ndarray, branch, p, r, S) -
     return X
 
 
-def _integrate_dense(used: dict, force: dict, X0: np.ndarray, branch, p, r, S, block: int = 32) -> np.ndarray:
-    """States after each interval from the intervals' affine maps x_{k+1} = M_k x_k + g_k:
-    prefix compositions within blocks of `block` intervals (log2(block) stacked products),
-    then the blocks chained one after another."""
+def _integrate_dense(used: dict, force: dict, X0: np.ndarray, branch, p, r, S) -> np.ndarray:
+    """States after each interval from the intervals' affine maps x_{k+1} = M_k x_k + g_k
+    (`AffineFlow.affine_maps`), chained by `_affine_scan`."""
     N, n, extra = len(S), X0.shape[0], X0.ndim - 1
-    nb = -(-N // block)
-    M = np.broadcast_to(np.eye(n), (nb * block, n, n)).copy()
-    g = np.zeros((nb * block, n) + X0.shape[1:])
+    M = np.empty((N, n, n))
+    g = np.empty((N, n) + X0.shape[1:])
     for b, flow in used.items():
         sel = np.flatnonzero(branch == b)
         M[sel], gb = flow.affine_maps(p[sel], r[sel], S[sel], force[b])
         g[sel] = gb if gb.ndim == g.ndim else _columns(gb, extra)
-    P, c = M.reshape(nb, block, n, n), g.reshape((nb, block, n) + X0.shape[1:])
+    return _affine_scan(M, g, X0)
+
+
+def _affine_scan(M: np.ndarray, g: np.ndarray, X0: np.ndarray, block: int = 32) -> np.ndarray:
+    """States x_1..x_K of x_{k+1} = M_k x_k + g_k from x_0 = X0 ((n,) or (n, m)): prefix compositions
+    within blocks of `block` maps (log2(block) stacked products), the blocks chained in order."""
+    K, n = len(M), X0.shape[0]
+    nb = -(-K // block)
+    Mp = np.broadcast_to(np.eye(n), (nb * block, n, n)).copy()
+    gp = np.zeros((nb * block, n) + X0.shape[1:])
+    Mp[:K], gp[:K] = M, g
+    P, c = Mp.reshape(nb, block, n, n), gp.reshape((nb, block, n) + X0.shape[1:])
     d = 1
     while d < block:
         P_new, c_new = P.copy(), c.copy()
@@ -424,4 +434,4 @@ def _integrate_dense(used: dict, force: dict, X0: np.ndarray, branch, p, r, S, b
     for i in range(nb):
         out[i] = P[i] @ x + c[i]
         x = out[i, -1]
-    return out.reshape((nb * block, n) + X0.shape[1:])[:N]
+    return out.reshape((nb * block, n) + X0.shape[1:])[:K]
