@@ -87,16 +87,21 @@ class _Candidate:
 def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.ndarray], np.ndarray]:
     """1e3 max(0, value - LIMIT) of the convergence quantity (1e3 where it cannot be evaluated):
     rate-independent, rho of condition (5) <= 0.99; rate-dependent, max Re eig(A) <= -1e-3 (normalised
-    units; A is Hurwitz by construction, the barrier keeps a margin from 0)."""
+    units; A is Hurwitz by construction, the barrier keeps a margin from 0) and, second residual,
+    every mode damped (`RDCanonical.damping_excess` <= 0: a nearly undamped oscillation fits the data
+    by cancellation and blows up at rates it was not fitted on)."""
     lo, hi = data.input_range()
 
     def pen(th):
         try:
             with np.errstate(all="ignore"):
-                val = param.convergence(param.build(th), lo, hi) if np.all(np.isfinite(th)) else np.inf
+                model = param.build(th) if np.all(np.isfinite(th)) else None
+                vals = ([np.inf] if model is None else
+                        [param.convergence(model, lo, hi) - param.LIMIT]
+                        + ([param.damping_excess(model)] if param.kind == "rd" else []))
         except (ValueError, np.linalg.LinAlgError):
-            val = np.inf
-        return np.array([1e3 * max(0.0, val - param.LIMIT)]) if np.isfinite(val) else np.array([1e3])
+            vals = [np.inf] * (2 if param.kind == "rd" else 1)
+        return np.array([1e3 * max(0.0, v) if np.isfinite(v) else 1e3 for v in vals])
     return pen
 
 
@@ -259,10 +264,15 @@ def _convergence(best: _Candidate, data: FitData, model, recordings, scores: lis
     raw = raw_input_rho(model, recordings)
     ok = (param.converges(val) and all(r is None or r < 1 for r in raw)
           and not any(m.get("diverged") for m in scores))
-    return {"satisfied": bool(ok), "quantity": param.QUANTITY, "value": val, "margin": param.LIMIT,
-            "rho_raw_input_per_recording": raw,
-            "rule": "the structural condition holds within its fitting margin and the period map of every raw "
-                    "recording's last full cycle has spectral radius < 1"}
+    out = {"satisfied": bool(ok), "quantity": param.QUANTITY, "value": val, "margin": param.LIMIT,
+           "rho_raw_input_per_recording": raw,
+           "rule": "the structural condition holds within its fitting margin and the period map of every raw "
+                   "recording's last full cycle has spectral radius < 1"}
+    if param.kind == "rd":
+        lam = np.linalg.eigvals(res.model.A)
+        out["min_damping_ratio"] = float(np.min(-lam.real / np.abs(lam)))
+        out["damping_margin"] = param.DAMPING
+    return out
 
 
 def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels: RateLevels,

@@ -233,6 +233,14 @@ class RDCanonical(Parametrisation):
 
     LIMIT = -1e-3
     QUANTITY = "max Re eig(A) (< 0 <=> rho(period map) < 1 since g >= 0)"
+    DAMPING = 0.1
+    """Smallest damping ratio -Re(lambda)/|lambda| a fitted mode of A may have."""
+
+    @classmethod
+    def damping_excess(cls, model) -> float:
+        """max over the eigenvalues of A of Re(lambda) + DAMPING |lambda| (<= 0: every mode damped)."""
+        lam = np.linalg.eigvals(model.A)
+        return float(np.max(lam.real + cls.DAMPING * np.abs(lam)))
 
 
 def _free_keys(model) -> list[str]:
