@@ -343,14 +343,16 @@ def _columns(a: np.ndarray, extra: int) -> np.ndarray:
 def _segmented_cumsum(x: np.ndarray, head: np.ndarray) -> np.ndarray:
     """Cumulative sum along axis 0 restarting at every True of `head`.
 
-    Segments of many entries on average (>= 256): one `np.cumsum` per segment;
-    otherwise a Hillis-Steele scan over the whole array (log2 of the longest
-    segment passes), which costs less than a Python loop over many tiny segments.
+    One `np.cumsum` per segment (a Python loop, about 3 us a segment), or a
+    Hillis-Steele scan over the whole array (log2 of the longest segment
+    passes, about 3 ns an entry each), whichever is estimated cheaper.
     """
     first = np.flatnonzero(head)
-    if 256 * len(first) <= x.size:
+    ends = np.r_[first[1:], len(x)]
+    passes = max(1, int(np.ceil(np.log2(max(int(np.max(ends - first)), 2)))))
+    if len(first) * 1000 <= passes * x.size:
         out = np.empty_like(x)
-        for a, b in zip(first, np.r_[first[1:], len(x)]):
+        for a, b in zip(first, ends):
             np.cumsum(x[a:b], axis=0, out=out[a:b])
         return out
     v, h = x.copy(), head.copy()
