@@ -41,6 +41,7 @@ from dataclasses import dataclass, replace
 from typing import Callable, Sequence
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from fitter.core.effects import Effect
 from fitter.core.files import jsonable
@@ -239,11 +240,12 @@ def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order
         raise ValueError(f"order must be one of {ORDERS}, not {order!r}")
     if x0 not in X0_POLICIES:
         raise ValueError(f"x0 must be one of {X0_POLICIES}, not {x0!r}")
-    data = prepare_for_fit(recordings)
-    levels = rate_levels(data.norm)
-    cands = _search(data, kind, ORDERS if order is None else (order,), q, levels, progress)
-    best = min(cands, key=lambda c: c.bic)
-    return _result(best, cands, data, recordings, kind, q, levels, x0)
+    with threadpool_limits(limits=1, user_api="blas"):    # small matrices: one thread, the same rounding every run
+        data = prepare_for_fit(recordings)
+        levels = rate_levels(data.norm)
+        cands = _search(data, kind, ORDERS if order is None else (order,), q, levels, progress)
+        best = min(cands, key=lambda c: c.bic)
+        return _result(best, cands, data, recordings, kind, q, levels, x0)
 
 
 def _per_recording(model, res: RefineResult, data: FitData, recordings) -> list[dict]:
