@@ -98,7 +98,7 @@ is a local search: the best history of the family is not guaranteed.
 Bouc-Wen
 --------
 Output error on the samples (decimated, `BoucWen`), parameters by
-scipy.optimize.least_squares from deterministic starts; the state is
+the output-error engine (`refine`) from deterministic starts; the state is
 integrated along u exactly up to a tabulated quadrature (`BoucWen`).
 """
 from __future__ import annotations
@@ -111,7 +111,7 @@ from typing import Sequence
 
 import numpy as np
 from scipy.linalg import solve_triangular
-from scipy.optimize import least_squares, minimize_scalar, nnls
+from scipy.optimize import minimize_scalar, nnls
 
 from fitter.core.effects import play_operator
 from fitter.core.errors import DuhemError
@@ -119,7 +119,8 @@ from fitter.data.cycles import find_reversals
 from fitter.data.metrics import compare
 from fitter.data.recordings import Recording
 from fitter.identification.fit_data import prepare_for_fit
-from fitter.identification.output_error import fitted_initial_state
+from fitter.identification.output_error import Options, fitted_initial_state, refine
+from fitter.identification.parametrisation import Parametrisation
 
 __all__ = ["BaselineError", "Baseline", "Preisach", "PrandtlIshlinskii", "BoucWen", "BASELINES", "MIN_SAMPLES",
            "check_recordings", "compare_baselines", "comparison", "duhem_nrmse"]
@@ -883,8 +884,9 @@ class BoucWen(Baseline):
     on all samples.  k_u, k_z, c are solved by linear least squares inside
     the residual (variable projection); z_s (log scale, in [0.02, 20]), q (in
     [0, 20]), n (in [1, 5]) and one z0 per recording (in [-5, 5]) by
-    scipy.optimize.least_squares (bounded, trust-region reflective, forward
-    differences, a recording's z0 moving only that recording's states) from
+    the project's output-error engine (`refine`: bounded trust-region
+    reflective least squares; forward differences, a recording's z0 moving
+    only that recording's states) from
     the `starts` best points of a fixed grid of z_s, q, n and z0.
 
     Parameters
@@ -964,13 +966,14 @@ class BoucWen(Baseline):
         grid = [np.r_[math.log(zs), q, n, [z0 * zs] * r] for zs in self._GRID["z_s"] for q in self._GRID["q"]
                 for n in self._GRID["n"] for z0 in self._GRID["z0"]]
         costs = [float(np.sum(problem.residual(th) ** 2)) for th in grid]
+        param = _BWParameters(np.array(lower), np.array(upper))
+        options = Options(ftol=1e-8, xtol=1e-8, gtol=1e-8, max_nfev=100 * (3 + r), max_samples=None)
         best = None
         for k in np.argsort(costs, kind="stable")[:self.starts]:
-            sol = least_squares(problem.residual, grid[k], jac=problem.jacobian, bounds=(lower, upper),
-                                x_scale="jac", max_nfev=100 * (3 + r))
+            sol = refine(param, grid[k], problem, options, jac=problem.jacobian)
             if best is None or sol.cost < best.cost:
                 best = sol
-        theta = best.x
+        theta = best.theta
         self.zs_, self.q_, self.n_ = math.exp(theta[0]), float(theta[1]), float(theta[2])
         self.z0_ = [float(z) for z in theta[3:]]
         self.k_u_, self.k_z_, self.c_ = problem.linear(theta)
@@ -1036,9 +1039,22 @@ class _BWProblem:
     output error after the least-squares k_u, k_z, c.
     """
 
+    scale = 1.0
+
     def __init__(self, model: BoucWen, data: list[_BWData], upper: np.ndarray):
         self.model, self.data, self.upper = model, data, upper
         self._cache: tuple[bytes, list[np.ndarray]] | None = None
+
+    def decimated(self, max_samples: int | None) -> "_BWProblem":
+        """The samples are already the kept ones (`BoucWen._decimate`)."""
+        return self
+
+    def residuals(self, param, theta: np.ndarray):
+        """The output-error engine's interface (`fitter.identification.output_error.refine`): the stacked
+        residual, theta as the 'model', and per recording (start, x0, residual, rho)."""
+        r = self.residual(theta)
+        parts = np.split(r, np.cumsum([len(d.u) for d in self.data])[:-1])
+        return r, theta, [(0, z0, part, math.nan) for z0, part in zip(theta[3:], parts)]
 
     def states(self, theta: np.ndarray) -> list[np.ndarray]:
         key = np.asarray(theta, dtype=float).tobytes()
@@ -1080,6 +1096,19 @@ class _BWProblem:
             jac[:, j] = (self._project(zs) - r0) / h
         self.states(theta)
         return jac
+
+
+class _BWParameters(Parametrisation):
+    """theta = [log z_s, q, n, z0_1 .. z0_R] of `_BWProblem`, within its bounds."""
+
+    def __init__(self, lower: np.ndarray, upper: np.ndarray):
+        self.lower, self.upper, self.size = lower, upper, len(lower)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.lower.copy(), self.upper.copy()
+
+    def build(self, theta: np.ndarray) -> np.ndarray:
+        return theta
 
 
 BASELINES: dict[str, type[Baseline]] = {cls.name: cls for cls in (Preisach, PrandtlIshlinskii, BoucWen)}

@@ -449,7 +449,8 @@ def jacobian(fun: Callable[[np.ndarray], np.ndarray], theta: np.ndarray,
 
 def refine(param: Parametrisation, theta0: np.ndarray, problem, options: Options = Options(), *,
            penalty: Callable[[np.ndarray], np.ndarray] | None = None, free: np.ndarray | None = None,
-           jac_sparsity=None, progress: Progress = silent) -> RefineResult:
+           jac_sparsity=None, jac: Callable[[np.ndarray], np.ndarray] | None = None,
+           progress: Progress = silent) -> RefineResult:
     """Output-error least squares of `param.build(theta)` on `problem`.
 
     Parameters
@@ -462,14 +463,19 @@ def refine(param: Parametrisation, theta0: np.ndarray, problem, options: Options
     penalty : optional theta -> extra residuals (e.g. a convergence barrier).
     free : boolean mask of the entries of theta that move (default all).
     jac_sparsity : sparsity structure of the Jacobian (scipy's argument).
+    jac : optional theta -> Jacobian of the problem's residuals in all entries of theta (a problem that
+        differentiates more cheaply than by plain forward differences); not with a penalty or elimination.
     progress : `fitter.progress.Progress`, called with a one-line status at the end.
     """
     obj = _Objective(param, theta0, problem, options, penalty, free)
     lo, hi = param.bounds()
+    if jac is not None and (penalty is not None or obj.lin.any()):
+        raise ValueError("a problem's own Jacobian cannot be combined with a penalty or elimination")
+    jac_moving = "2-point" if jac is None else (lambda z: jac(obj.full_theta(z))[:, obj.moving] / obj.scale)
     with np.errstate(all="ignore"), threadpool_limits(limits=1, user_api="blas"):
-        sol = least_squares(obj, obj.theta0[obj.moving], bounds=(lo[obj.moving], hi[obj.moving]), method="trf",
-                            x_scale="jac", ftol=options.ftol, xtol=options.xtol, gtol=options.gtol,
-                            max_nfev=options.max_nfev, jac_sparsity=jac_sparsity)
+        sol = least_squares(obj, obj.theta0[obj.moving], jac=jac_moving, bounds=(lo[obj.moving], hi[obj.moving]),
+                            method="trf", x_scale="jac", ftol=options.ftol, xtol=options.xtol, gtol=options.gtol,
+                            max_nfev=options.max_nfev, jac_sparsity=jac_sparsity if jac is None else None)
     progress(f"output-error refinement: cost {sol.cost:.4g} after {sol.nfev} evaluations", None)
     theta = obj.full_theta(sol.x)
     if obj.lin.any():
