@@ -20,7 +20,7 @@ recording.  ``piezo.best`` is the single model `duhem fit` gives for all
 three rates (``--kind auto``), with the same structure refitted on two rates
 predicting the third (``holdout``).
 
-"fit" NRMSE is the fit's own (state fitted at the first kept sample);
+"fit" NRMSE is the fit's own (the saved model from its stored x0, all samples);
 "pred" NRMSE is `FitResult.predict`: the model started from the periodic
 state of the recording's first cycle, nothing fitted to that recording.
 NRMSE = RMS error / output range of the recording.

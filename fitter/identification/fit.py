@@ -12,10 +12,10 @@ Pipeline of `fit_recordings`
 3. **Starts** (`fitter.identification.starts`): the loop methods of the
    paper (Section III, Section V) and simple branch regressions.
 4. **Output-error refinement** (`fitter.identification.output_error.refine`).
-   Initial state ``x0="fit"``: the state at the first kept sample of each
-   recording is eliminated by linear least squares, so what remains of a
-   slowly decaying transient after the preparation's cut is fitted, not
-   mistaken for the loop.  When every recording holds a single cycle (e.g.
+   Initial state ``x0="fit"`` (recordings with several cycles, and general
+   inputs): every sample is fitted and the state at each recording's first
+   sample is eliminated by linear least squares, so a start-up transient is
+   the initial state's to explain, not mistaken for the loop.  When every recording holds a single cycle (e.g.
    the piezo files), a free initial state would let a barely convergent model
    mimic a non-closing loop, so ``x0="periodic"`` is used instead: the cycle
    is taken as settled.  The convergence condition is enforced: for the
@@ -67,7 +67,8 @@ MAX_NFEV = 60
 RACE_NFEV = 3
 FIT_OPTIONS = Options(ftol=1e-9, xtol=1e-10, max_nfev=MAX_NFEV, max_samples=3000, eliminate=True)
 
-X0_TEXT = {"fit": "during the fit, the state at each recording's first kept sample is fitted (linear least squares)",
+X0_TEXT = {"fit": "during the fit, every sample is fitted and the state at each recording's first sample is "
+                  "fitted (linear least squares)",
            "periodic": "every recording holds a single cycle, so transient and loop cannot be told apart: "
                        "each is taken as settled and starts from the fixed point of its one-cycle map"}
 
