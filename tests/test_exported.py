@@ -15,6 +15,7 @@ from conftest import noisy_recording, ri_model, sine_input
 
 from fitter import build_fmu, fit_recordings, load_recording
 from fitter.core import periodic_response
+from fitter.core.models import INPUT_MARGIN
 from fitter.data.metrics import nrmse
 from fitter.data.recordings import Recording
 from fitter.fmu.build import FmuBuildError
@@ -107,7 +108,23 @@ def test_inputs_beyond_the_fitted_range_are_named(transient_fit):
     rec, fit = transient_fit
     assert range_warnings(fit.model, rec.t, rec.u) == []
     (warning,) = range_warnings(fit.model, rec.t, 3 * rec.u)
-    assert "the model was fitted on" in warning and "extrapolates" in warning
+    assert "the model was fitted on" in warning and "holds the input at the edge" in warning
+
+
+def test_a_small_amplitude_fit_driven_at_large_amplitude_stays_bounded(transient_fit, tmp_path):
+    """The stored input_range is the fitted range widened by INPUT_MARGIN of its span; driven at 3x the
+    fitted amplitude the model (and its native FMU) stays within the output it reaches at the range's edges."""
+    rec, fit = transient_fit
+    lo, hi = rec.u.min(), rec.u.max()
+    m = INPUT_MARGIN * (hi - lo)
+    assert fit.model.input_range == pytest.approx((lo - m, hi + m), abs=1e-12)
+    wide = 3 * rec.u
+    y = fit.simulate(Recording(rec.t, wide, rec.y))
+    edge = fit.simulate(Recording(rec.t, np.clip(wide, lo - m, hi + m), rec.y))
+    assert np.array_equal(y, edge)
+    assert np.abs(y).max() <= 1.5 * np.abs(rec.y).max()
+    fmu = build_fmu(fit.model, tmp_path / "held.fmu", backend="native")
+    assert np.abs(simulate_fmu(fmu, rec.t, wide) - y).max() <= 1e-9 * np.ptp(rec.y)
 
 
 def _demo():

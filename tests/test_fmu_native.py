@@ -117,6 +117,8 @@ MODELS = {
     "rd_effects": lambda: rd_model(ALL_EFFECTS),
     "fuzz": lambda: ri_small(FUZZ_EFFECTS),
     "fuzz_rd": lambda: rd_small(FUZZ_RD_EFFECTS),
+    "ri_held": lambda: ri_model().replace(input_range=(-0.9, 1.1)),
+    "rd_held_effects": lambda: rd_model(ALL_EFFECTS).replace(input_range=(-1.2, 0.7)),
 }
 
 

@@ -40,7 +40,8 @@ def periodic_input(cycles=4, per_cycle=250, period=3.0):
 
 
 MODELS = {"example1": example1, "example3": lambda: rd_model(2), "noisy": lambda: ri_model(3),
-          "effects": example1_with_effects}
+          "effects": example1_with_effects,
+          "held": lambda: example1_with_effects().replace(input_range=(-1.0, 1.2))}
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +59,7 @@ def test_validate_fmu_has_no_findings(fmus, name):
     assert validate_fmu_file(fmus[name]) == []
 
 
-@pytest.mark.parametrize("name", ["example1", "effects"])   # example3, noisy: test_contract.py
+@pytest.mark.parametrize("name", ["example1", "effects", "held"])   # example3, noisy: test_contract.py
 def test_closed_curve_matches_in_process_kernel(fmus, name):
     t, u = periodic_input()
     y_fmu = simulate_fmu(fmus[name], t, u)

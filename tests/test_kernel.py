@@ -146,6 +146,8 @@ def test_json_round_trip(tmp_path):
     (lambda d: d["parameters"].pop("C"), "missing parameter 'C'"),
     (lambda d: d["parameters"].update(A_plus=[[1, 2, 3]]), r"A_plus: expected shape \(2, 2\)"),
     (lambda d: d.update(kind="xx"), "unknown model kind"),
+    (lambda d: d.update(input_range=[1.0, -1.0]), r"'input_range' \[1.0, -1.0\] must be finite with lo < hi"),
+    (lambda d: d.update(input_range="wide"), r"'input_range' must be \[lo, hi\]"),
 ])
 def test_bad_model_files(tmp_path, edit, message):
     d = example1_model().to_dict()
@@ -232,3 +234,33 @@ def test_stacked_expm_equals_one_at_a_time():
     for k in range(7):
         assert np.abs(stacked[k] - expm(M[k])).max() <= 1e-13 * np.abs(stacked[k]).max()
     assert np.isnan(expm(np.array([[np.inf]]))).all()
+
+
+def test_input_range_holds_the_input_at_its_edges_and_bounds_an_unstable_branch(tmp_path):
+    """Beyond input_range the model acts on the held edge value: the state stops, y stays at the edge's value;
+    inside it nothing changes.  The loop converges on [-1, 1] (rho = e^(2 * 2 - 3 * 2)), but its rising branch
+    (eigenvalue +2 in u) driven to u = 6 grows like e^(2 * 6) unheld."""
+    free = RateIndependentModel(A_plus=[[2.0]], A_minus=[[3.0]], B_plus=[1.0], B_minus=[1.0], C=[1.0], D=0.3)
+    held = free.replace(input_range=(-1.0, 1.0))
+    path = tmp_path / "held.json"
+    save_model(held, path)
+    assert load_model(path).input_range == (-1.0, 1.0)
+    t = np.linspace(0.0, 4.0, 401)
+    u_in = 0.9 * np.sin(2 * np.pi * t)
+    assert np.array_equal(simulate(free, t, u_in).y, simulate(held, t, u_in).y)
+    u_out = 6.0 * np.sin(2 * np.pi * t)
+    y_free, y_held = simulate(free, t, u_out).y, simulate(held, t, u_out).y
+    assert np.abs(y_free).max() > 1e3
+    assert np.allclose(y_held, simulate(free, t, np.clip(u_out, -1.0, 1.0)).y, rtol=0, atol=1e-12)
+    assert np.abs(y_held).max() < 5.0
+    beyond = u_out > 1.0
+    assert np.ptp(y_held[beyond & (t < 0.5)]) < 1e-12       # the state does not move beyond the edge
+    st = Stepper(held, t0=t[0], u0=u_out[0])
+    ys = []
+    for k in range(len(t)):
+        if k:
+            st.do_step(t[k] - t[k - 1])
+        st.set_input(u_out[k])
+        ys.append(st.output())
+    assert np.abs(np.array(ys) - y_held).max() < 1e-12
+    assert st.u == u_out[-1]                                  # the input keeps the value set

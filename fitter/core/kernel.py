@@ -42,7 +42,10 @@ def simulate(model, t, u, x0=None, flow_cache: dict | None = None) -> Simulation
     sample (no time stepping).  The rate-independent result does not depend
     on t (None: t_k = k).  `x0` defaults to the model's x0; y_k = C x_k + D u_k.
     A model with a non-empty ``effects`` list runs the effect chain of
-    `fitter.core.effects` (then y is the chain's measured output).
+    `fitter.core.effects` (then y is the chain's measured output).  A model
+    with an ``input_range`` acts on u held at its edges (`model.model_input`,
+    the extrapolation rule of `fitter.core.models`); the returned u is the
+    input as given.
 
     Raises
     ------
@@ -58,12 +61,13 @@ def simulate(model, t, u, x0=None, flow_cache: dict | None = None) -> Simulation
         raise KernelError("empty input")
     x0 = model.x0 if x0 is None else np.asarray(x0, dtype=float)
     fl = flow_cache if flow_cache is not None else flows(model)
+    w = model.model_input(u)
     if getattr(model, "effects", None):
-        X, y, _ = run_with_effects(model, t, u, x0, fl)
+        X, y, _ = run_with_effects(model, t, w, x0, fl)
         return Simulation(t=t, u=u, x=X, y=y)
-    branch, p, r, S = interval_coefficients(model, t, u)
+    branch, p, r, S = interval_coefficients(model, t, w)
     X = integrate(fl, x0, branch, p, r, S)
-    y = X @ model.C + model.D * u
+    y = X @ model.C + model.D * w
     return Simulation(t=t, u=u, x=X, y=y)
 
 
@@ -85,5 +89,5 @@ def state_response(model, t, u, X0, flow_cache: dict | None = None, forcing: dic
     t = check_finite("t", t) if t is not None else np.arange(len(u), dtype=float)
     if len(t) != len(u):
         raise KernelError(f"t and u differ in length ({len(t)} and {len(u)})")
-    branch, p, r, S = interval_coefficients(model, t, u)
+    branch, p, r, S = interval_coefficients(model, t, model.model_input(u))
     return integrate(fl, X0, branch, p, r, S, forcing)

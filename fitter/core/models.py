@@ -15,6 +15,16 @@ Two kinds, after Oh & Bernstein (2007):
       dx/dt = g(du/dt) (A x + B u + E)
       y     = C x + D u,            x(0) = x0
 
+Extrapolation rule (``input_range``, JSON ``"input_range": [lo, hi]``, absent
+or null = none): the model is only trusted on the input range it was fitted
+on.  Outside [lo, hi] the whole model (state, feedthrough, effects) sees the
+input held at the nearest edge, w = min(hi, max(lo, u)); so beyond the range
+the state stops moving (du = 0 there; for the rate-dependent model g(0) = 0)
+and the output stays at its value at the edge.  Whatever the branch matrices,
+the output is then bounded by what the model produces inside its range.  The
+fit stores the fitted input range widened by `INPUT_MARGIN` of its span on
+each side (`fitter.identification.exported.input_range`).
+
 `Signals` and `Experiment` carry what an FMU needs to describe itself (names,
 units, the default experiment of the data it was fitted on).  `fit_info` is a
 free-form record of how the model was identified.  `effects` (optional, JSON
@@ -26,6 +36,7 @@ This module needs only numpy: it is shipped inside the FMUs.
 from __future__ import annotations
 
 import json
+import math
 import os
 import dataclasses
 from dataclasses import dataclass, field
@@ -38,11 +49,14 @@ from .errors import EffectError, ModelFileError
 from .files import atomic_file
 from .rates import RateFunction, as_rate, rate_from_dict
 
-__all__ = ["ModelFileError", "Signal", "Signals", "Experiment", "RateIndependentModel", "RateDependentModel",
+__all__ = ["INPUT_MARGIN", "ModelFileError", "Signal", "Signals", "Experiment", "RateIndependentModel", "RateDependentModel",
            "load_model", "save_model", "model_from_dict", "SCHEMA", "SCHEMA_VERSION"]
 
 SCHEMA = "duhem-model"
 SCHEMA_VERSION = 1
+
+INPUT_MARGIN = 0.05
+"""Share of the fitted input span added on each side of the stored `input_range` (module docstring)."""
 
 
 
@@ -115,10 +129,30 @@ class _ModelBase:
     signals: Signals = field(default_factory=Signals)
     experiment: Experiment = field(default_factory=Experiment)
     fit_info: dict = field(default_factory=dict)
+    input_range: tuple[float, float] | None = None
 
     @property
     def order(self) -> int:
         return self.C.shape[0]
+
+    def model_input(self, u):
+        """The input the model acts on: u held at the edges of `input_range` (module docstring)."""
+        if self.input_range is None:
+            return u
+        lo, hi = self.input_range
+        return np.clip(u, lo, hi) if isinstance(u, np.ndarray) else min(hi, max(lo, float(u)))
+
+    def _check_input_range(self) -> None:
+        rng = self.input_range
+        if rng is None:
+            return
+        try:
+            lo, hi = (float(v) for v in rng)
+        except (TypeError, ValueError):
+            raise ModelFileError(f"'input_range' must be [lo, hi] (two numbers) or null, got {rng!r}") from None
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise ModelFileError(f"'input_range' [{lo}, {hi}] must be finite with lo < hi")
+        self._set("input_range", (lo, hi))
 
     def replace(self, **changes) -> "_ModelBase":
         """A copy with `changes` applied, validated like a new model."""
@@ -134,6 +168,8 @@ class _ModelBase:
             raise ModelFileError(str(exc)) from None
 
     def _effects_dict(self, d: dict) -> dict:
+        if self.input_range is not None:
+            d["input_range"] = list(self.input_range)
         if self.effects:
             d["effects"] = [e.to_dict() for e in self.effects]
         return d
@@ -188,6 +224,7 @@ class RateIndependentModel(_ModelBase):
         if not np.isfinite(self.D):
             raise ModelFileError("parameter D: NaN or infinity")
         self._check_effects()
+        self._check_input_range()
 
     def to_dict(self) -> dict:
         d = self._common_dict()
@@ -226,6 +263,7 @@ class RateDependentModel(_ModelBase):
         self._set("D", float(self.D))
         self._set("g", as_rate(self.g))
         self._check_effects()
+        self._check_input_range()
 
     def to_dict(self) -> dict:
         d = self._common_dict()
@@ -268,7 +306,7 @@ def model_from_dict(d: dict, source: str = "model") -> Model:
     experiment = Experiment(**d.get("experiment", {}))
     try:
         model = cls(signals=signals, experiment=experiment, fit_info=d.get("fit_info", {}),
-                    effects=d.get("effects", []), **kwargs)
+                    effects=d.get("effects", []), input_range=d.get("input_range"), **kwargs)
     except ModelFileError as exc:
         raise ModelFileError(f"{source}: {exc}") from None
     order = d.get("order")

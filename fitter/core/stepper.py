@@ -23,6 +23,9 @@ Semantics (the FMUs implement exactly this; the README documents it):
   afresh at the anchor input); the current point is the one-interval run of
   `effects.run_with_effects` from (t_a, u_a, x_a, s_a), so stepping equals
   `simulate`; `get_state` is then (t_a, u_a, x_a, t, u, s_a).
+* A model with an ``input_range`` holds the input at its edges
+  (`models._ModelBase.model_input`): u and u_a are kept as set, the model
+  acts on the held values.
 """
 from __future__ import annotations
 
@@ -71,7 +74,7 @@ class Stepper:
         if self.model.effects:
             self.state()
             return self._y_cache
-        return float(self.model.C @ self.state() + self.model.D * self.u)
+        return float(self.model.C @ self.state() + self.model.D * self.model.model_input(self.u))
 
     def do_step(self, h: float) -> None:
         if not (math.isfinite(h) and h > 0):
@@ -86,9 +89,10 @@ class Stepper:
     def _advance(self) -> np.ndarray:
         if self.model.effects:
             return self._advance_effects()
-        if self.t == self.t_a or self.u == self.u_a:
+        u_a, u = self.model.model_input(self.u_a), self.model.model_input(self.u)
+        if self.t == self.t_a or u == u_a:
             return self.x_a.copy()
-        branch, p, r, S = one_interval(self.model, self.t_a, self.t, self.u_a, self.u)
+        branch, p, r, S = one_interval(self.model, self.t_a, self.t, u_a, u)
         return self._flows[branch].step(self.x_a, p, r, S)
 
     def _advance_effects(self) -> np.ndarray:
@@ -96,7 +100,7 @@ class Stepper:
             t, u = np.array([self.t_a]), np.array([self.u_a])
         else:
             t, u = np.array([self.t_a, self.t]), np.array([self.u_a, self.u])
-        X, y, end = run_with_effects(self.model, t, u, self.x_a, self._flows, self.s_a)
+        X, y, end = run_with_effects(self.model, t, self.model.model_input(u), self.x_a, self._flows, self.s_a)
         self._y_cache, self._s_cache = float(y[-1]), end
         return X[-1].copy()
 

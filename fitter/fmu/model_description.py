@@ -198,7 +198,12 @@ def semantics_text(model) -> str:
     if isinstance(rng, dict) and rng.get("input"):
         text += (f" Fitted on inputs in [{rng['input'][0]:.6g}, {rng['input'][1]:.6g}]"
                  + (f", |du/dt| in [{rng['rate'][0]:.4g}, {rng['rate'][1]:.4g}] (5-95 %)" if rng.get("rate") else "")
-                 + "; outside that range the model extrapolates.")
+                 + ".")
+    if model.input_range is not None:
+        text += (f" Beyond [{model.input_range[0]:.6g}, {model.input_range[1]:.6g}] the model holds its input at "
+                 "the nearest edge, so the output stays bounded.")
+    elif isinstance(rng, dict) and rng.get("input"):
+        text += " Outside the fitted range the model extrapolates (no input_range: unbounded)."
     names = [e.effect for e in _effects(model)]
     if names:
         text += f" Effect extensions (fitter.core.effects): {', '.join(names)}."

@@ -222,7 +222,9 @@ def model_data_header(model, guid: str) -> str:
     ]
     if model.kind == "rd":
         lines.append(f"#define DUHEM_RATE_NODES {len(model.g.v)}")
+    lo, hi = model.input_range if model.input_range is not None else (-math.inf, math.inf)
     lines += [f"#define DUHEM_INPUT_START {_c_double(u_start)}",
+              f"#define DUHEM_INPUT_LO {_c_bound(lo)}", f"#define DUHEM_INPUT_HI {_c_bound(hi)}",
               f"#define DUHEM_N_PARAMETERS {len(params)}", ""]
     lines += _effect_macros(model, real_index)
     lines += ["", "static const double duhem_parameters[DUHEM_N_PARAMETERS] = {"]

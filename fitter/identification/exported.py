@@ -28,6 +28,13 @@ stored initial state.  This module makes the two the same:
 * **Fitted range** (`fitted_range`): the input range and the 5-95 % range of
   |du/dt| over all recordings, so that `simulate` and `validate` can warn when
   an input leaves them.
+
+* **Extrapolation** (`input_range`): the model's ``input_range``, the fitted
+  input range widened by `fitter.core.models.INPUT_MARGIN` of its span on each
+  side; beyond it the model holds the input at the edge (the rule of
+  `fitter.core.models`), so its output stays bounded whatever its branch
+  matrices.  Rates need no such rule: g is held constant beyond its outermost
+  node (`fitter.core.rates`).
 """
 from __future__ import annotations
 
@@ -36,6 +43,7 @@ from typing import Sequence
 import numpy as np
 
 from fitter.core.errors import DuhemError, KernelError
+from fitter.core.models import INPUT_MARGIN
 from fitter.core.kernel import flows, simulate
 from fitter.core.periodic import affine_response, fixed_point
 from fitter.data.cycles import last_full_cycle
@@ -45,7 +53,7 @@ from fitter.data.recordings import Recording
 from fitter.identification.output_error import fitted_initial_state
 
 __all__ = ["X0_POLICIES", "NRMSE_CONVENTION", "initial_state", "score", "raw_input_rho", "fitted_range",
-           "range_warnings"]
+           "input_range", "range_warnings"]
 
 X0_POLICIES = ("fitted", "periodic")
 NRMSE_CONVENTION = ("nrmse: RMS error / output range over all samples of the raw recording, the saved model "
@@ -129,19 +137,30 @@ def fitted_range(recordings: Sequence[Recording]) -> dict:
     return {"input": [float(u.min()), float(u.max())], "rate": rates}
 
 
+def input_range(recordings: Sequence[Recording]) -> tuple[float, float]:
+    """The model's ``input_range``: [min u - m span, max u + m span], m = `INPUT_MARGIN` (module docstring)."""
+    lo, hi = fitted_range(recordings)["input"]
+    slack = INPUT_MARGIN * (hi - lo) if hi > lo else max(abs(lo), 1.0)
+    return lo - slack, hi + slack
+
+
 def range_warnings(model, t: np.ndarray, u: np.ndarray) -> list[str]:
     """Sentences naming where an input leaves the model's fitted range (`fitted_range`, stored in
-    ``fit_info``): its amplitude beyond 5 % of the fitted span, and for a rate-dependent model its
-    rates (5-95 %) beyond a factor 1.5.  Empty when inside, or when the model has no fitted range."""
+    ``fit_info``): its amplitude beyond `INPUT_MARGIN` of the fitted span (where the model's
+    ``input_range`` holds the input), and for a rate-dependent model its rates (5-95 %) beyond a
+    factor 1.5.  Empty when inside, or when the model has no fitted range."""
     rng = model.fit_info.get("fitted_range") if isinstance(model.fit_info, dict) else None
     if not isinstance(rng, dict) or not rng.get("input"):
         return []
     out = []
     lo, hi = rng["input"]
-    slack = 0.05 * (hi - lo)
+    slack = INPUT_MARGIN * (hi - lo)
     if u.min() < lo - slack or u.max() > hi + slack:
+        held = (f"beyond [{model.input_range[0]:.6g}, {model.input_range[1]:.6g}] the model holds the input at "
+                "the edge, so its output stays at its value there" if model.input_range is not None
+                else "outside it the model extrapolates (no input_range: unbounded)")
         out.append(f"the input spans [{u.min():.6g}, {u.max():.6g}] but the model was fitted on "
-                   f"[{lo:.6g}, {hi:.6g}]: outside it the model extrapolates")
+                   f"[{lo:.6g}, {hi:.6g}]: {held}")
     v = np.abs(np.diff(u) / np.diff(t))
     v = v[v > 0]
     if model.kind == "rd" and rng.get("rate") and v.size:

@@ -53,7 +53,7 @@ from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording
 from fitter.identification.fit_data import (FitData, FitError, RateLevels, averaged_loop, monotone_input,
                                             prepare_for_fit, rate_levels)
-from fitter.identification.exported import (NRMSE_CONVENTION, X0_POLICIES, fitted_range, initial_state,
+from fitter.identification.exported import (NRMSE_CONVENTION, X0_POLICIES, fitted_range, initial_state, input_range,
                                             raw_input_rho, score)
 from fitter.identification.output_error import Options, Recordings, RefineResult, jacobian, refine
 from fitter.identification.parametrisation import Parametrisation, Physical, RDCanonical, RICanonical
@@ -288,7 +288,7 @@ def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels:
         bare = bare.replace(effects=[Effect("backlash", {"b": data.deadband})])
     r0 = recordings[0]
     model = bare.replace(x0=initial_state(bare, r0, x0_policy), signals=Signals(input=r0.input, output=r0.output),
-                         experiment=_experiment(recordings))
+                         experiment=_experiment(recordings), input_range=input_range(recordings))
     per_recording = _per_recording(model, res, data, recordings)
     summary = {
         "kind": param.kind, "order": param.n,

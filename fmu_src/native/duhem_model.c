@@ -13,7 +13,9 @@
  * current point is x_a moved along the straight input path u_a -> u over
  * [t_a, t]; fmi2DoStep commits the current point as the new anchor and
  * advances t; a held input moves nothing; setting u while t == t_a
- * re-anchors the input without moving the state.
+ * re-anchors the input without moving the state.  The model acts on the
+ * input held at the edges of its input range [DUHEM_INPUT_LO, DUHEM_INPUT_HI]
+ * (models.py, "Extrapolation rule"); the input variable keeps the value set.
  *
  * Exact flow (kernel module docstring, eq (K)): over one interval
  * dx/ds = A x + B (p + r s) + E for 0 <= s <= S,
@@ -442,6 +444,12 @@ static double base_output(const ModelData *m, const double *x, double w)
     return y + m->par[P_D] * w;
 }
 
+/* The input the model acts on: held at the edges of the fitted input range (models.py, input_range). */
+static double model_input(double u)
+{
+    return fmin(DUHEM_INPUT_HI, fmax(DUHEM_INPUT_LO, u));
+}
+
 /*
  * The chain from the anchor (chain state s0 there; NULL: afresh) to the
  * current point, as run_with_effects on its one or two samples: the state x,
@@ -452,8 +460,8 @@ static int run_chain(const ModelData *m, const double *s0, double *x, double *s,
     Chain c;
     c.n = m->t == m->t_a ? 1 : 2;
     c.h = m->t - m->t_a;
-    c.u[0] = c.w[0] = m->u_a;
-    c.u[1] = c.w[1] = m->u;
+    c.u[0] = c.w[0] = model_input(m->u_a);
+    c.u[1] = c.w[1] = model_input(m->u);
     run_stage(m, STAGE_INPUT, s0, s, &c);
     c.y[0] = base_output(m, m->x_a, c.w[0]);
     if (c.n == 1) {
