@@ -12,13 +12,13 @@ from scipy.integrate import solve_ivp
 
 from fitter.core import (KernelError, ModelFileError, RateDependentModel, RateIndependentModel, Stepper,
                          TabulatedRate, load_model, model_from_dict, save_model, simulate)
-from fitter.core.effects import REGISTRY, STAGES, Effect, EffectContext
+from fitter.core.effects import ORIGINS, REGISTRY, STAGES, Effect, EffectContext
 
 ALL = {name: dict(spec.example) for name, spec in REGISTRY.items()}
 
 ZERO = {"backlash": {"b": 0.0}, "rate_dependence": {"alpha": 0.0}, "creep": {"k": 0.0, "tau": 1.0},
         "viscous": {"c": 0.0}, "thermal_drift": {"kappa": 0.0}, "saturation": {"y_c": 0.1, "beta": 0.0},
-        "sensor_lag": {"tau": 0.0}}
+        "sensor_lag": {"tau": 0.0}, "measurement_drift": {"rate": 0.0}}
 
 
 def ri(effects=()):
@@ -160,7 +160,7 @@ def test_json_round_trip_and_no_effects_key(tmp_path):
     assert [e.effect for e in back.effects] == list(ALL)
     assert "effects" not in ri().to_dict()
     assert list(REGISTRY) == list(ALL) == ["backlash", "rate_dependence", "creep", "viscous",
-                                           "thermal_drift", "saturation", "sensor_lag"]
+                                           "thermal_drift", "saturation", "sensor_lag", "measurement_drift"]
 
 
 @pytest.mark.parametrize("effects, message", [
@@ -204,6 +204,9 @@ def test_registry_is_in_stage_order_and_well_formed():
         names = [par.name for par in spec.parameters]
         assert len(set(names)) == len(names) and list(spec.example) == names
         assert isinstance(spec.state, tuple) and isinstance(spec.timed, bool)
+        assert spec.origin in ORIGINS
+    assert [n for n, spec in REGISTRY.items() if spec.origin == "measurement"] == ["sensor_lag",
+                                                                                    "measurement_drift"]
 
 
 def _outside(par) -> list[float]:
@@ -313,3 +316,13 @@ def test_serialisation_round_trip_and_stepper(name, make, tmp_path):
 def test_timed_effects_need_increasing_time(name):
     with pytest.raises(KernelError, match="time must increase: t\\[2\\] = 1.0 after t\\[1\\] = 1.0"):
         simulate(ri([(name, ALL[name])]), np.array([0.0, 1.0, 1.0]), np.array([0.0, 1.0, 2.0]))
+
+
+def test_measurement_drift_adds_a_line_in_time_and_carries_it_across_steps():
+    t, u = signal()
+    base = simulate(ri(), t, u).y
+    y = simulate(ri([("measurement_drift", {"rate": -0.3})]), t, u).y
+    np.testing.assert_allclose(y - base, -0.3 * (t - t[0]), rtol=0, atol=1e-12)
+    st = Stepper(ri([("measurement_drift", {"rate": -0.3})]), t0=t[0], u0=u[0])
+    out, saved = stepped(st, t, u, keep=200)
+    assert saved[-1] == (pytest.approx(-0.3 * (t[200] - t[0]), abs=1e-12),)

@@ -54,6 +54,7 @@ ALL_EFFECTS = [
     {"effect": "thermal_drift", "parameters": {"kappa": 0.02}},
     {"effect": "saturation", "parameters": {"y_c": 0.1, "beta": 0.7}},
     {"effect": "sensor_lag", "parameters": {"tau": 0.08}},
+    {"effect": "measurement_drift", "parameters": {"rate": -0.04}},
 ]
 
 

@@ -46,6 +46,13 @@ The chain, always applied in this order whatever the order of the list:
    with y (the output of steps 3-7) taken linear between samples, m_0 = y_0:
    m_{k+1} = a m_k + dy_k (1 - q) + (1 - a) y_k with a, q as in 4 (tau = 0:
    m = y).
+9. ``measurement_drift`` {rate}: y += d, d_k = rate (t_k - t_0), a drift of the
+   measured output linear in time (an offset current integrated by a charge
+   amplifier, a sensor zero that wanders); d_0 = 0.  Exact.
+
+Each effect says where it comes from (`EffectSpec.origin`): ``material`` (the
+physics of the device: steps 1-7) or ``measurement`` (the measuring chain:
+sensor_lag, measurement_drift); the diagnosis reports the two apart.
 
 Each step acts in one stage of the chain (`EffectSpec.stage`): ``input``
 (the base model's input w, step 1), ``rate`` (the coefficients r, S of (K),
@@ -53,7 +60,7 @@ step 2) or ``output`` (the output y, steps 4-8).  The chain's state at a
 sample, `EffectState`, is the tuple of the present effects' state variables
 (`EffectSpec.state`) in chain order: backlash (w, the play output), creep (c),
 thermal_drift (W, the travel), sensor_lag (m, the measured output, and y, the
-output before the lag).  This module needs only numpy: it is shipped inside
+output before the lag), measurement_drift (d, the drift).  This module needs only numpy: it is shipped inside
 the FMUs.
 """
 from __future__ import annotations
@@ -67,7 +74,7 @@ import numpy as np
 from .errors import EffectError, KernelError
 from .flow import check_increasing, integrate, interval_coefficients, linear_recurrence
 
-__all__ = ["play_operator", "REGISTRY", "STAGES", "EffectSpec", "ParameterSpec", "EffectContext", "Chain", "EffectError",
+__all__ = ["play_operator", "REGISTRY", "STAGES", "ORIGINS", "EffectSpec", "ParameterSpec", "EffectContext", "Chain", "EffectError",
            "Effect", "EffectState", "effects_from_list", "run_with_effects"]
 
 EffectState = tuple
@@ -75,6 +82,9 @@ EffectState = tuple
 
 STAGES = ("input", "rate", "output")
 """The chain's stages in the order they run (module docstring)."""
+
+ORIGINS = ("material", "measurement")
+"""Where an effect comes from: the device's physics or the measuring chain (module docstring)."""
 
 _INF = math.inf
 
@@ -163,6 +173,7 @@ class EffectSpec(ABC):
         unit amplitude and unit rate (the tests run every effect there; synthetic experiments
         conceal it at these values with `strength` scaled)
     strength : the parameter that sets the effect's size (default: the first one)
+    origin : "material" (the device's physics) or "measurement" (the measuring chain), one of `ORIGINS`
     """
 
     name: str
@@ -174,6 +185,7 @@ class EffectSpec(ABC):
     state: tuple[str, ...] = ()
     example: dict[str, float]
     strength: str | None = None
+    origin: str = "material"
 
     @property
     def strength_parameter(self) -> str:
@@ -385,6 +397,7 @@ class SensorLag(EffectSpec):
 
     name = "sensor_lag"
     description = "sensor lag: the measurement follows the output as a first-order low-pass"
+    origin = "measurement"
     stage = "output"
     timed = True
     parameters = (ParameterSpec("tau", 0.0, _INF, log=True),)
@@ -408,8 +421,28 @@ class SensorLag(EffectSpec):
         return {"tau": math.exp(math.log(0.05 * ctx.dt_min) + 1e-6)}
 
 
+class MeasurementDrift(EffectSpec):
+    """Step 9 of the chain: y += rate (t - t_0), a measurement drift linear in time."""
+
+    name = "measurement_drift"
+    description = ("a measurement drift of the output, linear in time (an offset current integrated by the "
+                   "charge amplifier, a wandering sensor zero): a property of the measurement, not of the material")
+    origin = "measurement"
+    stage = "output"
+    timed = True
+    parameters = (ParameterSpec("rate", -_INF, _INF),)
+    state = ("d",)
+    example = {"rate": 0.01}
+
+    def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
+        d = (0.0 if s0 is None else s0[0]) + p["rate"] * (chain.t - chain.t[0])
+        chain.y = chain.y + d
+        return (float(d[-1]),)
+
+
 REGISTRY: dict[str, EffectSpec] = {spec.name: spec for spec in (
-    Backlash(), RateDependence(), Creep(), Viscous(), ThermalDrift(), Saturation(), SensorLag())}
+    Backlash(), RateDependence(), Creep(), Viscous(), ThermalDrift(), Saturation(), SensorLag(),
+    MeasurementDrift())}
 """Effect name -> `EffectSpec`, in chain order."""
 
 

@@ -398,6 +398,18 @@ static void effect_sensor_lag(const double *p, const double *s0, double *s1, Cha
     s1[1] = y_last;
 }
 
+/* Step 9, stage output, parameters (rate), state (d): y += d, d = rate (t - t_0). */
+static void effect_measurement_drift(const double *p, const double *s0, double *s1, Chain *c)
+{
+    double d = s0 ? s0[0] : 0.0;
+    c->y[0] = c->y[0] + d;
+    if (c->n == 2) {
+        d = d + p[0] * c->h;
+        c->y[1] = c->y[1] + d;
+    }
+    s1[0] = d;
+}
+
 /* The model's effects of one stage, in chain order (DUHEM_EFFECTS of model_data.h). */
 static void run_stage(const ModelData *m, EffectStage stage, const double *s0, double *s1, Chain *c)
 {
