@@ -325,4 +325,4 @@ def test_measurement_drift_adds_a_line_in_time_and_carries_it_across_steps():
     np.testing.assert_allclose(y - base, -0.3 * (t - t[0]), rtol=0, atol=1e-12)
     st = Stepper(ri([("measurement_drift", {"rate": -0.3})]), t0=t[0], u0=u[0])
     out, saved = stepped(st, t, u, keep=200)
-    assert saved[-1] == (pytest.approx(-0.3 * (t[200] - t[0]), abs=1e-12),)
+    assert saved[-1] == (pytest.approx(-0.3 * (t[199] - t[0]), abs=1e-12),)   # at the anchor, t[199]
