@@ -14,24 +14,24 @@ extended model's residual RMS within 20% of the true noise when right.
 
 ``--piezo`` reads ``<repo>/../shared/data/piezo-pnzt`` at run time (skipped when
 absent; the data are not redistributable) and diagnoses two experiments,
-voltage -> polarization, on the clock of the files' timestamps:
+voltage -> polarization, as measured (the output is not corrected):
 (a) the 1400 V triangles at 0.1, 0.01 and 1 Hz (slow_T01, T02, T06);
-(b) the trapezoid runs creep_T01-T03, after removing the offset-current drift
-(a straight line fitted to the last 20 s of each record, the final 0 V hold,
-is subtracted as slope x time), and with the voltage inside each hold
-(`fitter.data.preparation.find_holds`) set to the hold's median: the +-0.2 V
-measurement noise of a held voltage would otherwise reverse the
+(b) the trapezoid runs creep_T01-T03, whose polarization carries the offset
+current of the shared data's README (a drift of about -0.3 uC/cm2/s): the
+diagnosis is to find it as a measurement drift.  The voltage inside each hold
+(`fitter.data.preparation.find_holds`) is set to the hold's median: the
++-0.2 V measurement noise of a held voltage would otherwise reverse the
 rate-independent model's branch at almost every sample (slow, and not
-physics).  aixPlorer re-references P in every table, and
-the sample rests at 0 V between tables, so each file's P is shifted to start
-where the previous one ended (only differences of P are physical).
+physics).  aixPlorer re-references P in every table and the sample rests at
+0 V between tables, so the files are joined back to back on one clock (each
+file's time runs on from the previous one's last sample by one sample
+period) and each file's P is shifted to start where the previous one ended
+(only differences of P are physical).
 """
 from __future__ import annotations
 
 import argparse
-import csv
 import time
-from datetime import datetime
 from pathlib import Path
 
 import numpy as np
@@ -94,25 +94,21 @@ def sweep(seeds: int, samples: int) -> None:
           f"right: {near_noise}/{right}")
 
 
-def piezo_experiment(files, remove_offset_current: bool) -> list[Recording]:
+def piezo_experiment(files, clean_holds: bool) -> list[Recording]:
     """The piezo files as one experiment (see the module docstring)."""
-    with open(PIEZO / "index.csv", encoding="utf-8") as fh:
-        stamps = {row["file"]: datetime.strptime(row["timestamp"], "%m/%d/%Y %H:%M:%S").timestamp()
-                  for row in csv.DictReader(fh)}
-    t0 = stamps[files[0]]
-    recs, level = [], None
+    recs, level, t_end = [], None, None
     for f in files:
         rec = load_recording(PIEZO / f, time="time_s", input="voltage_V", output="polarization_uC_per_cm2")
         y, u = rec.y, rec.u.copy()
-        if remove_offset_current:
-            tail = rec.t >= rec.t[-1] - 20.0
-            y = y - np.polyfit(rec.t[tail], y[tail], 1)[0] * rec.t
+        if clean_holds:
             for a, b in find_holds(rec.t, u):
                 u[a:b] = np.median(u[a:b])
         if level is not None:
             y = y - y[0] + level
         level = y[-1]
-        recs.append(Recording(rec.t + stamps[f] - t0, u, y, name=Path(f).stem.split("_")[1] + "_"
+        t = rec.t - rec.t[0] + (0.0 if t_end is None else t_end + float(np.median(np.diff(rec.t))))
+        t_end = t[-1]
+        recs.append(Recording(t, u, y, name=Path(f).stem.split("_")[1] + "_"
                               + "_".join(Path(f).stem.split("_")[2:4]), input=rec.input, output=rec.output,
                               source=str(PIEZO / f)))
     return recs
@@ -122,8 +118,8 @@ def piezo(out: Path, base_order: int | None) -> None:
     if not PIEZO.exists():
         print(f"skipped: {PIEZO} is absent")
         return
-    for label, files, drift in (("triangles", TRIANGLES, False), ("trapezoids", TRAPEZOIDS, True)):
-        recordings = piezo_experiment(files, drift)
+    for label, files, holds in (("triangles", TRIANGLES, False), ("trapezoids", TRAPEZOIDS, True)):
+        recordings = piezo_experiment(files, holds)
         t0 = time.perf_counter()
         with rich_progress(f"piezo {label}") as progress:
             d = diagnose(recordings, progress=progress, base_order=base_order)

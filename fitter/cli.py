@@ -431,8 +431,8 @@ def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order,
     click.echo(result.paragraph)
     findings = data.get("findings") or []
     if findings:
-        _table("findings (most important first)", ["effect", "p-value", "explained fraction"],
-               [[f.get("effect"), f.get("p_value"), f.get("explained_fraction")] for f in findings])
+        _table("findings (most important first)", ["effect", "origin", "p-value", "explained fraction"],
+               [[f.get("effect"), f.get("origin"), f.get("p_value"), f.get("explained_fraction")] for f in findings])
     elif result.verdict == "nothing_missing":
         click.echo("nothing missing: the residual is consistent with the noise level")
     else:

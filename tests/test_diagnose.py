@@ -52,6 +52,12 @@ def test_concealed_effect_is_the_first_finding(effect):
     strength = REGISTRY[effect].strength_parameter
     found = d.findings[0]["parameters"][strength]
     assert abs(found - true_params[strength]) <= 0.25 * abs(true_params[strength])
+    origin = REGISTRY[effect].origin
+    assert d.findings[0]["origin"] == origin and d.extended[f"{origin}_effects"][0] == effect
+    if origin == "measurement":
+        assert "reported apart from the material's physics" in d.paragraph
+    else:
+        assert f"The model had no {effect.replace('_', ' ')}" in d.paragraph
 
 
 @pytest.mark.parametrize("seed", [0, 1])

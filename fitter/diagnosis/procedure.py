@@ -27,6 +27,11 @@ Procedure (`diagnose`)
    recording; the runner-up gets the same hold-out check, and the report says
    why the winner wins (residual, hold-out error, where the difference lies).
 
+Every finding carries its origin (`fitter.core.effects.EffectSpec.origin`):
+the material's physics or the measuring chain (a sensor lag, a drift of the
+measured output); ``extended`` lists them apart (``material_effects``,
+``measurement_effects``) and the paragraph says which is which.
+
 The verdict: "effects_found" (findings non-empty), "nothing_missing" (no
 finding and the base residual within `NOISE_MARGIN` of the noise) or
 "unexplained" (no finding, residual above the noise: the missing physics is
@@ -39,7 +44,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from fitter.core.effects import REGISTRY
+from fitter.core.effects import ORIGINS, REGISTRY
 from fitter.data.metrics import noise_rms, nrmse, rms
 from fitter.data.recordings import Recording
 from fitter.diagnosis.experiment import DiagnoseError, JoinedExperiment, join_recordings
@@ -55,7 +60,7 @@ from fitter.progress import Progress, silent
 __all__ = ["CANDIDATES", "diagnose"]
 
 CANDIDATES = tuple(REGISTRY)
-_FINDING_KEYS = ("effect", "p_value", "parameters", "stderr", "explained_fraction", "residual_rms", "lr", "df",
+_FINDING_KEYS = ("effect", "origin", "p_value", "parameters", "stderr", "explained_fraction", "residual_rms", "lr", "df",
                  "n_eff")
 
 
@@ -121,7 +126,9 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
     validation, comparison = _validate(ex, base, findings, tested, fits, mask, noise)
     ext_model = current.model.replace(fit_info={
         "method": "duhem diagnose", "effects": [f["effect"] for f in findings], "noise_rms": noise})
-    extended = dict(_summary(ex, current, noise), effects=[e.to_dict() for e in ext_model.effects])
+    extended = dict(_summary(ex, current, noise), effects=[e.to_dict() for e in ext_model.effects],
+                    **{f"{origin}_effects": [f["effect"] for f in findings if f["origin"] == origin]
+                       for origin in ORIGINS})
     baseline = _summary(ex, base, noise)
     progress("done", 1.0)
     diag = Diagnosis(noise_rms=noise, verdict=_verdict(findings, baseline, noise), baseline=baseline,
@@ -143,6 +150,7 @@ def _test_round(ex: JoinedExperiment, current: Fit, names: Sequence[str], mask: 
         fit = fit_family(current.model, [name], base, ex, mask, ex.y - current.residual)
         rep = effect_report(fit, current.rss, effective_samples(fit.residual), len(REGISTRY[name].parameters))
         rep["effect"] = name
+        rep["origin"] = REGISTRY[name].origin
         rep["significant"] = is_significant(rep, alpha, n_candidates)
         results.append((rep, fit))
     results.sort(key=lambda rf: rf[1].rss)

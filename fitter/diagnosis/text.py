@@ -1,6 +1,7 @@
 """The verdict in prose: the paragraph of a `Diagnosis` and the winner-versus-runner-up comparison."""
 from __future__ import annotations
 
+from fitter.core.effects import REGISTRY
 from fitter.diagnosis.result import Diagnosis
 from fitter.diagnosis.statistics import NOISE_MARGIN
 
@@ -33,8 +34,12 @@ def summary_paragraph(d: Diagnosis) -> str:
                        f"it{more}: what is missing is not in the catalogue (or the base model is too simple).")
     for f in d.findings:
         params = ", ".join(f"{k} = {v:.3g} ± {f['stderr'][k]:.2g}" for k, v in f["parameters"].items())
-        text += (f" The model had no {f['effect'].replace('_', ' ')}; adding it ({params}) removes "
-                 f"{100 * f['explained_fraction']:.0f}% of the residual ({_p_text(f['p_value'])}).")
+        gain = f"removes {100 * f['explained_fraction']:.0f}% of the residual ({_p_text(f['p_value'])})"
+        if f.get("origin") == "measurement":
+            text += (f" The recording carries {REGISTRY[f['effect']].description}; modelled as "
+                     f"{f['effect']} ({params}) it {gain}. This is reported apart from the material's physics.")
+        else:
+            text += f" The model had no {f['effect'].replace('_', ' ')}; adding it ({params}) {gain}."
     if d.comparison:
         text += " " + d.comparison + "."
     text += (f" The extended model leaves {e['residual_rms']:.3g} RMS ({_times(e['residual_rms'], d.noise_rms)}); "

@@ -119,7 +119,7 @@ def _table(rows: list[dict], keys: Sequence[str]) -> str:
 def _html(diagnosis) -> str:
     d = diagnosis.to_json()
     m = d["mismatch"]
-    findings = _table(d["findings"], ["effect", "p_value", "parameters", "stderr", "explained_fraction",
+    findings = _table(d["findings"], ["effect", "origin", "p_value", "parameters", "stderr", "explained_fraction",
                                       "residual_rms"]) if d["findings"] else "<p>Nothing missing.</p>"
     parts = [
         "<!doctype html><meta charset='utf-8'><title>duhem diagnose</title>",
