@@ -20,7 +20,9 @@ from fitter.data.metrics import nrmse
 from fitter.data.recordings import Recording
 from fitter.fmu.build import FmuBuildError
 from fitter.fmu.host import simulate_fmu
-from fitter.identification.exported import range_warnings
+from fitter.core.kernel import simulate
+from fitter.core.periodic import fixed_point as periodic_fixed_point
+from fitter.identification.exported import range_warnings, raw_input_rho
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
@@ -157,20 +159,13 @@ if (DATA / "friction-pneumatic").is_dir():
 @pytest.mark.parametrize("case", list(CASES))
 def test_exported_fmu_reproduces_the_fit_on_measured_recordings(case, tmp_path):
     """Every shared measured recording (and the demo): the FMU over all raw samples from the stored x0
-    gives the fit's NRMSE, within max(1.5 x, +1 %) of the optimiser's.  A fit whose convergence check
-    fails on the raw input is refused for export (without --allow-unstable)."""
+    gives the fit's NRMSE, within max(1.5 x, +1 %) of the optimiser's; every fit converges on its raw input
+    (condition (5) on the closed last cycle) and is exported."""
     recs = CASES[case]()
     fit = fit_recordings(recs)
     assert all(math.isfinite(r["nrmse"]) for r in fit.summary["recordings"])
-    if fit.summary["convergence"]["satisfied"]:
-        _reproduces(fit, recs, tmp_path)
-        return
-    # the model expands on the raw input (spectral radius of its last cycle's map >= 1): rounding differences
-    # between any two implementations grow along it, so no curve is promised; the export must refuse it
-    with pytest.raises(FmuBuildError, match="convergence condition is violated"):
-        build_fmu(fit.model, tmp_path / "refused.fmu", backend="native")
-    assert not (tmp_path / "refused.fmu").exists()
-    assert max(r for r in fit.summary["convergence"]["rho_raw_input_per_recording"] if r is not None) >= 1
+    assert fit.summary["convergence"]["satisfied"], fit.summary["convergence"]
+    _reproduces(fit, recs, tmp_path)
 
 
 def test_rates_spread_over_1_9x_are_not_chained_into_one_level():
@@ -251,3 +246,23 @@ def test_planned_blocks_of_different_amplitude_are_all_kept(tmp_path):
     y = fit.simulate(rec)
     assert np.sqrt(np.mean((y[small] - rec.y[small]) ** 2)) < 0.02 * np.ptp(rec.y[small])
     _reproduces(fit, [rec], tmp_path)
+
+
+def test_raw_input_rho_is_that_of_the_closed_cycle():
+    """A measured last cycle rarely ends at its starting input (here the troughs rise by 0.15 a period); with
+    branch eigenvalues +39 and +40 in u (rho of a closed cycle of span 2: e^(2 (39 - 40))) the open cycle's
+    map expands.  The check closes the cycle: the repeated input converges."""
+    from fitter.core.models import RateIndependentModel
+    from fitter.data.cycles import last_full_cycle
+    model = RateIndependentModel(A_plus=[[39.0]], A_minus=[[40.0]], B_plus=[1.0], B_minus=[1.0], C=[1.0])
+    t = np.arange(0.0, 4.0, 0.01)
+    rec = Recording(t, np.sin(2 * np.pi * t) + 0.15 * t, np.zeros_like(t), name="open")
+    s = last_full_cycle(rec.u)
+    assert abs(rec.u[s][-1] - rec.u[s][0]) > 0.01                      # the cycle is open
+    assert periodic_fixed_point(model, rec.t[s], rec.u[s])[1] > 1      # and its open map expands
+    (rho,) = raw_input_rho(model, [rec])
+    assert rho < 0.3
+    n = len(rec.u[s])
+    repeated = np.tile(rec.u[s], 20)
+    ends = simulate(model, np.arange(len(repeated), dtype=float), repeated).y[n - 1::n]
+    assert np.abs(ends[-1] - ends[-2]) < 1e-6 * max(1.0, np.abs(ends[-1]))   # settled onto a periodic loop

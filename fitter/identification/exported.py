@@ -22,8 +22,9 @@ stored initial state.  This module makes the two the same:
   with the last full input cycle beside it (``nrmse_last_cycle``).
 
 * **Convergence on the raw input** (`raw_input_rho`): the spectral radius of the
-  period map of each raw recording's last full cycle (noise reversals
-  included): the model converges on the user's input when it is < 1.
+  period map of each raw recording's last full cycle, closed back to its
+  starting input (noise reversals included): the model converges on the
+  user's input, repeated, when it is < 1.
 
 * **Fitted range** (`fitted_range`): the input range and the 5-95 % range of
   |du/dt| over all recordings, so that `simulate` and `validate` can warn when
@@ -112,7 +113,13 @@ def score(model, recordings: Sequence[Recording]) -> list[dict]:
 
 
 def raw_input_rho(model, recordings: Sequence[Recording]) -> list[float | None]:
-    """Spectral radius of the period map of each raw recording's last full cycle (None: no full cycle)."""
+    """Spectral radius of the period map of each raw recording's last full cycle (None: no full cycle).
+
+    A measured cycle rarely ends exactly at its starting input; the period map is that of the cycle
+    *closed*: one more sample, one median sample period later, back at the starting input (the input
+    that repeats the cycle).  An open cycle's map also contains the unclosed stretch of one branch,
+    which can expand along a branch eigenvalue > 0 although the repeated input converges.
+    """
     rhos = []
     for rec in recordings:
         try:
@@ -120,9 +127,11 @@ def raw_input_rho(model, recordings: Sequence[Recording]) -> list[float | None]:
         except DuhemError:
             rhos.append(None)
             continue
+        t, u = rec.t[s], rec.u[s]
+        t, u = np.r_[t, t[-1] + np.median(np.diff(t))], np.r_[u, u[0]]
         with np.errstate(all="ignore"):
             try:
-                rhos.append(fixed_point(model, rec.t[s], rec.u[s])[1])
+                rhos.append(fixed_point(model, t, u)[1])
             except (KernelError, np.linalg.LinAlgError):
                 rhos.append(np.inf)
     return rhos

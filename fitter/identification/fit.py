@@ -87,22 +87,22 @@ class _Candidate:
 
 
 def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.ndarray], np.ndarray]:
-    """1e3 max(0, value - LIMIT) of the convergence quantity (1e3 where it cannot be evaluated):
-    rate-independent, rho of condition (5) <= 0.99; rate-dependent, max Re eig(A) <= -1e-3 (normalised
-    units; A is Hurwitz by construction, the barrier keeps a margin from 0) and, second residual,
-    every mode damped (`RDCanonical.damping_excess` <= 0: a nearly undamped oscillation fits the data
-    by cancellation and blows up at rates it was not fitted on)."""
+    """1e3 max(0, excess) of the parametrisation's two barrier quantities (`excesses`; 1e3 where they
+    cannot be evaluated): rate-independent, rho of condition (5) <= 0.99 and the branch amplification
+    over the fitted span <= 1e6 (`RICanonical.amplification`: a branch that expands a state error by
+    1e15 while the other contracts converges, but makes the model's output depend on rounding);
+    rate-dependent, max Re eig(A) <= -1e-3 (normalised units; A is Hurwitz by construction, the barrier
+    keeps a margin from 0) and every mode damped (`RDCanonical.damping_excess` <= 0: a nearly undamped
+    oscillation fits the data by cancellation and blows up at rates it was not fitted on)."""
     lo, hi = data.input_range()
 
     def pen(th):
         try:
             with np.errstate(all="ignore"):
                 model = param.build(th) if np.all(np.isfinite(th)) else None
-                vals = ([np.inf] if model is None else
-                        [param.convergence(model, lo, hi) - param.LIMIT]
-                        + ([param.damping_excess(model)] if param.kind == "rd" else []))
+                vals = [np.inf] * 2 if model is None else param.excesses(model, lo, hi)
         except (ValueError, np.linalg.LinAlgError):
-            vals = [np.inf] * (2 if param.kind == "rd" else 1)
+            vals = [np.inf] * 2
         return np.array([1e3 * max(0.0, v) if np.isfinite(v) else 1e3 for v in vals])
     return pen
 
@@ -271,6 +271,9 @@ def _convergence(best: _Candidate, data: FitData, model, recordings, scores: lis
            "rho_raw_input_per_recording": raw,
            "rule": "the structural condition holds within its fitting margin and the period map of every raw "
                    "recording's last full cycle has spectral radius < 1"}
+    if param.kind == "ri":
+        out["branch_amplification"] = float(np.exp(min(param.amplification(res.model, *data.input_range()), 700.0)))
+        out["amplification_margin"] = param.AMPLIFICATION
     if param.kind == "rd":
         lam = np.linalg.eigvals(res.model.A)
         out["min_damping_ratio"] = float(np.min(-lam.real / np.abs(lam)))

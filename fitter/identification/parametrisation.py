@@ -177,6 +177,24 @@ class RICanonical(Parametrisation):
 
     LIMIT = RHO_MARGIN
     QUANTITY = "rho(e^{beta A+} e^{-beta A-}) (condition 5)"
+    AMPLIFICATION = 1e6
+    """Largest growth factor a branch may give a state error over one traversal of the fitted span."""
+
+    @staticmethod
+    def amplification(model, u_min: float, u_max: float) -> float:
+        """beta max(0, max Re eig(A+), max Re eig(-A-)): the log of the growth of a state error along one
+        branch traversed over the fitted span beta = u_max - u_min (rising: e^{beta A+}, falling:
+        e^{-beta A-}).  Condition (5) bounds only the product of the two; a branch that expands by 1e15
+        while the other contracts converges, but turns every rounding error into a visible one."""
+        lam = np.r_[np.linalg.eigvals(model.A_plus).real, -np.linalg.eigvals(model.A_minus).real]
+        return float((u_max - u_min) * max(0.0, lam.max()))
+
+    @classmethod
+    def excesses(cls, model, u_min: float, u_max: float) -> list[float]:
+        """The fit's barrier quantities (each <= 0 when met): condition (5) beyond `LIMIT`, and the branch
+        amplification beyond `AMPLIFICATION` (relative, in logs)."""
+        return [cls.convergence(model, u_min, u_max) - cls.LIMIT,
+                cls.amplification(model, u_min, u_max) / math.log(cls.AMPLIFICATION) - 1.0]
 
 
 class RDCanonical(Parametrisation):
@@ -235,6 +253,12 @@ class RDCanonical(Parametrisation):
     QUANTITY = "max Re eig(A) (< 0 <=> rho(period map) < 1 since g >= 0)"
     DAMPING = 0.1
     """Smallest damping ratio -Re(lambda)/|lambda| a fitted mode of A may have."""
+
+    @classmethod
+    def excesses(cls, model, u_min: float, u_max: float) -> list[float]:
+        """The fit's barrier quantities (each <= 0 when met): max Re eig(A) beyond `LIMIT`, and
+        `damping_excess`."""
+        return [cls.convergence(model, u_min, u_max) - cls.LIMIT, cls.damping_excess(model)]
 
     @classmethod
     def damping_excess(cls, model) -> float:
