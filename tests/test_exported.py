@@ -266,3 +266,17 @@ def test_raw_input_rho_is_that_of_the_closed_cycle():
     repeated = np.tile(rec.u[s], 20)
     ends = simulate(model, np.arange(len(repeated), dtype=float), repeated).y[n - 1::n]
     assert np.abs(ends[-1] - ends[-2]) < 1e-6 * max(1.0, np.abs(ends[-1]))   # settled onto a periodic loop
+
+
+def test_branch_amplification_is_the_largest_growth_along_one_branch():
+    """log growth over the span: rising e^{beta A+}, falling e^{-beta A-}; the fit bounds it by 1e6."""
+    from fitter.core.models import RateIndependentModel
+    from fitter.identification.parametrisation import RICanonical
+    rising = RateIndependentModel(A_plus=[[2.0]], A_minus=[[3.0]], B_plus=[1.0], B_minus=[1.0], C=[1.0])
+    falling = rising.replace(A_plus=[[-1.0]], A_minus=[[-2.5]])
+    both_contract = rising.replace(A_plus=[[-1.0]], A_minus=[[1.0]])
+    assert RICanonical.amplification(rising, -1.0, 1.0) == pytest.approx(4.0)
+    assert RICanonical.amplification(falling, -1.0, 1.0) == pytest.approx(5.0)
+    assert RICanonical.amplification(both_contract, -1.0, 1.0) == 0.0
+    excess = RICanonical.excesses(rising.replace(A_plus=[[10.0]], A_minus=[[11.0]]), -1.0, 1.0)[1]
+    assert excess == pytest.approx(20.0 / math.log(1e6) - 1.0)
