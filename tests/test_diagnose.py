@@ -152,7 +152,7 @@ def test_family_fits_time_constants_as_logarithms():
     np.testing.assert_allclose(fam.starts(), [[0.0, math.log(tau)] for tau in taus], rtol=1e-14)
     lower, upper = fam.bounds()
     assert lower[7:].tolist() == [-math.inf, pytest.approx(math.log(5e-4))]
-    assert upper[7:].tolist() == [math.inf, pytest.approx(math.log(1000.0))]
+    assert upper[7:].tolist() == [math.inf, pytest.approx(math.log(100.0))]
     assert fam.null().tolist() == [0.0, pytest.approx(math.log(0.1))]
     theta = np.r_[fam.base.theta(BASE), 0.2, math.log(3.0)]
     model = fam.build(theta)
@@ -219,3 +219,18 @@ def test_effect_context_of_a_joined_experiment():
     t = np.linspace(0.0, 1.0, 300)
     still = JoinedExperiment([_rec(t, np.zeros(300), t)], t, np.zeros(300), t, np.zeros(300, int), [(0, 300)])
     assert still.effect_context(0.0).v95 == 1.0
+
+
+def test_a_higher_order_base_holds_its_a_matrices_and_still_finds_the_effect():
+    """base_order=2: the base comes from fit_recordings and only its B, E, x0 move in the candidate fits."""
+    from fitter.diagnosis.fitting import family, free_base
+    recs, truth = synthetic_experiment("measurement_drift", seed=3, samples=SAMPLES)
+    d = diagnose(recs, base_order=2, candidates=("creep", "measurement_drift", "saturation"))
+    assert d.base_model.order == 2
+    assert [f["effect"] for f in d.findings][:1] == ["measurement_drift"]
+    assert d.findings[0]["origin"] == "measurement"
+    rate = truth["effect"]["parameters"]["rate"]
+    assert abs(d.findings[0]["parameters"]["rate"] - rate) <= 0.25 * abs(rate)
+    ex = join_recordings(recs)
+    free = free_base(family(d.base_model, ["creep"], ex, ex.effect_context(0.0)))
+    assert free.tolist() == [False] * 8 + [True] * (2 * 2 + 2 * 2 + 2) + [True, True]

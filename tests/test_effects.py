@@ -284,11 +284,11 @@ def test_context_values_reproduce_the_diagnosis():
     assert REGISTRY["saturation"].null(ctx) == {"y_c": 0.5, "beta": 0.0}
     assert REGISTRY["sensor_lag"].null(ctx) == {"tau": math.exp(math.log(0.0005) + 1e-6)}
     assert REGISTRY["thermal_drift"].null(ctx) == {"kappa": 0.0}
-    assert REGISTRY["creep"].bounds(ctx) == {"k": (-math.inf, math.inf), "tau": (0.0005, 1000.0)}
+    assert REGISTRY["creep"].bounds(ctx) == {"k": (-math.inf, math.inf), "tau": (0.0005, 100.0)}
     assert REGISTRY["saturation"].bounds(ctx) == {"y_c": (-1.0, 3.0), "beta": (0.0, math.inf)}
     assert REGISTRY["backlash"].bounds(ctx) == {"b": (0.0, math.inf)}
     short = EffectContext(dt_min=0.5, duration=2.0, u_span=1.0, y_min=0.0, y_max=0.0, y_mean=0.0, v95=1.0)
-    assert REGISTRY["sensor_lag"].bounds(short) == {"tau": (0.025, 20.0)}
+    assert REGISTRY["sensor_lag"].bounds(short) == {"tau": (0.025, 5.0)}
     assert REGISTRY["creep"].starts(short)[-1]["tau"] == pytest.approx(5.0)
     assert REGISTRY["saturation"].starts(short)[0]["beta"] == 0.5 / (1e-300 / 2)
 

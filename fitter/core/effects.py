@@ -203,12 +203,13 @@ class EffectSpec(ABC):
         """Fitting bounds in physical units.
 
         The allowed range; a `log` parameter (a time constant) within
-        [0.05 dt_min, 10 max(duration, dt_min)].
+        [0.05 dt_min, max(duration, 10 dt_min)]: a time constant longer than the experiment cannot be told
+        apart from an integrator (a ramp in time), which is a different physics (`measurement_drift`).
         """
         out = {}
         for par in self.parameters:
             if par.log:
-                out[par.name] = (ctx.dt_min * 0.05, max(ctx.duration, ctx.dt_min) * 10)
+                out[par.name] = (ctx.dt_min * 0.05, max(ctx.duration, 10 * ctx.dt_min))
             else:
                 out[par.name] = (par.lower, par.upper)
         return out

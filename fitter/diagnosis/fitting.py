@@ -19,6 +19,15 @@ branch) and x0 are refined.
 Candidates (`fit_family`): the base parameters and the effect's parameters
 fitted jointly, started from the best of the effect's starting values.
 
+Which base parameters move (`free_base`): all seven of a first-order
+rate-independent base; for any other base (a given model, or one of order
+2-4 from `fit_recordings`, already fitted by output error) its A matrices
+(A+, A-, or A) are held and B, E and x0 move.  A full state-space A of order 3
+adds 18 redundant directions (similarity transforms) to every candidate fit,
+which made the diagnosis with an order-3 base take many minutes; with A held
+the base refit and every candidate stay small problems, and the base and each
+candidate are compared with the same freedom of the base.
+
 Bounds: the effects' fitting bounds from the registry (`EffectSpec.bounds`);
 for a first-order rate-independent base, A+ <= 0 <= A- (both branches
 converge, condition (5)) and |A| <= 1000 / input range.
@@ -38,7 +47,7 @@ from fitter.diagnosis.experiment import JoinedExperiment
 from fitter.identification.output_error import Options, Recordings, RefineResult, refine
 from fitter.identification.parametrisation import StateSpace, WithEffects
 
-__all__ = ["Fit", "family", "fit_base", "fit_family", "first_order_ri", "OPTIONS"]
+__all__ = ["Fit", "family", "fit_base", "fit_family", "first_order_ri", "free_base", "OPTIONS"]
 
 OPTIONS = Options(xtol=1e-7, ftol=1e-7, gtol=1e-8, max_samples=None, normalise=True)
 """Tolerances of every diagnosis fit; the budget is 30 (free parameters + 1) evaluations."""
@@ -93,6 +102,16 @@ def family(template, effects: Sequence[str], ex: JoinedExperiment, ctx: EffectCo
     return WithEffects(StateSpace(template, *_base_bounds(template, ex)), effects, ctx)
 
 
+def free_base(fam: WithEffects) -> np.ndarray | None:
+    """The entries of theta that move (module docstring): None (all) for a first-order RI base, else all
+    but the base's A matrices."""
+    template = fam.base.template
+    if isinstance(template, RateIndependentModel) and template.order == 1:
+        return None
+    held = [name.split("[")[0] in ("A_plus", "A_minus", "A") for name in fam.base.names()]
+    return np.r_[~np.array(held, bool), np.ones(fam.size - fam.n_base, bool)]
+
+
 def _refine(fam: WithEffects, theta0: np.ndarray, ex: JoinedExperiment, mask: np.ndarray,
             free: np.ndarray | None = None) -> Fit:
     """Minimise the sum over `mask` of (y - yhat(theta))^2; only the `free` entries of theta move."""
@@ -119,11 +138,11 @@ def fit_family(template, effects: Sequence[str], base: np.ndarray, ex: JoinedExp
         effect_only = np.r_[np.zeros(fam.n_base, bool), np.ones(len(theta0) - fam.n_base, bool)]
         screened = [_refine(fam, np.r_[base, s], ex, mask, effect_only) for s in starts]
         theta0 = min(screened, key=lambda f: f.rss).theta
-    fit = _refine(fam, theta0, ex, mask)
+    fit = _refine(fam, theta0, ex, mask, free_base(fam))
     null = np.r_[base, fam.null()]
     null_rss = float(np.sum((ex.y - simulate(fam.build(null), ex.t, ex.u).y)[mask] ** 2))
     if fit.rss > null_rss * (1 + 1e-4):
-        fit = _refine(fam, null, ex, mask)
+        fit = _refine(fam, null, ex, mask, free_base(fam))
     return fit
 
 
@@ -131,7 +150,7 @@ def fit_base(ex: JoinedExperiment, model, mask: np.ndarray) -> Fit:
     """Base fit: refine a given model, or a first-order RI model (grid over A, linear in B, E, x0)."""
     if model is not None:
         fam = family(model.replace(fit_info={}), [], ex, None)
-        return _refine(fam, fam.theta(model), ex, mask)
+        return _refine(fam, fam.theta(model), ex, mask, free_base(fam))
     span = max(np.ptp(ex.u), 1e-300)
     best = None
     for a in -np.geomspace(0.5, 64, 8) * 2 / span:  # inside the bounds of `_base_bounds`
