@@ -393,9 +393,9 @@ def simulate(model, input_csv, out, time_col, input_col, as_json):
               help="write the diagnosis as JSON to this file ('-' for stdout)")
 @click.option("--fmu", type=click.Path(dir_okay=False), help="export the extended model as this FMU")
 @backend_option
-@click.option("--base-order", type=click.IntRange(1, 3), default=1, show_default=True, metavar="N",
+@click.option("--base-order", type=click.IntRange(1, 4), default=1, show_default=True, metavar="N",
               help="without --model: order of the rate-independent base model (1: fitted here, fast; "
-                   "2-3: fitted by 'duhem fit --kind ri --order N' first, slower)")
+                   "2-4: fitted by 'duhem fit --kind ri --order N' first; its A matrices are then held)")
 @_column_options
 def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order, time_col, input_col,
              output_col):

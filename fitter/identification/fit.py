@@ -26,7 +26,7 @@ Pipeline of `fit_recordings`
    objective.  The linear parameters (B, E, D, x0) are eliminated by least
    squares at every evaluation (variable projection).  Starts race: each gets
    `RACE_NFEV` evaluations, the best one continues to `MAX_NFEV` in all.
-5. **Selection**: orders n = 1, 2, 3 are fitted upward, each started from
+5. **Selection**: orders n = 1, ..., 4 (`ORDERS`) are fitted upward, each started from
    the order n-1 fit and the other starts; for ``kind="auto"`` RI vs RD, and
    the order, by BIC = N ln(RSS/N) + p ln N on the stacked residuals (the
    order search stops when BIC rises, for the rate-independent models too when no
@@ -62,7 +62,7 @@ from fitter.progress import Progress, silent
 
 __all__ = ["FitError", "FitResult", "fit_recordings", "monotone_input", "ORDERS"]
 
-ORDERS = (1, 2, 3)
+ORDERS = (1, 2, 3, 4)
 MAX_NFEV = 60
 RACE_NFEV = 3
 FIT_OPTIONS = Options(ftol=1e-9, xtol=1e-10, max_nfev=MAX_NFEV, max_samples=3000, eliminate=True)
