@@ -39,6 +39,7 @@ import numpy as np
 
 from fitter.core.effects import REGISTRY, Effect, EffectContext
 from fitter.core.models import RateDependentModel, RateIndependentModel
+from fitter.core.flow import expm
 from fitter.core.periodic import convergence_rho
 from fitter.core.rates import TabulatedRate
 
@@ -182,12 +183,22 @@ class RICanonical(Parametrisation):
 
     @staticmethod
     def amplification(model, u_min: float, u_max: float) -> float:
-        """beta max(0, max Re eig(A+), max Re eig(-A-)): the log of the growth of a state error along one
-        branch traversed over the fitted span beta = u_max - u_min (rising: e^{beta A+}, falling:
-        e^{-beta A-}).  Condition (5) bounds only the product of the two; a branch that expands by 1e15
-        while the other contracts converges, but turns every rounding error into a visible one."""
-        lam = np.r_[np.linalg.eigvals(model.A_plus).real, -np.linalg.eigvals(model.A_minus).real]
-        return float((u_max - u_min) * max(0.0, lam.max()))
+        """log max(||e^{beta A+}||_2, ||e^{-beta A-}||_2, 1): the log of the largest growth of a state error
+        along one branch traversed over the fitted span beta = u_max - u_min (rising: e^{beta A+}, falling:
+        e^{-beta A-}; the norm, not the eigenvalues, since the canonical A+ is a companion matrix whose
+        transient growth the eigenvalues miss).  Condition (5) bounds only the product of the two; a
+        branch that expands by 1e15 while the other contracts converges, but turns every rounding error
+        into a visible one.  inf when the exponential overflows."""
+        beta = u_max - u_min
+        with np.errstate(all="ignore"):
+            try:
+                maps = [expm(beta * model.A_plus), expm(-beta * model.A_minus)]
+                if not all(np.all(np.isfinite(M)) for M in maps):
+                    return np.inf
+                top = max(np.linalg.norm(M, 2) for M in maps)
+            except (ValueError, np.linalg.LinAlgError):
+                return np.inf
+        return float(np.log(max(top, 1.0))) if np.isfinite(top) else np.inf
 
     @classmethod
     def excesses(cls, model, u_min: float, u_max: float) -> list[float]:
