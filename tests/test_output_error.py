@@ -119,7 +119,7 @@ def test_with_effects_log_parameters_and_null_model():
     ctx = EffectContext(dt_min=0.01, duration=10.0, u_span=2.0, y_min=-1.0, y_max=1.0, y_mean=0.0, v95=1.0)
     param = WithEffects(base, ["creep"], ctx)
     lo, hi = param.bounds()
-    np.testing.assert_allclose([lo[-1], hi[-1]], np.log([0.05 * 0.01, 100.0]))
+    np.testing.assert_allclose([lo[-1], hi[-1]], np.log([0.05 * 0.01, 10.0]))   # [0.05 dt_min, duration]
     theta = np.r_[base.theta(base.template), param.encode([{"k": 0.2, "tau": 0.5}])]
     m = param.build(theta)
     assert m.effects[0].parameters == {"k": 0.2, "tau": pytest.approx(0.5)}
