@@ -234,3 +234,16 @@ def test_a_higher_order_base_holds_its_a_matrices_and_still_finds_the_effect():
     ex = join_recordings(recs)
     free = free_base(family(d.base_model, ["creep"], ex, ex.effect_context(0.0)))
     assert free.tolist() == [False] * 8 + [True] * (2 * 2 + 2 * 2 + 2) + [True, True]
+
+
+def test_an_effect_the_base_already_has_is_not_tested_again():
+    """A base with an input dead band (backlash), as fit_recordings gives for a noisy input: the other
+    candidates are tested, backlash is not listed twice."""
+    recs, _ = synthetic_experiment("creep", seed=2, samples=SAMPLES)
+    base = first_order_ri(**{"a_plus": -3.0, "a_minus": 3.0, "b_plus": 3.0, "b_minus": -3.0, "e_plus": -1.5,
+                             "e_minus": -1.5, "x0": -1 / 6}).replace(effects=[Effect("backlash", {"b": 0.01})])
+    d = diagnose(recs, model=base, candidates=("backlash", "creep", "viscous"))
+    assert sorted(c["effect"] for c in d.candidates) == ["creep", "viscous"]
+    assert d.findings[0]["effect"] == "creep"
+    names = [e.effect for e in d.extended_model.effects]
+    assert names[:2] == ["backlash", "creep"] and len(set(names)) == len(names)

@@ -80,7 +80,8 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
         refined like a given model (more parameters: slower, and a flexible base absorbs part of what
         an effect would explain).
     progress : callback ``progress(message, fraction_done)`` (`fitter.progress`).
-    candidates : effect names to test (default all of `fitter.core.effects.REGISTRY`).
+    candidates : effect names to test (default all of `fitter.core.effects.REGISTRY`); those the base
+        model already has (a given model's effects, or the input dead band of a fitted base) are skipped.
     alpha : family-wise significance level (Bonferroni over the candidates).
     max_findings : most effects added to the model.
 
@@ -100,6 +101,8 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
         model = fit_recordings(ex.recordings, kind="ri", order=base_order).model
     base = fit_base(ex, model, mask)
     mismatch = locate_mismatch(ex, base.residual, noise)
+    present = {e.effect for e in base.model.effects}
+    candidates = [c for c in candidates if c not in present]
     n_steps = len(candidates) * 2 + 4
     done = [1]
 
