@@ -3,6 +3,7 @@
     python bench/diagnose_generality.py              # 2 seeds per case, 600 samples per recording
     python bench/diagnose_generality.py --quick      # 1 seed, 350 samples per recording
     python bench/diagnose_generality.py --json PATH  # also write the table as JSON
+    (--samples N: samples per recording; --only TEXT: only the cases whose name contains TEXT)
 
 Every truth is generated here with numpy/scipy in its own functional form, on top of a Duhem base loop
 simulated by `fitter.core.kernel.simulate` (the base alone: no `fitter.core.effects` code is used to
@@ -12,9 +13,9 @@ Base loops (y range about 2 on u in [-1, 1])
 --------------------------------------------
 * ``ri1``: `first_order_ri(**TRUTH_BASE)`, dx = (A+- x + B+- u + E+-) du, y = x.
 * ``ri2`` / ``ri3``: hand-built rate-independent models of order 2 / 3: one first-order cell per state,
-  A+ = -diag(a) + K, A- = -A+ (K a small symmetric coupling; all branches converge), B+- = +-a,
+  A+ = -diag(a) + K, A- = -A+ (K: 0.4 off the diagonal; all branches converge), B+- = +-a,
   E+- = -a e, a = (3, 10[, 1.2]), e = (0.5, 0.5[, 0.3]), C = c / ptp(y) * 2 so the loop spans 2,
-  x0 = the state after one warm-up cycle -1 -> 1 -> -1 (on the settled loop).
+  x0 = the state after two warm-up cycles -1 -> 1 -> -1 (on the settled loop).
 Diagnosed with base_order=1 (ri1) or base_order=None (ri2, ri3: the order chosen by BIC).
 
 Input designs (recordings on one clock, 1 s gaps, the input linear across a gap)
@@ -42,7 +43,8 @@ u piecewise linear)
   a play of width 2h with rounded corners.
 * ``hard_clip``: y -> clip(y, min y + c, max y - c) (the catalogue's is tanh).
 * ``two_pole_sensor``: the measured m obeys m'' + 2 zeta omega m' + omega^2 m = omega^2 y, zeta = 0.7,
-  omega = 1 / tau, y linear between samples (exact discretisation by the matrix exponential).
+  omega = 1 / tau, m(t0) = y(t0), m'(t0) = 0, y linear between samples (exact discretisation by the
+  matrix exponential).
 * ``linear_drift``: y += r (t - t0).
 * ``quadratic_drift``: y += q ((t - t0) / D)^2.
 * ``exp_drift``: y += d (1 - exp(-3 (t - t0) / D)).
@@ -423,7 +425,7 @@ def run_case(case: Case, seed: int, samples: int) -> Row:
     t0 = time.perf_counter()
     d = diagnose(recs, base_order=case.base_order)
     row = Row(case.name, case.group, seed, "+".join(case.expected) or
-              ("unexplained or residual > 1.5 x noise" if case.group == "outside" else "nothing_missing"),
+              ("unexplained|ext>1.5" if case.group == "outside" else "nothing_missing"),
               d.verdict, [{"effect": f["effect"], "p_value": f["p_value"], "parameters": f["parameters"],
                            "explained_fraction": f["explained_fraction"]} for f in d.findings],
               d.baseline["residual_rms"] / sigma, d.extended["residual_rms"] / sigma, time.perf_counter() - t0)
@@ -432,10 +434,12 @@ def run_case(case: Case, seed: int, samples: int) -> Row:
 
 
 def line(row: Row) -> str:
-    claimed = ", ".join(f"{f['effect']}({100 * f['explained_fraction']:.0f}%)" for f in row.findings) or "-"
-    return (f"{'PASS' if row.ok else 'FAIL'}  {row.group:9s} {row.case:22s} s{row.seed}  expected {row.expected:32s} "
-            f"verdict {row.verdict:15s} findings [{claimed}]  base/noise {row.base_ratio:5.2f}  "
-            f"ext/noise {row.ext_ratio:5.2f}  {row.seconds:5.1f} s")
+    claimed = ", ".join(f"{f['effect']}({100 * f['explained_fraction']:.0f}%; "
+                        + ", ".join(f"{k}={v:.3g}" for k, v in f["parameters"].items()) + ")"
+                        for f in row.findings) or "-"
+    return (f"{'PASS' if row.ok else 'FAIL'}  {row.group:9s} {row.case:20s} s{row.seed} expected {row.expected:33s} "
+            f"verdict {row.verdict:15s} base/noise {row.base_ratio:5.2f} ext/noise {row.ext_ratio:5.2f} "
+            f"{row.seconds:4.1f} s  findings [{claimed}]")
 
 
 def summary(rows: Sequence[Row]) -> str:
