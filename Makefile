@@ -28,4 +28,5 @@ bench: install
 	$(BIN)/python bench/fmu_throughput.py
 	$(BIN)/python bench/real_data.py
 	$(BIN)/python bench/real_fit_speed.py
+	$(BIN)/python bench/diagnose_generality.py
 	$(BIN)/python bench/export_agreement.py
