@@ -39,7 +39,7 @@ from typing import Sequence
 
 import numpy as np
 
-from fitter.core.effects import EffectContext
+from fitter.core.effects import REGISTRY, EffectContext
 from fitter.core.kernel import simulate
 from fitter.core.models import RateIndependentModel, Signals
 from fitter.data.recordings import Recording
@@ -47,7 +47,7 @@ from fitter.diagnosis.experiment import JoinedExperiment
 from fitter.identification.output_error import Options, Recordings, RefineResult, refine
 from fitter.identification.parametrisation import StateSpace, WithEffects
 
-__all__ = ["Fit", "family", "fit_base", "fit_family", "first_order_ri", "free_base", "OPTIONS"]
+__all__ = ["Fit", "family", "fit_base", "fit_family", "fit_per_recording", "first_order_ri", "free_base", "OPTIONS"]
 
 OPTIONS = Options(xtol=1e-7, ftol=1e-7, gtol=1e-8, max_samples=None, normalise=True)
 """Tolerances of every diagnosis fit; the budget is 30 (free parameters + 1) evaluations."""
@@ -162,3 +162,13 @@ def fit_base(ex: JoinedExperiment, model, mask: np.ndarray) -> Fit:
     _, a, (bp, bm, ep, em, x0) = best
     fam = family(first_order_ri(a, -a, bp, bm, ep, em, x0), [], ex, None)
     return _refine(fam, np.array([a, -a, bp, bm, ep, em, x0]), ex, mask)
+
+
+def fit_per_recording(fit: Fit, ex: JoinedExperiment, mask: np.ndarray) -> list[Fit]:
+    """The last effect of `fit`'s family refitted on each recording alone (everything else held), started
+    from the joint values: does one parameter set hold across the recordings?"""
+    fam = fit.family
+    k = len(REGISTRY[fam.effects[-1]].parameters)
+    free = np.r_[np.zeros(fam.size - k, bool), np.ones(k, bool)]
+    return [_refine(fam, fit.theta, ex, mask & (ex.index == i), free) for i in range(len(ex.recordings))]
+

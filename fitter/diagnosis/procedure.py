@@ -26,6 +26,11 @@ Procedure (`diagnose`)
    it: refitted without the last recording (the repeat), it predicts that
    recording; the runner-up gets the same hold-out check, and the report says
    why the winner wins (residual, hold-out error, where the difference lies).
+   Each finding is also refitted on every recording alone
+   (`fitter.diagnosis.statistics.consistency_report`, its ``consistency``):
+   when one parameter set does not hold across the recordings, the paragraph
+   says that the data follow the effect only approximately (the nearest
+   catalogue effect, not necessarily the physics).
 
 Every finding carries its origin (`fitter.core.effects.EffectSpec.origin`):
 the material's physics or the measuring chain (a sensor lag, a drift of the
@@ -48,10 +53,10 @@ from fitter.core.effects import ORIGINS, REGISTRY
 from fitter.data.metrics import noise_rms, nrmse, rms
 from fitter.data.recordings import Recording
 from fitter.diagnosis.experiment import DiagnoseError, JoinedExperiment, join_recordings
-from fitter.diagnosis.fitting import Fit, fit_base, fit_family
+from fitter.diagnosis.fitting import Fit, fit_base, fit_family, fit_per_recording
 from fitter.diagnosis.locate import locate_mismatch, where_differs
 from fitter.diagnosis.result import Diagnosis
-from fitter.diagnosis.statistics import ALPHA, NOISE_MARGIN, effect_report, is_significant
+from fitter.diagnosis.statistics import ALPHA, NOISE_MARGIN, consistency_report, effect_report, is_significant
 from fitter.diagnosis.text import comparison_text, summary_paragraph
 from fitter.identification.fit import fit_recordings
 from fitter.identification.output_error import effective_samples
@@ -122,6 +127,7 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
             break
         rep, current = winner
         findings.append({k: rep[k] for k in _FINDING_KEYS})
+        findings[-1]["consistency"] = _consistency(ex, current, mask, alpha)
         remaining = [c for c in remaining if c != rep["effect"]]
         if rms(current.residual) <= NOISE_MARGIN * noise:
             break
@@ -158,6 +164,15 @@ def _test_round(ex: JoinedExperiment, current: Fit, names: Sequence[str], mask: 
         results.append((rep, fit))
     results.sort(key=lambda rf: rf[1].rss)
     return results
+
+
+def _consistency(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, alpha: float) -> dict | None:
+    """`statistics.consistency_report` of a finding (None with a single recording: not testable)."""
+    if len(ex.recordings) < 2:
+        return None
+    per = fit_per_recording(fit, ex, mask)
+    return consistency_report(fit, per, [r.name for r in ex.recordings], effective_samples(fit.residual[mask]),
+                              alpha)
 
 
 def _verdict(findings: list, baseline: dict, noise: float) -> str:

@@ -40,6 +40,7 @@ def summary_paragraph(d: Diagnosis) -> str:
                      f"{f['effect']} ({params}) it {gain}. This is reported apart from the material's physics.")
         else:
             text += f" The model had no {f['effect'].replace('_', ' ')}; adding it ({params}) {gain}."
+        text += _consistency_text(f)
     if d.comparison:
         text += " " + d.comparison + "."
     text += (f" The extended model leaves {e['residual_rms']:.3g} RMS ({_times(e['residual_rms'], d.noise_rms)}); "
@@ -73,6 +74,19 @@ def comparison_text(winner: dict, runner: dict | None, hold_out: dict, noise: fl
                  f"{'the base model' if hold_out[win] >= hold_out['base'] else other}, so the hold-out "
                  "check does not confirm it")
     return text
+
+
+def _consistency_text(f: dict) -> str:
+    """A sentence when the finding's parameters differ between the recordings (`consistency`)."""
+    c = f.get("consistency")
+    if not c or c["consistent"]:
+        return ""
+    per = "; ".join(f"{rec}: " + ", ".join(f"{k} = {v:.3g}" for k, v in vals.items())
+                    for rec, vals in c["per_recording"].items())
+    return (f" But one parameter set does not hold across the recordings ({per}; separate parameters would remove "
+            f"a further {100 * c['gain']:.0f}% of the residual, {_p_text(c['p_value'])}): the data follow "
+            f"{f['effect']} only approximately, so it is the nearest effect of the catalogue, not necessarily the "
+            "physics (another functional form, or an effect outside the catalogue).")
 
 
 def _p_text(p: float) -> str:
