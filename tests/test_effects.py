@@ -306,7 +306,7 @@ def test_serialisation_round_trip_and_stepper(name, make, tmp_path):
     np.testing.assert_array_equal(simulate(back, t, u).y, y)
     st = Stepper(back, t0=t[0], u0=u[0])
     out, saved = stepped(st, t, u, keep=60)
-    assert len(saved[-1]) == len(REGISTRY[name].state)
+    assert len(saved[-2]) == len(REGISTRY[name].state)       # (..., s_a, du)
     np.testing.assert_allclose(out, y, rtol=0, atol=1e-12)
     st.set_state(json.loads(json.dumps([list(v) if isinstance(v, (tuple, np.ndarray)) else v for v in saved])))
     assert st.output() == out[60]
@@ -325,4 +325,4 @@ def test_measurement_drift_adds_a_line_in_time_and_carries_it_across_steps():
     np.testing.assert_allclose(y - base, -0.3 * (t - t[0]), rtol=0, atol=1e-12)
     st = Stepper(ri([("measurement_drift", {"rate": -0.3})]), t0=t[0], u0=u[0])
     out, saved = stepped(st, t, u, keep=200)
-    assert saved[-1] == (pytest.approx(-0.3 * (t[199] - t[0]), abs=1e-12),)   # at the anchor, t[199]
+    assert saved[-2] == (pytest.approx(-0.3 * (t[199] - t[0]), abs=1e-12),)   # at the anchor, t[199]

@@ -389,7 +389,8 @@ def test_refused_calls_report_and_change_nothing(unzipped):
     set_time = fmu.dll.fmi2SetTime
     set_time.argtypes, set_time.restype = [c_void_p, c_double], c_int
     assert set_time(c, 0.0) == 3 and "Model Exchange is not supported" in inst.log[-1]
-    _expect_error(inst, "not supported", fmu.fmi2SetRealInputDerivatives, c, None, 0, None, None)
+    _expect_error(inst, "only order 1 is supported", fmu.fmi2SetRealInputDerivatives, c,
+                  (c_uint * 1)(inst.vr["u"]), 1, (c_int * 1)(2), (c_double * 1)(1.0))
     assert status_of(fmu.getStatus, fmi2DoStepStatus) == 2          # fmi2Discard
     assert fmu.getRealStatus(fmi2LastSuccessfulTime) == 0.0
     y = inst.run(t, u)             # every refusal left the instance as it was
@@ -780,3 +781,64 @@ elif __name__ == "__main__" and len(sys.argv) == 4 and sys.argv[1] == "check":
     _kernel_match(*loaded, MODELS[sys.argv[3]]())
     loaded[0].freeLibrary()
     print(f"check: {sys.argv[3]} kernel match")
+
+
+# --------------------------------------------------------------------- input interpolation
+
+
+def _standard_host(md, unzipdir, t, u, derivatives: bool) -> np.ndarray:
+    """The co-simulation loop of fmpy's simulate_fmu, fmusim and the Compliance Checker: set u(t_k)
+    (and, with `derivatives`, du/dt = (u_k+1 - u_k) / h by fmi2SetRealInputDerivatives, as fmpy's
+    set_input_derivatives=True does), doStep(t_k, h), record y at t_k+1.  (fmpy 0.3.32's own
+    set_input_derivatives fails for a single input: it assigns one derivative into a 9-element array.)"""
+    inst = Instance(md, unzipdir, u0=u[0])
+    y = np.empty(len(t))
+    y[0] = inst.y()
+    for k in range(len(t) - 1):
+        h = t[k + 1] - t[k]
+        inst.set("u", u[k])
+        if derivatives:
+            inst.fmu.fmi2SetRealInputDerivatives(inst.fmu.component, (c_uint * 1)(inst.vr["u"]), 1,
+                                                 (c_int * 1)(1), (c_double * 1)((u[k + 1] - u[k]) / h))
+        inst.step(h)
+        y[k + 1] = inst.y()
+    inst.free()
+    return y
+
+
+@pytest.mark.parametrize("name", ["ri", "rd_effects"])
+def test_input_derivatives_remove_the_one_step_lag_of_a_standard_host(unzipped, name):
+    """With canInterpolateInputs and du/dt set, a standard host's loop reproduces the in-process simulation of
+    the piecewise-linear input at every output time; without, y(t_k+1) is the Stepper's output for the input
+    held at u(t_k) (the documented one-step lag)."""
+    t = np.linspace(0.0, 6.0, 601)
+    u = 1.3 * np.sin(1.9 * t) + 0.4 * np.sin(5.1 * t + 0.2)
+    ref = simulate(MODELS[name](), t, u).y
+    md, unzipdir = unzipped[name]
+    assert md.coSimulation.canInterpolateInputs
+    with_d = _standard_host(md, unzipdir, t, u, True)
+    assert np.abs(with_d - ref).max() <= 1e-9 * max(1.0, np.abs(ref).max())
+    held = _standard_host(md, unzipdir, t, u, False)
+    st = Stepper(MODELS[name](), t0=t[0], u0=u[0])     # the documented lag: y(t_k+1) for u held at u(t_k)
+    step_ref = [st.output()]
+    for k in range(len(t) - 1):
+        st.set_input(u[k])
+        st.do_step(t[k + 1] - t[k])
+        step_ref.append(st.output())
+    assert np.abs(held[1:] - np.array(step_ref[1:])).max() <= 1e-9 * max(1.0, np.abs(ref).max())
+    assert np.abs(held - ref).max() > 1e-3 * np.ptp(ref)
+
+
+def test_input_derivatives_of_order_two_or_of_a_parameter_are_refused(unzipped):
+    md, unzipdir = unzipped["ri"]
+    inst = Instance(md, unzipdir)
+    vr = (c_uint * 1)(inst.vr["u"])
+    assert status_of(inst.fmu.fmi2SetRealInputDerivatives, inst.fmu.component, vr, 1, (c_int * 1)(2),
+                     (c_double * 1)(1.0)) == 3
+    assert any("only order 1 is supported" in line for line in inst.log)
+    param = next(v.valueReference for v in md.modelVariables if v.causality == "parameter")
+    assert status_of(inst.fmu.fmi2SetRealInputDerivatives, inst.fmu.component, (c_uint * 1)(param), 1,
+                     (c_int * 1)(1), (c_double * 1)(1.0)) == 3
+    assert status_of(inst.fmu.fmi2SetRealInputDerivatives, inst.fmu.component, vr, 1, (c_int * 1)(1),
+                     (c_double * 1)(math.nan)) == 3
+    inst.free()

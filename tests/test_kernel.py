@@ -264,3 +264,28 @@ def test_input_range_holds_the_input_at_its_edges_and_bounds_an_unstable_branch(
         ys.append(st.output())
     assert np.abs(np.array(ys) - y_held).max() < 1e-12
     assert st.u == u_out[-1]                                  # the input keeps the value set
+
+
+def test_stepper_with_input_derivatives_steps_before_the_input_is_set():
+    """set u(t_k) and du/dt = (u_k+1 - u_k)/h, then do_step: the output at t_k+1, read before any new input,
+    is simulate's; the derivative is part of the state (rollback restores it)."""
+    for model in (example1_model(), example3_model()):
+        t = np.linspace(0, 5, 301)
+        u = np.sin(1.3 * t) + 0.2 * np.cos(3.1 * t)
+        ref = simulate(model, t, u).y
+        st = Stepper(model, t0=t[0], u0=u[0])
+        ys = [st.output()]
+        for k in range(len(t) - 1):
+            h = t[k + 1] - t[k]
+            st.set_input(u[k])
+            st.set_input_derivative((u[k + 1] - u[k]) / h)
+            if k == 100:
+                saved = st.get_state()
+            st.do_step(h)
+            ys.append(st.output())
+        assert np.abs(np.array(ys) - ref).max() < 1e-12
+        st.set_state(saved)
+        st.do_step(t[101] - t[100])
+        assert st.output() == pytest.approx(ref[101], abs=1e-12)
+    with pytest.raises(KernelError, match="not finite"):
+        st.set_input_derivative(float("nan"))

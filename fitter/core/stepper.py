@@ -15,14 +15,23 @@ Semantics (the FMUs implement exactly this; the README documents it):
   model (du = 0, and g(0) = 0).
 * While t == t_a (at the start), setting u re-anchors the input without moving
   the state: x0 is the state at the first input.
-* The whole state is the tuple (t_a, u_a, x_a, t, u) of `get_state`, so
+* The whole state is the tuple (t_a, u_a, x_a, t, u, du) of `get_state`, so
   rolling back with `set_state` restores the exact same future.
 * A model with effects (`fitter.core.effects`) also carries the effect chain's
   state at the anchor, s_a (an `effects.EffectState`, the present effects'
   state values in chain order; None until the first step: the chain starts
   afresh at the anchor input); the current point is the one-interval run of
   `effects.run_with_effects` from (t_a, u_a, x_a, s_a), so stepping equals
-  `simulate`; `get_state` is then (t_a, u_a, x_a, t, u, s_a).
+  `simulate`; `get_state` is then (t_a, u_a, x_a, t, u, s_a, du).
+* Input interpolation (FMI ``fmi2SetRealInputDerivatives``, order 1):
+  `set_input_derivative(du)` gives du/dt of the input at the current point;
+  `do_step(h)` then moves the current input on to u + du h (after committing
+  the anchor), so the input over the step is u_k + du (t - t_k) and the state
+  at t_{k+1} is the exact flow along it.  A host that sets u(t_k) and
+  du/dt = (u_{k+1} - u_k) / h before each step reads y(t_{k+1}) equal to
+  `simulate` of the piecewise-linear input, with no one-sample lag.  The
+  derivative stays until it is set again (0 at the start: a held input).
+  Setting u afterwards replaces the extrapolated value.
 * A model with an ``input_range`` holds the input at its edges
   (`models._ModelBase.model_input`): u and u_a are kept as set, the model
   acts on the held values.
@@ -53,6 +62,7 @@ class Stepper:
         x = self.model.x0 if x0 is None else np.asarray(x0, dtype=float)
         self.t_a, self.u_a, self.x_a = float(t0), float(u0), np.array(x, dtype=float)
         self.t, self.u = float(t0), float(u0)
+        self.du = 0.0
         self._x_cache = None
         self.s_a = None
 
@@ -63,6 +73,12 @@ class Stepper:
         if self.t == self.t_a:
             self.u_a = self.u
         self._x_cache = None
+
+    def set_input_derivative(self, du: float) -> None:
+        """du/dt of the input from the current point on (module docstring, input interpolation)."""
+        if not math.isfinite(du):
+            raise KernelError(f"input derivative du/dt = {du} is not finite")
+        self.du = float(du)
 
     def state(self) -> np.ndarray:
         """State at the current time and input."""
@@ -84,6 +100,9 @@ class Stepper:
             self.s_a = self._s_cache
         self.t_a, self.u_a = self.t, self.u
         self.t = self.t + h
+        self.u = self.u + self.du * h
+        if not math.isfinite(self.u):
+            raise KernelError(f"the extrapolated input u + du h = {self.u} is not finite")
         self._x_cache = None
 
     def _advance(self) -> np.ndarray:
@@ -106,15 +125,16 @@ class Stepper:
 
     def get_state(self) -> tuple:
         if self.model.effects:
-            return (self.t_a, self.u_a, self.x_a.copy(), self.t, self.u, self.s_a)
-        return (self.t_a, self.u_a, self.x_a.copy(), self.t, self.u)
+            return (self.t_a, self.u_a, self.x_a.copy(), self.t, self.u, self.s_a, self.du)
+        return (self.t_a, self.u_a, self.x_a.copy(), self.t, self.u, self.du)
 
     def set_state(self, state: tuple) -> None:
         if self.model.effects:
-            t_a, u_a, x_a, t, u, s_a = state
+            t_a, u_a, x_a, t, u, s_a, du = state
             self.s_a = None if s_a is None else tuple(map(float, s_a))
         else:
-            t_a, u_a, x_a, t, u = state
+            t_a, u_a, x_a, t, u, du = state
+        self.du = float(du)
         self.t_a, self.u_a, self.x_a = float(t_a), float(u_a), np.array(x_a, dtype=float)
         self.t, self.u = float(t), float(u)
         self._x_cache = None

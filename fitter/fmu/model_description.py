@@ -67,6 +67,9 @@ _CAPABILITIES = {
 }
 # A pythonfmu FMU runs inside an embedded Python interpreter: an execution tool.
 _NEEDS_EXECUTION_TOOL = {"python": "true", "native": "false"}
+# Input derivatives (order 1, `Stepper.set_input_derivative`): the native FMU implements
+# fmi2SetRealInputDerivatives; pythonfmu's wrapper does not forward that call to the slave.
+_CAN_INTERPOLATE_INPUTS = {"python": "false", "native": "true"}
 
 _PARAM_TEXT = {
     "A_plus": "A+ (rising input), eq (1)", "A_minus": "A- (falling input), eq (1)",
@@ -190,7 +193,10 @@ def semantics_text(model) -> str:
             "one-sample lag): a host that sets u(t_k) and reads y(t_k) at every sample gets "
             "the in-process simulation of the sampled input. An input that is not set again "
             "holds its value, and a held input does not move the state. Setting u before the "
-            "first step does not move the state: x0 is the state at the first input.")
+            "first step does not move the state: x0 is the state at the first input. Where the FMU "
+            "declares canInterpolateInputs, an input derivative du/dt (fmi2SetRealInputDerivatives, "
+            "order 1) moves the input on to u + du h at each step, so a host that sets u(t_k) and "
+            "du/dt before stepping gets y(t_k+1) on the exact flow along u(t_k) + du (t - t_k).")
     if not converges(model):
         text += (" WARNING: exported with --allow-unstable: the convergence condition of the fit is "
                  "violated, so a wrong initial state need not die out and the output may drift or grow.")
@@ -217,7 +223,8 @@ def capabilities(backend: str) -> dict[str, str]:
     """CoSimulation capability flags of a backend (``python`` or ``native``)."""
     if backend not in _NEEDS_EXECUTION_TOOL:
         raise ValueError(f"unknown FMU backend {backend!r} (expected 'python' or 'native')")
-    return {"needsExecutionTool": _NEEDS_EXECUTION_TOOL[backend], **_CAPABILITIES}
+    return {"needsExecutionTool": _NEEDS_EXECUTION_TOOL[backend], **_CAPABILITIES,
+            "canInterpolateInputs": _CAN_INTERPOLATE_INPUTS[backend]}
 
 
 def _format(value: float | int | str) -> str:

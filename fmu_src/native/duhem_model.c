@@ -13,7 +13,10 @@
  * current point is x_a moved along the straight input path u_a -> u over
  * [t_a, t]; fmi2DoStep commits the current point as the new anchor and
  * advances t; a held input moves nothing; setting u while t == t_a
- * re-anchors the input without moving the state.  The model acts on the
+ * re-anchors the input without moving the state.  An input derivative du
+ * (fmi2SetRealInputDerivatives, order 1) moves the current input on to
+ * u + du h at every fmi2DoStep, so the input over a step is linear (stepper.py,
+ * "Input interpolation").  The model acts on the
  * input held at the edges of its input range [DUHEM_INPUT_LO, DUHEM_INPUT_HI]
  * (models.py, "Extrapolation rule"); the input variable keeps the value set.
  *
@@ -104,6 +107,7 @@ typedef struct {
 struct ModelData {
     double par[DUHEM_N_PARAMETERS];
     double t_a, u_a, t, u;
+    double du;          /* input derivative du/dt (fmi2SetRealInputDerivatives), applied by model_do_step */
     double x_a[N];
     double s_a[STATES]; /* effect chain state at the anchor, valid when has_s_a */
     int has_s_a;
@@ -567,7 +571,7 @@ const char *model_validate(ModelData *m)
     }
     for (i = 0; i < N; i++)
         if (!isfinite(m->x_a[i])) return "the state is not finite";
-    if (!(isfinite(m->t_a) && isfinite(m->t) && isfinite(m->u_a) && isfinite(m->u)))
+    if (!(isfinite(m->t_a) && isfinite(m->t) && isfinite(m->u_a) && isfinite(m->u) && isfinite(m->du)))
         return "time or input is not finite";
     if (m->t < m->t_a) return "time is before the last communication point";
     if (m->has_s_a != 0 && m->has_s_a != 1) return "corrupt effect flag";
@@ -704,9 +708,21 @@ const char *model_do_step(ModelData *m, double h)
     memcpy(m->x_a, m->x, sizeof m->x_a);
     memcpy(m->s_a, m->s, sizeof m->s_a);
     m->has_s_a = 1;
+    if (!isfinite(m->u + m->du * h)) return "the extrapolated input u + du/dt h is not finite";
     m->t_a = m->t;
     m->u_a = m->u;
     m->t = m->t + h;
+    m->u = m->u + m->du * h;
     m->cached = 0;
+    return NULL;
+}
+
+const char *model_set_input_derivative(ModelData *m, fmi2ValueReference vr, fmi2Integer order, fmi2Real value)
+{
+    const DuhemVariable *var = find('r', vr);
+    if (!var || var->role != VAR_INPUT) return "not an input (only the input u has derivatives)";
+    if (order != 1) return "only order 1 is supported (maxInputDerivativeOrder: the input is linear over a step)";
+    if (!isfinite(value)) return "the derivative is not finite (NaN or infinite)";
+    m->du = value;
     return NULL;
 }

@@ -571,11 +571,16 @@ fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReferenc
 fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                        const fmi2Integer order[], const fmi2Real value[])
 {
-    Instance *in = enter(c, "fmi2SetRealInputDerivatives", S_ANY);
-    (void)vr; (void)nvr; (void)order; (void)value;
-    if (!in) return fmi2Error;
-    return fail(in, "fmi2SetRealInputDerivatives: not supported (canInterpolateInputs = false; "
-                    "the input is taken linear between communication points)");
+    Instance *in = enter(c, "fmi2SetRealInputDerivatives", S_SET);
+    size_t i;
+    if (!in || check_arrays(in, "fmi2SetRealInputDerivatives", vr, nvr, value) != fmi2OK) return fmi2Error;
+    if (nvr > 0 && !order) return fail(in, "fmi2SetRealInputDerivatives: order is NULL");
+    for (i = 0; i < nvr; i++) {
+        const char *msg = model_set_input_derivative(in->model, vr[i], order[i], value[i]);
+        if (msg) return fail(in, "fmi2SetRealInputDerivatives: %s (value reference %u), order %d = %g: %s",
+                             model_variable_name('r', vr[i]), vr[i], (int)order[i], value[i], msg);
+    }
+    return fmi2OK;
 }
 
 fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,

@@ -58,5 +58,7 @@ const char *model_check_set_boolean(const ModelData *m, fmi2ValueReference vr, f
 const char *model_check_set_string(const ModelData *m, fmi2ValueReference vr, fmi2String value);
 /* Commit the current point and advance the time by h > 0. */
 const char *model_do_step(ModelData *m, double h);
+/* fmi2SetRealInputDerivatives of one input (NULL: accepted). */
+const char *model_set_input_derivative(ModelData *m, fmi2ValueReference vr, fmi2Integer order, fmi2Real value);
 
 #endif

@@ -124,3 +124,9 @@ const char *model_do_step(ModelData *m, double h)
     m->t = m->t + h;
     return NULL;
 }
+
+const char *model_set_input_derivative(ModelData *m, fmi2ValueReference vr, fmi2Integer order, fmi2Real value)
+{
+    (void)m; (void)vr; (void)order; (void)value;
+    return "not supported (canInterpolateInputs = false: y = k u has no state to move along the input)";
+}
