@@ -842,3 +842,20 @@ def test_input_derivatives_of_order_two_or_of_a_parameter_are_refused(unzipped):
     assert status_of(inst.fmu.fmi2SetRealInputDerivatives, inst.fmu.component, vr, 1, (c_int * 1)(1),
                      (c_double * 1)(math.nan)) == 3
     inst.free()
+
+
+def test_metadata_version_units_and_a_rounded_step(tmp_path):
+    """generationTool and version carry the package version; an SI unit gets its BaseUnit (um: m, factor
+    1e-6; V: kg m^2 s^-3 A^-1); the DefaultExperiment step is written as a person would (0.0025)."""
+    from fitter.core.models import Experiment, Signal, Signals
+    from fitter.fmu.model_description import package_version
+    model = ri_model().replace(signals=Signals(input=Signal("u", "V", "voltage"), output=Signal("y", "um", "stroke")),
+                               experiment=Experiment(0.0, 6.0, 0.0024999999999999467))
+    md = read_model_description(build_native_fmu(model, str(tmp_path / "m.fmu")))
+    assert md.generationTool == f"semilinear-duhem {package_version()}" and md.version == package_version()
+    assert md.defaultExperiment.stepSize == "0.0025"
+    units = {u.name: u.baseUnit for u in md.unitDefinitions}
+    assert (units["um"].m, units["um"].factor) == (1, 1e-6)
+    assert (units["V"].kg, units["V"].m, units["V"].s, units["V"].A, units["V"].factor) == (1, 2, -3, -1, 1.0)
+    from fmpy.validation import validate_fmu
+    assert validate_fmu(str(tmp_path / "m.fmu")) == []

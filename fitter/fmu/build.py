@@ -56,7 +56,6 @@ import sys
 import tempfile
 import uuid
 import zipfile
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import fitter.core
@@ -64,7 +63,7 @@ import fmu_src
 from fitter.core import load_model, save_model
 from fitter.core.errors import DuhemError
 from fitter.core.files import atomic_file, write_json
-from fitter.fmu.model_description import converges, model_description_xml, model_variables
+from fitter.fmu.model_description import converges, model_description_xml, model_variables, package_version
 from fitter.fmu.native import build_native_fmu
 
 __all__ = ["build_fmu", "FmuBuildError", "MODEL_IDENTIFIER", "BACKENDS"]
@@ -87,13 +86,6 @@ def _load(model_or_json_path):
     if getattr(model_or_json_path, "kind", None) not in ("ri", "rd"):
         raise TypeError(f"expected a model or a model JSON path, got {type(model_or_json_path).__name__}")
     return model_or_json_path
-
-
-def _package_version() -> str:
-    try:
-        return version("semilinear-duhem")
-    except PackageNotFoundError:
-        return "unknown"
 
 
 def _code_hash() -> str:
@@ -161,10 +153,9 @@ def _build_python(model, out_path: Path, **opts) -> None:
         with _isolated_imports(code):
             built = FmuBuilder.build_FMU(script, dest=Path(tmp) / "pythonfmu.fmu",
                                          project_files=project_files)
-        opts.setdefault("version", _package_version())
         xml = model_description_xml(
             model, model_identifier=MODEL_IDENTIFIER, guid=_guid(model_json, code, "python"),
-            backend="python", generation_tool=f"semilinear-duhem {_package_version()} "
+            backend="python", generation_tool=f"semilinear-duhem {package_version()} "
                                               f"(pythonfmu {pythonfmu_version})", **opts)
         _rewrite_zip(Path(built), out_path, xml)
 

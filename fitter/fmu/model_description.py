@@ -37,13 +37,14 @@ from __future__ import annotations
 import datetime
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
+import importlib.metadata
 from xml.etree import ElementTree as ET
 
 import numpy as np
 
 from fitter.core.rates import TabulatedRate
 
-__all__ = ["FmiVariable", "model_variables", "model_description_xml", "semantics_text", "converges",
+__all__ = ["package_version", "FmiVariable", "model_variables", "model_description_xml", "semantics_text", "converges",
            "capabilities", "LOG_CATEGORIES", "U_REF", "Y_REF"]
 
 U_REF = 0
@@ -265,10 +266,50 @@ def _model_structure(root: ET.Element, variables: Sequence[FmiVariable], effects
     ET.SubElement(unknowns, "Unknown", attrib)
 
 
+def package_version() -> str:
+    """The installed version of the `semilinear-duhem` distribution ("unknown" when not installed)."""
+    try:
+        return importlib.metadata.version("semilinear-duhem")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
+
+
+# SI units a recording may name: (factor, exponents of kg, m, s, A, K) of the SI base units.
+_SI_UNITS = {
+    "m": (1.0, {"m": 1}), "mm": (1e-3, {"m": 1}), "um": (1e-6, {"m": 1}), "nm": (1e-9, {"m": 1}),
+    "s": (1.0, {"s": 1}), "ms": (1e-3, {"s": 1}),
+    "N": (1.0, {"kg": 1, "m": 1, "s": -2}), "kN": (1e3, {"kg": 1, "m": 1, "s": -2}),
+    "Pa": (1.0, {"kg": 1, "m": -1, "s": -2}), "kPa": (1e3, {"kg": 1, "m": -1, "s": -2}),
+    "bar": (1e5, {"kg": 1, "m": -1, "s": -2}),
+    "V": (1.0, {"kg": 1, "m": 2, "s": -3, "A": -1}), "kV": (1e3, {"kg": 1, "m": 2, "s": -3, "A": -1}),
+    "A": (1.0, {"A": 1}), "mA": (1e-3, {"A": 1}),
+    "T": (1.0, {"kg": 1, "s": -2, "A": -1}), "mT": (1e-3, {"kg": 1, "s": -2, "A": -1}),
+    "A/m": (1.0, {"A": 1, "m": -1}),
+    "C/m2": (1.0, {"s": 1, "A": 1, "m": -2}), "uC/cm2": (1e-2, {"s": 1, "A": 1, "m": -2}),
+    "uC/cm^2": (1e-2, {"s": 1, "A": 1, "m": -2}),
+}
+
+
+def _unit_element(parent: ET.Element, unit: str) -> None:
+    """<Unit name=...>, with its <BaseUnit> when the unit is one of `_SI_UNITS`."""
+    element = ET.SubElement(parent, "Unit", {"name": unit})
+    if unit in _SI_UNITS:
+        factor, exponents = _SI_UNITS[unit]
+        attrib = {k: str(v) for k, v in exponents.items()}
+        if factor != 1.0:
+            attrib["factor"] = repr(factor)
+        ET.SubElement(element, "BaseUnit", attrib)
+
+
+def _rounded(value: float) -> float:
+    """A step size as a person would write it: 6 significant digits (0.0024999999999999467 -> 0.0025)."""
+    return float(f"{value:.6g}")
+
+
 def model_description_xml(model, *, model_identifier: str, guid: str, backend: str,
                           model_name: str | None = None, description: str | None = None,
                           version: str | None = None, author: str | None = None,
-                          generation_tool: str = "semilinear-duhem",
+                          generation_tool: str | None = None,
                           generation_date: datetime.datetime | None = None,
                           capability_overrides: Mapping[str, str] | None = None,
                           source_files: Sequence[str] = (),
@@ -285,8 +326,9 @@ def model_description_xml(model, *, model_identifier: str, guid: str, backend: s
         Selects the capability flags (`capabilities`); `capability_overrides`
         replaces single flags.
     model_name, description, version, author : str, optional
-        Defaults: a name from kind and order, `semantics_text(model)`, no
-        version, no author.
+        Defaults: a name from kind and order, `semantics_text(model)`, the
+        package version, no author.  `generation_tool` defaults to
+        "semilinear-duhem <version>".
     source_files : sequence of str
         C files under ``sources/`` for a source FMU (``<SourceFiles>``).
     """
@@ -295,11 +337,10 @@ def model_description_xml(model, *, model_identifier: str, guid: str, backend: s
               "modelName": model_name or f"semilinear Duhem {model.kind.upper()} model, "
                                          f"order {model.order}",
               "guid": guid, "description": description or semantics_text(model),
-              "generationTool": generation_tool,
+              "generationTool": generation_tool or f"semilinear-duhem {package_version()}",
               "generationDateAndTime": stamp.strftime("%Y-%m-%dT%H:%M:%SZ"),
               "variableNamingConvention": "structured", "numberOfEventIndicators": "0"}
-    if version:
-        attrib["version"] = version
+    attrib["version"] = version or package_version()
     if author:
         attrib["author"] = author
     root = ET.Element("fmiModelDescription", attrib)
@@ -315,7 +356,7 @@ def model_description_xml(model, *, model_identifier: str, guid: str, backend: s
     if units:
         unit_defs = ET.SubElement(root, "UnitDefinitions")
         for unit in units:
-            ET.SubElement(unit_defs, "Unit", {"name": unit})
+            _unit_element(unit_defs, unit)
     if log_categories:
         cats = ET.SubElement(root, "LogCategories")
         for name, text in log_categories.items():
@@ -323,7 +364,7 @@ def model_description_xml(model, *, model_identifier: str, guid: str, backend: s
     exp = model.experiment
     ET.SubElement(root, "DefaultExperiment", {"startTime": _format(float(exp.start_time)),
                                               "stopTime": _format(float(exp.stop_time)),
-                                              "stepSize": _format(float(exp.step_size))})
+                                              "stepSize": _format(_rounded(float(exp.step_size)))})
     model_vars = ET.SubElement(root, "ModelVariables")
     for v in variables:
         _variable_element(model_vars, v)
