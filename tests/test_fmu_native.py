@@ -859,3 +859,12 @@ def test_metadata_version_units_and_a_rounded_step(tmp_path):
     assert (units["V"].kg, units["V"].m, units["V"].s, units["V"].A, units["V"].factor) == (1, 2, -3, -1, 1.0)
     from fmpy.validation import validate_fmu
     assert validate_fmu(str(tmp_path / "m.fmu")) == []
+
+
+def test_a_model_with_timed_effects_is_not_called_rate_independent(tmp_path):
+    md = read_model_description(build_native_fmu(ri_model(ALL_EFFECTS), str(tmp_path / "e.fmu")))
+    assert md.modelName == ("semilinear Duhem RI model, order 3 with "
+                            + ", ".join(e["effect"] for e in ALL_EFFECTS))
+    assert "so the model is not rate independent although its base is" in md.description
+    plain = read_model_description(build_native_fmu(ri_model(), str(tmp_path / "p.fmu")))
+    assert plain.modelName == "semilinear Duhem RI model, order 3" and "not rate independent" not in plain.description

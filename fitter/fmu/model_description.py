@@ -42,6 +42,7 @@ from xml.etree import ElementTree as ET
 
 import numpy as np
 
+from fitter.core.effects import REGISTRY
 from fitter.core.rates import TabulatedRate
 
 __all__ = ["package_version", "FmiVariable", "model_variables", "model_description_xml", "semantics_text", "converges",
@@ -183,6 +184,13 @@ def converges(model) -> bool:
     return not (isinstance(conv, dict) and conv.get("satisfied") is False)
 
 
+def _model_name(model) -> str:
+    """"semilinear Duhem RI model, order 2" (+ " with rate_dependence, creep" when it has effects)."""
+    names = [e.effect for e in _effects(model)]
+    return (f"semilinear Duhem {model.kind.upper()} model, order {model.order}"
+            + (f" with {', '.join(names)}" if names else ""))
+
+
 def semantics_text(model) -> str:
     """The model-level description: what the FMU computes and its input semantics."""
     kind = {"ri": "rate-independent, eqs (1)-(2)", "rd": "rate-dependent, eqs (18)-(19)"}[model.kind]
@@ -214,6 +222,9 @@ def semantics_text(model) -> str:
     names = [e.effect for e in _effects(model)]
     if names:
         text += f" Effect extensions (fitter.core.effects): {', '.join(names)}."
+        if model.kind == "ri" and any(REGISTRY[n].timed for n in names):
+            text += (" These make the output depend on time or on the input rate, so the model is not rate "
+                     "independent although its base is.")
     elif model.kind == "ri":
         text += (" The model is rate independent: y at a communication point does not depend "
                  "on the step sizes as long as the steps contain the input's reversals.")
@@ -334,8 +345,7 @@ def model_description_xml(model, *, model_identifier: str, guid: str, backend: s
     """
     stamp = (generation_date or datetime.datetime.now(datetime.timezone.utc))
     attrib = {"fmiVersion": "2.0",
-              "modelName": model_name or f"semilinear Duhem {model.kind.upper()} model, "
-                                         f"order {model.order}",
+              "modelName": model_name or _model_name(model),
               "guid": guid, "description": description or semantics_text(model),
               "generationTool": generation_tool or f"semilinear-duhem {package_version()}",
               "generationDateAndTime": stamp.strftime("%Y-%m-%dT%H:%M:%SZ"),
