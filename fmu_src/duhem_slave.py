@@ -33,14 +33,16 @@ from __future__ import annotations
 import copy
 import importlib
 import json
+import math
 import os
 
 from pythonfmu import Fmi2Slave
+from pythonfmu.enums import Fmi2Status
 
 CONFIG_FILE = "duhem_fmu.json"
 _U, _Y = 0, 1
 _VALUE_KEYS = ("parameters", "g", "effects")
-_INSTANTIATED, _INITIALIZATION, _STEPPING = "instantiated", "initialization", "stepping"
+_INSTANTIATED, _INITIALIZATION, _STEPPING, _TERMINATED = "instantiated", "initialization", "stepping", "terminated"
 
 
 class DuhemSlave(Fmi2Slave):
@@ -159,15 +161,35 @@ class DuhemSlave(Fmi2Slave):
             self._rebuild()
         self._phase = _STEPPING
 
+    def terminate(self):
+        self._phase = _TERMINATED
+
     def do_step(self, current_time, step_size):
+        """One step, or a refusal: an error message in the log and False (fmi2Error from pythonfmu), never an
+        exception, which pythonfmu would turn into fmi2Fatal.  The state is unchanged after a refusal."""
+        why = self._refusal(current_time, step_size)
+        if why is None:
+            try:
+                self._stepper.do_step(step_size)
+                return True
+            except Exception as exc:    # a KernelError, or numpy overflow: refuse, keep the state
+                why = str(exc)
+        self.log(f"fmi2DoStep refused: {why}", Fmi2Status.error)
+        return False
+
+    def _refusal(self, current_time, step_size) -> str | None:
+        """Why fmi2DoStep(current_time, step_size) is refused in this phase (None: it is not)."""
+        if self._phase == _TERMINATED:
+            return "called after fmi2Terminate"
         if self._phase != _STEPPING:
-            raise ValueError("fmi2DoStep before fmi2ExitInitializationMode")
+            return "called before fmi2ExitInitializationMode"
+        if not (math.isfinite(step_size) and step_size > 0):
+            return f"the step size {step_size!r} must be positive and finite"
         t = self._stepper.t
-        if abs(current_time - t) > 1e-8 * max(1.0, abs(t), abs(step_size)):
-            raise ValueError(f"fmi2DoStep from t = {current_time!r}, but the FMU is at t = {t!r}; "
-                             "roll back with fmi2SetFMUstate to step from an earlier point")
-        self._stepper.do_step(step_size)
-        return True
+        if not math.isfinite(current_time) or abs(current_time - t) > 1e-8 * max(1.0, abs(t), abs(step_size)):
+            return (f"fmi2DoStep from t = {current_time!r}, but the FMU is at t = {t!r}; "
+                    "roll back with fmi2SetFMUstate to step from an earlier point")
+        return None
 
     # -- FMU state -------------------------------------------------------
     def _get_fmu_state(self):

@@ -222,3 +222,25 @@ def test_native_capabilities_and_source_files():
     assert [f.get("name") for f in cosim.find("SourceFiles")] == ["sources/fmi2.c", "sources/model.c"]
     refs = [v.value_reference for v in model_variables(example1())]
     assert refs == list(range(len(refs)))
+
+
+def test_bad_steps_and_steps_after_terminate_are_refused_and_change_nothing(unzipped):
+    """The slave checks fmi2DoStep itself (a negative, NaN or mistimed step, a step after fmi2Terminate): a
+    logged error and fmi2Discard (pythonfmu's status for a refused step; an exception would become
+    fmi2Fatal), the state unchanged, and the instance frees cleanly."""
+    md, unzipdir = unzipped["example1"]
+    inst = Instance(md, unzipdir, u0=0.0)
+    inst.set("u", 0.5)
+    inst.step(0.1)
+    y = inst.y()
+    for t, h, why in ((inst.t, -0.1, "must be positive and finite"), (inst.t, float("nan"), "positive and finite"),
+                      (inst.t + 5.0, 0.1, "but the FMU is at t")):
+        with pytest.raises(FMICallException) as exc:
+            inst.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
+        assert exc.value.status == 2 and why in inst.log[-1]
+    assert inst.y() == y
+    inst.fmu.terminate()
+    with pytest.raises(FMICallException) as exc:
+        inst.fmu.doStep(currentCommunicationPoint=inst.t, communicationStepSize=0.1)
+    assert exc.value.status == 2 and "called after fmi2Terminate" in inst.log[-1]
+    inst.fmu.freeInstance()
