@@ -25,7 +25,7 @@
 
 #define INSTANCE_MAGIC 0x44554831u
 #define STATE_MAGIC 0x44555331u
-#define SERIAL_TAG "DUHEMFS1"
+#define SERIAL_TAG "DUHEMFS2"
 #define GUID_FIELD 64
 
 enum {
@@ -64,7 +64,28 @@ typedef struct {
     unsigned int model_bytes;
     int state;
     char guid[GUID_FIELD];
+    unsigned int crc;   /* CRC-32 of the header (crc = 0) and the model bytes: any corruption is refused */
 } SerialHeader;
+
+/* CRC-32 (IEEE 802.3, reflected polynomial 0xEDB88320) of n bytes, continuing from crc. */
+static unsigned int crc32_update(unsigned int crc, const unsigned char *p, size_t n)
+{
+    size_t i;
+    int k;
+    crc = ~crc;
+    for (i = 0; i < n; i++) {
+        crc ^= p[i];
+        for (k = 0; k < 8; k++) crc = (crc >> 1) ^ (0xEDB88320u & (0u - (crc & 1u)));
+    }
+    return ~crc;
+}
+
+/* The checksum of a serialized state: its header with crc = 0, then its model bytes. */
+static unsigned int serial_crc(SerialHeader header, const unsigned char *model, size_t n)
+{
+    header.crc = 0;
+    return crc32_update(crc32_update(0, (const unsigned char *)&header, sizeof header), model, n);
+}
 
 static const char *state_name(int state)
 {
@@ -510,6 +531,7 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byt
     header.model_bytes = (unsigned int)model_size();
     header.state = snap->state;
     strncpy(header.guid, model_guid(), GUID_FIELD - 1);
+    header.crc = serial_crc(header, (const unsigned char *)snap->model, model_size());
     memcpy(serializedState, &header, sizeof header);
     memcpy(serializedState + sizeof header, snap->model, model_size());
     return fmi2OK;
@@ -530,6 +552,8 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
         return fail(in, "fmi2DeSerializeFMUstate: %lu bytes, expected %lu (not a state of this FMU)",
                     (unsigned long)size, (unsigned long)serial_size());
     memcpy(&header, serializedState, sizeof header);
+    if (header.crc != serial_crc(header, (const unsigned char *)serializedState + sizeof header, model_size()))
+        return fail(in, "fmi2DeSerializeFMUstate: corrupt state (checksum mismatch)");
     if (memcmp(header.tag, SERIAL_TAG, sizeof header.tag) != 0
         || header.model_bytes != model_size()
         || strncmp(header.guid, model_guid(), GUID_FIELD) != 0)
