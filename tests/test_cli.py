@@ -312,6 +312,8 @@ def bad(tmp_path) -> Path:
     write_csv(tmp_path / "ramp.csv", s, s, s ** 2)
     s = np.linspace(0.0, 0.9, 300)
     write_csv(tmp_path / "short.csv", s, np.sin(2 * np.pi * s), np.sin(2 * np.pi * s) + 0.1 * s)
+    write_csv(tmp_path / "huge.csv", t, 1e300 * u, y)
+    write_csv(tmp_path / "tiny.csv", t, u, 1e-120 * y)
     save_model(true_model(), tmp_path / "model.json")
     (tmp_path / "v99.json").write_text(json.dumps({**true_model().to_dict(), "schema_version": 99}))
     with zipfile.ZipFile(tmp_path / "other.fmu", "w") as z:
@@ -344,6 +346,10 @@ ERRORS = {
     "output directory missing": (["simulate", "{d}/model.json", "{d}/rec.csv", "-o", "{d}/no/out.csv"],
                                  ["does not exist"]),
     "FMU name": (["export", "{d}/model.json", "-o", "{d}/out.zip"], ["out.zip", "must end in .fmu"]),
+    "input of 1e300 scale": (["fit", "{d}/huge.csv", "-o", "{d}/out.json"],
+                             ["huge.csv", "column 'u'", "values up to 3e+300", "rescale the column"]),
+    "output of 1e-120 scale": (["diagnose", "{d}/tiny.csv", "--json", "{d}/out.json"],
+                               ["tiny.csv", "column 'y'", "a span of only", "rescale the column"]),
     "base order with a model": (["diagnose", "{d}/rec.csv", "--model", "{d}/model.json", "--base-order", "2"],
                                 ["--base-order", "--model"]),
 }

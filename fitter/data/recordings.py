@@ -40,7 +40,7 @@ import numpy as np
 from fitter.core.errors import DuhemError
 from fitter.core.models import Signal
 
-__all__ = ["Recording", "RecordingError", "check_samples", "load_recording", "load_recordings", "split_unit",
+__all__ = ["Recording", "RecordingError", "SCALE_LIMIT", "check_samples", "check_scale", "load_recording", "load_recordings", "split_unit",
            "MIN_SAMPLES"]
 
 MIN_SAMPLES = 3
@@ -97,6 +97,33 @@ def check_samples(t, u, y=None, *, source: str, names: Sequence[str] = ("t", "u"
                                  f"is not finite (NaN or infinity)")
     _check_increasing(arrays[0], source, names[0], where)
     return arrays[0], arrays[1], arrays[2] if y is not None else None
+
+
+SCALE_LIMIT = 1e100
+"""Largest magnitude, and inverse of the smallest nonzero span, of a column the identification accepts."""
+
+
+def check_scale(recordings: Sequence["Recording"]) -> None:
+    """Refuse columns whose scale makes the numerics meaningless (`RecordingError` naming file and column).
+
+    A fitted model's parameters scale like 1/span(u), span(y)/span(u) and 1/span(t); with a column beyond
+    `SCALE_LIMIT` in magnitude (or a span below 1/`SCALE_LIMIT`) they, or their products in the matrix
+    exponentials, leave the range of double precision (about 1e-308 to 1e308) and the fit returns zeros or
+    NaN.  The remedy is a change of unit, which the message names.
+    """
+    for rec in recordings:
+        for name, values, unit in (("time", rec.t, "s"), (rec.input.name, rec.u, rec.input.unit),
+                                   (rec.output.name, rec.y, rec.output.unit)):
+            finite = values[np.isfinite(values)]
+            if finite.size == 0:
+                continue
+            big, span = float(np.max(np.abs(finite))), float(np.ptp(finite))
+            if big > SCALE_LIMIT or 0 < span < 1 / SCALE_LIMIT:
+                what = f"values up to {big:.3g}" if big > SCALE_LIMIT else f"a span of only {span:.3g}"
+                raise RecordingError(
+                    f"{rec.label}: column {name!r}{f' ({unit})' if unit else ''} has {what}: beyond what the "
+                    f"identification can represent in double precision (magnitudes up to {SCALE_LIMIT:.0e}, spans "
+                    f"from {1 / SCALE_LIMIT:.0e}); rescale the column (another unit) so that its span is near 1")
 
 
 def _check_increasing(t: np.ndarray, source: str, name: str, where) -> None:

@@ -17,7 +17,7 @@ import numpy as np
 from fitter.core.effects import EffectContext
 from fitter.core.errors import DuhemError
 from fitter.data.cycles import count_reversals
-from fitter.data.recordings import Recording
+from fitter.data.recordings import Recording, check_scale
 
 __all__ = ["DiagnoseError", "JoinedExperiment", "MIN_SAMPLES", "join_recordings"]
 
@@ -71,6 +71,7 @@ def join_recordings(recordings: Sequence[Recording]) -> JoinedExperiment:
     _check_columns(recs)
     for r in recs:
         _check_output(r)
+    check_scale(recs)
     for a, b in zip(recs[:-1], recs[1:]):
         if b.t[0] <= a.t[-1]:
             raise DiagnoseError(f"{b.source}: starts at t = {b.t[0]} before {a.source} ends (t = {a.t[-1]}); "

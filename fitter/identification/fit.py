@@ -50,7 +50,7 @@ from fitter.core.models import Experiment, Signals
 from fitter.core.periodic import fixed_point
 from fitter.data.metrics import compare
 from fitter.data.preparation import prepare
-from fitter.data.recordings import Recording
+from fitter.data.recordings import Recording, check_scale
 from fitter.identification.fit_data import (FitData, FitError, RateLevels, averaged_loop, monotone_input,
                                             prepare_for_fit, rate_levels)
 from fitter.identification.exported import (NRMSE_CONVENTION, X0_POLICIES, fitted_range, initial_state, input_range,
@@ -241,6 +241,7 @@ def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order
         raise ValueError(f"order must be one of {ORDERS}, not {order!r}")
     if x0 not in X0_POLICIES:
         raise ValueError(f"x0 must be one of {X0_POLICIES}, not {x0!r}")
+    check_scale(recordings)
     with threadpool_limits(limits=1, user_api="blas"):    # small matrices: one thread, the same rounding every run
         data = prepare_for_fit(recordings)
         levels = rate_levels(data.norm)
@@ -293,6 +294,10 @@ def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels:
     model = bare.replace(x0=initial_state(bare, r0, x0_policy), signals=Signals(input=r0.input, output=r0.output),
                          experiment=_experiment(recordings), input_range=input_range(recordings))
     per_recording = _per_recording(model, res, data, recordings)
+    bad = next((m["recording"] for m in per_recording if not np.isfinite(m["nrmse"])), None)
+    if bad is not None:
+        raise FitError(f"{bad}: the fitted model gives a non-finite output on its own recording (raw input, stored "
+                       "x0), so it is not saved; check the recording's scale and units")
     summary = {
         "kind": param.kind, "order": param.n,
         "q": q if q is not None else next((c.start_info["q"] for c in cands if "q" in c.start_info), None),
