@@ -268,3 +268,15 @@ def test_a_delay_outside_the_catalogue_is_fitted_by_creep_only_approximately():
     taus = [v["tau"] for v in c["per_recording"].values()]
     assert max(taus) / min(taus) > 1.1
     assert "only approximately" in d.paragraph
+
+
+def test_clean_second_order_data_with_a_bic_base_has_nothing_missing():
+    """Effect-free data of an order-2 model: with the base order chosen by BIC the base residual is at the noise,
+    and no candidate is added even where one is formally significant (it would fit noise)."""
+    from conftest import noisy_recording, ri_model, sine_input
+    t, u = sine_input(1.0, 4, 150)
+    rec = noisy_recording(ri_model(2), t, u, noise=0.01, seed=3)
+    d = diagnose([rec], base_order=None)
+    assert d.base_model.order >= 2
+    assert d.baseline["residual_rms"] <= 1.2 * d.noise_rms
+    assert d.verdict == "nothing_missing" and d.findings == [] and len(d.candidates) == len(REGISTRY)

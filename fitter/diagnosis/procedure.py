@@ -22,7 +22,9 @@ Procedure (`diagnose`)
 4. The significant candidates are ranked by their residual (lowest first); the
    winner is added, and the remaining candidates are tested again on top of it
    while the residual stays above `NOISE_MARGIN` times the noise (at most
-   `max_findings`).  The extended model is checked on data not used to fit
+   `max_findings`); none is added when the base residual is already within
+   `NOISE_MARGIN` of the noise (they are still tested and listed: over many
+   samples an effect can be "significant" while it fits noise).  The extended model is checked on data not used to fit
    it: refitted without the last recording (the repeat), it predicts that
    recording; the runner-up gets the same hold-out check, and the report says
    why the winner wins (residual, hold-out error, where the difference lies).
@@ -122,6 +124,8 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
         if not findings:
             tested = [dict(r, rank=j + 1) for j, (r, _) in enumerate(round_results)]
             fits = {r["effect"]: f for r, f in round_results}
+        if rms(current.residual) <= NOISE_MARGIN * noise:
+            break                   # the model is adequate already: a significant candidate would fit noise
         winner = next(((r, f) for r, f in round_results if r["significant"]), None)
         if winner is None:
             break
