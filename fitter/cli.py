@@ -371,6 +371,10 @@ def simulate(model, input_csv, out, time_col, input_col, as_json):
             stored = _load_model_json(model)
             y = simulate_model(stored, rec.t, rec.u).y
             engine = "in-process"
+        bad = np.flatnonzero(~np.isfinite(y))
+        if bad.size:
+            raise CliError(f"{input_csv}: data row {bad[0] + 1} (t = {rec.t[bad[0]]:.6g}): the simulated output is "
+                           f"{y[bad[0]]} (the model overflows on this input); nothing written")
         warnings = [] if stored is None else range_warnings(stored, rec.t, rec.u)
         np.savetxt(tmp, np.column_stack([rec.t, rec.u, y]), delimiter=",", fmt="%.17g",
                    header="time,u,y", comments="")

@@ -439,3 +439,17 @@ def test_fit_compare_puts_the_classical_models_beside_the_duhem_fit(tmp_path):
     text = ok(invoke(*args, "--report", tmp_path / "rep")).stdout
     assert "beside the classical models" in text and "bouc_wen" in text
     assert "Beside the classical models" in (tmp_path / "rep" / "index.html").read_text()
+
+
+def test_simulate_refuses_a_non_finite_output_and_writes_nothing(bad):
+    """A model that overflows on the input (an unstable branch, no input_range): exit 1, the row named, the
+    existing output untouched."""
+    from fitter.core import RateIndependentModel
+    save_model(RateIndependentModel(A_plus=[[60.0]], A_minus=[[-60.0]], B_plus=[1.0], B_minus=[1.0], C=[1.0]),
+               bad / "unstable.json")
+    (bad / "out.csv").write_text("old\n")
+    before = listing(bad)
+    assert_clean_failure(invoke("simulate", str(bad / "unstable.json"), str(bad / "rec.csv"), "-o",
+                                str(bad / "out.csv")), bad, before, "rec.csv", "data row",
+                         "the simulated output is", "nothing written")
+    assert (bad / "out.csv").read_text() == "old\n"
