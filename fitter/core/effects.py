@@ -74,8 +74,8 @@ import numpy as np
 from .errors import EffectError, KernelError
 from .flow import check_increasing, integrate, interval_coefficients, linear_recurrence
 
-__all__ = ["play_operator", "REGISTRY", "STAGES", "ORIGINS", "EffectSpec", "ParameterSpec", "EffectContext", "Chain", "EffectError",
-           "Effect", "EffectState", "effects_from_list", "run_with_effects"]
+__all__ = ["play_operator", "REGISTRY", "STAGES", "ORIGINS", "EffectSpec", "ParameterSpec", "EffectContext", "Chain",
+           "EffectError", "Effect", "EffectState", "effects_from_list", "run_with_effects"]
 
 EffectState = tuple
 """State of the effect chain at one sample: a tuple of floats (module docstring)."""

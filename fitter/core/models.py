@@ -49,8 +49,8 @@ from .errors import EffectError, ModelFileError
 from .files import atomic_file
 from .rates import RateFunction, as_rate, rate_from_dict
 
-__all__ = ["INPUT_MARGIN", "ModelFileError", "Signal", "Signals", "Experiment", "RateIndependentModel", "RateDependentModel",
-           "load_model", "save_model", "model_from_dict", "SCHEMA", "SCHEMA_VERSION"]
+__all__ = ["INPUT_MARGIN", "ModelFileError", "Signal", "Signals", "Experiment", "RateIndependentModel",
+           "RateDependentModel", "load_model", "save_model", "model_from_dict", "SCHEMA", "SCHEMA_VERSION"]
 
 SCHEMA = "duhem-model"
 SCHEMA_VERSION = 1

@@ -40,8 +40,8 @@ import numpy as np
 from fitter.core.errors import DuhemError
 from fitter.core.models import Signal
 
-__all__ = ["Recording", "RecordingError", "SCALE_LIMIT", "check_samples", "check_scale", "load_recording", "load_recordings", "split_unit",
-           "MIN_SAMPLES"]
+__all__ = ["Recording", "RecordingError", "SCALE_LIMIT", "check_samples", "check_scale", "load_recording",
+           "load_recordings", "split_unit", "MIN_SAMPLES"]
 
 MIN_SAMPLES = 3
 """Fewest data rows `load_recording` accepts by default."""

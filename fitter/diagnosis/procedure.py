@@ -24,8 +24,9 @@ Procedure (`diagnose`)
    while the residual stays above `NOISE_MARGIN` times the noise (at most
    `max_findings`); none is added when the base residual is already within
    `NOISE_MARGIN` of the noise (they are still tested and listed: over many
-   samples an effect can be "significant" while it fits noise).  The extended model is checked on data not used to fit
-   it: refitted without the last recording (the repeat), it predicts that
+   samples an effect can be "significant" while it fits noise).  The
+   extended model is checked on data not used to fit it: refitted without
+   the last recording (the repeat), it predicts that
    recording; the runner-up gets the same hold-out check, and the report says
    why the winner wins (residual, hold-out error, where the difference lies).
    Each finding is also refitted on every recording alone
@@ -67,8 +68,8 @@ from fitter.progress import Progress, silent
 __all__ = ["CANDIDATES", "diagnose"]
 
 CANDIDATES = tuple(REGISTRY)
-_FINDING_KEYS = ("effect", "origin", "p_value", "parameters", "stderr", "explained_fraction", "residual_rms", "lr", "df",
-                 "n_eff")
+_FINDING_KEYS = ("effect", "origin", "p_value", "parameters", "stderr", "explained_fraction", "residual_rms", "lr",
+                 "df", "n_eff")
 
 
 def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress = silent,

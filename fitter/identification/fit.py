@@ -15,8 +15,8 @@ Pipeline of `fit_recordings`
    Initial state ``x0="fit"`` (recordings with several cycles, and general
    inputs): every sample is fitted and the state at each recording's first
    sample is eliminated by linear least squares, so a start-up transient is
-   the initial state's to explain, not mistaken for the loop.  When every recording holds a single cycle (e.g.
-   the piezo files), a free initial state would let a barely convergent model
+   the initial state's to explain, not mistaken for the loop.  When every
+   recording holds a single cycle (e.g. the piezo files), a free initial state would let a barely convergent model
    mimic a non-closing loop, so ``x0="periodic"`` is used instead: the cycle
    is taken as settled.  The convergence condition is enforced: for the
    rate-dependent model with g >= 0 the period map is e^{A sum g dt}, so
@@ -26,8 +26,8 @@ Pipeline of `fit_recordings`
    objective.  The linear parameters (B, E, D, x0) are eliminated by least
    squares at every evaluation (variable projection).  Starts race: each gets
    `RACE_NFEV` evaluations, the best one continues to `MAX_NFEV` in all.
-5. **Selection**: orders n = 1, ..., 4 (`ORDERS`) are fitted upward, each started from
-   the order n-1 fit and the other starts; for ``kind="auto"`` RI vs RD, and
+5. **Selection**: orders n = 1, ..., 4 (`ORDERS`) are fitted upward, each
+   started from the order n-1 fit and the other starts; for ``kind="auto"`` RI vs RD, and
    the order, by BIC = N ln(RSS/N) + p ln N on the stacked residuals (the
    order search stops when BIC rises, for the rate-independent models too when no
    rate-dependent one follows; ``kind="rd"`` fits only the order-1 RI
