@@ -40,7 +40,7 @@ from fitter.core.models import ModelFileError, load_model, save_model
 from fitter.data.metrics import compare
 from fitter.data.recordings import load_recording, load_recordings
 from fitter.diagnosis import diagnose as run_diagnosis
-from fitter.fmu.build import build_fmu
+from fitter.fmu.build import PYTHON_HOST_NEEDS, build_fmu
 from fitter.fmu.host import model_in_fmu, simulate_fmu
 from fitter.fmu.native import find_c_compiler
 from fitter.identification.exported import range_warnings
@@ -220,6 +220,7 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, allow_
         if fmu_tmp:
             say(f"building the {backend} FMU", None)
             build_fmu(result.model, fmu_tmp, backend=backend, allow_unstable=allow_unstable)
+    _python_host_note(fmu, backend)
     summary = result.summary
     if as_json:
         _emit_json({"model": out, "fmu": fmu, "backend": backend if fmu else None, "report": report,
@@ -277,6 +278,13 @@ def export(model, out, backend, allow_unstable, as_json):
         _emit_json({"model": model, "fmu": out, "backend": backend, "kind": m.kind, "order": m.order})
     else:
         click.echo(f"{m.kind} model of order {m.order} exported to {out} ({backend} backend)")
+    _python_host_note(out, backend)
+
+
+def _python_host_note(fmu: str | None, backend: str) -> None:
+    """One line on stderr when a python-backend FMU was written: what a host needs to run it."""
+    if fmu and backend == "python":
+        click.echo(PYTHON_HOST_NEEDS, err=True)
 
 
 def _validation_row(rec, y_fmu: np.ndarray, model, threshold: float) -> dict:
@@ -429,6 +437,7 @@ def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order,
             build_fmu(result.extended_model, fmu_tmp, backend=backend)
         if json_tmp:
             json_tmp.write_text(json_text(data), encoding="utf-8")
+    _python_host_note(fmu, backend)
     if json_out == "-":
         _emit_json(data)
         return

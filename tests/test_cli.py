@@ -104,8 +104,9 @@ def work(tmp_path_factory) -> dict:
     fit = json.loads(ok(invoke("fit", rec, "-o", d / "model.json", "--kind", "ri", "--order", 1,
                                "--json")).stdout)
     native = json.loads(ok(invoke("export", d / "model.json", "-o", d / "native.fmu", "--json")).stdout)
-    ok(invoke("export", d / "model.json", "-o", d / "python.fmu", "--backend", "python"))
-    return {"dir": d, "rec": rec, "t": t, "u": u, "y_true": y_true, "fit": fit, "native": native}
+    python = ok(invoke("export", d / "model.json", "-o", d / "python.fmu", "--backend", "python"))
+    return {"dir": d, "rec": rec, "t": t, "u": u, "y_true": y_true, "fit": fit, "native": native,
+            "python_stderr": python.stderr}
 
 
 @pytest.fixture(scope="module")
@@ -453,3 +454,8 @@ def test_simulate_refuses_a_non_finite_output_and_writes_nothing(bad):
                                 str(bad / "out.csv")), bad, before, "rec.csv", "data row",
                          "the simulated output is", "nothing written")
     assert (bad / "out.csv").read_text() == "old\n"
+
+
+def test_a_python_backend_export_says_what_a_host_needs(work):
+    (line,) = [x for x in work["python_stderr"].splitlines() if x.startswith("note:")]
+    assert "libpython3" in line and "numpy" in line and "--backend native" in line

@@ -66,7 +66,7 @@ from fitter.core.files import atomic_file, write_json
 from fitter.fmu.model_description import converges, model_description_xml, model_variables, package_version
 from fitter.fmu.native import build_native_fmu
 
-__all__ = ["build_fmu", "FmuBuildError", "MODEL_IDENTIFIER", "BACKENDS"]
+__all__ = ["build_fmu", "FmuBuildError", "MODEL_IDENTIFIER", "BACKENDS", "PYTHON_HOST_NEEDS"]
 
 MODEL_IDENTIFIER = "semilinear_duhem"
 BACKENDS = ("python", "native")
@@ -74,6 +74,11 @@ _SLAVE_SOURCE = Path(fmu_src.__file__).resolve().parent / "duhem_slave.py"
 _CORE_DIR = Path(fitter.core.__file__).resolve().parent
 _GUID_NAMESPACE = uuid.UUID("5b0c1f4e-3a9d-4c1e-9a57-2f3f8d6f1e21")
 _PYTHON_OPTIONS = ("model_name", "description", "version", "author")
+
+PYTHON_HOST_NEEDS = ("note: a python-backend FMU runs only in a host that can load libpython3 and import numpy and "
+                     "pythonfmu (this venv's Python on its path): fmusim, Simulink, Dymola and the FMI Compliance "
+                     "Checker need --backend native")
+"""What a host needs for a python-backend FMU, in one line (printed by `duhem export`/`fit`/`diagnose`)."""
 
 
 class FmuBuildError(DuhemError, RuntimeError):
