@@ -148,6 +148,13 @@ def test_json_round_trip(tmp_path):
     (lambda d: d.update(kind="xx"), "unknown model kind"),
     (lambda d: d.update(input_range=[1.0, -1.0]), r"'input_range' \[1.0, -1.0\] must be finite with lo < hi"),
     (lambda d: d.update(input_range="wide"), r"'input_range' must be \[lo, hi\]"),
+    (lambda d: d.update(signals={"input": {"nom": "u"}}), r"'signals.input' must be an object of strings"),
+    (lambda d: d.update(signals=[1, 2]), r"'signals' must be an object with keys"),
+    (lambda d: d.update(experiment={"start_time": 0, "stop_time": "x", "step_size": 0.1}),
+     r"'experiment.stop_time' must be a finite number"),
+    (lambda d: d.update(experiment={"start": 0}), r"'experiment' must be an object with keys"),
+    (lambda d: d.update(experiment={"start_time": 2.0, "stop_time": 1.0, "step_size": 0.1}),
+     r"needs start_time < stop_time"),
 ])
 def test_bad_model_files(tmp_path, edit, message):
     d = example1_model().to_dict()

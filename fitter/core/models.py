@@ -301,9 +301,8 @@ def model_from_dict(d: dict, source: str = "model") -> Model:
             kwargs["g"] = rate_from_dict(d["g"])
         except ValueError as exc:
             raise ModelFileError(f"{source}: {exc}") from None
-    sig = d.get("signals", {})
-    signals = Signals(**{k: Signal(**sig[k]) for k in ("input", "output") if k in sig})
-    experiment = Experiment(**d.get("experiment", {}))
+    signals = _signals_from_dict(d.get("signals", {}), source)
+    experiment = _experiment_from_dict(d.get("experiment", {}), source)
     try:
         model = cls(signals=signals, experiment=experiment, fit_info=d.get("fit_info", {}),
                     effects=d.get("effects", []), input_range=d.get("input_range"), **kwargs)
@@ -313,6 +312,37 @@ def model_from_dict(d: dict, source: str = "model") -> Model:
     if order is not None and order != model.order:
         raise ModelFileError(f"{source}: 'order' is {order} but the matrices have order {model.order}")
     return model
+
+
+def _signals_from_dict(sig: Any, source: str) -> Signals:
+    """The ``signals`` key: {"input"|"output": {"name": str, "unit": str, "description": str}}."""
+    if not isinstance(sig, dict) or set(sig) - {"input", "output"}:
+        raise ModelFileError(f"{source}: 'signals' must be an object with keys 'input' and 'output', got {sig!r}")
+    out = {}
+    for key, value in sig.items():
+        if not isinstance(value, dict) or "name" not in value or set(value) - {"name", "unit", "description"} \
+                or not all(isinstance(v, str) for v in value.values()):
+            raise ModelFileError(f"{source}: 'signals.{key}' must be an object of strings 'name' (required), 'unit' "
+                                 f"and 'description', got {value!r}")
+        out[key] = Signal(**value)
+    return Signals(**out)
+
+
+def _experiment_from_dict(exp: Any, source: str) -> Experiment:
+    """The ``experiment`` key: {"start_time", "stop_time", "step_size"}, finite numbers, start < stop, step > 0."""
+    names = ("start_time", "stop_time", "step_size")
+    if not isinstance(exp, dict) or set(exp) - set(names):
+        raise ModelFileError(f"{source}: 'experiment' must be an object with keys {', '.join(names)}, got {exp!r}")
+    values = {}
+    for key, value in exp.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ModelFileError(f"{source}: 'experiment.{key}' must be a finite number, got {value!r}")
+        values[key] = float(value)
+    out = Experiment(**values)
+    if not (out.start_time < out.stop_time and out.step_size > 0):
+        raise ModelFileError(f"{source}: 'experiment' needs start_time < stop_time and step_size > 0, got "
+                             f"{out.start_time}, {out.stop_time}, {out.step_size}")
+    return out
 
 
 def load_model(path: str | os.PathLike) -> Model:
