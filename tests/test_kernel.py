@@ -52,6 +52,18 @@ def reference(model, t, u):
     return sol.y.T
 
 
+def stepped(model, t, u) -> tuple[np.ndarray, Stepper]:
+    """Outputs of a Stepper driven sample by sample (step, set the next input, read y), and the Stepper."""
+    st = Stepper(model, t0=t[0], u0=u[0])
+    ys = []
+    for k in range(len(t)):
+        if k:
+            st.do_step(t[k] - t[k - 1])
+        st.set_input(u[k])
+        ys.append(st.output())
+    return np.array(ys), st
+
+
 @pytest.mark.parametrize("make", [example1_model, example3_model])
 def test_kernel_matches_solve_ivp(make):
     model = make()
@@ -118,14 +130,8 @@ def test_stepper_equals_simulate():
         t = np.linspace(0, 10, 501)
         u = np.sin(t) + 0.2 * np.cos(2.7 * t)
         ref = simulate(model, t, u).y
-        st = Stepper(model, t0=t[0], u0=u[0])
-        ys = []
-        for k in range(len(t)):
-            if k:
-                st.do_step(t[k] - t[k - 1])
-            st.set_input(u[k])
-            ys.append(st.output())
-        assert np.abs(np.array(ys) - ref).max() < 1e-12
+        ys, _ = stepped(model, t, u)
+        assert np.abs(ys - ref).max() < 1e-12
 
 
 def test_json_round_trip(tmp_path):
@@ -262,14 +268,8 @@ def test_input_range_holds_the_input_at_its_edges_and_bounds_an_unstable_branch(
     assert np.abs(y_held).max() < 5.0
     beyond = u_out > 1.0
     assert np.ptp(y_held[beyond & (t < 0.5)]) < 1e-12       # the state does not move beyond the edge
-    st = Stepper(held, t0=t[0], u0=u_out[0])
-    ys = []
-    for k in range(len(t)):
-        if k:
-            st.do_step(t[k] - t[k - 1])
-        st.set_input(u_out[k])
-        ys.append(st.output())
-    assert np.abs(np.array(ys) - y_held).max() < 1e-12
+    ys, st = stepped(held, t, u_out)
+    assert np.abs(ys - y_held).max() < 1e-12
     assert st.u == u_out[-1]                                  # the input keeps the value set
 
 

@@ -39,7 +39,7 @@ from typing import Sequence
 
 import numpy as np
 
-from fitter.core.effects import REGISTRY, EffectContext
+from fitter.core.effects import EffectContext
 from fitter.core.kernel import simulate
 from fitter.core.models import RateIndependentModel, Signals
 from fitter.data.recordings import Recording
@@ -112,6 +112,11 @@ def free_base(fam: WithEffects) -> np.ndarray | None:
     return np.r_[~np.array(held, bool), np.ones(fam.size - fam.n_base, bool)]
 
 
+def _effects_only(fam: WithEffects) -> np.ndarray:
+    """The entries of theta that are the family's effect parameters (the base held)."""
+    return np.r_[np.zeros(fam.n_base, bool), np.ones(fam.size - fam.n_base, bool)]
+
+
 def _refine(fam: WithEffects, theta0: np.ndarray, ex: JoinedExperiment, mask: np.ndarray,
             free: np.ndarray | None = None) -> Fit:
     """Minimise the sum over `mask` of (y - yhat(theta))^2; only the `free` entries of theta move."""
@@ -135,8 +140,7 @@ def fit_family(template, effects: Sequence[str], base: np.ndarray, ex: JoinedExp
     starts = fam.starts()
     theta0 = np.r_[base, starts[0]]
     if len(starts) > 1:
-        effect_only = np.r_[np.zeros(fam.n_base, bool), np.ones(len(theta0) - fam.n_base, bool)]
-        screened = [_refine(fam, np.r_[base, s], ex, mask, effect_only) for s in starts]
+        screened = [_refine(fam, np.r_[base, s], ex, mask, _effects_only(fam)) for s in starts]
         theta0 = min(screened, key=lambda f: f.rss).theta
     fit = _refine(fam, theta0, ex, mask, free_base(fam))
     null = np.r_[base, fam.null()]
@@ -168,7 +172,6 @@ def fit_per_recording(fit: Fit, ex: JoinedExperiment, mask: np.ndarray) -> list[
     """The last effect of `fit`'s family refitted on each recording alone (everything else held), started
     from the joint values: does one parameter set hold across the recordings?"""
     fam = fit.family
-    k = len(REGISTRY[fam.effects[-1]].parameters)
-    free = np.r_[np.zeros(fam.size - k, bool), np.ones(k, bool)]
-    return [_refine(fam, fit.theta, ex, mask & (ex.index == i), free) for i in range(len(ex.recordings))]
+    return [_refine(fam, fit.theta, ex, mask & (ex.index == i), _effects_only(fam))
+            for i in range(len(ex.recordings))]
 
