@@ -3,6 +3,7 @@
     python bench/diagnose_generality.py              # 2 seeds per case, 600 samples per recording
     python bench/diagnose_generality.py --quick      # 1 seed, 350 samples per recording
     python bench/diagnose_generality.py --json PATH  # also write the table as JSON
+    python bench/diagnose_generality.py --clean 10   # only the clean controls: orders 1-3 x 10 seeds
     (--samples N: samples per recording; --only TEXT: only the cases whose name contains TEXT)
 
 Every truth is generated here with numpy/scipy in its own functional form, on top of a Duhem base loop
@@ -12,11 +13,9 @@ make any truth), then diagnosed by `fitter.diagnosis.diagnose` and scored.
 Base loops (y range about 2 on u in [-1, 1])
 --------------------------------------------
 * ``ri1``: `first_order_ri(**TRUTH_BASE)`, dx = (A+- x + B+- u + E+-) du, y = x.
-* ``ri2`` / ``ri3``: hand-built rate-independent models of order 2 / 3: one first-order cell per state,
-  A+ = -diag(a) + K, A- = -A+ (K: 0.4 off the diagonal; all branches converge), B+- = +-a,
-  E+- = -a e, a = (3, 10[, 1.2]), e = (0.5, 0.5[, 0.3]), C = c / ptp(y) * 2 so the loop spans 2,
-  x0 = the state after two warm-up cycles -1 -> 1 -> -1 (on the settled loop).
-Diagnosed with base_order=1 (ri1) or base_order=None (ri2, ri3: the order chosen by BIC).
+* ``ri2`` / ``ri3``: `fitter.diagnosis.synthetic.cell_base(2 or 3)`: one first-order cell per state,
+  weakly coupled, the loop spanning 2, x0 on the settled loop.
+Diagnosed as `duhem diagnose` does by default: the base order chosen by BIC (as `duhem fit` chooses it).
 
 Input designs (recordings on one clock, 1 s gaps, the input linear across a gap)
 --------------------------------------------------------------------------------
@@ -68,6 +67,10 @@ Scoring
   extended residual RMS stays above 1.5 x the true noise; FAIL otherwise (a catalogue effect claimed
   that brings the residual near the noise with the wrong physics, or "nothing_missing").
 * clean: PASS when the verdict is "nothing_missing".
+
+Clean controls (``--clean N``): effect-free data of the order-1, -2 and -3 bases, N seeds per order, the
+design rotating with the seed over trapezoids, triangles, random reversals and two recordings; the
+score is the number of "nothing_missing" verdicts per order.
 """
 from __future__ import annotations
 
@@ -87,7 +90,7 @@ from fitter.core.models import RateIndependentModel
 from fitter.data.recordings import Recording
 from fitter.diagnosis import diagnose, synthetic_experiment
 from fitter.diagnosis.fitting import first_order_ri
-from fitter.diagnosis.synthetic import TRUTH_BASE
+from fitter.diagnosis.synthetic import TRUTH_BASE, cell_base
 
 GAP = 1.0
 SNR = 15.0
@@ -171,25 +174,8 @@ def make_design(kind: str, rng: np.random.Generator, samples: int) -> Design:
 
 
 # ------------------------------------------------------------------------------------------------- bases
-def hand_base(order: int) -> RateIndependentModel:
-    """The hand-built order-2/3 rate-independent base (module docstring), x0 on the settled loop."""
-    a = np.array([3.0, 10.0, 1.2])[:order]
-    e = np.array([0.5, 0.5, 0.3])[:order]
-    c = np.array([0.5, 0.3, 0.2])[:order]
-    coupling = 0.4 * (np.ones((order, order)) - np.eye(order))
-    a_plus = -np.diag(a) + coupling
-    model = RateIndependentModel(A_plus=a_plus, A_minus=-a_plus, B_plus=a, B_minus=-a, C=c,
-                                 E_plus=-a * e, E_minus=-a * e, x0=np.zeros(order))
-    warm = np.r_[np.linspace(-1, 1, 400), np.linspace(1, -1, 400)[1:]]
-    for _ in range(2):                                  # settle, then scale the loop to a range of 2
-        sim = simulate(model, None, warm)
-        model = model.replace(x0=sim.x[-1])
-    span = np.ptp(simulate(model, None, warm).y)
-    return model.replace(C=c * 2.0 / span)
-
-
 def make_base(kind: str) -> RateIndependentModel:
-    return first_order_ri(**TRUTH_BASE) if kind == "ri1" else hand_base(int(kind[-1]))
+    return first_order_ri(**TRUTH_BASE) if kind == "ri1" else cell_base(int(kind[-1]))
 
 
 # ------------------------------------------------------------------------------------------ effect forms
@@ -348,10 +334,6 @@ class Case:
     base: str = "ri1"
     seeds: int = 2
 
-    @property
-    def base_order(self) -> int | None:
-        return 1 if self.base == "ri1" else None
-
 
 CASES = (
     Case("log_creep", "catalogue", ("log_creep",), ("creep",)),
@@ -423,7 +405,7 @@ def score_row(case: Case, row: Row) -> bool:
 def run_case(case: Case, seed: int, samples: int) -> Row:
     recs, sigma = build_experiment(case, seed, samples)
     t0 = time.perf_counter()
-    d = diagnose(recs, base_order=case.base_order)
+    d = diagnose(recs)
     row = Row(case.name, case.group, seed, "+".join(case.expected) or
               ("unexplained|ext>1.5" if case.group == "outside" else "nothing_missing"),
               d.verdict, [{"effect": f["effect"], "p_value": f["p_value"], "parameters": f["parameters"],
@@ -459,16 +441,37 @@ def summary(rows: Sequence[Row]) -> str:
             f"two-effects {flagged('two')}")
 
 
+CLEAN_DESIGNS = ("trapezoids", "triangles", "random", "two")
+
+
+def clean_controls(seeds: int, samples: int) -> list[Row]:
+    """Effect-free experiments of the order-1/2/3 bases, the design rotating with the seed (docstring)."""
+    rows = []
+    for base in ("ri1", "ri2", "ri3"):
+        for seed in range(seeds):
+            design = CLEAN_DESIGNS[seed % len(CLEAN_DESIGNS)]
+            rows.append(run_case(Case(f"clean/{base}/{design}", "clean", design=design, base=base), seed, samples))
+            print(line(rows[-1]), flush=True)
+    for base in ("ri1", "ri2", "ri3"):
+        sel = [r for r in rows if r.case.startswith(f"clean/{base}/")]
+        print(f"clean {base}: nothing_missing in {sum(r.ok for r in sel)}/{len(sel)}")
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one seed per case, 350 samples per recording")
     ap.add_argument("--samples", type=int, default=None, help="samples per recording (default 600, quick 350)")
     ap.add_argument("--only", default=None, help="run only the cases whose name contains this")
     ap.add_argument("--json", type=str, default=None, help="write the table to this path")
+    ap.add_argument("--clean", type=int, default=None, metavar="N",
+                    help="run only the clean controls: orders 1-3, N seeds each")
     args = ap.parse_args()
     samples = args.samples or (350 if args.quick else 600)
     rows, t_start = [], time.perf_counter()
-    for case in CASES:
+    if args.clean:
+        rows = clean_controls(args.clean, samples)
+    for case in () if args.clean else CASES:
         if args.only and args.only not in case.name:
             continue
         for seed in range(1 if args.quick else case.seeds):

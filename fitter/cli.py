@@ -405,8 +405,9 @@ def simulate(model, input_csv, out, time_col, input_col, as_json):
               help="write the diagnosis as JSON to this file ('-' for stdout)")
 @click.option("--fmu", type=click.Path(dir_okay=False), help="export the extended model as this FMU")
 @backend_option
-@click.option("--base-order", type=click.IntRange(1, 4), default=1, show_default=True, metavar="N",
-              help="without --model: order of the rate-independent base model (1: fitted here, fast; "
+@click.option("--base-order", type=click.Choice(["auto", "1", "2", "3", "4"]), default="auto", show_default=True,
+              help="without --model: order of the rate-independent base model (auto: the order 'duhem fit' "
+                   "chooses by BIC, so the base is adequate before effects are tested; 1: fitted here, fast; "
                    "2-4: fitted by 'duhem fit --kind ri --order N' first; its A matrices are then held)")
 @_column_options
 def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order, time_col, input_col,
@@ -417,7 +418,7 @@ def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order,
     several rates and a repeat of the first run).
     """
     _check_fmu_name(fmu)
-    if model_path and base_order != 1:
+    if model_path and base_order != "auto":
         raise CliError("--base-order applies only without --model (the given model sets the base)")
     if fmu:
         _check_backend(backend)
@@ -429,7 +430,8 @@ def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order,
         report_tmp = outputs.enter_context(atomic_directory(report)) if report else None
         fmu_tmp = outputs.enter_context(atomic_file(fmu, suffix=".fmu")) if fmu else None
         with stderr_progress("diagnosing", bar=True) as progress:
-            result = run_diagnosis(recs, model=base, progress=progress, base_order=base_order)
+            result = run_diagnosis(recs, model=base, progress=progress,
+                                   base_order=None if base_order == "auto" else int(base_order))
         data = jsonable(result.to_json())
         if report_tmp:
             fill_diagnosis_report(result, recs, report_tmp)

@@ -293,7 +293,11 @@ def test_diagnose_unexplained_and_base_order(clean_run, monkeypatch):
     assert "nothing missing:" not in out
     assert calls[0]["base_order"] == 3 and calls[0]["model"] is None
     ok(invoke("diagnose", *clean_run["files"]))
-    assert calls[1]["base_order"] == 1
+    assert calls[1]["base_order"] is None           # default: the order chosen by BIC, as `duhem fit` does
+    ok(invoke("diagnose", *clean_run["files"], "--base-order", "1"))
+    assert calls[2]["base_order"] == 1
+    bad = invoke("diagnose", *clean_run["files"], "--base-order", "5")
+    assert bad.exit_code == 2 and "'5' is not one of" in bad.output
 
 
 # --------------------------------------------------------------------------- errors

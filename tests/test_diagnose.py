@@ -21,6 +21,7 @@ from fitter.diagnosis import DiagnoseError, JoinedExperiment, diagnose, syntheti
 from fitter.diagnosis.experiment import join_recordings
 from fitter.diagnosis.fitting import Fit, first_order_ri
 from fitter.diagnosis.statistics import effect_report
+from fitter.diagnosis.synthetic import cell_base
 from fitter.identification.output_error import RefineResult, effective_samples as effective_sample_size
 from fitter.identification.parametrisation import StateSpace, WithEffects
 from fitter.reports.diagnosis_report import write_diagnosis_report
@@ -31,11 +32,14 @@ _CACHE: dict = {}
 
 
 def run(effect, seed):
+    """The diagnosis of `synthetic_experiment(effect, seed)` with the truth's base order (1) given: these tests
+    check that the effect is named when the base is adequate (the default BIC base: tests further down)."""
     key = (effect, seed)
     if key not in _CACHE:
         recs, truth = synthetic_experiment(effect, seed=seed, samples=SAMPLES)
         steps = []
-        _CACHE[key] = (recs, truth, diagnose(recs, progress=lambda msg, frac: steps.append((msg, frac))))
+        d = diagnose(recs, base_order=1, progress=lambda msg, frac: steps.append((msg, frac)))
+        _CACHE[key] = (recs, truth, d)
         _CACHE[key][2].steps = steps
     return _CACHE[key]
 
@@ -280,3 +284,35 @@ def test_clean_second_order_data_with_a_bic_base_has_nothing_missing():
     assert d.base_model.order >= 2
     assert d.baseline["residual_rms"] <= 1.2 * d.noise_rms
     assert d.verdict == "nothing_missing" and d.findings == [] and len(d.candidates) == len(REGISTRY)
+
+
+def _two_rate_triangles(model, seed: int, noise: float = 0.005) -> list[Recording]:
+    """Two triangle runs of `model` on one clock (periods 20 s and 4 s, 300 samples each, the second starting
+    where the first ends), seeded output noise `noise` x the output range."""
+    from conftest import noisy_recording
+    t = np.r_[np.linspace(0, 40, 300), 40.5 + np.linspace(0, 8, 300)]
+    period = np.where(t < 40.25, 20.0, 4.0)
+    u = 1 - 4 * np.abs(((t - np.where(t < 40.25, 0, 40.5)) / period) % 1 - 0.5)
+    rec = noisy_recording(model, t, u, noise=noise, seed=seed)
+    return [Recording(rec.t[:300], rec.u[:300], rec.y[:300], name="slow"),
+            Recording(rec.t[300:], rec.u[300:], rec.y[300:], name="fast")]
+
+
+@pytest.mark.parametrize("order", [1, 2, 3])
+def test_default_base_on_clean_data_of_any_order_has_nothing_missing(order):
+    """Effect-free data of order-1/2/3 bases (`cell_base`): the default base (the order chosen by BIC,
+    competing with the first-order base's best effect) is adequate, and no effect is claimed."""
+    d = diagnose(_two_rate_triangles(cell_base(order), seed=order))
+    assert d.verdict == "nothing_missing" and d.findings == [], (d.verdict, [f["effect"] for f in d.findings])
+    assert d.baseline["residual_rms"] <= 1.2 * d.noise_rms
+    if order > 1:
+        assert d.base_model.order > 1          # the first-order base alone is not adequate here
+
+
+def test_default_base_prefers_an_effect_to_an_extra_order():
+    """Backlash concealed in first-order data: an order-2 base would absorb it, but the first-order base with
+    backlash predicts the held-out run better, so the default diagnosis names backlash (first-order base)."""
+    recs, truth = synthetic_experiment("backlash", seed=0, samples=SAMPLES)
+    d = diagnose(recs)
+    assert [f["effect"] for f in d.findings][:1] == ["backlash"] and d.base_model.order == 1
+    assert d.extended["residual_rms"] <= 1.2 * truth["noise_rms"]

@@ -5,9 +5,18 @@ One experiment is a list of recordings on one clock, simulated as one signal
 
 Procedure (`diagnose`)
 ----------------------
-1. Base model: a first-order rate-independent model, eqs (1)-(2) with C = 1,
-   D = 0, fitted by output error, or a given model whose A, B, E (per branch)
-   and x0 are refined (`fitter.diagnosis.fitting.fit_base`).
+1. Base model, made adequate before effects are added (`_adequate_base`):
+   by default the first-order rate-independent model (eqs (1)-(2) with
+   C = 1, D = 0, fitted here) competes with the order `duhem fit` chooses
+   (BIC over orders 1-4, `fitter.identification.fit.fit_recordings`): when
+   that order is above 1, the higher-order base and the first-order base
+   with its best effect are both refitted without the last recording and
+   predict it; the better prediction is the base (a missing order is not
+   "explained" by whichever effect absorbs it, and an effect is not hidden
+   by an extra order that fits as well but generalises worse; one
+   recording: the lower BIC).  Or a fixed order, or a given model.
+   The base's A, B, E (per branch) and x0 are refined
+   (`fitter.diagnosis.fitting.fit_base`).
 2. Noise level sigma: `fitter.data.metrics.noise_rms` of each recording's output,
    pooled (median).  Locating (`fitter.diagnosis.locate.locate_mismatch`):
    residual RMS per recording, per branch, per input-range bin, its
@@ -74,7 +83,7 @@ _FINDING_KEYS = ("effect", "origin", "p_value", "parameters", "stderr", "explain
 
 def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress = silent,
              candidates: Sequence[str] = CANDIDATES, alpha: float = ALPHA, max_findings: int = 2,
-             base_order: int | None = 1) -> Diagnosis:
+             base_order: int | None = None) -> Diagnosis:
     """Diagnose one experiment; see the module docstring for the procedure.
 
     Parameters
@@ -82,11 +91,11 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
     recordings : the experiment's recordings, in time order, on one clock.
     model : optional base model (`RateIndependentModel` or `RateDependentModel`); its A, B, E, x0 are
         refined on the experiment.
-    base_order : without `model`: 1 (default) fits the first-order rate-independent base here (fast;
-        every candidate fit refits its 7 parameters); any other value (None = chosen by BIC) takes the
-        base from `fitter.identification.fit.fit_recordings(recordings, kind="ri", order=base_order)`, which is then
-        refined like a given model (more parameters: slower, and a flexible base absorbs part of what
-        an effect would explain).
+    base_order : without `model`: None (default) takes the base from
+        `fitter.identification.fit.fit_recordings(recordings, kind="ri")`, the order chosen by BIC as
+        `duhem fit` chooses it; 2-4 the same with that order; 1 fits the first-order base here (fast:
+        every candidate fit refits its 7 parameters).  A fitted base of order 2-4 is refined like a
+        given model (its A matrices held).
     progress : callback ``progress(message, fraction_done)`` (`fitter.progress`).
     candidates : effect names to test (default all of `fitter.core.effects.REGISTRY`); those the base
         model already has (a given model's effects, or the input dead band of a fitted base) are skipped.
@@ -105,23 +114,27 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
     mask = np.ones(len(ex.t), bool)
     progress("fitting the base model", 0.0)
     noise = float(np.median([noise_rms(r.y) for r in ex.recordings if len(r.y) >= 14]))
-    if model is None and base_order != 1:
-        model = fit_recordings(ex.recordings, kind="ri", order=base_order).model
-    base = fit_base(ex, model, mask)
-    mismatch = locate_mismatch(ex, base.residual, noise)
-    present = {e.effect for e in base.model.effects}
-    candidates = [c for c in candidates if c not in present]
-    n_steps = len(candidates) * 2 + 4
+    n_steps = len(candidates) * (3 if model is None and base_order is None else 2) + 4
     done = [1]
 
     def tick(msg):
         done[0] += 1
         progress(msg, min(done[0] / n_steps, 0.99))
 
+    if model is None and base_order is None:
+        base, first_round = _adequate_base(ex, mask, noise, candidates, alpha, tick)
+    else:
+        if model is None and base_order != 1:
+            model = fit_recordings(ex.recordings, kind="ri", order=base_order).model
+        base, first_round = fit_base(ex, model, mask), None
+    mismatch = locate_mismatch(ex, base.residual, noise)
+    present = {e.effect for e in base.model.effects}
+    candidates = [c for c in candidates if c not in present]
     current, findings, tested, fits = base, [], [], {}
     remaining = list(candidates)
     while remaining and len(findings) < max_findings:
-        round_results = _test_round(ex, current, remaining, mask, alpha, len(candidates), tick)
+        round_results = first_round if first_round is not None and not findings else \
+            _test_round(ex, current, remaining, mask, alpha, len(candidates), tick)
         if not findings:
             tested = [dict(r, rank=j + 1) for j, (r, _) in enumerate(round_results)]
             fits = {r["effect"]: f for r, f in round_results}
@@ -152,6 +165,51 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
                      extended_output=ex.y - current.residual)
     diag.paragraph = summary_paragraph(diag)
     return diag
+
+
+def _bic(fit: Fit, n_parameters: int) -> float:
+    """BIC = N ln(RSS / N) + k ln N over the fitted samples (the criterion `duhem fit` orders by)."""
+    N = int(np.count_nonzero(fit.mask))
+    return float(N * np.log(max(fit.rss, 1e-300) / N) + n_parameters * np.log(N))
+
+
+def _adequate_base(ex: JoinedExperiment, mask: np.ndarray, noise: float, candidates: Sequence[str],
+                   alpha: float, tick: Callable[[str], None]) -> tuple[Fit, list | None]:
+    """The base of step 1 (module docstring) and, when it is the first-order base, its first round of
+    candidate tests (reused by the search).
+
+    Both accounts of the data, the first-order base with its best significant effect and the order-n
+    base, are refitted without the last recording and predict it: the lower hold-out error wins (two
+    accounts that fit equally well, e.g. an extra order and backlash, are told apart by how they
+    generalise to another rate or amplitude).  With a single recording the lower BIC wins (parameters:
+    7 for the first-order base plus the effect's; for the order-n base its canonical parameters
+    (`fit_recordings`) plus its n initial states)."""
+    first = fit_base(ex, None, mask)
+    if rms(first.residual) <= NOISE_MARGIN * noise:
+        return first, None
+    tick("choosing the base order (BIC)")
+    higher = fit_recordings(ex.recordings, kind="ri")
+    order = higher.model.order
+    if order == 1:
+        return first, None
+    high = fit_base(ex, higher.model, mask)
+    k_high = next(c["parameters"] for c in higher.summary["candidates"] if c["order"] == order) + order
+    results = _test_round(ex, first, candidates, mask, alpha, len(candidates), tick)
+    best = next((f for r, f in results if r["significant"]), None)
+    if best is None:
+        return high, None
+    if len(ex.recordings) > 1:
+        return (first, results) if _held_out_rms(ex, best, mask) < _held_out_rms(ex, high, mask) else (high, None)
+    return (first, results) if _bic(best, best.family.size) < _bic(high, k_high) else (high, None)
+
+
+def _held_out_rms(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> float:
+    """RMS error on the last recording of `fit`'s family refitted on the others (from `fit`'s values)."""
+    train = mask.copy()
+    train[ex.part(len(ex.recordings) - 1)] = False
+    fam = fit.family
+    refit = fit_family(fam.base.template, fam.effects, fit.theta[:fam.n_base], ex, train, ex.y - fit.residual)
+    return rms(refit.residual[~train])
 
 
 def _test_round(ex: JoinedExperiment, current: Fit, names: Sequence[str], mask: np.ndarray,

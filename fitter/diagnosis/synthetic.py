@@ -8,13 +8,35 @@ import numpy as np
 
 from fitter.core.effects import REGISTRY, Effect
 from fitter.core.kernel import simulate
+from fitter.core.models import RateIndependentModel
 from fitter.data.recordings import Recording
 from fitter.diagnosis.fitting import first_order_ri
 
-__all__ = ["DEFAULT_RUNS", "TRUTH_BASE", "synthetic_experiment"]
+__all__ = ["DEFAULT_RUNS", "TRUTH_BASE", "cell_base", "synthetic_experiment"]
 
 TRUTH_BASE = dict(a_plus=-3.0, a_minus=3.0, b_plus=3.0, b_minus=-3.0, e_plus=-1.5, e_minus=-1.5, x0=-1 / 6)
 DEFAULT_RUNS = ((40.0, 1.0), (8.0, 1.0), (2.0, 1.0), (40.0, 1.0))
+
+
+def cell_base(order: int) -> RateIndependentModel:
+    """A rate-independent base of `order` (1-3) made of first-order cells, one per state, coupled weakly.
+
+    A+ = -diag(a) + K, A- = -A+ (K: 0.4 off the diagonal; every branch converges), B+- = +-a,
+    E+- = -a e, a = (3, 10, 1.2), e = (0.5, 0.5, 0.3) (the first `order` entries), C scaled so that the
+    settled loop on u in [-1, 1] spans 2, x0 the state after two warm-up cycles -1 -> 1 -> -1 (on the
+    settled loop).
+    """
+    a = np.array([3.0, 10.0, 1.2])[:order]
+    e = np.array([0.5, 0.5, 0.3])[:order]
+    c = np.array([0.5, 0.3, 0.2])[:order]
+    coupling = 0.4 * (np.ones((order, order)) - np.eye(order))
+    a_plus = -np.diag(a) + coupling
+    model = RateIndependentModel(A_plus=a_plus, A_minus=-a_plus, B_plus=a, B_minus=-a, C=c,
+                                 E_plus=-a * e, E_minus=-a * e, x0=np.zeros(order))
+    warm = np.r_[np.linspace(-1, 1, 400), np.linspace(1, -1, 400)[1:]]
+    for _ in range(2):
+        model = model.replace(x0=simulate(model, None, warm).x[-1])
+    return model.replace(C=c * 2.0 / np.ptp(simulate(model, None, warm).y))
 
 
 def _runs_signal(runs, samples: int, cycles: int, hold: float, gap: float):
