@@ -2,11 +2,12 @@
 
 Usage::
 
-    python build_fmu.py model.json -o model.fmu [--backend native|python]
+    python build_fmu.py model.json -o model.fmu [--backend native|python] [--fmi-version 2|3]
 
 prints the FMU's absolute path (exit status 0), or one line ``error: ...``
 on stderr (exit status 1).  The default backend is ``native``: the FMU then
-runs in simulators without Python.  The generator is `fitter.fmu.build`;
+runs in simulators without Python.  ``--fmi-version 3`` (native backend only)
+writes an FMI 3.0 Co-Simulation FMU.  The generator is `fitter.fmu.build`;
 ``import build_fmu; build_fmu.build_fmu(model_or_json_path, out_path,
 backend=...)`` is the same function (``duhem export`` is the same export with
 the package's command line).
@@ -18,20 +19,21 @@ from typing import Sequence
 
 import click
 
-from fitter.cli_support import backend_option, guarded, run_command
-from fitter.fmu.build import BACKENDS, MODEL_IDENTIFIER, FmuBuildError, build_fmu
+from fitter.cli_support import backend_option, fmi_version_option, guarded, run_command
+from fitter.fmu.build import BACKENDS, FMI_VERSIONS, MODEL_IDENTIFIER, FmuBuildError, build_fmu
 
-__all__ = ["build_fmu", "FmuBuildError", "MODEL_IDENTIFIER", "BACKENDS", "command", "main"]
+__all__ = ["build_fmu", "FmuBuildError", "MODEL_IDENTIFIER", "BACKENDS", "FMI_VERSIONS", "command", "main"]
 
 
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})
 @click.argument("model", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="FMU file to write")
 @backend_option
+@fmi_version_option
 @guarded
-def command(model: str, output: str, backend: str) -> None:
-    """Export a semilinear Duhem model JSON (duhem fit output) as an FMI 2.0 Co-Simulation FMU."""
-    click.echo(build_fmu(model, output, backend=backend))
+def command(model: str, output: str, backend: str, fmi_version: int) -> None:
+    """Export a semilinear Duhem model JSON (duhem fit output) as an FMI 2.0 or 3.0 Co-Simulation FMU."""
+    click.echo(build_fmu(model, output, backend=backend, fmi_version=fmi_version))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

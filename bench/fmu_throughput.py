@@ -1,14 +1,16 @@
 """Co-simulation throughput of exported model FMUs, and of the in-process kernel.
 
-For every FMU backend in `BACKENDS`, and models of order 1-4 (rate independent
-and rate dependent):
+For every FMU backend in `BACKENDS` (python, native FMI 2.0, native FMI 3.0),
+and models of order 1-4 (rate independent and rate dependent):
 
 * steps per second of the model FMU in fmpy's `FMU2Slave` loop, one step being
   ``setReal(u)``, ``getReal(y)``, ``doStep`` (the host of `fitter.fmu.host`);
-* the same for a trivial ``y = k u`` FMU built the same way (the per-step floor
-  of host plus FMU wrapper), and the ratio model / trivial.
+  for FMI 3.0 fmpy's `FMU3Slave` with ``setFloat64``, ``getFloat64``, ``doStep``;
+* the same for a trivial ``y = k u`` FMU built the same way, of the same FMI
+  version (the per-step floor of host plus FMU wrapper), and the ratio model /
+  trivial.
   Target: ratio >= 0.30 for the pythonfmu backend, order <= 4; >= 0.50 for the
-  native (C) backend.
+  native (C) backend, FMI 2.0 and 3.0.
 
 And samples per second of `fitter.core.simulate` on a 1e6-sample input
 (target >= 1e6 for a rate-independent model of order <= 4).
@@ -16,6 +18,7 @@ And samples per second of `fitter.core.simulate` on a 1e6-sample input
 Usage::
 
     python bench/fmu_throughput.py [--steps 4000] [--samples 1000000] [--repeats 5] [--json]
+                                   [--backend python|native|native-fmi3 ...]
 
 Every figure is the best of ``--repeats`` runs; the model and the trivial FMU
 run alternately, so that load from other processes on a shared machine biases
@@ -39,6 +42,7 @@ from typing import Callable
 import numpy as np
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
+from fmpy.fmi3 import FMU3Slave
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -113,6 +117,9 @@ from fitter.fmu.native import build_gain_fmu  # noqa: E402
 
 BACKENDS.append(Backend("native", lambda m, p: build_fmu.build_fmu(m, p, backend="native"),
                         lambda p: build_gain_fmu(p), 0.50))
+# The same C model behind the FMI 3.0 framework, against the gain FMU of FMI 3.0 (issue 12).
+BACKENDS.append(Backend("native-fmi3", lambda m, p: build_fmu.build_fmu(m, p, backend="native", fmi_version=3),
+                        lambda p: build_gain_fmu(p, fmi_version=3), 0.50))
 
 
 def stable_matrix(rng: np.random.Generator, n: int, decay: float) -> np.ndarray:
@@ -134,28 +141,35 @@ def bench_model(kind: str, n: int) -> RateIndependentModel | RateDependentModel:
 
 
 class LoopedFmu:
-    """An initialised FMU2Slave and the host loop: setReal(u), getReal(y), doStep."""
+    """An initialised FMU2Slave (FMU3Slave) and the host loop: setReal(u) (setFloat64),
+    getReal(y) (getFloat64), doStep."""
 
     def __init__(self, fmu_path: str):
         md = read_model_description(fmu_path)
         vr = {v.name: v.valueReference for v in md.modelVariables}
         self.unzipdir = extract(fmu_path)
-        self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=self.unzipdir,
-                             modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bench")
+        slave = FMU3Slave if md.fmiVersion == "3.0" else FMU2Slave
+        self.fmu = slave(guid=md.guid, unzipDirectory=self.unzipdir,
+                         modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bench")
         self.fmu.instantiate()
-        self.fmu.setupExperiment(startTime=0.0)
-        self.fmu.enterInitializationMode()
+        if slave is FMU3Slave:
+            self.fmu.enterInitializationMode(startTime=0.0)
+            self.set, self.get = self.fmu.setFloat64, self.fmu.getFloat64
+        else:
+            self.fmu.setupExperiment(startTime=0.0)
+            self.fmu.enterInitializationMode()
+            self.set, self.get = self.fmu.setReal, self.fmu.getReal
         self.fmu.exitInitializationMode()
         self.vu, self.vy = [vr["u"]], [vr["y"]]
         self.t = 0.0
 
     def steps_per_second(self, u: list[float], h: float) -> float:
-        fmu, vu, vy, t = self.fmu, self.vu, self.vy, self.t
+        fmu, set_value, get_value, vu, vy, t = self.fmu, self.set, self.get, self.vu, self.vy, self.t
         start = time.perf_counter()
         for value in u:
-            fmu.setReal(vu, [value])
-            fmu.getReal(vy)
-            fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
+            set_value(vu, [value])
+            get_value(vy)
+            fmu.doStep(t, h)
             t += h
         elapsed = time.perf_counter() - start
         self.t = t
@@ -193,15 +207,16 @@ def kernel_samples_per_second(model, samples: int) -> float:
     return samples / (time.perf_counter() - start)
 
 
-def run(steps: int, samples: int, repeats: int) -> dict:
+def run(steps: int, samples: int, repeats: int, backends: list[str] | None = None) -> dict:
     """All figures; the trivial FMU is measured beside every model (shared, noisy machines)."""
     fmu_rows, kernel_rows = [], []
     with tempfile.TemporaryDirectory(prefix="duhem_bench_") as tmp:
-        for backend in BACKENDS:
+        for backend in [b for b in BACKENDS if backends is None or b.name in backends]:
             gain = backend.build_trivial(Path(tmp) / f"gain_{backend.name}.fmu")
             for kind in ("ri", "rd"):
                 for n in range(1, 5):
-                    path = backend.build_model(bench_model(kind, n), Path(tmp) / f"{kind}{n}.fmu")
+                    path = backend.build_model(bench_model(kind, n),
+                                               Path(tmp) / f"{backend.name}_{kind}{n}.fmu")
                     rate, trivial = paired_steps_per_second(path, gain, steps, repeats)
                     fmu_rows.append({"backend": backend.name, "kind": kind, "order": n,
                                      "model_steps_per_s": rate, "trivial_steps_per_s": trivial,
@@ -219,10 +234,10 @@ def run(steps: int, samples: int, repeats: int) -> dict:
 
 
 def print_table(result: dict) -> None:
-    print(f"{'backend':8} {'kind':4} {'n':>2} {'model steps/s':>14} {'trivial steps/s':>16} "
+    print(f"{'backend':11} {'kind':4} {'n':>2} {'model steps/s':>14} {'trivial steps/s':>16} "
           f"{'ratio':>6} {'target':>6}")
     for r in result["fmu"]:
-        print(f"{r['backend']:8} {r['kind']:4} {r['order']:>2} {r['model_steps_per_s']:>14,.0f} "
+        print(f"{r['backend']:11} {r['kind']:4} {r['order']:>2} {r['model_steps_per_s']:>14,.0f} "
               f"{r['trivial_steps_per_s']:>16,.0f} {r['ratio']:>6.2f} "
               f"{'ok' if r['meets_target'] else 'MISS':>6}")
     print()
@@ -238,8 +253,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--samples", type=int, default=1_000_000, help="kernel input length")
     parser.add_argument("--repeats", type=int, default=5, help="runs per figure (best is kept)")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
+    parser.add_argument("--backend", dest="backends", action="append", choices=[b.name for b in BACKENDS],
+                        help="measure only this FMU backend (repeatable; default: all)")
     args = parser.parse_args(argv)
-    result = run(args.steps, args.samples, args.repeats)
+    result = run(args.steps, args.samples, args.repeats, args.backends)
     if args.json:
         print(json.dumps(result, indent=1))
     else:

@@ -33,7 +33,7 @@ import click
 import numpy as np
 
 from fitter.baselines import comparison
-from fitter.cli_support import EXIT_ERROR, CliError, GuardedGroup, backend_option
+from fitter.cli_support import EXIT_ERROR, CliError, GuardedGroup, backend_option, fmi_version_option
 from fitter.core.files import atomic_directory, atomic_file, json_text, jsonable
 from fitter.core.kernel import simulate as simulate_model
 from fitter.core.models import ModelFileError, load_model, save_model
@@ -265,19 +265,24 @@ def _comparison_tables(comp: dict) -> None:
 @click.argument("model", type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False), help="FMU file to write")
 @backend_option
+@fmi_version_option
 @_allow_unstable_option
 @click.option("--json", "as_json", is_flag=True, help="print the result as JSON")
-def export(model, out, backend, allow_unstable, as_json):
-    """Export a model JSON as an FMI 2.0 Co-Simulation FMU."""
+def export(model, out, backend, fmi_version, allow_unstable, as_json):
+    """Export a model JSON as an FMI 2.0 (or, --fmi-version 3, FMI 3.0) Co-Simulation FMU."""
+    if fmi_version == 3 and backend != "native":
+        raise CliError("FMI 3.0 export needs --backend native")
     m = _load_model_json(model)
     _check_fmu_name(out)
     with stderr_progress("duhem export") as say, atomic_file(out, suffix=".fmu") as tmp:
-        say(f"building the {backend} FMU", None)
-        build_fmu(m, tmp, backend=backend, allow_unstable=allow_unstable)
+        say(f"building the {backend} FMI {fmi_version}.0 FMU", None)
+        build_fmu(m, tmp, backend=backend, allow_unstable=allow_unstable, fmi_version=fmi_version)
     if as_json:
-        _emit_json({"model": model, "fmu": out, "backend": backend, "kind": m.kind, "order": m.order})
+        _emit_json({"model": model, "fmu": out, "backend": backend, "fmi_version": f"{fmi_version}.0",
+                    "kind": m.kind, "order": m.order})
     else:
-        click.echo(f"{m.kind} model of order {m.order} exported to {out} ({backend} backend)")
+        click.echo(f"{m.kind} model of order {m.order} exported to {out} ({backend} backend, "
+                   f"FMI {fmi_version}.0)")
     _python_host_note(out, backend)
 
 

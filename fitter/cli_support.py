@@ -23,7 +23,7 @@ import click
 from fitter.core.errors import DuhemError
 
 __all__ = ["CliError", "EXIT_ERROR", "one_line_errors", "guarded", "GuardedGroup", "backend_option",
-           "run_command"]
+           "fmi_version_option", "run_command"]
 
 EXIT_ERROR = 1
 
@@ -89,6 +89,13 @@ def backend_option(func: Callable) -> Callable:
                         show_default=True,
                         help="native: C library, the simulator needs no Python (needs a C compiler "
                              "now); python: pythonfmu, the simulator needs Python with numpy")(func)
+
+
+def fmi_version_option(func: Callable) -> Callable:
+    """``--fmi-version [2|3]`` (default 2): the FMI version of the FMU (3 needs --backend native)."""
+    return click.option("--fmi-version", "fmi_version", type=click.Choice(["2", "3"]), default="2",
+                        show_default=True, callback=lambda ctx, param, value: int(value),
+                        help="FMI 2.0 or FMI 3.0 Co-Simulation (3.0 needs --backend native)")(func)
 
 
 def run_command(command: click.Command, argv: Sequence[str] | None, prog_name: str) -> int:

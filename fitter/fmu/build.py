@@ -1,4 +1,4 @@
-"""FMU generator: a model (or a saved model JSON) in, an FMI 2.0 Co-Simulation FMU out.
+"""FMU generator: a model (or a saved model JSON) in, an FMI 2.0 (or 3.0) Co-Simulation FMU out.
 
 `build_fmu(model_or_json_path, out_path, backend=...)` dispatches to a
 backend and writes the FMU atomically (`fitter.core.files.atomic_file`: a
@@ -8,7 +8,7 @@ partial file.  The command lines are ``duhem export`` and the script
 ``build_fmu.py``.
 
 The ``native`` backend is `fitter.fmu.native.build_native_fmu` (C, the host
-needs no Python).
+needs no Python); it alone exports FMI 3.0 (``fmi_version=3``).
 
 The ``python`` backend (pythonfmu)
 ----------------------------------
@@ -63,10 +63,11 @@ import fmu_src
 from fitter.core import load_model, save_model
 from fitter.core.errors import DuhemError
 from fitter.core.files import atomic_file, write_json
-from fitter.fmu.model_description import converges, model_description_xml, model_variables, package_version
+from fitter.fmu.model_description import (FMI_VERSIONS, converges, model_description_xml, model_variables,
+                                          package_version)
 from fitter.fmu.native import build_native_fmu
 
-__all__ = ["build_fmu", "FmuBuildError", "MODEL_IDENTIFIER", "BACKENDS", "PYTHON_HOST_NEEDS"]
+__all__ = ["build_fmu", "FmuBuildError", "MODEL_IDENTIFIER", "BACKENDS", "FMI_VERSIONS", "PYTHON_HOST_NEEDS"]
 
 MODEL_IDENTIFIER = "semilinear_duhem"
 BACKENDS = ("python", "native")
@@ -165,15 +166,9 @@ def _build_python(model, out_path: Path, **opts) -> None:
         _rewrite_zip(Path(built), out_path, xml)
 
 
-def _build_native(model, out_path: Path, **opts) -> None:
-    """`fitter.fmu.native.build_native_fmu` (a missing C compiler is its `NativeBuildError`,
-    which names the python backend)."""
-    build_native_fmu(model, str(out_path), **opts)
-
-
 def build_fmu(model_or_json_path, out_path: str | os.PathLike, *, backend: str = "python",
-              allow_unstable: bool = False, **opts) -> str:
-    """Build an FMI 2.0 Co-Simulation FMU of a model; return the FMU's absolute path.
+              allow_unstable: bool = False, fmi_version: int = 2, **opts) -> str:
+    """Build an FMI 2.0 or 3.0 Co-Simulation FMU of a model; return the FMU's absolute path.
 
     Parameters
     ----------
@@ -188,6 +183,8 @@ def build_fmu(model_or_json_path, out_path: str | os.PathLike, *, backend: str =
         Export a model whose fit recorded a violated convergence condition
         (``fit_info["convergence"]["satisfied"]`` false); the FMU's description
         then carries a warning.  Without it such a model is refused.
+    fmi_version : {2, 3}
+        The FMI version; 3 needs the native backend.
     **opts
         Python backend: ``model_name``, ``description``, ``version`` (default:
         the version of semilinear-duhem that exports), ``author``
@@ -196,14 +193,19 @@ def build_fmu(model_or_json_path, out_path: str | os.PathLike, *, backend: str =
     Raises
     ------
     ValueError
-        Unknown backend.
+        Unknown backend or FMI version.
     TypeError
         Unknown option of the python backend; not a model.
     FmuBuildError
-        The backend failed, or the model is unstable and `allow_unstable` is false.
+        The backend failed, the model is unstable and `allow_unstable` is false, or FMI 3.0
+        was asked of the python backend.
     """
     if backend not in BACKENDS:
         raise ValueError(f"unknown FMU backend {backend!r} (expected one of {', '.join(BACKENDS)})")
+    if fmi_version not in FMI_VERSIONS:
+        raise ValueError(f"unknown FMI version {fmi_version!r} (expected 2 or 3)")
+    if fmi_version == 3 and backend != "native":
+        raise FmuBuildError("FMI 3.0 export needs --backend native (pythonfmu writes FMI 2.0 only)")
     if backend == "python":
         unknown = sorted(set(opts) - set(_PYTHON_OPTIONS))
         if unknown:
@@ -219,5 +221,8 @@ def build_fmu(model_or_json_path, out_path: str | os.PathLike, *, backend: str =
                             "with a warning in its description)")
     out = Path(out_path).resolve()
     with atomic_file(out) as tmp:
-        (_build_python if backend == "python" else _build_native)(model, tmp, **opts)
+        if backend == "python":
+            _build_python(model, tmp, **opts)
+        else:
+            build_native_fmu(model, str(tmp), fmi_version=fmi_version, **opts)
     return str(out)

@@ -1,4 +1,4 @@
-"""The FMI 2.0 Co-Simulation modelDescription.xml of an exported model, for every backend.
+"""The FMI 2.0 (and, native backend, FMI 3.0) Co-Simulation modelDescription.xml of an exported model.
 
 One function, `model_variables`, fixes the FMU interface of a model (names,
 value references, start values and where each value lives in the model's JSON
@@ -31,6 +31,12 @@ modelDescription's ``description``): y = C x + D u depends directly on u; the
 state moves exactly along the straight input path between the inputs of
 successive communication points, so a host that sets u(t_k) and reads y(t_k)
 at every sample gets the in-process simulation of the sampled input.
+
+FMI 3.0 (`model_description_xml3`) declares the same variables with the same
+value references, as ``Float64``/``Int32``/``String``; ``order`` and ``kind``
+are constants there (``causality="local" variability="constant"``), and the
+independent variable ``time`` that FMI 3.0 requires follows the last
+parameter (`time_variable`).
 """
 from __future__ import annotations
 
@@ -45,11 +51,13 @@ import numpy as np
 from fitter.core.effects import REGISTRY
 from fitter.core.rates import TabulatedRate
 
-__all__ = ["package_version", "FmiVariable", "model_variables", "model_description_xml", "semantics_text", "converges",
-           "capabilities", "LOG_CATEGORIES", "U_REF", "Y_REF"]
+__all__ = ["package_version", "FmiVariable", "model_variables", "time_variable", "model_description_xml",
+           "model_description_xml3", "semantics_text", "converges", "capabilities", "LOG_CATEGORIES",
+           "U_REF", "Y_REF", "FMI_VERSIONS"]
 
 U_REF = 0
 Y_REF = 1
+FMI_VERSIONS = (2, 3)
 
 LOG_CATEGORIES = {
     "logStatusWarning": "Log messages with fmi2Warning status.",
@@ -173,6 +181,12 @@ def model_variables(model) -> list[FmiVariable]:
     return variables
 
 
+def time_variable(variables: Sequence[FmiVariable]) -> FmiVariable:
+    """The independent variable ``time`` of an FMI 3.0 FMU: value reference after `variables`."""
+    return FmiVariable("time", len(variables), "Real", "independent", "continuous", None,
+                       "simulation time", unit="s")
+
+
 def _effects(model) -> list:
     return list(getattr(model, "effects", None) or [])
 
@@ -191,7 +205,17 @@ def _model_name(model) -> str:
             + (f" with {', '.join(names)}" if names else ""))
 
 
-def semantics_text(model) -> str:
+_DERIVATIVES_TEXT = {
+    2: ("Where the FMU declares canInterpolateInputs, an input derivative du/dt (fmi2SetRealInputDerivatives, "
+        "order 1) moves the input on to u + du h at each step, so a host that sets u(t_k) and du/dt before "
+        "stepping gets y(t_k+1) on the exact flow along u(t_k) + du (t - t_k)."),
+    3: ("FMI 3.0 has no input derivatives (the standard replaces them by Intermediate Update Mode, which "
+        "this FMU does not provide): a host that sets u(t_k), steps and reads y(t_k+1) gets the output "
+        "of the input held over the step."),
+}
+
+
+def semantics_text(model, fmi_version: int = 2) -> str:
     """The model-level description: what the FMU computes and its input semantics."""
     kind = {"ri": "rate-independent, eqs (1)-(2)", "rd": "rate-dependent, eqs (18)-(19)"}[model.kind]
     text = (f"Semilinear Duhem hysteresis model (Oh and Bernstein, IEEE TAC 2007), {kind}, "
@@ -202,10 +226,8 @@ def semantics_text(model) -> str:
             "one-sample lag): a host that sets u(t_k) and reads y(t_k) at every sample gets "
             "the in-process simulation of the sampled input. An input that is not set again "
             "holds its value, and a held input does not move the state. Setting u before the "
-            "first step does not move the state: x0 is the state at the first input. Where the FMU "
-            "declares canInterpolateInputs, an input derivative du/dt (fmi2SetRealInputDerivatives, "
-            "order 1) moves the input on to u + du h at each step, so a host that sets u(t_k) and "
-            "du/dt before stepping gets y(t_k+1) on the exact flow along u(t_k) + du (t - t_k).")
+            "first step does not move the state: x0 is the state at the first input. "
+            + _DERIVATIVES_TEXT[fmi_version])
     if not converges(model):
         text += (" WARNING: exported with --allow-unstable: the convergence condition of the fit is "
                  "violated, so a wrong initial state need not die out and the output may drift or grow.")
@@ -343,16 +365,9 @@ def model_description_xml(model, *, model_identifier: str, guid: str, backend: s
     source_files : sequence of str
         C files under ``sources/`` for a source FMU (``<SourceFiles>``).
     """
-    stamp = (generation_date or datetime.datetime.now(datetime.timezone.utc))
     attrib = {"fmiVersion": "2.0",
-              "modelName": model_name or _model_name(model),
-              "guid": guid, "description": description or semantics_text(model),
-              "generationTool": generation_tool or f"semilinear-duhem {package_version()}",
-              "generationDateAndTime": stamp.strftime("%Y-%m-%dT%H:%M:%SZ"),
-              "variableNamingConvention": "structured", "numberOfEventIndicators": "0"}
-    attrib["version"] = version or package_version()
-    if author:
-        attrib["author"] = author
+              **_identity(model, model_name, "guid", guid, description, generation_tool, generation_date),
+              "numberOfEventIndicators": "0", **_version_author(version, author)}
     root = ET.Element("fmiModelDescription", attrib)
     flags = {"modelIdentifier": model_identifier, **capabilities(backend),
              **(capability_overrides or {})}
@@ -362,6 +377,34 @@ def model_description_xml(model, *, model_identifier: str, guid: str, backend: s
         for name in source_files:
             ET.SubElement(files, "File", {"name": name})
     variables = model_variables(model)
+    _units_categories_experiment(root, model, variables, log_categories)
+    model_vars = ET.SubElement(root, "ModelVariables")
+    for v in variables:
+        _variable_element(model_vars, v)
+    _model_structure(root, variables, bool(_effects(model)))
+    return _document(root)
+
+
+def _identity(model, model_name: str | None, token_name: str, token: str, description: str | None,
+              generation_tool: str | None, generation_date: datetime.datetime | None,
+              fmi_version: int = 2) -> dict:
+    """modelName, the GUID (FMI 3.0: instantiationToken), description, generationTool and -date,
+    variableNamingConvention: the attributes both FMI versions share, in modelDescription order."""
+    stamp = (generation_date or datetime.datetime.now(datetime.timezone.utc))
+    return {"modelName": model_name or _model_name(model), token_name: token,
+            "description": description or semantics_text(model, fmi_version),
+            "generationTool": generation_tool or f"semilinear-duhem {package_version()}",
+            "generationDateAndTime": stamp.strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "variableNamingConvention": "structured"}
+
+
+def _version_author(version: str | None, author: str | None) -> dict:
+    return {"version": version or package_version(), **({"author": author} if author else {})}
+
+
+def _units_categories_experiment(root: ET.Element, model, variables: Sequence[FmiVariable],
+                                 log_categories: Mapping[str, str]) -> None:
+    """<UnitDefinitions>, <LogCategories> and <DefaultExperiment> (the same in FMI 2.0 and 3.0)."""
     units = sorted({v.unit for v in variables if v.unit})
     if units:
         unit_defs = ET.SubElement(root, "UnitDefinitions")
@@ -375,9 +418,87 @@ def model_description_xml(model, *, model_identifier: str, guid: str, backend: s
     ET.SubElement(root, "DefaultExperiment", {"startTime": _format(float(exp.start_time)),
                                               "stopTime": _format(float(exp.stop_time)),
                                               "stepSize": _format(_rounded(float(exp.step_size)))})
-    model_vars = ET.SubElement(root, "ModelVariables")
-    for v in variables:
-        _variable_element(model_vars, v)
-    _model_structure(root, variables, bool(_effects(model)))
+
+
+def _document(root: ET.Element) -> str:
     ET.indent(root)
     return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+
+
+# FMI 3.0 Co-Simulation flags of the native FMU (fmi3_framework.c): no event mode, early
+# return, intermediate update or output derivatives.
+_CAPABILITIES_FMI3 = {
+    "needsExecutionTool": "false",
+    "canBeInstantiatedOnlyOncePerProcess": "false",
+    "canGetAndSetFMUState": "true",
+    "canSerializeFMUState": "true",
+    "providesDirectionalDerivatives": "false",
+    "providesAdjointDerivatives": "false",
+    "canHandleVariableCommunicationStepSize": "true",
+    "maxOutputDerivativeOrder": "0",
+    "providesIntermediateUpdate": "false",
+    "mightReturnEarlyFromDoStep": "false",
+    "hasEventMode": "false",
+}
+_FMI3_TYPES = {"Real": "Float64", "Integer": "Int32", "String": "String"}
+
+
+def _variable_element3(parent: ET.Element, v: FmiVariable) -> None:
+    """One FMI 3.0 variable; the structural Integer and String variables become constants."""
+    structural = v.type in ("Integer", "String")
+    attrib = {"name": v.name, "valueReference": str(v.value_reference), "description": v.description,
+              "causality": "local" if structural else v.causality,
+              "variability": "constant" if structural else v.variability}
+    if v.initial is not None and not structural:
+        attrib["initial"] = v.initial
+    if v.unit:
+        attrib["unit"] = v.unit
+    if v.start is not None and v.type != "String":
+        attrib["start"] = _format(v.start)
+    node = ET.SubElement(parent, _FMI3_TYPES[v.type], attrib)
+    if v.type == "String":
+        ET.SubElement(node, "Start", {"value": str(v.start)})
+
+
+def _model_structure3(root: ET.Element, variables: Sequence[FmiVariable], effects: bool) -> None:
+    """As `_model_structure`, with value references: y depends directly on u; at initialisation
+    y = C x0 + D u (with effects: on all knowns)."""
+    refs = {v.name: str(v.value_reference) for v in variables}
+    structure = ET.SubElement(root, "ModelStructure")
+    ET.SubElement(structure, "Output", {"valueReference": refs["y"], "dependencies": refs["u"],
+                                        "dependenciesKind": "dependent"})
+    attrib = {"valueReference": refs["y"]}
+    if not effects:
+        attrib["dependencies"] = " ".join(
+            [refs["u"]] + [refs[v.name] for v in variables
+                           if v.path[:2] in (("parameters", "C"), ("parameters", "D"), ("parameters", "x0"))])
+    ET.SubElement(structure, "InitialUnknown", attrib)
+
+
+def model_description_xml3(model, *, model_identifier: str, instantiation_token: str,
+                           model_name: str | None = None, description: str | None = None,
+                           version: str | None = None, author: str | None = None,
+                           generation_tool: str | None = None,
+                           generation_date: datetime.datetime | None = None,
+                           log_categories: Mapping[str, str] = LOG_CATEGORIES) -> str:
+    """The complete FMI 3.0 Co-Simulation modelDescription.xml of `model` (native backend).
+
+    The metadata, units, DefaultExperiment and the variables with their value
+    references are those of `model_description_xml`; the arguments mean the
+    same (`instantiation_token` is FMI 2.0's GUID).  A source FMU lists its C
+    files in ``sources/buildDescription.xml``, not here.
+    """
+    attrib = {"fmiVersion": "3.0",
+              **_identity(model, model_name, "instantiationToken", instantiation_token, description,
+                          generation_tool, generation_date, fmi_version=3),
+              **_version_author(version, author)}
+    root = ET.Element("fmiModelDescription", attrib)
+    ET.SubElement(root, "CoSimulation", {"modelIdentifier": model_identifier, **_CAPABILITIES_FMI3})
+    variables = model_variables(model)
+    variables.append(time_variable(variables))
+    _units_categories_experiment(root, model, variables, log_categories)
+    model_vars = ET.SubElement(root, "ModelVariables")
+    for v in variables:
+        _variable_element3(model_vars, v)
+    _model_structure3(root, variables, bool(_effects(model)))
+    return _document(root)

@@ -1,19 +1,22 @@
-"""The native backend: an FMI 2.0 Co-Simulation FMU that is a plain C shared library.
+"""The native backend: an FMI 2.0 or 3.0 Co-Simulation FMU that is a plain C shared library.
 
 `build_native_fmu` compiles the C sources of ``fmu_src/native/`` with the
 system C compiler at export time into ``binaries/<platform>/<id>.so``, which
 depends on libc and libm only, so the FMU runs in hosts without Python
 (fmusim, the FMI Compliance Checker, Simulink, Dymola, ...).  The FMU also
-carries its C sources under ``sources/`` and lists them in the
-modelDescription's ``<SourceFiles>`` (an FMI 2.0 source FMU), so an importer
-on another platform can compile it.
+carries its C sources under ``sources/`` (a source FMU: FMI 2.0 lists them in
+the modelDescription's ``<SourceFiles>``, FMI 3.0 in
+``sources/buildDescription.xml``), so an importer on another platform can
+compile it.
 
 Layout of the C, after the Modelica Reference-FMUs:
 
-* ``fmi2_framework.c``: every fmi2* function, the state machine, argument
-  checks, logging, FMU state (shared by all models);
+* ``fmi2_framework.c`` / ``fmi3_framework.c``: every fmi2* / fmi3* function,
+  the state machine, argument checks, logging, FMU state (shared by all
+  models); ``fmi_version`` picks one;
 * ``duhem_model.c``: the model (exact flow, rate function, effect chain,
-  Stepper semantics);
+  Stepper semantics), behind the FMI-free hooks of ``model_interface.h``, so
+  that both frameworks compile the same model file;
 * ``model_data.h``: generated here, numbers only: kind, order, parameter start
   values, the value-reference table of
   `fitter.fmu.model_description.model_variables` (so both backends have the same
@@ -37,6 +40,7 @@ import hashlib
 import json
 import math
 import os
+import platform
 import shutil
 import struct
 import subprocess
@@ -45,6 +49,7 @@ import tempfile
 import uuid
 import zipfile
 from pathlib import Path
+from xml.etree import ElementTree as ET
 
 import numpy as np
 
@@ -52,21 +57,39 @@ import fmu_src.native
 from fitter.core.effects import REGISTRY, ParameterSpec
 from fitter.core.files import atomic_file
 from fitter.core.rates import TabulatedRate
-from fitter.fmu.model_description import U_REF, Y_REF, model_description_xml, model_variables
+from fitter.fmu.model_description import (FMI_VERSIONS, U_REF, Y_REF, model_description_xml,
+                                          model_description_xml3, model_variables,
+                                          time_variable)
 
 __all__ = ["build_native_fmu", "build_gain_fmu", "NativeBuildError", "find_c_compiler",
-           "model_data_header", "SOURCE_DIR", "C_SOURCES", "MODEL_IDENTIFIER", "LOG_CATEGORIES",
-           "NATIVE_EFFECTS"]
+           "model_data_header", "SOURCE_DIR", "C_SOURCES", "HEADERS", "c_sources", "headers",
+           "MODEL_IDENTIFIER", "LOG_CATEGORIES", "NATIVE_EFFECTS"]
 
 SOURCE_DIR = Path(fmu_src.native.__file__).resolve().parent
-C_SOURCES = ("fmi2_framework.c", "duhem_model.c")
-HEADERS = ("fmi2_framework.h", "duhem_model.h", "fmi2Functions.h", "fmi2FunctionTypes.h",
-           "fmi2TypesPlatform.h")
+MODEL_HEADERS = ("model_interface.h", "duhem_model.h")
+_FRAMEWORK_HEADERS = {
+    2: ("fmi2_framework.h", "fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"),
+    3: ("fmi3_framework.h", "fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h"),
+}
+
+
+def c_sources(fmi_version: int = 2, model_file: str = "duhem_model.c") -> tuple[str, str]:
+    """The C files of an FMU: the framework of `fmi_version` and the model file."""
+    return (f"fmi{fmi_version}_framework.c", model_file)
+
+
+def headers(fmi_version: int = 2) -> tuple[str, ...]:
+    """The headers an FMU of `fmi_version` ships and compiles with."""
+    return _FRAMEWORK_HEADERS[fmi_version] + MODEL_HEADERS
+
+
+C_SOURCES = c_sources(2)
+HEADERS = headers(2)
 MODEL_IDENTIFIER = "semilinear_duhem"
 LOG_CATEGORIES = {
     "logStatusError": "Refused calls and failures (always reported).",
     "logStatusDiscard": "Status requests that are not available (always reported).",
-    "logCalls": "Every fmi2 call (with debug logging on).",
+    "logCalls": "Every FMI call (with debug logging on).",
 }
 OPTIMIZE = ("-O2",)
 SANITIZE = ("-O1", "-g", "-fno-omit-frame-pointer", "-fsanitize=address,undefined",
@@ -95,16 +118,27 @@ def find_c_compiler(cc: str | None = None) -> str:
         "Python with numpy)")
 
 
-def _platform() -> tuple[str, str]:
-    """FMI 2.0 binaries folder and shared-library suffix of this machine."""
-    bits = "64" if struct.calcsize("P") == 8 else "32"
+_ARCHITECTURES = {"x86_64": "x86_64", "amd64": "x86_64", "aarch64": "aarch64", "arm64": "aarch64",
+                  "i386": "x86", "i686": "x86"}
+
+
+def _platform(fmi_version: int = 2) -> tuple[str, str]:
+    """Binaries folder (FMI 2.0 ``linux64``, FMI 3.0 ``x86_64-linux``) and library suffix."""
     if sys.platform.startswith("linux"):
-        return f"linux{bits}", ".so"
-    if sys.platform == "darwin":
-        return f"darwin{bits}", ".dylib"
-    raise NativeBuildError(f"the native backend builds with a Unix C compiler; {sys.platform} is "
-                           "not supported: export with '--backend python', or compile the "
-                           "FMU's sources/ with the platform's compiler")
+        system, suffix = "linux", ".so"
+    elif sys.platform == "darwin":
+        system, suffix = "darwin", ".dylib"
+    else:
+        raise NativeBuildError(f"the native backend builds with a Unix C compiler; {sys.platform} is "
+                               "not supported: export with '--backend python', or compile the "
+                               "FMU's sources/ with the platform's compiler")
+    if fmi_version == 2:
+        return f"{system}{'64' if struct.calcsize('P') == 8 else '32'}", suffix
+    machine = platform.machine().lower()
+    if machine not in _ARCHITECTURES:
+        raise NativeBuildError(f"FMI 3.0 has no platform tuple for the architecture {machine!r}: "
+                               "export with --fmi-version 2")
+    return f"{_ARCHITECTURES[machine]}-{system}", suffix
 
 
 def _c_double(value: float) -> str:
@@ -208,6 +242,8 @@ def model_data_header(model, guid: str) -> str:
             rows.append((v.name, v.value_reference, "s", "VAR_STRING", 0, "ANY_FINITE"))
         else:
             raise RuntimeError(f"variable {v.name}: type {v.type} has no place in the native FMU")
+    time = time_variable(variables)
+    rows.append((time.name, time.value_reference, "r", "VAR_TIME", 0, "ANY_FINITE"))
     strings = [v.start for v in variables if v.type == "String"]
     if len(strings) != 1:
         raise RuntimeError("the native FMU expects exactly one String variable (kind)")
@@ -238,18 +274,32 @@ def model_data_header(model, guid: str) -> str:
     return "\n".join(lines)
 
 
-def _source_hash() -> str:
+def _source_hash(fmi_version: int) -> str:
     digest = hashlib.sha256()
-    for name in C_SOURCES + HEADERS:
+    for name in c_sources(fmi_version) + headers(fmi_version):
         digest.update((SOURCE_DIR / name).read_bytes())
     return digest.hexdigest()[:16]
 
 
-def _guid(model, model_identifier: str) -> str:
-    """Deterministic GUID: same model, same C sources, same identifier -> same GUID."""
+def _guid(model, model_identifier: str, fmi_version: int) -> str:
+    """Deterministic GUID (FMI 3.0: instantiationToken): same model, C sources, identifier and
+    FMI version -> same GUID."""
     text = json.dumps(model.to_dict(), sort_keys=True)
-    return "{" + str(uuid.uuid5(_GUID_NAMESPACE, f"native:{model_identifier}:{_source_hash()}:"
-                                                 f"{text}")) + "}"
+    version = "" if fmi_version == 2 else f"fmi{fmi_version}:"
+    return "{" + str(uuid.uuid5(_GUID_NAMESPACE, f"native:{version}{model_identifier}:"
+                                                 f"{_source_hash(fmi_version)}:{text}")) + "}"
+
+
+def build_description_xml(model_identifier: str, files: tuple[str, ...]) -> str:
+    """``sources/buildDescription.xml`` of an FMI 3.0 source FMU: how to compile `files`."""
+    root = ET.Element("fmiBuildDescription", {"fmiVersion": "3.0"})
+    config = ET.SubElement(root, "BuildConfiguration", {"modelIdentifier": model_identifier})
+    file_set = ET.SubElement(config, "SourceFileSet", {"language": "C99"})
+    for name in files:
+        ET.SubElement(file_set, "SourceFile", {"name": name})
+    ET.SubElement(config, "Library", {"name": "m"})
+    ET.indent(root)
+    return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
 
 
 def _compile(cc: str, sources: Path, c_files: tuple[str, ...], target: Path,
@@ -265,15 +315,17 @@ def _compile(cc: str, sources: Path, c_files: tuple[str, ...], target: Path,
 
 def _package(out_path: str | os.PathLike, xml: str, files: dict[str, str], c_files: tuple[str, ...],
              model_identifier: str, cc: str | None, sanitize: bool,
-             resources: dict[str, str] | None = None) -> str:
+             resources: dict[str, str] | None = None, fmi_version: int = 2) -> str:
     """Compile `c_files` (of SOURCE_DIR, plus the generated `files`) and zip the FMU atomically."""
     compiler = find_c_compiler(cc)
-    platform, suffix = _platform()
+    binaries, suffix = _platform(fmi_version)
+    if fmi_version == 3:
+        files = {**files, "buildDescription.xml": build_description_xml(model_identifier, c_files)}
     out = Path(out_path).resolve()
     with tempfile.TemporaryDirectory(prefix="duhem_native_") as tmp:
         sources = Path(tmp) / "sources"
         sources.mkdir()
-        for name in c_files + HEADERS:
+        for name in c_files + headers(fmi_version):
             shutil.copyfile(SOURCE_DIR / name, sources / name)
         for name, text in files.items():
             (sources / name).write_text(text, encoding="utf-8")
@@ -281,7 +333,7 @@ def _package(out_path: str | os.PathLike, xml: str, files: dict[str, str], c_fil
         _compile(compiler, sources, c_files, library, sanitize)
         with atomic_file(out) as staging, zipfile.ZipFile(staging, "w", zipfile.ZIP_DEFLATED) as zf:
             zf.writestr("modelDescription.xml", xml)
-            zf.write(library, f"binaries/{platform}/{library.name}")
+            zf.write(library, f"binaries/{binaries}/{library.name}")
             for path in sorted(sources.iterdir()):
                 zf.write(path, f"sources/{path.name}")
             for name, text in (resources or {}).items():
@@ -291,8 +343,8 @@ def _package(out_path: str | os.PathLike, xml: str, files: dict[str, str], c_fil
 
 def build_native_fmu(model, out_path: str | os.PathLike, *, sanitize: bool = False,
                      cc: str | None = None, model_identifier: str = MODEL_IDENTIFIER,
-                     **description) -> str:
-    """Compile `model` into a native FMI 2.0 Co-Simulation FMU at `out_path`; return its path.
+                     fmi_version: int = 2, **description) -> str:
+    """Compile `model` into a native FMI 2.0 or 3.0 Co-Simulation FMU at `out_path`; return its path.
 
     Parameters
     ----------
@@ -308,6 +360,9 @@ def build_native_fmu(model, out_path: str | os.PathLike, *, sanitize: bool = Fal
         The C compiler (default: ``$CC``, else cc, gcc or clang on PATH).
     model_identifier : str
         Name of the shared library.
+    fmi_version : {2, 3}
+        FMI 2.0 (``fmi2_framework.c``) or FMI 3.0 (``fmi3_framework.c``); the
+        model file, the generated model data and the numbers are the same.
     **description
         ``model_name``, ``description``, ``version``, ``author`` for the
         modelDescription (`fitter.fmu.model_description.model_description_xml`).
@@ -319,23 +374,34 @@ def build_native_fmu(model, out_path: str | os.PathLike, *, sanitize: bool = Fal
     TypeError
         A rate-dependent model whose g is a callable, not a `TabulatedRate`.
     ValueError
-        An effect that the C model does not implement (not in `NATIVE_EFFECTS`).
+        An effect that the C model does not implement (not in `NATIVE_EFFECTS`), or an
+        `fmi_version` other than 2 and 3.
     """
+    _check_fmi_version(fmi_version)
     find_c_compiler(cc)
-    _platform()
+    _platform(fmi_version)
     _check_supported(model)
-    guid = _guid(model, model_identifier)
+    guid = _guid(model, model_identifier, fmi_version)
     header = model_data_header(model, guid)
-    xml = model_description_xml(model, model_identifier=model_identifier, guid=guid,
-                                backend="native", source_files=C_SOURCES,
-                                log_categories=LOG_CATEGORIES, **description)
+    if fmi_version == 2:
+        xml = model_description_xml(model, model_identifier=model_identifier, guid=guid,
+                                    backend="native", source_files=C_SOURCES,
+                                    log_categories=LOG_CATEGORIES, **description)
+    else:
+        xml = model_description_xml3(model, model_identifier=model_identifier,
+                                     instantiation_token=guid, log_categories=LOG_CATEGORIES,
+                                     **description)
     model_json = json.dumps(model.to_dict(), indent=2)
-    return _package(out_path, xml, {"model_data.h": header}, C_SOURCES, model_identifier, cc,
-                    sanitize, {"model.json": model_json})
+    return _package(out_path, xml, {"model_data.h": header}, c_sources(fmi_version),
+                    model_identifier, cc, sanitize, {"model.json": model_json}, fmi_version)
+
+
+def _check_fmi_version(fmi_version: int) -> None:
+    if fmi_version not in FMI_VERSIONS:
+        raise ValueError(f"unknown FMI version {fmi_version!r} (expected 2 or 3)")
 
 
 GAIN_IDENTIFIER = "duhem_gain"
-GAIN_SOURCES = ("fmi2_framework.c", "gain_model.c")
 _GAIN_DESCRIPTION = """<?xml version="1.0" encoding="UTF-8"?>
 <fmiModelDescription fmiVersion="2.0" modelName="gain" guid="{6d1c2a0e-5b8f-4c3e-9a71-0000000000a1}"
   description="y = k u on the native framework (benchmark floor)" generationTool="semilinear-duhem"
@@ -361,10 +427,39 @@ _GAIN_DESCRIPTION = """<?xml version="1.0" encoding="UTF-8"?>
 """
 
 
-def build_gain_fmu(out_path: str | os.PathLike, *, cc: str | None = None) -> str:
+_GAIN_DESCRIPTION_FMI3 = """<?xml version="1.0" encoding="UTF-8"?>
+<fmiModelDescription fmiVersion="3.0" modelName="gain"
+  instantiationToken="{6d1c2a0e-5b8f-4c3e-9a71-0000000000a1}"
+  description="y = k u on the native framework (benchmark floor)" generationTool="semilinear-duhem"
+  variableNamingConvention="structured">
+  <CoSimulation modelIdentifier="duhem_gain" canHandleVariableCommunicationStepSize="true"
+    canGetAndSetFMUState="true" canSerializeFMUState="true"/>
+  <UnitDefinitions><Unit name="s"><BaseUnit s="1"/></Unit></UnitDefinitions>
+  <ModelVariables>
+    <Float64 name="u" valueReference="0" causality="input" variability="continuous" start="0.0"/>
+    <Float64 name="y" valueReference="1" causality="output" variability="continuous"
+      initial="calculated"/>
+    <Float64 name="k" valueReference="2" causality="parameter" variability="fixed" initial="exact"
+      start="2.0"/>
+    <Float64 name="time" valueReference="3" causality="independent" variability="continuous"
+      unit="s"/>
+  </ModelVariables>
+  <ModelStructure>
+    <Output valueReference="1" dependencies="0" dependenciesKind="dependent"/>
+    <InitialUnknown valueReference="1" dependencies="0 2"/>
+  </ModelStructure>
+</fmiModelDescription>
+"""
+
+
+def build_gain_fmu(out_path: str | os.PathLike, *, cc: str | None = None, fmi_version: int = 2) -> str:
     """The trivial y = k u FMU on the same framework, compiled the same way (for benchmarks).
 
     Its fixed three-variable modelDescription is not a model export: it only
-    gives `bench/fmu_throughput.py` the per-step floor of a native FMU.
+    gives `bench/fmu_throughput.py` the per-step floor of a native FMU of
+    `fmi_version` (2 or 3).
     """
-    return _package(out_path, _GAIN_DESCRIPTION, {}, GAIN_SOURCES, GAIN_IDENTIFIER, cc, False)
+    _check_fmi_version(fmi_version)
+    xml = _GAIN_DESCRIPTION if fmi_version == 2 else _GAIN_DESCRIPTION_FMI3
+    return _package(out_path, xml, {}, c_sources(fmi_version, "gain_model.c"), GAIN_IDENTIFIER, cc,
+                    False, fmi_version=fmi_version)

@@ -11,12 +11,12 @@
  * Communication-point semantics (as the Stepper): an anchor (t_a, u_a, x_a)
  * at the last communication point and the current (t, u); the state at the
  * current point is x_a moved along the straight input path u_a -> u over
- * [t_a, t]; fmi2DoStep commits the current point as the new anchor and
- * advances t; a held input moves nothing; setting u while t == t_a
- * re-anchors the input without moving the state.  An input derivative du
- * (fmi2SetRealInputDerivatives, order 1) moves the current input on to
- * u + du h at every fmi2DoStep, so the input over a step is linear (stepper.py,
- * "Input interpolation").  The model acts on the
+ * [t_a, t]; a step (fmi2DoStep, fmi3DoStep) commits the current point as
+ * the new anchor and advances t; a held input moves nothing; setting u while
+ * t == t_a re-anchors the input without moving the state.  An input
+ * derivative du (FMI 2 fmi2SetRealInputDerivatives, order 1) moves the
+ * current input on to u + du h at every step, so the input over a step is
+ * linear (stepper.py, "Input interpolation").  The model acts on the
  * input held at the edges of its input range [DUHEM_INPUT_LO, DUHEM_INPUT_HI]
  * (models.py, "Extrapolation rule"); the input variable keeps the value set.
  *
@@ -53,7 +53,7 @@
 #include <math.h>
 #include <string.h>
 
-#include "fmi2_framework.h"
+#include "model_interface.h"
 #include "duhem_model.h"
 #include "model_data.h"
 
@@ -107,7 +107,7 @@ typedef struct {
 struct ModelData {
     double par[DUHEM_N_PARAMETERS];
     double t_a, u_a, t, u;
-    double du;          /* input derivative du/dt (fmi2SetRealInputDerivatives), applied by model_do_step */
+    double du;          /* input derivative du/dt (model_set_input_derivative), applied by model_do_step */
     double x_a[N];
     double s_a[STATES]; /* effect chain state at the anchor, valid when has_s_a */
     int has_s_a;
@@ -509,7 +509,7 @@ static const char *advance(ModelData *m)
 
 /* ---------------------------------------------------------------- variables */
 
-static const DuhemVariable *find(char type, fmi2ValueReference vr)
+static const DuhemVariable *find(char type, unsigned int vr)
 {
     int i;
     for (i = 0; i < DUHEM_N_VARIABLES; i++)
@@ -520,7 +520,7 @@ static const DuhemVariable *find(char type, fmi2ValueReference vr)
 
 static const char *const UNKNOWN = "unknown value reference for this type";
 
-const char *model_variable_name(char type, fmi2ValueReference vr)
+const char *model_variable_name(char type, unsigned int vr)
 {
     const DuhemVariable *var = find(type, vr);
     return var ? var->name : "?";
@@ -593,7 +593,7 @@ const char *model_exit_initialization(ModelData *m)
     return NULL;
 }
 
-const char *model_get_real(ModelData *m, fmi2ValueReference vr, fmi2Real *value)
+const char *model_get_real(ModelData *m, unsigned int vr, double *value)
 {
     const DuhemVariable *var = find('r', vr);
     const char *msg;
@@ -605,6 +605,9 @@ const char *model_get_real(ModelData *m, fmi2ValueReference vr, fmi2Real *value)
     case VAR_PARAMETER:
         *value = m->par[var->index];
         return NULL;
+    case VAR_TIME:
+        *value = m->t;
+        return NULL;
     case VAR_OUTPUT:
         msg = advance(m);
         if (msg) return msg;
@@ -615,21 +618,22 @@ const char *model_get_real(ModelData *m, fmi2ValueReference vr, fmi2Real *value)
     }
 }
 
-const char *model_check_set_real(const ModelData *m, fmi2ValueReference vr, fmi2Real value,
+const char *model_check_set_real(const ModelData *m, unsigned int vr, double value,
                                  ModelPhase phase)
 {
     const DuhemVariable *var = find('r', vr);
     (void)m;
     if (!var) return UNKNOWN;
     if (var->role == VAR_OUTPUT) return "an output cannot be set";
+    if (var->role == VAR_TIME) return "the independent variable cannot be set";
     if (var->role == VAR_PARAMETER && phase != PHASE_CONFIGURE)
-        return "a fixed parameter can only be set before fmi2ExitInitializationMode";
+        return "a fixed parameter can only be set before ExitInitializationMode";
     if (var->role == VAR_PARAMETER) return check_parameter(var, value);
     if (!isfinite(value)) return "the input is not finite (NaN or infinite)";
     return NULL;
 }
 
-void model_set_real(ModelData *m, fmi2ValueReference vr, fmi2Real value, ModelPhase phase)
+void model_set_real(ModelData *m, unsigned int vr, double value, ModelPhase phase)
 {
     const DuhemVariable *var = find('r', vr);
     (void)phase;
@@ -646,7 +650,7 @@ void model_set_real(ModelData *m, fmi2ValueReference vr, fmi2Real value, ModelPh
     m->cached = 0;
 }
 
-const char *model_get_integer(const ModelData *m, fmi2ValueReference vr, fmi2Integer *value)
+const char *model_get_integer(const ModelData *m, unsigned int vr, int *value)
 {
     const DuhemVariable *var = find('i', vr);
     (void)m;
@@ -655,7 +659,7 @@ const char *model_get_integer(const ModelData *m, fmi2ValueReference vr, fmi2Int
     return NULL;
 }
 
-const char *model_get_boolean(const ModelData *m, fmi2ValueReference vr, fmi2Boolean *value)
+const char *model_get_boolean(const ModelData *m, unsigned int vr, int *value)
 {
     (void)m;
     (void)vr;
@@ -663,7 +667,7 @@ const char *model_get_boolean(const ModelData *m, fmi2ValueReference vr, fmi2Boo
     return UNKNOWN;
 }
 
-const char *model_get_string(const ModelData *m, fmi2ValueReference vr, fmi2String *value)
+const char *model_get_string(const ModelData *m, unsigned int vr, const char **value)
 {
     const DuhemVariable *var = find('s', vr);
     (void)m;
@@ -672,7 +676,7 @@ const char *model_get_string(const ModelData *m, fmi2ValueReference vr, fmi2Stri
     return NULL;
 }
 
-const char *model_check_set_integer(const ModelData *m, fmi2ValueReference vr, fmi2Integer value)
+const char *model_check_set_integer(const ModelData *m, unsigned int vr, int value)
 {
     const DuhemVariable *var = find('i', vr);
     (void)m;
@@ -681,7 +685,7 @@ const char *model_check_set_integer(const ModelData *m, fmi2ValueReference vr, f
     return NULL;
 }
 
-const char *model_check_set_boolean(const ModelData *m, fmi2ValueReference vr, fmi2Boolean value)
+const char *model_check_set_boolean(const ModelData *m, unsigned int vr, int value)
 {
     (void)m;
     (void)vr;
@@ -689,7 +693,7 @@ const char *model_check_set_boolean(const ModelData *m, fmi2ValueReference vr, f
     return UNKNOWN;
 }
 
-const char *model_check_set_string(const ModelData *m, fmi2ValueReference vr, fmi2String value)
+const char *model_check_set_string(const ModelData *m, unsigned int vr, const char *value)
 {
     const DuhemVariable *var = find('s', vr);
     (void)m;
@@ -705,10 +709,10 @@ const char *model_do_step(ModelData *m, double h)
     const char *msg = advance(m);
     if (msg) return msg;
     if (!isfinite(m->t + h)) return "the time would overflow";
+    if (!isfinite(m->u + m->du * h)) return "the extrapolated input u + du/dt h is not finite";
     memcpy(m->x_a, m->x, sizeof m->x_a);
     memcpy(m->s_a, m->s, sizeof m->s_a);
     m->has_s_a = 1;
-    if (!isfinite(m->u + m->du * h)) return "the extrapolated input u + du/dt h is not finite";
     m->t_a = m->t;
     m->u_a = m->u;
     m->t = m->t + h;
@@ -717,7 +721,7 @@ const char *model_do_step(ModelData *m, double h)
     return NULL;
 }
 
-const char *model_set_input_derivative(ModelData *m, fmi2ValueReference vr, fmi2Integer order, fmi2Real value)
+const char *model_set_input_derivative(ModelData *m, unsigned int vr, int order, double value)
 {
     const DuhemVariable *var = find('r', vr);
     if (!var || var->role != VAR_INPUT) return "not an input (only the input u has derivatives)";

@@ -16,7 +16,8 @@
  *   DUHEM_EFFECT_STATES: the size of the chain state (sum of the present
  *     effects' EffectSpec.state),
  *   DUHEM_INPUT_START, duhem_variables[] (value reference -> variable, with
- *     the allowed range of each parameter, from EffectSpec.parameters) and
+ *     the allowed range of each parameter, from EffectSpec.parameters; the
+ *     last is the independent variable time, which only FMI 3.0 declares) and
  *     duhem_strings[].
  */
 #ifndef DUHEM_MODEL_H
@@ -24,8 +25,6 @@
 
 #include <math.h>
 #include <stddef.h>
-
-#include "fmi2TypesPlatform.h"
 
 #define DUHEM_RATE_INDEPENDENT 1
 #define DUHEM_RATE_DEPENDENT 2
@@ -36,7 +35,8 @@ typedef enum {
     VAR_OUTPUT,     /* Real y: the (measured) output */
     VAR_PARAMETER,  /* Real parameter (variability fixed): par[index] */
     VAR_INTEGER,    /* Integer constant (structural): the value is index */
-    VAR_STRING      /* String constant (structural): duhem_strings[index] */
+    VAR_STRING,     /* String constant (structural): duhem_strings[index] */
+    VAR_TIME        /* Real time: the independent variable (declared by FMI 3.0) */
 } VariableRole;
 
 /* Allowed values of a Real variable: finite, lower <= value <= upper, lower < value when strict. */
@@ -57,7 +57,7 @@ typedef enum {
 
 typedef struct {
     const char *name;
-    fmi2ValueReference vr;
+    unsigned int vr;
     char type;      /* 'r' Real, 'i' Integer, 's' String */
     VariableRole role;
     int index;
