@@ -30,3 +30,4 @@ bench: install
 	$(BIN)/python bench/real_fit_speed.py
 	$(BIN)/python bench/diagnose_generality.py
 	$(BIN)/python bench/export_agreement.py
+	$(BIN)/python bench/compensation.py

@@ -72,10 +72,11 @@ def _columns(path: Path, names: list[str]) -> list[np.ndarray]:
     return [np.array([float(r[n]) for r in rows]) for n in names]
 
 
-def piezo_recordings() -> dict[str, Recording]:
+def piezo_recordings(data: Path | None = None) -> dict[str, Recording]:
+    """The three 1400 V triangles, read from `data` (default `DATA`)."""
     out = {}
     for label, stem in PIEZO.items():
-        t, u, y = _columns(DATA / "piezo-pnzt" / f"{stem}.csv",
+        t, u, y = _columns((data or DATA) / "piezo-pnzt" / f"{stem}.csv",
                            ["time_s", "voltage_V", "polarization_uC_per_cm2"])
         out[label] = Recording(t, u, y, name=label, input=Signal("voltage", "V"),
                                output=Signal("polarization", "uC/cm2"), source=stem)

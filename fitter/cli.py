@@ -1,4 +1,4 @@
-"""The `duhem` command line: fit, export, validate, simulate, diagnose, reproduce-paper.
+"""The `duhem` command line: fit, export, validate, simulate, compensate, diagnose, reproduce-paper.
 
 Conventions shared by every command
 -----------------------------------
@@ -35,6 +35,7 @@ import numpy as np
 from fitter.baselines import comparison
 from fitter.cli_support import EXIT_ERROR, CliError, GuardedGroup, backend_option, fmi_version_option
 from fitter.core.files import atomic_directory, atomic_file, json_text, jsonable
+from fitter.core.inverse import MEASUREMENT_CHOICES, Compensator, linear_gain
 from fitter.core.kernel import simulate as simulate_model
 from fitter.core.models import ModelFileError, load_model, save_model
 from fitter.data.metrics import compare
@@ -47,6 +48,7 @@ from fitter.identification.exported import range_warnings
 from fitter.identification.fit import fit_recordings
 from fitter.paper.report import command as reproduce_paper
 from fitter.progress import stderr_progress
+from fitter.reports.compensation_plot import write_compensation_plot
 from fitter.reports.diagnosis_report import fill_diagnosis_report
 from fitter.reports.fit_report import fill_fit_report
 from fitter.reports.validation_plot import write_validation_plot
@@ -399,6 +401,73 @@ def simulate(model, input_csv, out, time_col, input_col, as_json):
         _emit_json(info)
     else:
         click.echo(f"{len(rec)} samples simulated ({engine}) and written to {out}")
+
+
+@main.command()
+@click.argument("model", type=click.Path(dir_okay=False))
+@click.argument("reference", type=click.Path(dir_okay=False))
+@click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False),
+              help="CSV file to write (columns time,u,y_predicted)")
+@click.option("--plot", type=click.Path(dir_okay=False),
+              help="write a PNG: y_ref, the plant without compensation (linear gain) and with it")
+@click.option("--time", "time_col", default="time", show_default=True, metavar="COL", help="time column")
+@click.option("--ref", "ref_col", default="y_ref", show_default=True, metavar="COL", help="reference column")
+@click.option("--u0", type=float, help="the plant's input before the first sample (default: mid input range)")
+@click.option("--input-range", "input_range", type=float, nargs=2, metavar="LO HI",
+              help="inputs the compensator may use (default: the model's input_range)")
+@click.option("--measurement", type=click.Choice(MEASUREMENT_CHOICES), default="refuse", show_default=True,
+              help="a model with measurement effects (sensor_lag, measurement_drift): drop them (the device "
+                   "output follows y_ref) or invert them (the measured output follows y_ref)")
+@click.option("--json", "as_json", is_flag=True, help="print a summary as JSON")
+def compensate(model, reference, out, plot, time_col, ref_col, u0, input_range, measurement, as_json):
+    """The input that makes a model's output follow a reference (the inverse model, a feedforward compensator).
+
+    Exact wherever some input in the model's input range reaches y_ref (the
+    compensator and the plant run the same kernel); elsewhere the output is
+    clamped to the nearest reachable value and the clamped samples are
+    reported.  The output CSV has columns time,u,y_predicted (the model's
+    output for that input, from its stored x0).
+    """
+    if plot and Path(plot).suffix.lower() != ".png":
+        raise CliError(f"{plot}: the plot file name must end in .png")
+    m = _load_model_json(model)
+    rec = load_recording(reference, time_col, ref_col, None)
+    comp = Compensator(m, t0=float(rec.t[0]), u0=u0, measurement=measurement, input_range=input_range)
+    with stderr_progress("duhem compensate") as say, contextlib.ExitStack() as outputs:
+        csv_tmp = outputs.enter_context(atomic_file(out, suffix=".csv"))
+        plot_tmp = outputs.enter_context(atomic_file(plot, suffix=".png")) if plot else None
+        say(f"compensating {len(rec)} samples", None)
+        result = comp.run(rec.t, rec.u)
+        np.savetxt(csv_tmp, np.column_stack([result.t, result.u, result.y]), delimiter=",", fmt="%.17g",
+                   header="time,u,y_predicted", comments="")
+        info = {"model": model, "reference": reference, "out": out, "plot": plot, "measurement": measurement,
+                **result.summary()}
+        if plot_tmp:
+            say("plotting", None)
+            y0, gain = linear_gain(result.u, result.y)
+            lo, hi = result.input_range
+            u_linear = np.clip((result.y_ref - y0) / gain, lo, hi)
+            u_linear[0] = result.u[0]       # the plant starts where the compensated run starts
+            y_linear = simulate_model(comp.plant, result.t, u_linear).y
+            info["linear_gain"] = {"y0": y0, "gain": gain,
+                                   "tracking_error": float(np.sqrt(np.mean((y_linear - result.y_ref) ** 2))
+                                                           / (np.ptp(result.y_ref) or 1.0))}
+            write_compensation_plot(plot_tmp, result.t, result.y_ref, y_linear, result.y, result.clamped,
+                                    output_label=_axis_name(m.signals.output),
+                                    title=f"{Path(reference).name}: compensation of {Path(model).name}")
+    if result.n_clamped:
+        click.echo(f"warning: {reference}: {result.n_clamped} of {len(rec)} samples clamped (no input in "
+                   f"[{result.input_range[0]:.6g}, {result.input_range[1]:.6g}] reaches y_ref); largest shortfall "
+                   f"{result.max_shortfall:.4g} at t = {info['max_shortfall_time']:.6g}", err=True)
+    if as_json:
+        _emit_json(info)
+    else:
+        click.echo(f"{len(rec)} samples compensated and written to {out} ({result.n_clamped} clamped, tracking "
+                   f"error {100 * result.tracking_error():.3g}% of the reference range)")
+
+
+def _axis_name(signal) -> str:
+    return f"{signal.name} [{signal.unit}]" if signal.unit else signal.name
 
 
 @main.command()
