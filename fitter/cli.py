@@ -34,7 +34,7 @@ import numpy as np
 
 from fitter.baselines import comparison
 from fitter.cli_support import EXIT_ERROR, CliError, GuardedGroup, backend_option, fmi_version_option
-from fitter.core.files import atomic_directory, atomic_file, json_text, jsonable
+from fitter.core.files import atomic_directory, atomic_file, atomic_pair, json_text, jsonable
 from fitter.core.inverse import MEASUREMENT_CHOICES, Compensator, linear_gain
 from fitter.core.kernel import simulate as simulate_model
 from fitter.core.models import ModelFileError, load_model, save_model
@@ -44,6 +44,7 @@ from fitter.diagnosis import diagnose as run_diagnosis
 from fitter.fmu.build import PYTHON_HOST_NEEDS, build_fmu
 from fitter.fmu.host import model_in_fmu, simulate_fmu
 from fitter.fmu.native import find_c_compiler
+from fitter.fmu.pair import check_fmu_pair, recorded_fmu_digest, with_fmu_record
 from fitter.identification.exported import range_warnings
 from fitter.identification.fit import fit_recordings
 from fitter.paper.report import command as reproduce_paper
@@ -108,9 +109,13 @@ def _load_model_json(path: str):
         raise CliError(f"{path}: is an FMU or zip archive, not a model JSON file "
                        f"(give the JSON written by 'duhem fit')")
     try:
-        return load_model(path)
+        model = load_model(path)
     except ModelFileError as exc:
         raise CliError(f"{exc} (expected the model JSON written by 'duhem fit')") from None
+    note = check_fmu_pair(path, model)
+    if note:
+        click.echo(f"note: {note}", err=True)
+    return model
 
 
 def _check_fmu(path: str) -> None:
@@ -207,21 +212,25 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, allow_
         _check_backend(backend)
     recs = load_recordings(list(recordings), _time_column(time_col), input_col, output_col)
     with stderr_progress("duhem fit") as say, contextlib.ExitStack() as outputs:
-        model_tmp = outputs.enter_context(atomic_file(out, suffix=".json"))
+        if fmu:
+            model_tmp, fmu_tmp = outputs.enter_context(atomic_pair(out, fmu, recorded_fmu_digest))
+        else:
+            model_tmp, fmu_tmp = outputs.enter_context(atomic_file(out, suffix=".json")), None
         report_tmp = outputs.enter_context(atomic_directory(report)) if report else None
-        fmu_tmp = outputs.enter_context(atomic_file(fmu, suffix=".fmu")) if fmu else None
         say(f"fitting {len(recs)} recording(s)", None)
         result = fit_recordings(recs, kind=kind, order=order, q=q, x0=x0_policy, progress=say)
         if compare:
             say("fitting the classical models (Preisach, Prandtl-Ishlinskii, Bouc-Wen)", None)
             result.summary["comparison"] = jsonable(comparison(result.model, recs))
-        save_model(result.model, model_tmp)
+        model = result.model
         if report_tmp:
             say("writing the fit report", None)
             fill_fit_report(result, recs, report_tmp)
         if fmu_tmp:
             say(f"building the {backend} FMU", None)
-            build_fmu(result.model, fmu_tmp, backend=backend, allow_unstable=allow_unstable)
+            build_fmu(model, fmu_tmp, backend=backend, allow_unstable=allow_unstable)
+            model = with_fmu_record(model, fmu, fmu_tmp, out)
+        save_model(model, model_tmp)
     _python_host_note(fmu, backend)
     summary = result.summary
     if as_json:

@@ -1,12 +1,17 @@
 """Atomic output files and directories, and strict JSON (`fitter.core.files`)."""
 import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from fitter.core.files import atomic_directory, atomic_file, json_text, jsonable, usual_mode, write_json
+
+import fitter.core.files as files
+from fitter.core.files import (atomic_directory, atomic_file, atomic_pair, file_digest, json_text, jsonable,
+                               recover_pair, sweep_leftovers, usual_mode, write_json)
 
 UMASK = 0o027
 
@@ -106,3 +111,82 @@ def test_write_json_is_atomic_and_strict(tmp_path, umask):
     assert (tmp_path / "out.json").read_text() == '{"x": [0, 1, 2], "y": null}'
     assert (tmp_path / "out.json").stat().st_mode & 0o777 == 0o640
     assert names(tmp_path) == ["out.json"]
+
+
+def _dead_pid() -> int:
+    """The pid of a process that has finished (and been reaped)."""
+    proc = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    return int(proc.stdout)
+
+
+def test_leftovers_of_killed_writers_are_removed_by_the_next_write(tmp_path):
+    dead, target = _dead_pid(), tmp_path / "out.csv"
+    left = [tmp_path / f".tmp-out.csv.{dead}.abc.csv", tmp_path / f".old-out.csv.{dead}.ff"]
+    left[0].write_text("half")
+    left[1].mkdir()
+    alive = tmp_path / f".tmp-out.csv.{os.getppid()}.xyz.csv"      # a running writer's temporary stays
+    other = tmp_path / f".tmp-other.csv.{dead}.abc.csv"             # another target's leftover stays
+    alive.write_text("busy")
+    other.write_text("other")
+    with atomic_file(target) as tmp:
+        tmp.write_text("new")
+    assert names(tmp_path) == sorted([alive.name, other.name, "out.csv"])
+    assert sweep_leftovers(tmp_path / "other.csv") == [other]
+
+
+def _digest_in(record: Path) -> str | None:
+    return json.loads(record.read_text()).get("sha256")
+
+
+def _publish(record: Path, companion: Path, content: str, stop_before: Path | None = None) -> None:
+    """Publish the pair (companion `content`, record naming its digest); raise just before renaming `stop_before`."""
+    def hook(target):
+        if target == stop_before:
+            raise KeyboardInterrupt("interrupted")
+    files.PUBLISH_HOOK = hook
+    try:
+        with atomic_pair(record, companion, _digest_in) as (rec_tmp, comp_tmp):
+            comp_tmp.write_text(content)
+            rec_tmp.write_text(json.dumps({"sha256": file_digest(comp_tmp)}))
+    finally:
+        files.PUBLISH_HOOK = None
+
+
+@pytest.mark.parametrize("stop", [None, "companion", "record"])
+def test_a_pair_is_published_whole_or_not_at_all(tmp_path, stop):
+    record, companion = tmp_path / "m.json", tmp_path / "m.fmu"
+    _publish(record, companion, "old")
+    where = {"companion": companion, "record": record}.get(stop)
+    if where is None:
+        _publish(record, companion, "new")
+    else:
+        with pytest.raises(KeyboardInterrupt):
+            _publish(record, companion, "new", stop_before=where)
+    expect = "new" if stop is None else "old"
+    assert companion.read_text() == expect and _digest_in(record) == file_digest(companion)
+    assert names(tmp_path) == ["m.fmu", "m.json"]
+
+
+def test_recover_pair_puts_back_the_old_companion_of_a_run_killed_between_the_renames(tmp_path):
+    """The state a SIGKILL between the two renames leaves: old record, new companion, the old one kept."""
+    record, companion, dead = tmp_path / "m.json", tmp_path / "m.fmu", _dead_pid()
+    companion.write_text("old")
+    record.write_text(json.dumps({"sha256": file_digest(companion)}))
+    os.link(companion, tmp_path / f".pair-m.fmu.{dead}")
+    (tmp_path / "new").write_text("new")
+    os.replace(tmp_path / "new", companion)
+    recover_pair(record, companion, _digest_in)
+    assert companion.read_text() == "old" and names(tmp_path) == ["m.fmu", "m.json"]
+    os.link(companion, tmp_path / f".pair-m.fmu.{dead}")            # killed after the commit: the link goes
+    recover_pair(record, companion, _digest_in)
+    assert companion.read_text() == "old" and names(tmp_path) == ["m.fmu", "m.json"]
+
+
+def test_scratch_directories_of_killed_processes_are_swept(tmp_path, monkeypatch):
+    monkeypatch.setattr(files.tempfile, "tempdir", str(tmp_path))
+    dead = _dead_pid()
+    (tmp_path / f"duhem_native.{dead}.abc").mkdir()
+    (tmp_path / f"duhem_native.{os.getppid()}.abc").mkdir()       # a running build stays
+    with files.scratch_directory("duhem_native") as work:
+        assert work.name.startswith(f"duhem_native.{os.getpid()}.") and work.is_dir()
+    assert names(tmp_path) == [f"duhem_native.{os.getppid()}.abc"]

@@ -7,6 +7,22 @@ atomic) and renamed into place only when the writing block succeeds; on any
 failure the temporary is removed and the target is left as it was.  A reader
 therefore sees the old content or the new one, never half of it.
 
+Temporaries are named after their target and the writing process,
+``.tmp-<name>.<pid>.<random>``; a process killed before it could clean up
+leaves them behind, and the next write of the same target removes those of
+processes that no longer run (`sweep_leftovers`).  Working directories
+(FMU builds) are `scratch_directory`: named after the process too, and
+swept the same way.
+
+Two outputs of one command that belong together (a model JSON and the FMU
+built from it) are published by `atomic_pair`: the companion (FMU) is
+renamed first and the record (JSON, which records the companion's SHA-256)
+last, and the old companion is kept as a hard link until the record is in
+place.  A run killed between the two renames leaves the old record with the
+new companion and that link; `recover_pair` (run by the next write of the
+pair and by every reader) puts the old companion back, so a reader finds
+the old pair or the new one, never a mix.
+
 Modes: `tempfile` creates files 0600 and directories 0700; the result gets
 the usual mode of a new file, ``0o666 & ~umask`` (directories
 ``0o777 & ~umask``), as ``open(path, "w")`` or ``mkdir`` would give.
@@ -23,6 +39,7 @@ of `fitter.core` (numpy objects are recognised by their ``tolist`` method).
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import math
 import os
@@ -30,9 +47,13 @@ import shutil
 import tempfile
 import uuid
 from pathlib import Path, PurePath
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
-__all__ = ["atomic_file", "atomic_directory", "write_json", "json_text", "jsonable", "usual_mode"]
+__all__ = ["atomic_file", "atomic_directory", "atomic_pair", "recover_pair", "file_digest", "sweep_leftovers",
+           "scratch_directory", "write_json", "json_text", "jsonable", "usual_mode", "PUBLISH_HOOK"]
+
+PUBLISH_HOOK: Callable[[Path], None] | None = None
+"""Called with the target just before an output is renamed into place (tests interrupt a run there)."""
 
 
 def _umask() -> int:
@@ -60,8 +81,10 @@ def atomic_file(path: str | os.PathLike, *, suffix: str | None = None) -> Iterat
     """Yield a temporary file path beside `path`; rename it to `path` when the block succeeds.
 
     The temporary file exists (empty) when the block starts; write it by
-    name.  It is called ``.tmp-<random><suffix>`` (default suffix: that of
-    `path`, so tools that choose a format by extension see the right one).
+    name.  It is called ``.tmp-<name>.<pid>.<random><suffix>`` (default
+    suffix: that of `path`, so tools that choose a format by extension see
+    the right one); leftovers of killed writers of `path` are removed first
+    (`sweep_leftovers`).
     On success it gets `usual_mode` and replaces `path`; on any exception it
     is removed and `path` is untouched.
 
@@ -72,12 +95,15 @@ def atomic_file(path: str | os.PathLike, *, suffix: str | None = None) -> Iterat
     """
     target = Path(path)
     ending = target.suffix if suffix is None else suffix
-    fd, name = tempfile.mkstemp(prefix=".tmp-", suffix=ending, dir=_parent(target))
+    parent = _parent(target)
+    sweep_leftovers(target)
+    fd, name = tempfile.mkstemp(prefix=_own_prefix(".tmp-", target), suffix=ending, dir=parent)
     os.close(fd)
     tmp = Path(name)
     try:
         yield tmp
         os.chmod(tmp, usual_mode())
+        _publishing(target)
         os.replace(tmp, target)
     finally:
         if tmp.exists():
@@ -107,10 +133,12 @@ def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
     parent = _parent(target)
     if target.exists() and not target.is_dir():
         raise NotADirectoryError(f"{path}: exists and is not a directory")
-    tmp = Path(tempfile.mkdtemp(prefix=".tmp-", suffix=f"-{target.name}", dir=parent))
+    sweep_leftovers(target)
+    tmp = Path(tempfile.mkdtemp(prefix=_own_prefix(".tmp-", target), dir=parent))
     try:
         yield tmp
         os.chmod(tmp, usual_mode(directory=True))
+        _publishing(target)
         _swap_in(tmp, target)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -121,7 +149,7 @@ def _swap_in(new: Path, target: Path) -> None:
     if not target.exists():
         os.rename(new, target)
         return
-    aside = target.parent / f".old-{uuid.uuid4().hex}-{target.name}"
+    aside = target.parent / f"{_own_prefix('.old-', target)}{uuid.uuid4().hex}"
     os.rename(target, aside)
     try:
         os.rename(new, target)
@@ -129,6 +157,129 @@ def _swap_in(new: Path, target: Path) -> None:
         os.rename(aside, target)
         raise
     shutil.rmtree(aside, ignore_errors=True)
+
+
+def _own_prefix(kind: str, target: Path) -> str:
+    """``<kind><name>.<pid>.``: the prefix of this process's temporaries for `target`."""
+    return f"{kind}{target.name}.{os.getpid()}."
+
+
+def _publishing(target: Path) -> None:
+    if PUBLISH_HOOK is not None:
+        PUBLISH_HOOK(target)
+
+
+def _running(pid: int) -> bool:
+    """Whether process `pid` exists (signal 0 probes without sending)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _stale(target: Path, kinds: tuple[str, ...]) -> Iterator[Path]:
+    """Entries beside `target` named ``<kind><name>.<pid>.*`` (or ``...<pid>``) whose process is gone."""
+    for entry in target.parent.iterdir() if target.parent.is_dir() else ():
+        for kind in kinds:
+            head = f"{kind}{target.name}."
+            pid = entry.name[len(head):].split(".", 1)[0] if entry.name.startswith(head) else ""
+            if pid.isdigit() and int(pid) != os.getpid() and not _running(int(pid)):
+                yield entry
+
+
+def sweep_leftovers(path: str | os.PathLike) -> list[Path]:
+    """Remove the temporaries (``.tmp-``, ``.old-``) that killed writers of `path` left beside it.
+
+    Only entries of processes that no longer run are removed (a concurrent
+    writer's temporaries stay).  Returns the removed paths.
+    """
+    removed = []
+    for entry in list(_stale(Path(path), (".tmp-", ".old-"))):
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry, ignore_errors=True)
+        else:
+            entry.unlink(missing_ok=True)
+        removed.append(entry)
+    return removed
+
+
+@contextlib.contextmanager
+def scratch_directory(tag: str) -> Iterator[Path]:
+    """A private working directory ``<system temp>/<tag>.<pid>.<random>``, removed after the block.
+
+    Those that killed processes left (same `tag`, a process that no longer
+    runs) are removed first.
+    """
+    base = Path(tempfile.gettempdir()) / tag
+    for entry in list(_stale(base, ("",))):
+        shutil.rmtree(entry, ignore_errors=True)
+    with tempfile.TemporaryDirectory(prefix=f"{tag}.{os.getpid()}.") as tmp:
+        yield Path(tmp)
+
+
+def file_digest(path: str | os.PathLike) -> str:
+    """SHA-256 of a file's bytes, as hex."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def recover_pair(record: str | os.PathLike, companion: str | os.PathLike,
+                 recorded: Callable[[Path], str | None]) -> None:
+    """Finish or undo a pair publication that a killed process left half done (module docstring).
+
+    A kept old companion (``.pair-<name>.<pid>`` of a process that no longer
+    runs) goes back into place when the record still names its digest
+    (``recorded(record)``: the run died between the two renames); otherwise
+    it is removed.
+    """
+    record, companion = Path(record), Path(companion)
+    for kept in list(_stale(companion, (".pair-",))):
+        if record.exists() and recorded(record) == file_digest(kept):
+            _put_back(kept, companion)
+        else:
+            kept.unlink(missing_ok=True)
+
+
+def _put_back(kept: Path, companion: Path) -> None:
+    """Rename `kept` to `companion`; when both are already the same file (rename(2) then does nothing) drop
+    the link."""
+    if companion.exists() and os.path.samefile(kept, companion):
+        kept.unlink()
+    else:
+        os.replace(kept, companion)
+
+
+@contextlib.contextmanager
+def atomic_pair(record: str | os.PathLike, companion: str | os.PathLike,
+                recorded: Callable[[Path], str | None]) -> Iterator[tuple[Path, Path]]:
+    """Yield temporary paths (record, companion); publish them as a pair when the block succeeds.
+
+    Write the companion first and record its `file_digest` in the record.  On
+    success the old companion is kept as a hard link, the companion renamed
+    into place, then the record (the commit), then the link removed; a
+    failure between the renames puts the old companion back.  `recorded`
+    reads the digest a record names (for `recover_pair`, run first).
+    """
+    record, companion = Path(record), Path(companion)
+    recover_pair(record, companion, recorded)
+    kept = companion.parent / f".pair-{companion.name}.{os.getpid()}"
+    try:
+        with atomic_file(record) as record_tmp, atomic_file(companion) as companion_tmp:
+            yield record_tmp, companion_tmp
+            if companion.exists():
+                kept.unlink(missing_ok=True)
+                os.link(companion, kept)
+    except BaseException:
+        if kept.exists():
+            _put_back(kept, companion)
+        raise
+    kept.unlink(missing_ok=True)
 
 
 def jsonable(obj: Any) -> Any:

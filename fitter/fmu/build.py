@@ -53,7 +53,6 @@ import hashlib
 import os
 import shutil
 import sys
-import tempfile
 import uuid
 import zipfile
 from pathlib import Path
@@ -62,7 +61,7 @@ import fitter.core
 import fmu_src
 from fitter.core import load_model, save_model
 from fitter.core.errors import DuhemError
-from fitter.core.files import atomic_file, write_json
+from fitter.core.files import atomic_file, scratch_directory, write_json
 from fitter.fmu.model_description import (FMI_VERSIONS, converges, model_description_xml, model_variables,
                                           package_version)
 from fitter.fmu.native import build_native_fmu
@@ -151,7 +150,7 @@ def _build_python(model, out_path: Path, **opts) -> None:
     from pythonfmu.builder import FmuBuilder
 
     code = _code_hash()
-    with tempfile.TemporaryDirectory(prefix="duhem_fmu_") as tmp:
+    with scratch_directory("duhem_fmu") as tmp:
         staging = Path(tmp) / "staging"
         staging.mkdir()
         script, project_files = _stage(model, staging, code)

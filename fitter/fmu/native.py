@@ -45,7 +45,6 @@ import shutil
 import struct
 import subprocess
 import sys
-import tempfile
 import uuid
 import zipfile
 from pathlib import Path
@@ -55,7 +54,7 @@ import numpy as np
 
 import fmu_src.native
 from fitter.core.effects import REGISTRY, ParameterSpec
-from fitter.core.files import atomic_file
+from fitter.core.files import atomic_file, scratch_directory
 from fitter.core.rates import TabulatedRate
 from fitter.fmu.model_description import (FMI_VERSIONS, U_REF, Y_REF, model_description_xml,
                                           model_description_xml3, model_variables,
@@ -322,7 +321,7 @@ def _package(out_path: str | os.PathLike, xml: str, files: dict[str, str], c_fil
     if fmi_version == 3:
         files = {**files, "buildDescription.xml": build_description_xml(model_identifier, c_files)}
     out = Path(out_path).resolve()
-    with tempfile.TemporaryDirectory(prefix="duhem_native_") as tmp:
+    with scratch_directory("duhem_native") as tmp:
         sources = Path(tmp) / "sources"
         sources.mkdir()
         for name in c_files + headers(fmi_version):
