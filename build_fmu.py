@@ -2,12 +2,13 @@
 
 Usage::
 
-    python build_fmu.py model.json -o model.fmu [--backend native|python] [--fmi-version 2|3]
+    python build_fmu.py model.json -o model.fmu [--backend native|python] [--fmi-version 2|3] [--inverse]
 
 prints the FMU's absolute path (exit status 0), or one line ``error: ...``
 on stderr (exit status 1).  The default backend is ``native``: the FMU then
 runs in simulators without Python.  ``--fmi-version 3`` (native backend only)
-writes an FMI 3.0 Co-Simulation FMU.  The generator is `fitter.fmu.build`;
+writes an FMI 3.0 Co-Simulation FMU; ``--inverse`` the model's compensator
+(input y_ref, output u; ``duhem export --inverse``).  The generator is `fitter.fmu.build`;
 ``import build_fmu; build_fmu.build_fmu(model_or_json_path, out_path,
 backend=...)`` is the same function (``duhem export`` is the same export with
 the package's command line).
@@ -30,10 +31,11 @@ __all__ = ["build_fmu", "FmuBuildError", "MODEL_IDENTIFIER", "BACKENDS", "FMI_VE
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="FMU file to write")
 @backend_option
 @fmi_version_option
+@click.option("--inverse", is_flag=True, help="export the model's compensator (input y_ref, output u)")
 @guarded
-def command(model: str, output: str, backend: str, fmi_version: int) -> None:
+def command(model: str, output: str, backend: str, fmi_version: int, inverse: bool) -> None:
     """Export a semilinear Duhem model JSON (duhem fit output) as an FMI 2.0 or 3.0 Co-Simulation FMU."""
-    click.echo(build_fmu(model, output, backend=backend, fmi_version=fmi_version))
+    click.echo(build_fmu(model, output, backend=backend, fmi_version=fmi_version, inverse=inverse))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -278,22 +278,41 @@ def _comparison_tables(comp: dict) -> None:
 @backend_option
 @fmi_version_option
 @_allow_unstable_option
+@click.option("--inverse", is_flag=True,
+              help="export the model's feedforward compensator instead (input y_ref, output u: the input that "
+                   "makes the model's output follow y_ref; see 'duhem compensate')")
+@click.option("--measurement", type=click.Choice(MEASUREMENT_CHOICES), default="refuse", show_default=True,
+              help="with --inverse, a model with measurement effects (sensor_lag, measurement_drift): drop them "
+                   "(the device output follows y_ref) or invert them (the measured output follows y_ref)")
 @click.option("--json", "as_json", is_flag=True, help="print the result as JSON")
-def export(model, out, backend, fmi_version, allow_unstable, as_json):
-    """Export a model JSON as an FMI 2.0 (or, --fmi-version 3, FMI 3.0) Co-Simulation FMU."""
+def export(model, out, backend, fmi_version, allow_unstable, inverse, measurement, as_json):
+    """Export a model JSON as an FMI 2.0 (or, --fmi-version 3, FMI 3.0) Co-Simulation FMU.
+
+    With --inverse the FMU is the model's compensator: at each communication
+    point it reads the reference y_ref(t_k) and outputs the input u(t_k) that
+    makes the model's output equal y_ref(t_k) (exact inverse of the model's
+    step, searched in the model's input_range; clamped to the nearest reachable
+    output where none reaches it), to be connected in front of the model's FMU.
+    """
     if fmi_version == 3 and backend != "native":
         raise CliError("FMI 3.0 export needs --backend native")
+    if measurement != "refuse" and not inverse:
+        raise CliError("--measurement applies to the compensator: add --inverse")
     m = _load_model_json(model)
     _check_fmu_name(out)
+    what = "compensator " if inverse else ""
     with stderr_progress("duhem export") as say, atomic_file(out, suffix=".fmu") as tmp:
-        say(f"building the {backend} FMI {fmi_version}.0 FMU", None)
-        build_fmu(m, tmp, backend=backend, allow_unstable=allow_unstable, fmi_version=fmi_version)
+        say(f"building the {backend} FMI {fmi_version}.0 {what}FMU", None)
+        build_fmu(m, tmp, backend=backend, allow_unstable=allow_unstable, fmi_version=fmi_version,
+                  inverse=inverse, measurement=measurement)
     if as_json:
         _emit_json({"model": model, "fmu": out, "backend": backend, "fmi_version": f"{fmi_version}.0",
-                    "kind": m.kind, "order": m.order})
+                    "kind": m.kind, "order": m.order, "inverse": inverse})
     else:
         click.echo(f"{m.kind} model of order {m.order} exported to {out} ({backend} backend, "
-                   f"FMI {fmi_version}.0)")
+                   f"FMI {fmi_version}.0)" if not inverse else
+                   f"compensator of the {m.kind} model of order {m.order} exported to {out} (input y_ref, output "
+                   f"u; {backend} backend, FMI {fmi_version}.0)")
     _python_host_note(out, backend)
 
 

@@ -25,6 +25,17 @@ FMI behaviour
   to the end of the last step, up to rounding); roll back with
   ``fmi2SetFMUstate`` to step from elsewhere.
 
+The compensator (``duhem export --inverse``)
+-------------------------------------------
+With ``"inverse": true`` in ``duhem_fmu.json`` the slave runs the kernel's
+``Compensator`` (``fitter/core/inverse.py``) on the model instead: ``y_ref``
+(value reference 1) is the input, ``u`` (value reference 0) the output.  The
+same communication-point semantics (`_Inverse`): reading u solves the current
+point from the last committed one without committing it (so y_ref may be set
+again and u re-read), ``do_step`` commits it.  A NaN or infinite y_ref is
+refused (an exception: fmi2Fatal in pythonfmu); the FMU state holds the
+compensator's whole state, so a rollback replays the same u.
+
 The class statement must stay literally ``class DuhemSlave(Fmi2Slave):``:
 pythonfmu's binary finds the slave class with that regular expression.
 """
@@ -45,8 +56,55 @@ _VALUE_KEYS = ("parameters", "g", "effects")
 _INSTANTIATED, _INITIALIZATION, _STEPPING, _TERMINATED = "instantiated", "initialization", "stepping", "terminated"
 
 
+class _Inverse:
+    """The kernel's Compensator with the Stepper's communication-point interface: input (``u`` here) y_ref,
+    ``output()`` the compensator's u at the current point, ``do_step`` commits it (module docstring)."""
+
+    def __init__(self, compensator, model, t0: float = 0.0, y_ref: float = 0.0):
+        self._comp = compensator(model, t0=t0, measurement="invert")
+        self.t, self.u, self.du = float(t0), float(y_ref), 0.0
+        self._anchor = self._comp.get_state()
+        self._solved = None
+
+    def reset(self, t0: float, y_ref: float) -> None:
+        self._comp.reset(t0)
+        self.t, self.u, self.du = float(t0), float(y_ref), 0.0
+        self._anchor = self._comp.get_state()
+        self._solved = None
+
+    def set_input(self, y_ref: float) -> None:
+        if not math.isfinite(y_ref):
+            raise ValueError(f"the reference y_ref = {y_ref} is not finite (NaN or infinite): refused")
+        self.u = float(y_ref)
+        self._solved = None
+
+    def output(self) -> float:
+        if self._solved is None:
+            self._comp.set_state(self._anchor)
+            u = self._comp.step(self.t, self.u)
+            self._solved = (u, self._comp.get_state())
+        return self._solved[0]
+
+    def do_step(self, h: float) -> None:
+        if not (math.isfinite(h) and h > 0):
+            raise ValueError(f"step size {h} must be positive and finite")
+        self.output()
+        self._anchor = self._solved[1]
+        self.t, self.u, self._solved = self.t + h, self.u + self.du * h, None
+
+    def get_state(self) -> list:
+        return [self.t, self.u, self.du, _plain_tree(self._anchor)]
+
+    def set_state(self, state) -> None:
+        t, u, du, anchor = state
+        self._comp.set_state((tuple(anchor[0]),) + tuple(anchor[1:]))
+        self._anchor = self._comp.get_state()
+        self.t, self.u, self.du, self._solved = float(t), float(u), float(du), None
+
+
 class DuhemSlave(Fmi2Slave):
-    """FMI 2.0 CS slave driving ``kernel.Stepper``; see the module docstring."""
+    """FMI 2.0 CS slave driving ``kernel.Stepper`` (or, the compensator, ``kernel.Compensator``); see the
+    module docstring."""
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -58,11 +116,20 @@ class DuhemSlave(Fmi2Slave):
         self._dict = model.to_dict()
         self._table = {v["valueReference"]: v for v in config["variables"]}
         self._names = {v["name"]: v["valueReference"] for v in config["variables"]}
+        self._inverse = bool(config.get("inverse", False))
+        self._in, self._out = (_Y, _U) if self._inverse else (_U, _Y)
+        self._start = float(self._table[self._in].get("start") or 0.0)
         self._phase = _INSTANTIATED
         self._t0 = 0.0
         self._dirty = False
         self._model = model
-        self._stepper = self._kernel.Stepper(model, 0.0, 0.0)
+        self._stepper = self._engine(model, 0.0, self._start)
+
+    def _engine(self, model, t0: float, value: float):
+        """The Stepper (input u) or, for the compensator, the `_Inverse` (input y_ref) at t0."""
+        if self._inverse:
+            return _Inverse(self._kernel.Compensator, model, t0, value)
+        return self._kernel.Stepper(model, t0, value)
 
     # -- values ----------------------------------------------------------
     def _lookup(self, path: list):
@@ -73,8 +140,9 @@ class DuhemSlave(Fmi2Slave):
 
     def _assign(self, vr: int, value) -> None:
         var = self._table.get(vr)
-        if var is None or var["causality"] != "parameter":
-            raise ValueError(f"value reference {vr} is not a settable variable of this FMU")
+        if var is None or (var["type"] == "Real" and var["causality"] != "parameter"):
+            raise ValueError(f"value reference {vr} is not a settable variable of this FMU"
+                             + (" (an output)" if vr == self._out else ""))
         name, path = var["name"], var["path"]
         if var["type"] != "Real":
             if value != self._lookup(path):
@@ -95,15 +163,15 @@ class DuhemSlave(Fmi2Slave):
         except ValueError as exc:
             raise ValueError(f"invalid parameter values: {exc}") from None
         u = self._stepper.u
-        self._stepper = self._kernel.Stepper(self._model, self._t0, u)
+        self._stepper = self._engine(self._model, self._t0, u)
         self._dirty = False
 
     def _real(self, vr: int) -> float:
-        if vr == _Y:
+        if vr == self._out:
             if self._dirty:
                 self._rebuild()
             return self._stepper.output()
-        if vr == _U:
+        if vr == self._in:
             return self._stepper.u
         var = self._table.get(vr)
         if var is None or var["type"] != "Real":
@@ -115,7 +183,7 @@ class DuhemSlave(Fmi2Slave):
 
     def set_real(self, vrs, values):
         for vr, value in zip(vrs, values):
-            if vr == _U:
+            if vr == self._in:
                 self._stepper.set_input(value)
             else:
                 self._assign(vr, value)
@@ -150,6 +218,8 @@ class DuhemSlave(Fmi2Slave):
 
     # -- life cycle ------------------------------------------------------
     def setup_experiment(self, start_time, stop_time=None, tolerance=None):
+        if not math.isfinite(start_time):
+            raise ValueError(f"start time {start_time!r} is not finite")
         self._t0 = float(start_time)
         self._stepper.reset(self._t0, self._stepper.u)
 
@@ -195,9 +265,13 @@ class DuhemSlave(Fmi2Slave):
     def _get_fmu_state(self):
         return {"phase": self._phase, "t0": self._t0, "dirty": self._dirty,
                 "values": {k: copy.deepcopy(self._dict[k]) for k in _VALUE_KEYS if k in self._dict},
-                "stepper": [_plain(v) for v in self._stepper.get_state()]}
+                "stepper": (self._stepper.get_state() if self._inverse
+                            else [_plain(v) for v in self._stepper.get_state()])}
 
     def _set_fmu_state(self, state):
+        if not isinstance(state, dict) or set(state) != {"phase", "t0", "dirty", "values", "stepper"} or \
+                state["phase"] not in (_INSTANTIATED, _INITIALIZATION, _STEPPING, _TERMINATED):
+            raise ValueError("fmi2SetFMUstate: not a state of this FMU")
         values = copy.deepcopy(state["values"])
         changed = any(values[k] != self._dict[k] for k in values)
         self._dict.update(values)
@@ -215,4 +289,15 @@ def _plain(value):
         return value
     if hasattr(value, "__len__"):
         return [float(v) for v in value]
+    return float(value)
+
+
+def _plain_tree(value):
+    """The compensator's state as JSON-able nested lists of floats, ints, bools and None."""
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, (tuple, list)):
+        return [_plain_tree(v) for v in value]
+    if hasattr(value, "tolist"):
+        return value.tolist()
     return float(value)

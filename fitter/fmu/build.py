@@ -43,6 +43,15 @@ What pythonfmu needs, and how it is given:
   rewritten with the complete modelDescription of
   `fitter.fmu.model_description.model_description_xml`.
 
+The compensator (``inverse=True``, ``duhem export --inverse``): the same
+slave in its compensator mode (``"inverse": true`` in ``duhem_fmu.json``, the
+kernel's `fitter.core.inverse.Compensator`), model identifier
+``duhem_compensator``, the interface of
+`fitter.fmu.model_description.compensator_variables`.  The model it carries is
+the plant the compensator inverts (``measurement="drop"`` has removed the
+measurement effects; "refuse", the default, refuses a model that has them).
+The native backend builds it from ``fmu_src/native/inverse_model.c``.
+
 The GUID is deterministic: a UUID5 of the backend, the code hash and the
 model JSON, so the same model exported by the same code gets the same GUID.
 """
@@ -62,13 +71,16 @@ import fmu_src
 from fitter.core import load_model, save_model
 from fitter.core.errors import DuhemError
 from fitter.core.files import atomic_file, scratch_directory, write_json
-from fitter.fmu.model_description import (FMI_VERSIONS, converges, model_description_xml, model_variables,
-                                          package_version)
-from fitter.fmu.native import build_native_fmu
+from fitter.core.inverse import Compensator
+from fitter.fmu.model_description import (FMI_VERSIONS, compensator_variables, converges, model_description_xml,
+                                          model_variables, package_version, reference_start)
+from fitter.fmu.native import build_native_compensator, build_native_fmu
 
-__all__ = ["build_fmu", "FmuBuildError", "MODEL_IDENTIFIER", "BACKENDS", "FMI_VERSIONS", "PYTHON_HOST_NEEDS"]
+__all__ = ["build_fmu", "FmuBuildError", "MODEL_IDENTIFIER", "COMPENSATOR_IDENTIFIER", "BACKENDS", "FMI_VERSIONS",
+           "PYTHON_HOST_NEEDS"]
 
 MODEL_IDENTIFIER = "semilinear_duhem"
+COMPENSATOR_IDENTIFIER = "duhem_compensator"
 BACKENDS = ("python", "native")
 _SLAVE_SOURCE = Path(fmu_src.__file__).resolve().parent / "duhem_slave.py"
 _CORE_DIR = Path(fitter.core.__file__).resolve().parent
@@ -107,16 +119,19 @@ def _guid(model_json: str, code: str, backend: str) -> str:
     return "{" + str(uuid.uuid5(_GUID_NAMESPACE, f"{backend}:{code}:{model_json}")) + "}"
 
 
-def _stage(model, staging: Path, code: str) -> tuple[Path, list[Path]]:
-    """Write the slave script and the resources pythonfmu copies into the FMU."""
+def _stage(model, staging: Path, code: str, inverse_start: float | None = None) -> tuple[Path, list[Path]]:
+    """Write the slave script and the resources pythonfmu copies into the FMU (the compensator's when
+    `inverse_start`, the start value of y_ref, is given)."""
     kernel = f"duhem_core_{code}"
     script = staging / f"duhem_slave_{code}.py"
     shutil.copyfile(_SLAVE_SOURCE, script)
     shutil.copytree(_CORE_DIR, staging / kernel, ignore=shutil.ignore_patterns("__pycache__"))
     save_model(model, staging / "model.json")
+    variables = model_variables(model) if inverse_start is None else compensator_variables(model, inverse_start)
     write_json(staging / "duhem_fmu.json",
-               {"model_identifier": MODEL_IDENTIFIER, "kernel_package": kernel, "model_file": "model.json",
-                "variables": [v.to_json() for v in model_variables(model)]}, indent=1)
+               {"model_identifier": MODEL_IDENTIFIER if inverse_start is None else COMPENSATOR_IDENTIFIER,
+                "kernel_package": kernel, "model_file": "model.json", "inverse": inverse_start is not None,
+                "variables": [v.to_json() for v in variables]}, indent=1)
     return script, [staging / kernel, staging / "model.json", staging / "duhem_fmu.json"]
 
 
@@ -132,7 +147,7 @@ def _isolated_imports(code: str):
             del sys.modules[name]
 
 
-def _rewrite_zip(built: Path, target: Path, xml: str) -> None:
+def _rewrite_zip(built: Path, target: Path, xml: str, identifier: str = MODEL_IDENTIFIER) -> None:
     """Copy the pythonfmu zip to `target`, with our modelDescription.xml."""
     with zipfile.ZipFile(built) as src, \
             zipfile.ZipFile(target, "w", compression=zipfile.ZIP_DEFLATED) as dst:
@@ -141,11 +156,11 @@ def _rewrite_zip(built: Path, target: Path, xml: str) -> None:
                 dst.writestr(item.filename, src.read(item.filename))
         dst.writestr("modelDescription.xml", xml)
         binaries = [n for n in src.namelist() if n.startswith("binaries/")]
-    if not any(Path(n).stem == MODEL_IDENTIFIER for n in binaries):
-        raise FmuBuildError(f"pythonfmu named the binaries {binaries}, not {MODEL_IDENTIFIER}.*")
+    if not any(Path(n).stem == identifier for n in binaries):
+        raise FmuBuildError(f"pythonfmu named the binaries {binaries}, not {identifier}.*")
 
 
-def _build_python(model, out_path: Path, **opts) -> None:
+def _build_python(model, out_path: Path, inverse_start: float | None = None, **opts) -> None:
     from pythonfmu import __version__ as pythonfmu_version
     from pythonfmu.builder import FmuBuilder
 
@@ -153,20 +168,24 @@ def _build_python(model, out_path: Path, **opts) -> None:
     with scratch_directory("duhem_fmu") as tmp:
         staging = Path(tmp) / "staging"
         staging.mkdir()
-        script, project_files = _stage(model, staging, code)
+        script, project_files = _stage(model, staging, code, inverse_start)
         model_json = (staging / "model.json").read_text(encoding="utf-8")
         with _isolated_imports(code):
             built = FmuBuilder.build_FMU(script, dest=Path(tmp) / "pythonfmu.fmu",
                                          project_files=project_files)
+        identifier = MODEL_IDENTIFIER if inverse_start is None else COMPENSATOR_IDENTIFIER
         xml = model_description_xml(
-            model, model_identifier=MODEL_IDENTIFIER, guid=_guid(model_json, code, "python"),
+            model, model_identifier=identifier,
+            guid=_guid(model_json, code, "python" if inverse_start is None else "python:inverse"),
             backend="python", generation_tool=f"semilinear-duhem {package_version()} "
-                                              f"(pythonfmu {pythonfmu_version})", **opts)
-        _rewrite_zip(Path(built), out_path, xml)
+                                              f"(pythonfmu {pythonfmu_version})", inverse_start=inverse_start,
+            **opts)
+        _rewrite_zip(Path(built), out_path, xml, identifier)
 
 
 def build_fmu(model_or_json_path, out_path: str | os.PathLike, *, backend: str = "python",
-              allow_unstable: bool = False, fmi_version: int = 2, **opts) -> str:
+              allow_unstable: bool = False, fmi_version: int = 2, inverse: bool = False,
+              measurement: str = "refuse", **opts) -> str:
     """Build an FMI 2.0 or 3.0 Co-Simulation FMU of a model; return the FMU's absolute path.
 
     Parameters
@@ -184,6 +203,11 @@ def build_fmu(model_or_json_path, out_path: str | os.PathLike, *, backend: str =
         then carries a warning.  Without it such a model is refused.
     fmi_version : {2, 3}
         The FMI version; 3 needs the native backend.
+    inverse : bool
+        Export the model's feedforward compensator (`fitter.core.inverse.Compensator`: input y_ref,
+        output u) instead of the model.  The model needs an ``input_range`` (the inputs searched).
+    measurement : {"refuse", "drop", "invert"}
+        With `inverse`: what to do with the model's measurement effects (`fitter.core.inverse`).
     **opts
         Python backend: ``model_name``, ``description``, ``version`` (default:
         the version of semilinear-duhem that exports), ``author``
@@ -195,6 +219,8 @@ def build_fmu(model_or_json_path, out_path: str | os.PathLike, *, backend: str =
         Unknown backend or FMI version.
     TypeError
         Unknown option of the python backend; not a model.
+    InverseError
+        `inverse` and the model has no input range, or measurement effects with measurement="refuse".
     FmuBuildError
         The backend failed, the model is unstable and `allow_unstable` is false, or FMI 3.0
         was asked of the python backend.
@@ -218,10 +244,16 @@ def build_fmu(model_or_json_path, out_path: str | os.PathLike, *, backend: str =
                             f"{model.fit_info['convergence'].get('rho_raw_input_per_recording')}): a wrong initial "
                             "state need not die out; not exported (allow_unstable / --allow-unstable exports it "
                             "with a warning in its description)")
+    inverse_start = None
+    if inverse:
+        model = Compensator(model, measurement=measurement).plant    # checks the input range and the effects
+        inverse_start = reference_start(model)
     out = Path(out_path).resolve()
     with atomic_file(out) as tmp:
         if backend == "python":
-            _build_python(model, tmp, **opts)
+            _build_python(model, tmp, inverse_start, **opts)
+        elif inverse:
+            build_native_compensator(model, str(tmp), fmi_version=fmi_version, **opts)
         else:
             build_native_fmu(model, str(tmp), fmi_version=fmi_version, **opts)
     return str(out)

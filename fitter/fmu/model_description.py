@@ -14,7 +14,8 @@ Interface
   variable's ``description`` and its ``unit`` attribute (declared in
   ``UnitDefinitions``).
 * ``order`` (Integer) and ``kind`` (String, ``ri`` or ``rd``): structural,
-  visible as parameters; an FMU accepts only its own value for them.
+  ``causality="local" variability="constant"`` so that no tool offers them
+  for editing; an FMU accepts only its own value for them.
 * The model matrices as structured names with 1-based indices, e.g.
   ``A_plus[1,2]``, ``B_plus[1]``, ``D``, the start state ``x0[i]``, and for a
   rate-dependent model the rate table ``g_v[k]``, ``g_g[k]``.  They are
@@ -32,9 +33,15 @@ state moves exactly along the straight input path between the inputs of
 successive communication points, so a host that sets u(t_k) and reads y(t_k)
 at every sample gets the in-process simulation of the sampled input.
 
+The compensator (``duhem export --inverse``, `fitter.core.inverse.Compensator`)
+has the same variables with the signals turned round (`compensator_variables`):
+``u`` (value reference 0) is its output, the input to apply to the plant, and
+``y_ref`` (value reference 1, the model's output name and unit) its input; the
+plant's parameters stay parameters.  Both writers take ``inverse_start`` (the
+start value of y_ref, `reference_start`) to write the compensator.
+
 FMI 3.0 (`model_description_xml3`) declares the same variables with the same
-value references, as ``Float64``/``Int32``/``String``; ``order`` and ``kind``
-are constants there (``causality="local" variability="constant"``), and the
+value references, as ``Float64``/``Int32``/``String``, and the
 independent variable ``time`` that FMI 3.0 requires follows the last
 parameter (`time_variable`).
 """
@@ -53,7 +60,7 @@ from fitter.core.rates import TabulatedRate
 
 __all__ = ["package_version", "FmiVariable", "model_variables", "time_variable", "model_description_xml",
            "model_description_xml3", "semantics_text", "converges", "capabilities", "LOG_CATEGORIES",
-           "U_REF", "Y_REF", "FMI_VERSIONS"]
+           "U_REF", "Y_REF", "FMI_VERSIONS", "compensator_variables", "compensator_text", "reference_start"]
 
 U_REF = 0
 Y_REF = 1
@@ -114,7 +121,7 @@ class FmiVariable:
 
     def to_json(self) -> dict:
         return {"name": self.name, "valueReference": self.value_reference, "type": self.type,
-                "causality": self.causality, "path": list(self.path)}
+                "causality": self.causality, "path": list(self.path), "start": self.start}
 
 
 def _signal_text(role: str, signal) -> str:
@@ -155,10 +162,10 @@ def model_variables(model) -> list[FmiVariable]:
         FmiVariable("y", Y_REF, "Real", "output", "continuous", None,
                     _signal_text("hysteresis output y = C x + D u", sig.output),
                     unit=sig.output.unit, initial="calculated"),
-        FmiVariable("order", 2, "Integer", "parameter", "fixed", model.order,
+        FmiVariable("order", 2, "Integer", "local", "constant", model.order,
                     "model order n (length of the state x); structural, cannot be changed",
                     path=("order",), initial="exact"),
-        FmiVariable("kind", 3, "String", "parameter", "fixed", model.kind,
+        FmiVariable("kind", 3, "String", "local", "constant", model.kind,
                     "model kind: ri = rate-independent, eqs (1)-(2); rd = rate-dependent, "
                     "eqs (18)-(19); structural, cannot be changed", path=("kind",), initial="exact"),
     ]
@@ -179,6 +186,36 @@ def model_variables(model) -> list[FmiVariable]:
                                         f"effect '{effect.effect}': parameter {name} "
                                         "(fitter.core.effects)"))
     return variables
+
+
+def reference_start(model) -> float:
+    """The start value of the compensator's y_ref: the plant's output at its first sample with the input in the
+    middle of the search range (the compensator's default u0), so that an unset reference keeps u there."""
+    from fitter.core.inverse import Compensator
+    from fitter.core.stepper import Stepper
+
+    comp = Compensator(model, measurement="invert")
+    return float(Stepper(comp.plant, 0.0, comp.u).output())
+
+
+def compensator_variables(model, y_ref_start: float) -> list[FmiVariable]:
+    """`model_variables` of the compensator of `model`: u (vr 0) an output, y_ref (vr 1) the input."""
+    sig = model.signals
+    variables = model_variables(model)
+    variables[0] = FmiVariable("u", U_REF, "Real", "output", "continuous", None,
+                               _signal_text("compensator output: the input to apply to the plant", sig.input),
+                               unit=sig.input.unit, initial="calculated")
+    variables[1] = FmiVariable("y_ref", Y_REF, "Real", "input", "continuous", float(y_ref_start),
+                               _signal_text("reference: the output the plant is to follow", sig.output),
+                               unit=sig.output.unit)
+    return variables
+
+
+def _interface(model, inverse_start: float | None) -> tuple[list[FmiVariable], str, str]:
+    """(variables, output name, input name) of the forward FMU or (inverse_start given) of the compensator."""
+    if inverse_start is None:
+        return model_variables(model), "y", "u"
+    return compensator_variables(model, inverse_start), "u", "y_ref"
 
 
 def time_variable(variables: Sequence[FmiVariable]) -> FmiVariable:
@@ -203,6 +240,44 @@ def _model_name(model) -> str:
     names = [e.effect for e in _effects(model)]
     return (f"semilinear Duhem {model.kind.upper()} model, order {model.order}"
             + (f" with {', '.join(names)}" if names else ""))
+
+
+_COMPENSATOR_DERIVATIVES_TEXT = {
+    2: ("Where the FMU declares canInterpolateInputs, an input derivative dy_ref/dt (fmi2SetRealInputDerivatives, "
+        "order 1) moves y_ref on to y_ref + dy_ref/dt h at each step, so a host that sets y_ref(t_k) and its "
+        "slope before stepping reads, after the step, the u that reaches y_ref(t_k+1)."),
+    3: ("FMI 3.0 has no input derivatives: a host that sets y_ref(t_k), steps and reads u gets the input for "
+        "the reference held over the step; set y_ref(t_k+1) before reading u(t_k+1)."),
+}
+
+
+def _compensator_name(model) -> str:
+    return f"compensator (inverse of the {_model_name(model)})"
+
+
+def compensator_text(model, fmi_version: int = 2) -> str:
+    """The compensator's model-level description: what it computes, its input semantics, the clamp."""
+    lo, hi = model.input_range if model.input_range is not None else (float("nan"), float("nan"))
+    text = (f"Feedforward hysteresis compensator (inverse of the {_model_name(model)}; semilinear Duhem model, "
+            "Oh and Bernstein, IEEE TAC 2007). Input y_ref: the output the plant is to follow; output u: the "
+            "input to apply to the plant. At each communication point t_k, u(t_k) is the input that makes the "
+            "plant's output equal y_ref(t_k), with the plant's input the straight line from u(t_k-1) over "
+            "[t_k-1, t_k] (the plant FMU's own input semantics): the root of the plant's exact step, found by "
+            "Brent's method on the forward model itself (fitter.core.inverse.Compensator), so a plant FMU of the "
+            "same model fed with u(t_k) at t_k outputs y_ref(t_k). u depends directly on y_ref; reading u does not "
+            "advance the compensator, a step commits the point. "
+            f"u is searched in [{lo:.6g}, {hi:.6g}] (the model's input range); where no input there reaches "
+            "y_ref (beyond the reachable output, past a branch's extremum), u is the input whose output is "
+            "nearest y_ref: the output is clamped to the nearest reachable value, never NaN. A NaN or infinite "
+            "y_ref is refused. ")
+    text += _COMPENSATOR_DERIVATIVES_TEXT[fmi_version]
+    names = [e.effect for e in _effects(model)]
+    if names:
+        text += f" The plant's effect extensions (fitter.core.effects), inverted with it: {', '.join(names)}."
+    if not converges(model):
+        text += (" WARNING: exported with --allow-unstable: the convergence condition of the fit is "
+                 "violated.")
+    return text
 
 
 _DERIVATIVES_TEXT = {
@@ -282,18 +357,20 @@ def _variable_element(parent: ET.Element, v: FmiVariable) -> None:
     ET.SubElement(node, v.type, type_attrib)
 
 
-def _model_structure(root: ET.Element, variables: Sequence[FmiVariable], effects: bool) -> None:
-    """y depends directly on u; at initialisation y = C x0 + D u (with effects: on all knowns)."""
+def _model_structure(root: ET.Element, variables: Sequence[FmiVariable], effects: bool, out: str = "y",
+                      inp: str = "u") -> None:
+    """y depends directly on u; at initialisation y = C x0 + D u (with effects: on all knowns).  The
+    compensator: `out` = u depends on `inp` = y_ref, at initialisation on y_ref, C, D, x0."""
     index = {v.name: i + 1 for i, v in enumerate(variables)}
     structure = ET.SubElement(root, "ModelStructure")
     outputs = ET.SubElement(structure, "Outputs")
-    ET.SubElement(outputs, "Unknown", {"index": str(index["y"]), "dependencies": str(index["u"]),
+    ET.SubElement(outputs, "Unknown", {"index": str(index[out]), "dependencies": str(index[inp]),
                                        "dependenciesKind": "dependent"})
-    initial = [index["u"]] + [i + 1 for i, v in enumerate(variables)
+    initial = [index[inp]] + [i + 1 for i, v in enumerate(variables)
                               if v.path[:2] in (("parameters", "C"), ("parameters", "D"),
                                                 ("parameters", "x0"))]
     unknowns = ET.SubElement(structure, "InitialUnknowns")
-    attrib = {"index": str(index["y"])}
+    attrib = {"index": str(index[out])}
     if not effects:
         attrib["dependencies"] = " ".join(map(str, initial))
     ET.SubElement(unknowns, "Unknown", attrib)
@@ -346,7 +423,8 @@ def model_description_xml(model, *, model_identifier: str, guid: str, backend: s
                           generation_date: datetime.datetime | None = None,
                           capability_overrides: Mapping[str, str] | None = None,
                           source_files: Sequence[str] = (),
-                          log_categories: Mapping[str, str] = LOG_CATEGORIES) -> str:
+                          log_categories: Mapping[str, str] = LOG_CATEGORIES,
+                          inverse_start: float | None = None) -> str:
     """The complete FMI 2.0 Co-Simulation modelDescription.xml of `model`.
 
     Parameters
@@ -364,9 +442,13 @@ def model_description_xml(model, *, model_identifier: str, guid: str, backend: s
         "semilinear-duhem <version>".
     source_files : sequence of str
         C files under ``sources/`` for a source FMU (``<SourceFiles>``).
+    inverse_start : float, optional
+        Write the compensator of `model` (`compensator_variables`, name and description of
+        `compensator_text`) with this start value of y_ref (`reference_start`).
     """
     attrib = {"fmiVersion": "2.0",
-              **_identity(model, model_name, "guid", guid, description, generation_tool, generation_date),
+              **_identity(model, model_name, "guid", guid, description, generation_tool, generation_date,
+                          inverse=inverse_start is not None),
               "numberOfEventIndicators": "0", **_version_author(version, author)}
     root = ET.Element("fmiModelDescription", attrib)
     flags = {"modelIdentifier": model_identifier, **capabilities(backend),
@@ -376,23 +458,24 @@ def model_description_xml(model, *, model_identifier: str, guid: str, backend: s
         files = ET.SubElement(cosim, "SourceFiles")
         for name in source_files:
             ET.SubElement(files, "File", {"name": name})
-    variables = model_variables(model)
+    variables, out, inp = _interface(model, inverse_start)
     _units_categories_experiment(root, model, variables, log_categories)
     model_vars = ET.SubElement(root, "ModelVariables")
     for v in variables:
         _variable_element(model_vars, v)
-    _model_structure(root, variables, bool(_effects(model)))
+    _model_structure(root, variables, bool(_effects(model)), out, inp)
     return _document(root)
 
 
 def _identity(model, model_name: str | None, token_name: str, token: str, description: str | None,
               generation_tool: str | None, generation_date: datetime.datetime | None,
-              fmi_version: int = 2) -> dict:
+              fmi_version: int = 2, inverse: bool = False) -> dict:
     """modelName, the GUID (FMI 3.0: instantiationToken), description, generationTool and -date,
     variableNamingConvention: the attributes both FMI versions share, in modelDescription order."""
     stamp = (generation_date or datetime.datetime.now(datetime.timezone.utc))
-    return {"modelName": model_name or _model_name(model), token_name: token,
-            "description": description or semantics_text(model, fmi_version),
+    name = _compensator_name(model) if inverse else _model_name(model)
+    text = compensator_text(model, fmi_version) if inverse else semantics_text(model, fmi_version)
+    return {"modelName": model_name or name, token_name: token, "description": description or text,
             "generationTool": generation_tool or f"semilinear-duhem {package_version()}",
             "generationDateAndTime": stamp.strftime("%Y-%m-%dT%H:%M:%SZ"),
             "variableNamingConvention": "structured"}
@@ -444,12 +527,10 @@ _FMI3_TYPES = {"Real": "Float64", "Integer": "Int32", "String": "String"}
 
 
 def _variable_element3(parent: ET.Element, v: FmiVariable) -> None:
-    """One FMI 3.0 variable; the structural Integer and String variables become constants."""
-    structural = v.type in ("Integer", "String")
+    """One FMI 3.0 variable (a constant without ``initial``: exact is implied)."""
     attrib = {"name": v.name, "valueReference": str(v.value_reference), "description": v.description,
-              "causality": "local" if structural else v.causality,
-              "variability": "constant" if structural else v.variability}
-    if v.initial is not None and not structural:
+              "causality": v.causality, "variability": v.variability}
+    if v.initial is not None and v.variability != "constant":
         attrib["initial"] = v.initial
     if v.unit:
         attrib["unit"] = v.unit
@@ -460,17 +541,18 @@ def _variable_element3(parent: ET.Element, v: FmiVariable) -> None:
         ET.SubElement(node, "Start", {"value": str(v.start)})
 
 
-def _model_structure3(root: ET.Element, variables: Sequence[FmiVariable], effects: bool) -> None:
+def _model_structure3(root: ET.Element, variables: Sequence[FmiVariable], effects: bool, out: str = "y",
+                       inp: str = "u") -> None:
     """As `_model_structure`, with value references: y depends directly on u; at initialisation
     y = C x0 + D u (with effects: on all knowns)."""
     refs = {v.name: str(v.value_reference) for v in variables}
     structure = ET.SubElement(root, "ModelStructure")
-    ET.SubElement(structure, "Output", {"valueReference": refs["y"], "dependencies": refs["u"],
+    ET.SubElement(structure, "Output", {"valueReference": refs[out], "dependencies": refs[inp],
                                         "dependenciesKind": "dependent"})
-    attrib = {"valueReference": refs["y"]}
+    attrib = {"valueReference": refs[out]}
     if not effects:
         attrib["dependencies"] = " ".join(
-            [refs["u"]] + [refs[v.name] for v in variables
+            [refs[inp]] + [refs[v.name] for v in variables
                            if v.path[:2] in (("parameters", "C"), ("parameters", "D"), ("parameters", "x0"))])
     ET.SubElement(structure, "InitialUnknown", attrib)
 
@@ -480,7 +562,8 @@ def model_description_xml3(model, *, model_identifier: str, instantiation_token:
                            version: str | None = None, author: str | None = None,
                            generation_tool: str | None = None,
                            generation_date: datetime.datetime | None = None,
-                           log_categories: Mapping[str, str] = LOG_CATEGORIES) -> str:
+                           log_categories: Mapping[str, str] = LOG_CATEGORIES,
+                           inverse_start: float | None = None) -> str:
     """The complete FMI 3.0 Co-Simulation modelDescription.xml of `model` (native backend).
 
     The metadata, units, DefaultExperiment and the variables with their value
@@ -490,15 +573,15 @@ def model_description_xml3(model, *, model_identifier: str, instantiation_token:
     """
     attrib = {"fmiVersion": "3.0",
               **_identity(model, model_name, "instantiationToken", instantiation_token, description,
-                          generation_tool, generation_date, fmi_version=3),
+                          generation_tool, generation_date, fmi_version=3, inverse=inverse_start is not None),
               **_version_author(version, author)}
     root = ET.Element("fmiModelDescription", attrib)
     ET.SubElement(root, "CoSimulation", {"modelIdentifier": model_identifier, **_CAPABILITIES_FMI3})
-    variables = model_variables(model)
+    variables, out, inp = _interface(model, inverse_start)
     variables.append(time_variable(variables))
     _units_categories_experiment(root, model, variables, log_categories)
     model_vars = ET.SubElement(root, "ModelVariables")
     for v in variables:
         _variable_element3(model_vars, v)
-    _model_structure3(root, variables, bool(_effects(model)))
+    _model_structure3(root, variables, bool(_effects(model)), out, inp)
     return _document(root)

@@ -25,6 +25,12 @@ Layout of the C, after the Modelica Reference-FMUs:
   implements, whether the model has each, where its parameters and its state
   live (docs/developer.md, "Adding an effect").
 
+The compensator (`build_native_compensator`, ``duhem export --inverse``):
+``inverse_model.c`` in place of ``duhem_model.c``, which it includes with its
+hooks renamed (the root finding of `fitter.core.inverse.Compensator` on the
+plant's own C step); the same generated ``model_data.h`` (the plant's) with the
+compensator's GUID and ``COMPENSATOR_REFERENCE_START``.
+
 ``resources/model.json`` carries the model itself (not read by the C; `duhem
 validate` compares the FMU with its in-process simulation).
 
@@ -60,7 +66,7 @@ from fitter.fmu.model_description import (FMI_VERSIONS, U_REF, Y_REF, model_desc
                                           model_description_xml3, model_variables,
                                           time_variable)
 
-__all__ = ["build_native_fmu", "build_gain_fmu", "NativeBuildError", "find_c_compiler",
+__all__ = ["build_native_fmu", "build_native_compensator", "COMPENSATOR_FILE", "build_gain_fmu", "NativeBuildError", "find_c_compiler",
            "model_data_header", "SOURCE_DIR", "C_SOURCES", "HEADERS", "c_sources", "headers",
            "MODEL_IDENTIFIER", "LOG_CATEGORIES", "NATIVE_EFFECTS"]
 
@@ -393,6 +399,46 @@ def build_native_fmu(model, out_path: str | os.PathLike, *, sanitize: bool = Fal
     model_json = json.dumps(model.to_dict(), indent=2)
     return _package(out_path, xml, {"model_data.h": header}, c_sources(fmi_version),
                     model_identifier, cc, sanitize, {"model.json": model_json}, fmi_version)
+
+
+COMPENSATOR_FILE = "inverse_model.c"
+
+
+def build_native_compensator(model, out_path: str | os.PathLike, *, sanitize: bool = False,
+                             cc: str | None = None, model_identifier: str = "duhem_compensator",
+                             fmi_version: int = 2, **description) -> str:
+    """Compile the feedforward compensator of `model` (the plant; it needs a finite ``input_range``) into a
+    native FMI 2.0 or 3.0 Co-Simulation FMU: input y_ref, output u (``inverse_model.c``); arguments as
+    `build_native_fmu`.  The numbers are those of `fitter.core.inverse.Compensator` with
+    ``measurement="invert"`` (the caller has dropped measurement effects it does not want inverted)."""
+    from fitter.fmu.model_description import reference_start
+
+    _check_fmi_version(fmi_version)
+    find_c_compiler(cc)
+    _platform(fmi_version)
+    _check_supported(model)
+    lo, hi = model.input_range if model.input_range is not None else (math.nan, math.nan)
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        raise ValueError("the compensator needs the model's finite input_range (the inputs it searches)")
+    start = reference_start(model)
+    text = json.dumps(model.to_dict(), sort_keys=True)
+    digest = hashlib.sha256((SOURCE_DIR / COMPENSATOR_FILE).read_bytes()).hexdigest()[:16]
+    guid = "{" + str(uuid.uuid5(_GUID_NAMESPACE, f"native-compensator:fmi{fmi_version}:{model_identifier}:"
+                                                 f"{_source_hash(fmi_version)}:{digest}:{text}")) + "}"
+    header = model_data_header(model, guid).replace(
+        "\n#endif\n", f"\n#define COMPENSATOR_REFERENCE_START {_c_double(start)}\n\n#endif\n")
+    c_files = c_sources(fmi_version, COMPENSATOR_FILE)
+    if fmi_version == 2:
+        xml = model_description_xml(model, model_identifier=model_identifier, guid=guid, backend="native",
+                                    source_files=c_files, log_categories=LOG_CATEGORIES, inverse_start=start,
+                                    **description)
+    else:
+        xml = model_description_xml3(model, model_identifier=model_identifier, instantiation_token=guid,
+                                     log_categories=LOG_CATEGORIES, inverse_start=start, **description)
+    plant_source = (SOURCE_DIR / "duhem_model.c").read_text(encoding="utf-8")
+    return _package(out_path, xml, {"model_data.h": header, "duhem_model.c": plant_source}, c_files,
+                    model_identifier, cc, sanitize, {"model.json": json.dumps(model.to_dict(), indent=2)},
+                    fmi_version)
 
 
 def _check_fmi_version(fmi_version: int) -> None:

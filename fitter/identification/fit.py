@@ -246,8 +246,21 @@ def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order
         data = prepare_for_fit(recordings)
         levels = rate_levels(data.norm)
         cands = _search(data, kind, ORDERS if order is None else (order,), q, levels, progress)
-        best = min(cands, key=lambda c: c.bic)
+        best = min([c for c in cands if _meets_barrier(c, data)] or cands, key=lambda c: c.bic)
         return _result(best, cands, data, recordings, kind, q, levels, x0)
+
+
+def _meets_barrier(cand: _Candidate, data: FitData) -> bool:
+    """Whether the candidate ends inside the barrier of `_barrier` (every excess <= 0, 1e-9 slack): the
+    barrier is a penalty, so a fit can end beyond it; such a candidate is chosen only when none meets it (a
+    branch that amplifies state errors by more than the bound turns rounding into visible output
+    differences between the kernel and an FMU)."""
+    with np.errstate(all="ignore"):
+        try:
+            model = cand.param.build(cand.res.theta)
+            return all(e <= 1e-9 for e in cand.param.excesses(model, *data.input_range()))
+        except (ValueError, np.linalg.LinAlgError):
+            return False
 
 
 def _per_recording(model, res: RefineResult, data: FitData, recordings) -> list[dict]:
@@ -303,7 +316,7 @@ def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels:
         "q": q if q is not None else next((c.start_info["q"] for c in cands if "q" in c.start_info), None),
         "q_why": "given" if q is not None else "lowest loop error of the Section III estimate among "
                  f"{list(Q_CANDIDATES)} (a start for the output-error refinement only)",
-        "why": _why(best, cands, kind, levels.levels),
+        "why": _why(best, cands, kind, levels.levels, [c for c in cands if not _meets_barrier(c, data)]),
         "candidates": [{"kind": c.param.kind, "order": c.param.n, "parameters": c.param.size,
                         "rss_normalised": c.res.rss, "bic": c.bic, "start": c.start_info.get("start")}
                        for c in cands],
@@ -327,10 +340,13 @@ def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels:
     return FitResult(model=model, summary=jsonable(summary), theta=res.theta, cov=res.covariance(), param=physical)
 
 
-def _why(best: _Candidate, cands, kind: str, levels: int) -> str:
+def _why(best: _Candidate, cands, kind: str, levels: int, outside: Sequence[_Candidate] = ()) -> str:
     ranked = sorted(cands, key=lambda c: c.bic)
     text = (f"lowest BIC ({best.bic:.1f}) among {len(cands)} candidate(s) "
             f"({', '.join(f'{c.param.kind}{c.param.n}: {c.bic:.1f}' for c in ranked)})")
+    if outside and best not in outside:
+        text += (f" that end inside the fit's barrier (condition (5) margin, branch amplification / damping); "
+                 f"not eligible: {', '.join(f'{c.param.kind}{c.param.n}' for c in outside)}")
     if kind != "auto":
         text = f"kind {kind!r} requested; order by " + text
     if levels < 2 and best.param.kind == "rd":
