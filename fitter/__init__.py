@@ -14,7 +14,7 @@ cycles, preparation, metrics) -> `fitter.identification` (parametrisations,
 the output-error engine, the paper's estimators, `fit_recordings`) ->
 `fitter.diagnosis` -> `fitter.fmu` (model description, native and pythonfmu
 builders, the fmpy host) -> `fitter.reports` -> `fitter.estimator`,
-`fitter.cli`.
+`fitter.batch` (`duhem batch` on Dask) -> `fitter.cli`.
 """
 from fitter.core import (Compensation, Compensator, ConvergenceError, DuhemError, KernelError, ModelFileError,
                          RateDependentModel, RateIndependentModel, Stepper, TabulatedRate, compensate, invert,

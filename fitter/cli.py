@@ -1,4 +1,4 @@
-"""The `duhem` command line: fit, export, validate, simulate, compensate, diagnose, reproduce-paper.
+"""The `duhem` command line: fit, export, validate, simulate, compensate, diagnose, batch, reproduce-paper.
 
 Conventions shared by every command
 -----------------------------------
@@ -33,6 +33,7 @@ import click
 import numpy as np
 
 from fitter.baselines import comparison
+from fitter.batch import BatchOptions, run_batch
 from fitter.cli_support import EXIT_ERROR, CliError, GuardedGroup, backend_option, fmi_version_option
 from fitter.core.files import atomic_directory, atomic_file, atomic_pair, json_text, jsonable
 from fitter.core.inverse import MEASUREMENT_CHOICES, Compensator, linear_gain
@@ -554,3 +555,53 @@ def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order,
         click.echo("nothing missing: the residual is consistent with the noise level")
     else:
         click.echo("unexplained: the residual is above the noise but no candidate effect explains it")
+
+
+@main.command()
+@click.argument("manifest", type=click.Path(dir_okay=False))
+@click.option("-o", "--out", "outdir", required=True, type=click.Path(file_okay=False),
+              help="output directory: OUTDIR/<device>/ per device, OUTDIR/summary.csv and OUTDIR/index.html")
+@click.option("--diagnose", "with_diagnosis", is_flag=True,
+              help="also diagnose every device (its fitted model as the base): diagnosis.json and diagnosis/")
+@click.option("--scheduler", metavar="ADDRESS",
+              help="use this running Dask scheduler (e.g. tcp://host:8786) instead of a local cluster")
+@click.option("--workers", type=int, metavar="N",
+              help="worker processes of the local cluster, one thread each (default: one per core)")
+@backend_option
+@click.option("--kind", type=click.Choice(["ri", "rd", "auto"]), default="auto", show_default=True,
+              help="model kind of every device's fit, as 'duhem fit --kind'")
+@click.option("--order", type=click.IntRange(1, 4), help="state dimension of every fit (default: chosen by BIC)")
+@click.option("--threshold", type=float, default=DEFAULT_THRESHOLD, show_default=True,
+              help="validation: a device whose FMU has an NRMSE above this on a recording is 'invalid'")
+@click.option("--retry-failed", is_flag=True,
+              help="run again the devices that failed on unchanged inputs (by default they are skipped)")
+@click.option("--json", "as_json", is_flag=True, help="print what the batch did as JSON")
+def batch(manifest, outdir, with_diagnosis, scheduler, workers, backend, kind, order, threshold, retry_failed,
+          as_json):
+    """Fit, export, validate, report (and diagnose) every device of a manifest, on Dask.
+
+    MANIFEST is a CSV file: columns device, recordings (files separated by
+    ';', relative to the manifest), optional time, input, output (column
+    choices) and input_unit, output_unit.  A re-run skips the devices whose
+    outputs are complete and current; one bad device is reported in the
+    summary and does not stop the batch.  Exit code 0 when the batch ran to
+    its end, whatever the devices' status (see the summary); 1 for a bad
+    manifest or option.
+    """
+    if scheduler and workers is not None:
+        raise CliError("--workers applies to the local cluster only (not with --scheduler)")
+    options = BatchOptions(kind=kind, order=order, backend=backend, diagnose=with_diagnosis, threshold=threshold)
+    _check_backend(backend)
+    report = run_batch(manifest, outdir, options=options, workers=workers, scheduler=scheduler,
+                       retry_failed=retry_failed, say=lambda line: click.echo(line, err=True))
+    if as_json:
+        _emit_json(report.to_json())
+        return
+    rows = [report.summary_row(d) for d in report.devices]
+    _table(f"duhem batch: {len(rows)} devices in {outdir} ({report.seconds:.1f} s)",
+           ["device", "status", "this run", "model", "NRMSE", "effects found", "outliers", "reason"],
+           [[r["device"], r["status"], r["action"], f"{r['kind']}{r['order']}" if r["kind"] else None,
+             r["nrmse"], r["effects"], r["outliers"] or None, r["reason"] or None] for r in rows])
+    counts = report.counts()
+    click.echo(", ".join(f"{n} {s}" for s, n in sorted(counts.items()))
+               + f"; summary: {Path(outdir) / 'summary.csv'}, {Path(outdir) / 'index.html'}")

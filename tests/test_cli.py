@@ -35,7 +35,7 @@ from fitter.fmu.host import simulate_fmu
 
 UMASK = 0o022
 USUAL_MODE = 0o666 & ~UMASK
-COMMANDS = ("fit", "export", "validate", "simulate", "diagnose", "reproduce-paper")
+COMMANDS = ("fit", "export", "validate", "simulate", "diagnose", "batch", "reproduce-paper")
 NO_CC = {"CC": "no-such-c-compiler-xyz"}
 
 
@@ -157,7 +157,7 @@ def test_help_lists_every_command():
 
 
 def test_fmu_backends_default_to_native():
-    for command in ("export", "fit", "diagnose"):
+    for command in ("export", "fit", "diagnose", "batch"):
         text = " ".join(ok(invoke(command, "--help")).stdout.split())
         assert "--backend [native|python]" in text and "[default: native]" in text, command
 
