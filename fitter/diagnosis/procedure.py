@@ -7,16 +7,17 @@ Procedure (`diagnose`)
 ----------------------
 1. Base model, made adequate before effects are added (`_adequate_base`):
    by default the first-order rate-independent model (eqs (1)-(2) with
-   C = 1, D = 0, fitted here) competes with the order `duhem fit` chooses
-   (BIC over orders 1-4, `fitter.identification.fit.fit_recordings`): when
-   that order is above 1, the higher-order base and the first-order base
-   with its best effect are both refitted without the last recording and
-   predict it; the better prediction is the base (a missing order is not
-   "explained" by whichever effect absorbs it, and an effect is not hidden
-   by an extra order that fits as well but generalises worse; one
-   recording: the lower BIC).  Or a fixed order, or a given model.
-   The base's A, B, E (per branch) and x0 are refined
-   (`fitter.diagnosis.fitting.fit_base`).
+   C = 1, D = 0, fitted here) or the order `duhem fit` chooses (BIC over
+   orders 1-4, `fitter.identification.fit.fit_recordings`).  The higher
+   order is the base when it brings the residual to the noise and the
+   first-order base with its best effect does not (a missing order is not
+   "explained" by whichever effect absorbs it); when both do, the one that
+   predicts the held-out last recording better (an effect is not hidden by
+   an extra order that fits as well but generalises worse; one recording:
+   the lower BIC); a higher order that leaves a misfit above the noise is
+   not taken (the misfit is then physics for the effects to explain).  Or
+   a fixed order, or a given model.  The base's A, B, E (per branch) and
+   x0 are refined (`fitter.diagnosis.fitting.fit_base`).
 2. Noise level sigma: `fitter.data.metrics.noise_rms` of each recording's output,
    pooled (median).  Locating (`fitter.diagnosis.locate.locate_mismatch`):
    residual RMS per recording, per branch, per input-range bin, its
@@ -178,8 +179,10 @@ def _adequate_base(ex: JoinedExperiment, mask: np.ndarray, noise: float, candida
     """The base of step 1 (module docstring) and, when it is the first-order base, its first round of
     candidate tests (reused by the search).
 
-    Both accounts of the data, the first-order base with its best significant effect and the order-n
-    base, are refitted without the last recording and predict it: the lower hold-out error wins (two
+    The order-n base is taken only when it alone is adequate (residual within `NOISE_MARGIN` of the
+    noise): otherwise the misfit is more than a missing order, and the first-order base stays for the
+    effects to explain.  When the first-order base with its best significant effect is adequate too, both
+    accounts are refitted without the last recording and predict it: the lower hold-out error wins (two
     accounts that fit equally well, e.g. an extra order and backlash, are told apart by how they
     generalise to another rate or amplitude).  With a single recording the lower BIC wins (parameters:
     7 for the first-order base plus the effect's; for the order-n base its canonical parameters
@@ -193,10 +196,12 @@ def _adequate_base(ex: JoinedExperiment, mask: np.ndarray, noise: float, candida
     if order == 1:
         return first, None
     high = fit_base(ex, higher.model, mask)
+    if rms(high.residual) > NOISE_MARGIN * noise:
+        return first, None
     k_high = next(c["parameters"] for c in higher.summary["candidates"] if c["order"] == order) + order
     results = _test_round(ex, first, candidates, mask, alpha, len(candidates), tick)
     best = next((f for r, f in results if r["significant"]), None)
-    if best is None:
+    if best is None or rms(best.residual) > NOISE_MARGIN * noise:
         return high, None
     if len(ex.recordings) > 1:
         return (first, results) if _held_out_rms(ex, best, mask) < _held_out_rms(ex, high, mask) else (high, None)
