@@ -3,7 +3,7 @@
     python bench/diagnose_speed.py                 # timing (target: under 2 minutes)
     python bench/diagnose_speed.py --sweep 5       # success rates over 7 effects x 5 seeds + 5 clean
     python bench/diagnose_speed.py --piezo DIR     # diagnose the measured piezo data, reports in DIR
-    python bench/diagnose_speed.py --piezo DIR --base-order auto   # ... with a fit_recordings base
+    python bench/diagnose_speed.py --piezo DIR --base-order 1   # ... with a fixed base order (default auto)
 
 The experiments come from `fitter.diagnosis.synthetic_experiment` (the project's
 own simulator; timing: effect max 2% of the output range, noise 1/15 of that;
@@ -142,8 +142,8 @@ def main() -> None:
     ap.add_argument("--sweep", type=int, default=0, help="seeds per effect for the success-rate sweep")
     ap.add_argument("--samples", type=int, default=1000, help="samples per recording in the sweep")
     ap.add_argument("--piezo", type=Path, default=None, help="diagnose the piezo data; reports in this folder")
-    ap.add_argument("--base-order", default="1",
-                    help="piezo: base model order (1: the first-order base; 'auto': fit_recordings chooses)")
+    ap.add_argument("--base-order", default="auto",
+                    help="piezo: base model order ('auto': as `duhem diagnose` by default; 1-4: fixed)")
     args = ap.parse_args()
     if args.piezo:
         piezo(args.piezo, None if args.base_order == "auto" else int(args.base_order))
