@@ -73,8 +73,8 @@ __all__ = ["build_native_fmu", "build_native_compensator", "COMPENSATOR_FILE", "
 SOURCE_DIR = Path(fmu_src.native.__file__).resolve().parent
 MODEL_HEADERS = ("model_interface.h", "duhem_model.h")
 _FRAMEWORK_HEADERS = {
-    2: ("fmi2_framework.h", "fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"),
-    3: ("fmi3_framework.h", "fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h"),
+    2: ("fmi2_framework.h", "serial_checksum.h", "fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"),
+    3: ("fmi3_framework.h", "serial_checksum.h", "fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h"),
 }
 
 

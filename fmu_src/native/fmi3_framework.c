@@ -32,6 +32,7 @@
 #include <string.h>
 
 #include "fmi3_framework.h"
+#include "serial_checksum.h"
 
 #define INSTANCE_MAGIC 0x44554833u
 #define STATE_MAGIC 0x44555333u
@@ -75,19 +76,6 @@ typedef struct {
     char token[TOKEN_FIELD];
     unsigned int crc;   /* CRC-32 of the header (crc = 0) and the model bytes: any corruption is refused */
 } SerialHeader;
-
-/* CRC-32 (IEEE 802.3, reflected polynomial 0xEDB88320) of n bytes, continuing from crc. */
-static unsigned int crc32_update(unsigned int crc, const unsigned char *p, size_t n)
-{
-    size_t i;
-    int k;
-    crc = ~crc;
-    for (i = 0; i < n; i++) {
-        crc ^= p[i];
-        for (k = 0; k < 8; k++) crc = (crc >> 1) ^ (0xEDB88320u & (0u - (crc & 1u)));
-    }
-    return ~crc;
-}
 
 /* The checksum of a serialized state: its header with crc = 0, then its model bytes. */
 static unsigned int serial_crc(SerialHeader header, const unsigned char *model, size_t n)
