@@ -7,7 +7,7 @@ from fitter.core.effects import EffectContext
 from fitter.data.recordings import Recording
 from fitter.identification.output_error import Options, Recordings, effective_samples, refine
 from fitter.identification.parametrisation import (Parametrisation, RDCanonical, RICanonical, StateSpace,
-                                                   WithEffects)
+                                                   WithEffects, hurwitz_poly, hurwitz_theta)
 
 TRUE = np.array([-3.0, 2.5, 1.0, 1.2, 0.3])
 
@@ -112,6 +112,20 @@ def test_canonical_parametrisations_round_trip():
     m = rd.build(th)
     assert np.max(np.linalg.eigvals(m.A).real) < 0
     np.testing.assert_allclose(rd.theta(m, th[-1 - rd.n_c:]), th, atol=1e-10)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 5])
+def test_hurwitz_parametrisation_is_onto_the_stable_polynomials_of_any_order(n):
+    rng = np.random.default_rng(n)
+    for _ in range(50):
+        th = rng.normal(size=n)
+        p = hurwitz_poly(th)
+        lam = np.roots(np.r_[1.0, p[::-1]])
+        assert lam.real.max() < 0
+        np.testing.assert_allclose(hurwitz_poly(hurwitz_theta(lam)), p, rtol=1e-8)
+    rd = RDCanonical(n, 1.0, np.log([0.5, 1.0, 2.0]))
+    th = np.r_[rng.normal(size=n), 0.1 * np.arange(2 * n + 2 + rd.n_c)]
+    np.testing.assert_allclose(rd.build(rd.theta(rd.build(th), th[-1 - rd.n_c:])).A, rd.build(th).A, atol=1e-9)
 
 
 def test_with_effects_log_parameters_and_null_model():

@@ -103,25 +103,39 @@ def observability(A: np.ndarray, C: np.ndarray) -> np.ndarray:
 def hurwitz_poly(th: np.ndarray) -> np.ndarray:
     """Coefficients p_0..p_{n-1} of a Hurwitz polynomial s^n + p_{n-1} s^{n-1} + ... + p_0.
 
-    n = 1: s + e^th0; n = 2: s^2 + e^th1 s + e^th0; n = 3: (s + r)(s^2 + b s + c) with
-    (r, c, b) = e^th.  Every theta gives a Hurwitz polynomial and every Hurwitz
-    polynomial of order <= 3 has a theta.
+    The polynomial is a product of factors with positive coefficients, e^th entrywise:
+    for odd n a linear factor (s + r) first, then quadratics (s^2 + b s + c), theta
+    [r,] c_1, b_1, c_2, b_2, ...  (n = 1: s + e^th0; n = 2: s^2 + e^th1 s + e^th0;
+    n = 3: (s + r)(s^2 + b s + c)).  Every theta gives a Hurwitz polynomial and every
+    Hurwitz polynomial has a theta (`hurwitz_theta`).
     """
     e = np.exp(np.clip(th, -30, 30))
-    if len(th) <= 2:
-        return e
-    r, c, b = e
-    return np.array([r * c, c + r * b, r + b])
+    poly = np.array([1.0])
+    if len(e) % 2:
+        poly = np.array([1.0, e[0]])
+    for c, b in zip(e[len(e) % 2::2], e[len(e) % 2 + 1::2]):
+        poly = np.convolve(poly, [1.0, b, c])
+    return poly[1:][::-1]
 
 
 def hurwitz_theta(lam: np.ndarray) -> np.ndarray:
-    """Inverse of `hurwitz_poly` for the eigenvalues `lam` (unstable ones reflected)."""
+    """Inverse of `hurwitz_poly` for the eigenvalues `lam` (unstable ones reflected).
+
+    Complex pairs form the quadratic factors, real eigenvalues are paired in order; for an
+    odd order the most negative real eigenvalue is the linear factor."""
     lam = np.where(lam.real >= 0, -np.abs(lam.real) - 1e-3 + 1j * lam.imag, lam)
-    if len(lam) == 3:
-        k = int(np.argmin(np.abs(lam.imag)))
-        quad = np.real(np.poly(np.delete(lam, k)))
-        return np.log([-lam[k].real, quad[2], quad[1]])
-    return np.log(np.real(np.poly(lam))[1:][::-1])
+    lam = lam[np.lexsort((lam.real, np.abs(lam.imag)))]
+    theta = []
+    if len(lam) % 2:
+        theta.append(-lam[0].real)
+        lam = lam[1:]
+    real = [x.real for x in lam if abs(x.imag) <= 1e-12 * max(abs(x), 1.0)]
+    cplx = sorted([x for x in lam if abs(x.imag) > 1e-12 * max(abs(x), 1.0) and x.imag > 0], key=lambda x: x.real)
+    for a, b in zip(real[::2], real[1::2]):
+        theta += [a * b, -(a + b)]
+    for x in cplx:
+        theta += [abs(x) ** 2, -2 * x.real]
+    return np.log(theta)
 
 
 class RICanonical(Parametrisation):
