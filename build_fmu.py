@@ -20,15 +20,15 @@ from typing import Sequence
 
 import click
 
-from fitter.cli_support import backend_option, fmi_version_option, guarded, run_command
+from fitter.cli_support import FilePath, backend_option, fmi_version_option, guarded, run_command
 from fitter.fmu.build import BACKENDS, FMI_VERSIONS, MODEL_IDENTIFIER, FmuBuildError, build_fmu
 
 __all__ = ["build_fmu", "FmuBuildError", "MODEL_IDENTIFIER", "BACKENDS", "FMI_VERSIONS", "command", "main"]
 
 
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})
-@click.argument("model", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="FMU file to write")
+@click.argument("model", type=FilePath())
+@click.option("-o", "--output", required=True, type=FilePath(), help="FMU file to write")
 @backend_option
 @fmi_version_option
 @click.option("--inverse", is_flag=True, help="export the model's compensator (input y_ref, output u)")

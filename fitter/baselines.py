@@ -228,7 +228,8 @@ class Baseline(ABC):
         Raises
         ------
         BaselineError
-            A recording that cannot be fitted (`check_recordings`).
+            A recording that cannot be fitted (`check_recordings`), or recordings on which the model's
+            least-squares problem is singular (e.g. an input outlier that leaves one sample on its elements).
         FitError
             A recording the Duhem fit's preparation refuses (module docstring).
         """
@@ -237,7 +238,11 @@ class Baseline(ABC):
         us, ys = [self._input(r) for r in recs], [r.y for r in recs]
         self.scale_ = _Scale.of(us, ys)
         self.n_recordings_ = len(recs)
-        self._fit([self.scale_.u(u) for u in us], [self.scale_.y(y) for y in ys])
+        try:
+            self._fit([self.scale_.u(u) for u in us], [self.scale_.y(y) for y in ys])
+        except np.linalg.LinAlgError:
+            raise BaselineError(f"{', '.join(r.label for r in recs)}: baseline {self.name!r} cannot be fitted: its "
+                                f"least-squares problem is singular on these recordings") from None
         return self
 
     def _input(self, rec: Recording) -> np.ndarray:

@@ -6,9 +6,12 @@ Conventions shared by every command
   writes it to a file, ``-`` for stdout); without it a short human-readable
   summary goes to stdout.  Progress goes to stderr (rich; silent when stderr
   is not a terminal: `fitter.progress.stderr_progress`).
-* An error is one line on stderr, ``error: <file>: <what>``, and exit code 1;
-  a command-line usage error is exit code 2 (click); a validation whose NRMSE
-  exceeds the threshold is exit code 3.  No traceback is shown (set
+* An error is one line on stderr, ``error: <file>: <what>``, and exit code 1
+  (also a path that is a directory where a file is expected, or the reverse,
+  or unreadable: `fitter.cli_support.FilePath`; a broken FMU names its broken
+  part: `fitter.fmu.host.check_fmu_file`); a command-line usage error is exit
+  code 2 (click); a validation whose NRMSE exceeds the threshold is exit
+  code 3.  No traceback is shown (set
   ``DUHEM_DEBUG=1`` to see one), nor the optimisers' numerical warnings
   (`fitter.cli_support.one_line_errors`).
 * Every output file is written under a temporary name in its directory and
@@ -25,7 +28,6 @@ from __future__ import annotations
 
 import contextlib
 import sys
-import zipfile
 from pathlib import Path
 from typing import Callable
 
@@ -34,16 +36,17 @@ import numpy as np
 
 from fitter.baselines import comparison
 from fitter.batch import BatchOptions, run_batch
-from fitter.cli_support import EXIT_ERROR, CliError, GuardedGroup, backend_option, fmi_version_option
+from fitter.cli_support import (EXIT_ERROR, CliError, FilePath, GuardedGroup, backend_option,
+                                fmi_version_option)
 from fitter.core.files import atomic_directory, atomic_file, atomic_pair, json_text, jsonable
 from fitter.core.inverse import MEASUREMENT_CHOICES, Compensator, linear_gain
 from fitter.core.kernel import simulate as simulate_model
-from fitter.core.models import ModelFileError, load_model, save_model
+from fitter.core.models import load_model, save_model
 from fitter.data.metrics import compare
 from fitter.data.recordings import load_recording, load_recordings
 from fitter.diagnosis import diagnose as run_diagnosis
 from fitter.fmu.build import PYTHON_HOST_NEEDS, build_fmu
-from fitter.fmu.host import model_in_fmu, simulate_fmu
+from fitter.fmu.host import check_fmu_file, simulate_fmu
 from fitter.fmu.native import find_c_compiler
 from fitter.fmu.pair import check_fmu_pair, recorded_fmu_digest, with_fmu_record
 from fitter.identification.exported import range_warnings
@@ -109,26 +112,20 @@ def _load_model_json(path: str):
     if _is_zip(path):
         raise CliError(f"{path}: is an FMU or zip archive, not a model JSON file "
                        f"(give the JSON written by 'duhem fit')")
-    try:
-        model = load_model(path)
-    except ModelFileError as exc:
-        raise CliError(f"{exc} (expected the model JSON written by 'duhem fit')") from None
+    model = load_model(path)
     note = check_fmu_pair(path, model)
     if note:
         click.echo(f"note: {note}", err=True)
     return model
 
 
-def _check_fmu(path: str) -> None:
+def _open_fmu(path: str):
+    """The model in an FMU argument, every part checked (`check_fmu_file`), after the hint that a model JSON
+    is exported first."""
     if not _is_zip(path):
         raise CliError(f"{path}: not an FMU (an FMU is a zip archive; for a model JSON use "
                        f"'duhem export' first)")
-    try:
-        with zipfile.ZipFile(path) as z:
-            if "modelDescription.xml" not in z.namelist():
-                raise CliError(f"{path}: zip archive without modelDescription.xml, not an FMU")
-    except zipfile.BadZipFile:
-        raise CliError(f"{path}: damaged zip archive, not a valid FMU") from None
+    return check_fmu_file(path)
 
 
 def _check_fmu_name(path: str | None) -> None:
@@ -186,14 +183,14 @@ main.add_command(reproduce_paper)
 
 
 @main.command()
-@click.argument("recordings", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("recordings", nargs=-1, required=True, type=FilePath())
 @click.option("--kind", type=click.Choice(["ri", "rd", "auto"]), default="auto", show_default=True,
               help="rate-independent (eqs 1-2), rate-dependent (eqs 18-19) or chosen by BIC")
-@click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--out", "out", required=True, type=FilePath(),
               help="model JSON file to write")
-@click.option("--fmu", type=click.Path(dir_okay=False), help="also export the model as this FMU")
+@click.option("--fmu", type=FilePath(), help="also export the model as this FMU")
 @backend_option
-@click.option("--report", type=click.Path(file_okay=False), help="write a fit report (HTML, PNG) here")
+@click.option("--report", type=FilePath(directory=True), help="write a fit report (HTML, PNG) here")
 @click.option("--order", type=int, help="state dimension n (default: chosen by BIC)")
 @click.option("--q", type=float, help="bound on sigma_max(A+-) of the Section III least squares")
 @click.option("--x0", "x0_policy", type=click.Choice(["fitted", "periodic"]), default="fitted", show_default=True,
@@ -274,8 +271,8 @@ def _comparison_tables(comp: dict) -> None:
 
 
 @main.command()
-@click.argument("model", type=click.Path(dir_okay=False))
-@click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False), help="FMU file to write")
+@click.argument("model", type=FilePath())
+@click.option("-o", "--out", "out", required=True, type=FilePath(), help="FMU file to write")
 @backend_option
 @fmi_version_option
 @_allow_unstable_option
@@ -326,10 +323,9 @@ def _python_host_note(fmu: str | None, backend: str) -> None:
 def _validation_row(rec, y_fmu: np.ndarray, model, threshold: float) -> dict:
     """`compare` of one recording, with the FMU vs in-process difference and the verdict."""
     m = compare(rec, y_fmu)
-    m["fmu_vs_in_process_max_abs"] = None if model is None else \
-        float(np.max(np.abs(y_fmu - simulate_model(model, rec.t, rec.u).y)))
+    m["fmu_vs_in_process_max_abs"] = float(np.max(np.abs(y_fmu - simulate_model(model, rec.t, rec.u).y)))
     m.update(recording=rec.name, source=rec.source, passed=bool(m["nrmse"] <= threshold), judged_on="all samples",
-             warnings=[] if model is None else range_warnings(model, rec.t, rec.u))
+             warnings=range_warnings(model, rec.t, rec.u))
     return m
 
 
@@ -338,11 +334,11 @@ def _judged(row: dict) -> float:
 
 
 @main.command()
-@click.argument("fmu", type=click.Path(dir_okay=False))
-@click.argument("recordings", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("fmu", type=FilePath())
+@click.argument("recordings", nargs=-1, required=True, type=FilePath())
 @click.option("--threshold", type=float, default=DEFAULT_THRESHOLD, show_default=True,
               help="fail (exit code 3) when the NRMSE over all samples of a recording exceeds this")
-@click.option("--plot", type=click.Path(dir_okay=False), help="write a PNG overlay of the loops")
+@click.option("--plot", type=FilePath(), help="write a PNG overlay of the loops")
 @_column_options
 @click.option("--json", "as_json", is_flag=True, help="print the comparison as JSON")
 def validate(fmu, recordings, threshold, plot, time_col, input_col, output_col, as_json):
@@ -358,9 +354,8 @@ def validate(fmu, recordings, threshold, plot, time_col, input_col, output_col, 
         raise CliError(f"--threshold must be positive, got {threshold}")
     if plot and Path(plot).suffix.lower() != ".png":
         raise CliError(f"{plot}: the plot file name must end in .png")
-    _check_fmu(fmu)
+    model = _open_fmu(fmu)
     recs = load_recordings(list(recordings), _time_column(time_col), input_col, output_col)
-    model = model_in_fmu(fmu)
     rows, outputs = [], []
     with stderr_progress("duhem validate") as say:
         for rec in recs:
@@ -391,9 +386,9 @@ def validate(fmu, recordings, threshold, plot, time_col, input_col, output_col, 
 
 
 @main.command()
-@click.argument("model", type=click.Path(dir_okay=False))
-@click.argument("input_csv", type=click.Path(dir_okay=False))
-@click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False),
+@click.argument("model", type=FilePath())
+@click.argument("input_csv", type=FilePath())
+@click.option("-o", "--out", "out", required=True, type=FilePath(),
               help="CSV file to write (columns time,u,y)")
 @click.option("--time", "time_col", default="time", show_default=True, metavar="COL", help="time column")
 @click.option("--input", "input_col", default="u", show_default=True, metavar="COL", help="input column")
@@ -408,9 +403,9 @@ def simulate(model, input_csv, out, time_col, input_col, as_json):
     with stderr_progress("duhem simulate") as say, atomic_file(out, suffix=".csv") as tmp:
         say(f"simulating {len(rec)} samples", None)
         if _is_zip(model):
-            _check_fmu(model)
+            stored = _open_fmu(model)
             y = simulate_fmu(model, rec.t, rec.u)
-            engine, stored = "fmu", model_in_fmu(model)
+            engine = "fmu"
         else:
             stored = _load_model_json(model)
             y = simulate_model(stored, rec.t, rec.u).y
@@ -419,7 +414,7 @@ def simulate(model, input_csv, out, time_col, input_col, as_json):
         if bad.size:
             raise CliError(f"{input_csv}: data row {bad[0] + 1} (t = {rec.t[bad[0]]:.6g}): the simulated output is "
                            f"{y[bad[0]]} (the model overflows on this input); nothing written")
-        warnings = [] if stored is None else range_warnings(stored, rec.t, rec.u)
+        warnings = range_warnings(stored, rec.t, rec.u)
         np.savetxt(tmp, np.column_stack([rec.t, rec.u, y]), delimiter=",", fmt="%.17g",
                    header="time,u,y", comments="")
     info = {"model": model, "input": input_csv, "out": out, "engine": engine, "samples": len(rec),
@@ -433,11 +428,11 @@ def simulate(model, input_csv, out, time_col, input_col, as_json):
 
 
 @main.command()
-@click.argument("model", type=click.Path(dir_okay=False))
-@click.argument("reference", type=click.Path(dir_okay=False))
-@click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False),
+@click.argument("model", type=FilePath())
+@click.argument("reference", type=FilePath())
+@click.option("-o", "--out", "out", required=True, type=FilePath(),
               help="CSV file to write (columns time,u,y_predicted)")
-@click.option("--plot", type=click.Path(dir_okay=False),
+@click.option("--plot", type=FilePath(),
               help="write a PNG: y_ref, the plant without compensation (linear gain) and with it")
 @click.option("--time", "time_col", default="time", show_default=True, metavar="COL", help="time column")
 @click.option("--ref", "ref_col", default="y_ref", show_default=True, metavar="COL", help="reference column")
@@ -500,13 +495,13 @@ def _axis_name(signal) -> str:
 
 
 @main.command()
-@click.argument("recordings", nargs=-1, required=True, type=click.Path(dir_okay=False))
-@click.option("--model", "model_path", type=click.Path(dir_okay=False),
+@click.argument("recordings", nargs=-1, required=True, type=FilePath())
+@click.option("--model", "model_path", type=FilePath(),
               help="base model JSON (default: fit a rate-independent model of order --base-order)")
-@click.option("--report", type=click.Path(file_okay=False), help="write the diagnosis report (HTML, PNG) here")
-@click.option("--json", "json_out", type=click.Path(dir_okay=False, allow_dash=True),
+@click.option("--report", type=FilePath(directory=True), help="write the diagnosis report (HTML, PNG) here")
+@click.option("--json", "json_out", type=FilePath(allow_dash=True),
               help="write the diagnosis as JSON to this file ('-' for stdout)")
-@click.option("--fmu", type=click.Path(dir_okay=False), help="export the extended model as this FMU")
+@click.option("--fmu", type=FilePath(), help="export the extended model as this FMU")
 @backend_option
 @click.option("--base-order", type=click.Choice(["auto", "1", "2", "3", "4"]), default="auto", show_default=True,
               help="without --model: order of the rate-independent base model (auto: the order 'duhem fit' "
@@ -558,8 +553,8 @@ def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order,
 
 
 @main.command()
-@click.argument("manifest", type=click.Path(dir_okay=False))
-@click.option("-o", "--out", "outdir", required=True, type=click.Path(file_okay=False),
+@click.argument("manifest", type=FilePath())
+@click.option("-o", "--out", "outdir", required=True, type=FilePath(directory=True),
               help="output directory: OUTDIR/<device>/ per device, OUTDIR/summary.csv and OUTDIR/index.html")
 @click.option("--diagnose", "with_diagnosis", is_flag=True,
               help="also diagnose every device (its fitted model as the base): diagnosis.json and diagnosis/")

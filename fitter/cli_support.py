@@ -22,7 +22,7 @@ import click
 
 from fitter.core.errors import DuhemError
 
-__all__ = ["CliError", "EXIT_ERROR", "one_line_errors", "guarded", "GuardedGroup", "backend_option",
+__all__ = ["CliError", "EXIT_ERROR", "FilePath", "one_line_errors", "guarded", "GuardedGroup", "backend_option",
            "fmi_version_option", "run_command"]
 
 EXIT_ERROR = 1
@@ -37,9 +37,31 @@ class CliError(click.ClickException):
         click.echo(f"error: {self.message}", err=True)
 
 
+class FilePath(click.Path):
+    """`click.Path` of a file (or, with `directory`, of a directory) whose refusals are one line
+    ``error: <path>: <why>`` with exit code 1 (`CliError`), not click's three-line usage text.
+
+    Refused: a directory given for a file, a file given for a directory, an existing path that is not
+    readable.  A path that does not exist passes (the command says what is missing)."""
+
+    def __init__(self, *, directory: bool = False, allow_dash: bool = False) -> None:
+        super().__init__(file_okay=not directory, dir_okay=directory, allow_dash=allow_dash)
+
+    def convert(self, value, param, ctx):
+        path = os.fspath(value)
+        if os.path.exists(path) and not (self.allow_dash and path == "-"):
+            if not self.dir_okay and os.path.isdir(path):
+                raise CliError(f"{path}: is a directory, not a file")
+            if not self.file_okay and not os.path.isdir(path):
+                raise CliError(f"{path}: is a file, not a directory")
+            if not os.access(path, os.R_OK):
+                raise CliError(f"{path}: cannot be read (permission denied)")
+        return super().convert(value, param, ctx)
+
+
 def _one_line(exc: BaseException) -> str:
     text = " ".join(str(exc).split())
-    if isinstance(exc, (FileNotFoundError, PermissionError, IsADirectoryError)) and exc.filename:
+    if isinstance(exc, OSError) and exc.filename:
         text = f"{exc.filename}: {exc.strerror or text}"
     return text or type(exc).__name__
 

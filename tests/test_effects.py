@@ -170,7 +170,7 @@ def test_json_round_trip_and_no_effects_key(tmp_path):
     ([{"effect": "backlash", "parameters": {"b": -1}}], "b = -1.0 must be >= 0"),
     ([{"effect": "viscous", "parameters": {"c": "x"}}], "c is not a number"),
     ([{"effect": "viscous", "parameters": {"c": 1}}] * 2, "listed more than once"),
-    ("creep", "must be a list"),
+    ("creep", "key 'effects': expected a list of effects, got str"),
 ])
 def test_bad_effects(effects, message):
     d = ri().to_dict()

@@ -7,7 +7,7 @@ from scipy.integrate import solve_ivp
 
 from fitter.core import (ConvergenceError, KernelError, ModelFileError, RateDependentModel,
                          RateIndependentModel, Stepper, TabulatedRate, convergence_rho,
-                         limiting_loop, load_model, periodic_response, save_model, simulate)
+                         limiting_loop, load_model, model_from_dict, periodic_response, save_model, simulate)
 from fitter.core.kernel import AffineFlow, expm
 
 A1 = np.array([[-1.0, 4.0], [-4.0, -1.0]])
@@ -149,26 +149,56 @@ def test_json_round_trip(tmp_path):
 
 @pytest.mark.parametrize("edit, message", [
     (lambda d: d.update(schema_version=99), "unknown schema_version 99"),
-    (lambda d: d["parameters"].pop("C"), "missing parameter 'C'"),
-    (lambda d: d["parameters"].update(A_plus=[[1, 2, 3]]), r"A_plus: expected shape \(2, 2\)"),
-    (lambda d: d.update(kind="xx"), "unknown model kind"),
-    (lambda d: d.update(input_range=[1.0, -1.0]), r"'input_range' \[1.0, -1.0\] must be finite with lo < hi"),
-    (lambda d: d.update(input_range="wide"), r"'input_range' must be \[lo, hi\]"),
-    (lambda d: d.update(signals={"input": {"nom": "u"}}), r"'signals.input' must be an object of strings"),
-    (lambda d: d.update(signals=[1, 2]), r"'signals' must be an object with keys"),
+    (lambda d: d["parameters"].pop("C"), r"key 'parameters.C' is missing \(a 'ri' model has A_plus, "),
+    (lambda d: d["parameters"].update(A_plus=[[1, 2, 3]]),
+     r"key 'parameters.A_plus': expected a 2x2 matrix of numbers, got a 1x3 matrix$"),
+    (lambda d: d["parameters"].update(A_plus=[[1, 2], [3]]),
+     r"key 'parameters.A_plus': expected a 2x2 matrix of numbers, got a ragged list$"),
+    (lambda d: d["parameters"].update(B_minus=[1, "2"]),
+     r"key 'parameters.B_minus': expected a list of 2 numbers, got a list containing the string '2'$"),
+    (lambda d: d["parameters"].update(D=None), r"key 'parameters.D': expected a finite number, got null$"),
+    (lambda d: d["parameters"].update(x0=[True, 1]), r"key 'parameters.x0': expected .*, got a list containing true$"),
+    (lambda d: d["parameters"].update(A=[[1]]), r"key 'parameters.A': not a parameter of a 'ri' model"),
+    (lambda d: d.update(kind="xx"), r"key 'kind': expected 'ri' or 'rd', got the string 'xx'$"),
+    (lambda d: d.update(order=3), r"key 'order': expected 2 \(the length of parameters.C\), got 3$"),
+    (lambda d: d.update(effect=[]), r"key 'effect': not a key of a 'ri' model file"),
+    (lambda d: d.update(fit_info=[1]), r"key 'fit_info': expected an object, got a list of 1 number$"),
+    (lambda d: d.update(input_range=[1.0, -1.0]), r"key 'input_range': expected \[lo, hi\] .*, got \[1, -1\]$"),
+    (lambda d: d.update(input_range="wide"), r"key 'input_range': expected \[lo, hi\] .*, got the string 'wide'$"),
+    (lambda d: d.update(signals={"input": {"nom": "u"}}), r"key 'signals.input': expected an object with keys 'name' "
+                                                          r"\(required\), 'unit' and 'description', got an object "
+                                                          r"with keys 'nom'$"),
+    (lambda d: d.update(signals={"input": {"name": 3}}), r"key 'signals.input.name': expected a string, got 3$"),
+    (lambda d: d.update(signals=[1, 2]), r"key 'signals': expected an object with keys"),
     (lambda d: d.update(experiment={"start_time": 0, "stop_time": "x", "step_size": 0.1}),
-     r"'experiment.stop_time' must be a finite number"),
-    (lambda d: d.update(experiment={"start": 0}), r"'experiment' must be an object with keys"),
+     r"key 'experiment.stop_time': expected a finite number, got the string 'x'$"),
+    (lambda d: d.update(experiment={"start": 0}), r"key 'experiment': expected an object with keys"),
     (lambda d: d.update(experiment={"start_time": 2.0, "stop_time": 1.0, "step_size": 0.1}),
-     r"needs start_time < stop_time"),
+     r"key 'experiment': expected start_time < stop_time and step_size > 0, got 2, 1, 0.1$"),
 ])
 def test_bad_model_files(tmp_path, edit, message):
     d = example1_model().to_dict()
     edit(d)
     path = tmp_path / "bad.json"
     path.write_text(json.dumps(d))
-    with pytest.raises(ModelFileError, match=message):
+    with pytest.raises(ModelFileError, match=message) as info:
         load_model(path)
+    assert str(info.value).startswith(f"{path}: ")
+
+
+@pytest.mark.parametrize("g, message", [
+    (None, r"key 'g' is missing \(expected an object \{\"type\": \"table\""),
+    ({"type": "spline", "v": [1], "g": [1]},
+     r"key 'g': expected an object .*, got an object with keys 'type', 'v', 'g'$"),
+    ({"type": "table", "v": [1, "x"], "g": [1, 2]}, r"key 'g.v': expected a list of numbers, got a list containing "
+                                                   r"the string 'x'$"),
+    ({"type": "table", "v": [1, 1], "g": [1, 2]}, r"key 'g': rate table: duplicate slopes in v$"),
+])
+def test_bad_rate_tables(g, message):
+    d = example3_model().replace(g=TabulatedRate.from_function(g3, [-1, 1])).to_dict()
+    d["g"] = g
+    with pytest.raises(ModelFileError, match=message):
+        model_from_dict(json.loads(json.dumps(d)), source="m.json")
 
 
 def test_callable_g_cannot_be_saved(tmp_path):

@@ -486,7 +486,7 @@ def effects_from_list(items) -> list[Effect]:
     if items is None:
         return []
     if not isinstance(items, (list, tuple)):
-        raise EffectError(f"'effects' must be a list, got {type(items).__name__}")
+        raise EffectError(f"expected a list of effects, got {type(items).__name__}")
     out = []
     for item in items:
         if isinstance(item, Effect):

@@ -97,7 +97,8 @@ def atomic_file(path: str | os.PathLike, *, suffix: str | None = None) -> Iterat
     ending = target.suffix if suffix is None else suffix
     parent = _parent(target)
     sweep_leftovers(target)
-    fd, name = tempfile.mkstemp(prefix=_own_prefix(".tmp-", target), suffix=ending, dir=parent)
+    with _creating(target):
+        fd, name = tempfile.mkstemp(prefix=_own_prefix(".tmp-", target), suffix=ending, dir=parent)
     os.close(fd)
     tmp = Path(name)
     try:
@@ -134,7 +135,8 @@ def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
     if target.exists() and not target.is_dir():
         raise NotADirectoryError(f"{path}: exists and is not a directory")
     sweep_leftovers(target)
-    tmp = Path(tempfile.mkdtemp(prefix=_own_prefix(".tmp-", target), dir=parent))
+    with _creating(target):
+        tmp = Path(tempfile.mkdtemp(prefix=_own_prefix(".tmp-", target), dir=parent))
     try:
         yield tmp
         os.chmod(tmp, usual_mode(directory=True))
@@ -142,6 +144,17 @@ def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
         _swap_in(tmp, target)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def _creating(target: Path) -> Iterator[None]:
+    """Creating the temporary of `target`: an `OSError` names `target`, not the temporary (e.g. a
+    read-only directory: ``out.csv: cannot write in directory d (Permission denied)``)."""
+    try:
+        yield
+    except OSError as exc:
+        raise type(exc)(exc.errno, f"cannot write in directory {target.parent} ({exc.strerror})",
+                        str(target)) from None
 
 
 def _swap_in(new: Path, target: Path) -> None:

@@ -31,26 +31,39 @@ free-form record of how the model was identified.  `effects` (optional, JSON
 ``"effects": [{"effect": name, "parameters": {...}}]``, absent when empty) are
 the extensions of `fitter.core.effects`.
 
+Schema: one check, `model_from_dict` (the file's keys) and the model classes'
+validation (the values: a model built in Python is checked the same way).
+The keys are ``schema``, ``schema_version``, ``kind`` ("ri" | "rd"),
+``order`` (optional: the length of C), ``parameters`` (exactly the kind's
+`PARAMS`: n x n matrices A, n-vectors B, E, C, x0, a number D; all finite),
+``g`` (rate-dependent only: ``{"type": "table", "v": [...], "g": [...]}``),
+``signals``, ``experiment``, ``fit_info`` (an object), ``effects`` and
+``input_range``.  A missing or unknown key, or a value of another type or
+shape, is a `ModelFileError` ``<file>: key '<key>': expected <type/shape>,
+got <what the file has>`` (e.g. ``key 'parameters.A_plus': expected a 2x2
+matrix of numbers, got a ragged list``).
+
 This module needs only numpy: it is shipped inside the FMUs.
 """
 from __future__ import annotations
 
 import json
-import math
 import os
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import Any, Iterator
 
 import numpy as np
 
 from .effects import effects_from_list
 from .errors import EffectError, ModelFileError
 from .files import atomic_file
-from .rates import RateFunction, as_rate, rate_from_dict
+from .rates import RateFunction, TabulatedRate, as_rate
 
 __all__ = ["INPUT_MARGIN", "ModelFileError", "Signal", "Signals", "Experiment", "RateIndependentModel",
-           "RateDependentModel", "load_model", "save_model", "model_from_dict", "SCHEMA", "SCHEMA_VERSION"]
+           "RateDependentModel", "load_model", "save_model", "model_from_dict", "model_from_json", "SCHEMA",
+           "SCHEMA_VERSION"]
 
 SCHEMA = "duhem-model"
 SCHEMA_VERSION = 1
@@ -85,31 +98,126 @@ class Experiment:
     step_size: float = 1e-2
 
 
+def _bad_entries(value: Any) -> Iterator[Any]:
+    """The entries of a (nested) list, or `value` itself, that are not numbers (JSON true/false are not)."""
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind not in "iuf":
+            yield value
+    elif isinstance(value, (list, tuple)):
+        for item in value:
+            yield from _bad_entries(item)
+    elif isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        yield value
+
+
+def _describe(value: Any) -> str:
+    """How a message names a JSON value that is not what its key expects: its type, shape or value."""
+    if isinstance(value, (list, tuple)):
+        bad = next(_bad_entries(value), _NUMBERS)
+        if bad is not _NUMBERS:
+            return f"a list containing {_describe(bad)}"
+        try:
+            return _shape_words(np.shape(np.asarray(value, dtype=float)))
+        except ValueError:
+            return "a ragged list"
+    if value is None or isinstance(value, (bool, np.bool_)):
+        return json.dumps(None if value is None else bool(value))
+    if isinstance(value, (int, float, np.integer, np.floating)):
+        return str(value)
+    if isinstance(value, np.ndarray):
+        return _shape_words(value.shape)
+    if isinstance(value, str):
+        return f"the string {value[:40]!r}" + ("..." if len(value) > 40 else "")
+    if isinstance(value, dict):
+        return f"an object with keys {', '.join(repr(k) for k in value)}" if value else "an empty object"
+    return type(value).__name__
+
+
+def _shape_words(shape: tuple) -> str:
+    if not shape:
+        return "a number"
+    if len(shape) == 1:
+        return "an empty list" if shape[0] == 0 else f"a list of {_count(shape[0], 'number')}"
+    if len(shape) == 2:
+        return f"a {shape[0]}x{shape[1]} matrix"
+    return f"an array of shape {shape}"
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
+
+
+_NUMBERS = object()
+"""Sentinel: `_bad_entries` found no entry that is not a number."""
+
+
+def _key_error(key: str, expected: str, got: str) -> ModelFileError:
+    """The schema's one error form: ``key '<key>': expected <type/shape>, got <what the file has>``."""
+    return ModelFileError(f"key '{key}': expected {expected}, got {got}")
+
+
+def _array(key: str, value: Any, expected: str) -> np.ndarray:
+    """`value` as a float array of finite numbers; anything else (a string, null, an object, a ragged
+    list, NaN) is a `ModelFileError` naming `key` and `expected`."""
+    if next(_bad_entries(value), _NUMBERS) is not _NUMBERS:
+        raise _key_error(key, expected, _describe(value))
+    try:
+        a = np.array(value, dtype=float)
+    except ValueError:
+        raise _key_error(key, expected, "a ragged list") from None
+    if not np.all(np.isfinite(a)):
+        raise _key_error(key, expected, "NaN or infinity")
+    return a
+
+
 def _vec(name: str, value: Any, n: int) -> np.ndarray:
-    a = np.array(value, dtype=float)
+    """Parameter `name`: n numbers (a 1 x n or n x 1 matrix is flattened)."""
+    key, expected = f"parameters.{name}", f"a list of {_count(n, 'number')}"
+    a = _array(key, value, expected)
     if a.shape == (n, 1) or a.shape == (1, n):
         a = a.ravel()
     if a.shape != (n,):
-        raise ModelFileError(f"parameter {name}: expected shape ({n},), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ModelFileError(f"parameter {name}: contains NaN or infinity")
+        raise _key_error(key, expected, _describe(value))
     return a
 
 
 def _mat(name: str, value: Any, n: int) -> np.ndarray:
-    a = np.array(value, dtype=float)
+    """Parameter `name`: an n x n matrix (a number when n = 1)."""
+    key, expected = f"parameters.{name}", f"a {n}x{n} matrix of numbers"
+    a = _array(key, value, expected)
     if a.ndim == 0 and n == 1:
         a = a.reshape(1, 1)
     if a.shape != (n, n):
-        raise ModelFileError(f"parameter {name}: expected shape ({n}, {n}), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ModelFileError(f"parameter {name}: contains NaN or infinity")
+        raise _key_error(key, expected, _describe(value))
     return a
+
+
+def _number(key: str, value: Any) -> float:
+    """One finite number at `key`."""
+    a = _array(key, value, "a finite number")
+    if a.ndim != 0:
+        raise _key_error(key, "a finite number", _describe(value))
+    return float(a)
 
 
 def _order_of(C: Any) -> int:
     """The order n is the length of the output row C."""
-    return int(np.asarray(C, dtype=float).size)
+    expected = "a non-empty list of numbers (the output row; its length is the order)"
+    a = _array("parameters.C", C, expected)
+    if a.size == 0:
+        raise _key_error("parameters.C", expected, _describe(C))
+    return a.size
+
+
+def _input_range(value: Any) -> tuple[float, float]:
+    """The ``input_range`` key: [lo, hi], finite, lo < hi (null, for none, is not passed here)."""
+    expected = "[lo, hi] (two finite numbers, lo < hi) or null"
+    a = _array("input_range", value, expected)
+    if a.shape != (2,):
+        raise _key_error("input_range", expected, _describe(value))
+    if not a[0] < a[1]:
+        raise _key_error("input_range", expected, f"[{a[0]:g}, {a[1]:g}]")
+    return float(a[0]), float(a[1])
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
@@ -142,17 +250,16 @@ class _ModelBase:
         lo, hi = self.input_range
         return np.clip(u, lo, hi) if isinstance(u, np.ndarray) else min(hi, max(lo, float(u)))
 
-    def _check_input_range(self) -> None:
-        rng = self.input_range
-        if rng is None:
-            return
+    def _check_common(self) -> None:
+        """Validate the fields both kinds share: effects, input_range, fit_info."""
         try:
-            lo, hi = (float(v) for v in rng)
-        except (TypeError, ValueError):
-            raise ModelFileError(f"'input_range' must be [lo, hi] (two numbers) or null, got {rng!r}") from None
-        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-            raise ModelFileError(f"'input_range' [{lo}, {hi}] must be finite with lo < hi")
-        self._set("input_range", (lo, hi))
+            self._set("effects", effects_from_list(self.effects))
+        except EffectError as exc:
+            raise ModelFileError(f"key 'effects': {exc}") from None
+        if self.input_range is not None:
+            self._set("input_range", _input_range(self.input_range))
+        if not isinstance(self.fit_info, dict):
+            raise _key_error("fit_info", "an object", _describe(self.fit_info))
 
     def replace(self, **changes) -> "_ModelBase":
         """A copy with `changes` applied, validated like a new model."""
@@ -160,12 +267,6 @@ class _ModelBase:
 
     def _set(self, name: str, value) -> None:
         object.__setattr__(self, name, _frozen(value) if isinstance(value, np.ndarray) else value)
-
-    def _check_effects(self) -> None:
-        try:
-            self._set("effects", effects_from_list(self.effects))
-        except EffectError as exc:
-            raise ModelFileError(str(exc)) from None
 
     def _effects_dict(self, d: dict) -> dict:
         if self.input_range is not None:
@@ -208,9 +309,6 @@ class RateIndependentModel(_ModelBase):
     PARAMS = ("A_plus", "A_minus", "B_plus", "B_minus", "E_plus", "E_minus", "C", "D", "x0")
 
     def __post_init__(self):
-        if self.A_plus is None or self.A_minus is None or self.B_plus is None \
-                or self.B_minus is None or self.C is None:
-            raise ModelFileError("rate-independent model needs A_plus, A_minus, B_plus, B_minus, C")
         n = _order_of(self.C)
         self._set("A_plus", _mat("A_plus", self.A_plus, n))
         self._set("A_minus", _mat("A_minus", self.A_minus, n))
@@ -220,11 +318,8 @@ class RateIndependentModel(_ModelBase):
         self._set("E_plus", _vec("E_plus", np.zeros(n) if self.E_plus is None else self.E_plus, n))
         self._set("E_minus", _vec("E_minus", np.zeros(n) if self.E_minus is None else self.E_minus, n))
         self._set("x0", _vec("x0", np.zeros(n) if self.x0 is None else self.x0, n))
-        self._set("D", float(self.D))
-        if not np.isfinite(self.D):
-            raise ModelFileError("parameter D: NaN or infinity")
-        self._check_effects()
-        self._check_input_range()
+        self._set("D", _number("parameters.D", self.D))
+        self._check_common()
 
     def to_dict(self) -> dict:
         d = self._common_dict()
@@ -252,18 +347,17 @@ class RateDependentModel(_ModelBase):
     PARAMS = ("A", "B", "E", "C", "D", "x0")
 
     def __post_init__(self):
-        if self.A is None or self.B is None or self.C is None or self.g is None:
-            raise ModelFileError("rate-dependent model needs A, B, C and g")
+        if self.g is None:
+            raise ModelFileError("key 'g' is missing (a rate-dependent model needs its rate table)")
         n = _order_of(self.C)
         self._set("A", _mat("A", self.A, n))
         self._set("B", _vec("B", self.B, n))
         self._set("C", _vec("C", self.C, n))
         self._set("E", _vec("E", np.zeros(n) if self.E is None else self.E, n))
         self._set("x0", _vec("x0", np.zeros(n) if self.x0 is None else self.x0, n))
-        self._set("D", float(self.D))
+        self._set("D", _number("parameters.D", self.D))
         self._set("g", as_rate(self.g))
-        self._check_effects()
-        self._check_input_range()
+        self._check_common()
 
     def to_dict(self) -> dict:
         d = self._common_dict()
@@ -275,86 +369,128 @@ class RateDependentModel(_ModelBase):
 Model = RateIndependentModel | RateDependentModel
 
 
+_COMMON_KEYS = ("schema", "schema_version", "kind", "order", "signals", "experiment", "fit_info", "parameters",
+                "effects", "input_range")
+"""Top-level keys of every model file; a rate-dependent one also has "g"."""
+
+
 def model_from_dict(d: dict, source: str = "model") -> Model:
-    """Build a model from its JSON dictionary, checking schema, version, fields, shapes."""
+    """Build a model from its JSON dictionary: the schema check of every key (module docstring).
+
+    Every problem is a `ModelFileError` ``<source>: key '<key>': expected <type/shape>, got <...>``
+    (or ``<source>: not a duhem model file`` / ``unknown schema_version``).
+    """
     if not isinstance(d, dict) or d.get("schema") != SCHEMA:
         raise ModelFileError(f"{source}: not a duhem model file (missing \"schema\": \"{SCHEMA}\")")
     version = d.get("schema_version")
     if version != SCHEMA_VERSION:
         raise ModelFileError(f"{source}: unknown schema_version {version!r} "
                              f"(this version reads {SCHEMA_VERSION})")
+    try:
+        return _model_of_schema(d)
+    except ModelFileError as exc:
+        raise ModelFileError(f"{source}: {exc}") from None
+
+
+def _model_of_schema(d: dict) -> Model:
+    """`model_from_dict` after the schema and version check; errors without the source."""
     kind = d.get("kind")
     cls = {"ri": RateIndependentModel, "rd": RateDependentModel}.get(kind)
     if cls is None:
-        raise ModelFileError(f"{source}: unknown model kind {kind!r} (expected 'ri' or 'rd')")
-    params = d.get("parameters")
-    if not isinstance(params, dict):
-        raise ModelFileError(f"{source}: missing field 'parameters'")
-    for name in cls.PARAMS:
-        if name not in params:
-            raise ModelFileError(f"{source}: missing parameter '{name}'")
-    kwargs = {k: params[k] for k in cls.PARAMS}
+        raise _key_error("kind", "'ri' or 'rd'", _describe(kind))
+    known = _COMMON_KEYS + (("g",) if cls is RateDependentModel else ())
+    unknown = [k for k in d if k not in known]
+    if unknown:
+        raise ModelFileError(f"key '{unknown[0]}': not a key of a {kind!r} model file (known: {', '.join(known)})")
+    kwargs = _parameters(d.get("parameters"), cls)
     if cls is RateDependentModel:
-        if "g" not in d:
-            raise ModelFileError(f"{source}: missing field 'g'")
-        try:
-            kwargs["g"] = rate_from_dict(d["g"])
-        except ValueError as exc:
-            raise ModelFileError(f"{source}: {exc}") from None
-    signals = _signals_from_dict(d.get("signals", {}), source)
-    experiment = _experiment_from_dict(d.get("experiment", {}), source)
-    try:
-        model = cls(signals=signals, experiment=experiment, fit_info=d.get("fit_info", {}),
-                    effects=d.get("effects", []), input_range=d.get("input_range"), **kwargs)
-    except ModelFileError as exc:
-        raise ModelFileError(f"{source}: {exc}") from None
+        kwargs["g"] = _rate_from_dict(d.get("g"))
+    model = cls(signals=_signals_from_dict(d.get("signals", {})), experiment=_experiment_from_dict(
+                d.get("experiment", {})), fit_info=d.get("fit_info", {}), effects=d.get("effects", []),
+                input_range=d.get("input_range"), **kwargs)
     order = d.get("order")
     if order is not None and order != model.order:
-        raise ModelFileError(f"{source}: 'order' is {order} but the matrices have order {model.order}")
+        raise _key_error("order", f"{model.order} (the length of parameters.C)", _describe(order))
     return model
 
 
-def _signals_from_dict(sig: Any, source: str) -> Signals:
+def _parameters(params: Any, cls: type) -> dict:
+    """The ``parameters`` key: an object with exactly the parameters of `cls` (values checked by `cls`)."""
+    names = ", ".join(cls.PARAMS)
+    if not isinstance(params, dict):
+        raise _key_error("parameters", f"an object with keys {names}", _describe(params))
+    for name in params:
+        if name not in cls.PARAMS:
+            raise ModelFileError(f"key 'parameters.{name}': not a parameter of a {cls.kind!r} model (its "
+                                 f"parameters: {names})")
+    for name in cls.PARAMS:
+        if name not in params:
+            raise ModelFileError(f"key 'parameters.{name}' is missing (a {cls.kind!r} model has {names})")
+    return dict(params)
+
+
+def _rate_from_dict(g: Any) -> TabulatedRate:
+    """The ``g`` key: ``{"type": "table", "v": [...], "g": [...]}`` (`TabulatedRate.to_dict`)."""
+    expected = 'an object {"type": "table", "v": [slopes], "g": [values]}'
+    if g is None:
+        raise ModelFileError(f"key 'g' is missing (expected {expected})")
+    if not isinstance(g, dict) or g.get("type") != "table" or not {"v", "g"} <= set(g):
+        raise _key_error("g", expected, _describe(g))
+    v, values = (_array(f"g.{k}", g[k], "a list of numbers") for k in ("v", "g"))
+    try:
+        return TabulatedRate(v, values)
+    except ValueError as exc:
+        raise ModelFileError(f"key 'g': {exc}") from None
+
+
+def _signals_from_dict(sig: Any) -> Signals:
     """The ``signals`` key: {"input"|"output": {"name": str, "unit": str, "description": str}}."""
     if not isinstance(sig, dict) or set(sig) - {"input", "output"}:
-        raise ModelFileError(f"{source}: 'signals' must be an object with keys 'input' and 'output', got {sig!r}")
+        raise _key_error("signals", "an object with keys 'input' and 'output'", _describe(sig))
     out = {}
     for key, value in sig.items():
-        if not isinstance(value, dict) or "name" not in value or set(value) - {"name", "unit", "description"} \
-                or not all(isinstance(v, str) for v in value.values()):
-            raise ModelFileError(f"{source}: 'signals.{key}' must be an object of strings 'name' (required), 'unit' "
-                                 f"and 'description', got {value!r}")
+        if not isinstance(value, dict) or "name" not in value or set(value) - {"name", "unit", "description"}:
+            raise _key_error(f"signals.{key}", "an object with keys 'name' (required), 'unit' and 'description'",
+                             _describe(value))
+        for name, text in value.items():
+            if not isinstance(text, str):
+                raise _key_error(f"signals.{key}.{name}", "a string", _describe(text))
         out[key] = Signal(**value)
     return Signals(**out)
 
 
-def _experiment_from_dict(exp: Any, source: str) -> Experiment:
+def _experiment_from_dict(exp: Any) -> Experiment:
     """The ``experiment`` key: {"start_time", "stop_time", "step_size"}, finite numbers, start < stop, step > 0."""
     names = ("start_time", "stop_time", "step_size")
     if not isinstance(exp, dict) or set(exp) - set(names):
-        raise ModelFileError(f"{source}: 'experiment' must be an object with keys {', '.join(names)}, got {exp!r}")
-    values = {}
-    for key, value in exp.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise ModelFileError(f"{source}: 'experiment.{key}' must be a finite number, got {value!r}")
-        values[key] = float(value)
-    out = Experiment(**values)
+        raise _key_error("experiment", f"an object with keys {', '.join(names)}", _describe(exp))
+    out = Experiment(**{key: _number(f"experiment.{key}", value) for key, value in exp.items()})
     if not (out.start_time < out.stop_time and out.step_size > 0):
-        raise ModelFileError(f"{source}: 'experiment' needs start_time < stop_time and step_size > 0, got "
-                             f"{out.start_time}, {out.stop_time}, {out.step_size}")
+        raise _key_error("experiment", "start_time < stop_time and step_size > 0",
+                         f"{out.start_time:g}, {out.stop_time:g}, {out.step_size:g}")
     return out
+
+
+def model_from_json(text: str | bytes, source: str) -> Model:
+    """A model from the text of a model JSON file; every problem is a `ModelFileError` naming `source`
+    (invalid JSON by its line and column)."""
+    try:
+        d = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ModelFileError(f"{source}: not a JSON model file (invalid JSON at line {exc.lineno}, column "
+                             f"{exc.colno}: {exc.msg[0].lower()}{exc.msg[1:]})") from None
+    except UnicodeDecodeError:
+        raise ModelFileError(f"{source}: not a JSON model file (not UTF-8 text)") from None
+    return model_from_dict(d, source=source)
 
 
 def load_model(path: str | os.PathLike) -> Model:
     """Read a model JSON file; every problem is a `ModelFileError` naming the file."""
     try:
-        with open(path, encoding="utf-8") as fh:
-            d = json.load(fh)
+        text = Path(path).read_bytes()
     except FileNotFoundError:
         raise ModelFileError(f"{path}: no such file") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ModelFileError(f"{path}: not a JSON model file ({exc})") from None
-    return model_from_dict(d, source=str(path))
+    return model_from_json(text, source=str(path))
 
 
 def save_model(model: Model, path: str | os.PathLike) -> None:

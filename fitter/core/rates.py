@@ -164,16 +164,6 @@ class CallableRate(RateFunction):
         return np.asarray(self.fun(np.asarray(v, dtype=float)), dtype=float)
 
 
-def rate_from_dict(d: dict) -> TabulatedRate:
-    """Inverse of `TabulatedRate.to_dict`."""
-    if not isinstance(d, dict) or d.get("type") != "table":
-        raise ValueError("model JSON: 'g' must be an object with type 'table'")
-    for key in ("v", "g"):
-        if key not in d:
-            raise ValueError(f"model JSON: 'g' is missing field '{key}'")
-    return TabulatedRate(d["v"], d["g"])
-
-
 def as_rate(g) -> RateFunction:
     """Accept a RateFunction or a plain callable."""
     if isinstance(g, RateFunction):

@@ -224,7 +224,7 @@ class Prepared:
         """
         s = self.cycles[0] if self.cycles else closing_period(self.recording.u, self.reversals)
         if s is None:
-            raise PreparationError(f"{self.recording.name}: too few cycles: no full input cycle "
+            raise PreparationError(f"{self.recording.label}: too few cycles: no full input cycle "
                                    f"({len(self.reversals)} reversals) and the recording is not one "
                                    f"closing period")
         return s.start, s.stop - 1

@@ -1,7 +1,9 @@
-"""Drive an exported FMU with fmpy, and validate its modelDescription (FMPy style).
+"""Check an FMU file, drive an exported FMU with fmpy, and validate its modelDescription (FMPy style).
 
-Simulation and validation are kept apart: `validate_fmu_file` only reads the
-file; `simulate_fmu` loads the binary and runs it.
+`check_fmu_file` looks at every part of an FMU before fmpy touches it and
+names the broken one (`FmuFileError`); `validate_fmu_file` is fmpy's
+validation of the modelDescription; `simulate_fmu` loads the binary and runs
+it.
 
 `simulate_fmu` is the host that the FMU's input semantics are written for: at
 every sample t_k it sets u(t_k), reads y(t_k), then steps to t_{k+1}.  With
@@ -9,26 +11,145 @@ that host the FMU reproduces `fitter.core.simulate` of the sampled input.
 """
 from __future__ import annotations
 
-import json
 import os
+import re
 import shutil
+import tempfile
 import zipfile
-from ctypes import byref
+import zlib
+from ctypes import CDLL, byref
 from pathlib import Path
+from xml.etree import ElementTree
+from xml.parsers.expat import errors as expat_errors
 
 import numpy as np
 
-from fitter.core.errors import DuhemError
-from fitter.core.models import model_from_dict
+from fitter.core.errors import DuhemError, ModelFileError
+from fitter.core.models import Model, model_from_json
 from fitter.data.recordings import check_samples
 
 _FMI2_FATAL = 4
+_MODEL_MEMBER = "resources/model.json"
+"""Where an FMU exported by duhem carries its model (`fitter.fmu.build`)."""
 
-__all__ = ["simulate_fmu", "validate_fmu_file", "model_in_fmu", "collecting_callbacks", "FmuRunError"]
+__all__ = ["simulate_fmu", "validate_fmu_file", "check_fmu_file", "collecting_callbacks", "FmuFileError",
+           "FmuRunError"]
 
 
 class FmuRunError(DuhemError, RuntimeError):
     """The FMU could not be loaded or driven; the message says why."""
+
+
+class FmuFileError(DuhemError):
+    """A broken FMU file; the message names the file and the broken part."""
+
+
+def check_fmu_file(fmu_path: str | os.PathLike) -> Model:
+    """Check every part of an FMU exported by duhem, before fmpy touches it; return the model it carries.
+
+    In order: a zip archive; ``modelDescription.xml`` present, well-formed XML
+    (the error by line and column), FMI 2.0 or 3.0, valid against that
+    version's schema (fmpy's XSD) and with a Co-Simulation interface; the
+    binary of this platform present (``binaries/<platform>/<modelIdentifier>``)
+    and loadable; ``resources/model.json`` present, valid JSON and a valid model (the
+    key, `fitter.core.models.model_from_json`).
+
+    Raises
+    ------
+    FmuFileError
+        One line: the file, the broken part (archive member, XML line, JSON key) and what is wrong.
+    """
+    path = str(fmu_path)
+    if not Path(path).is_file():
+        raise FmuFileError(f"{path}: {'is a directory' if Path(path).is_dir() else 'no such file'}, not an FMU")
+    try:
+        with zipfile.ZipFile(path) as z:
+            names = set(z.namelist())
+            version, identifier = _model_description(path, z, names)
+            _check_loadable(path, z, _binary(path, names, version, identifier))
+            return _stored_model(path, z, names)
+    except zipfile.BadZipFile:
+        raise FmuFileError(f"{path}: not an FMU (not a zip archive, or a damaged one)") from None
+
+
+def _read(path: str, z: zipfile.ZipFile, member: str) -> bytes:
+    try:
+        return z.read(member)
+    except (zipfile.BadZipFile, zlib.error, EOFError):
+        raise FmuFileError(f"{path}: {member} is damaged in the archive (it cannot be unpacked)") from None
+
+
+def _model_description(path: str, z: zipfile.ZipFile, names: set[str]) -> tuple[str, str]:
+    """(fmiVersion, Co-Simulation modelIdentifier) of the FMU's modelDescription.xml, checked."""
+    from fmpy import read_model_description
+
+    if "modelDescription.xml" not in names:
+        raise FmuFileError(f"{path}: not an FMU (the archive has no modelDescription.xml)")
+    try:
+        root = ElementTree.fromstring(_read(path, z, "modelDescription.xml"))
+    except ElementTree.ParseError as exc:
+        line, column = exc.position
+        raise FmuFileError(f"{path}: modelDescription.xml is not well-formed XML: line {line}, column {column + 1}: "
+                           f"{expat_errors.messages.get(exc.code, 'syntax error')}") from None
+    version = root.get("fmiVersion")
+    if root.tag != "fmiModelDescription" or not version:
+        raise FmuFileError(f"{path}: modelDescription.xml is not an FMI model description (root element "
+                           f"<{root.tag}>, fmiVersion {version!r})")
+    if version != "2.0" and not version.startswith("3."):
+        raise FmuFileError(f"{path}: modelDescription.xml declares fmiVersion {version!r}: not an FMI 2.0 or 3.0 FMU")
+    try:
+        md = read_model_description(path, validate=True)
+    except Exception as exc:  # fmpy raises ValidationError (its schema) or a plain Exception
+        raise FmuFileError(f"{path}: modelDescription.xml does not follow the FMI {version} schema: "
+                           f"{_schema_problem(exc)}") from None
+    if md.coSimulation is None:
+        raise FmuFileError(f"{path}: modelDescription.xml has no <CoSimulation> element: not a Co-Simulation FMU")
+    return version, md.coSimulation.modelIdentifier
+
+
+def _schema_problem(exc: Exception) -> str:
+    """The first problem of fmpy's validation, as "line L: what" (libxml2's words for what)."""
+    problems = getattr(exc, "problems", None) or [str(exc)]
+    found = re.search(r"\(line (\d+), column \d+\): (.*)", problems[0])
+    return f"line {found[1]}: {found[2]}" if found else " ".join(problems[0].split())
+
+
+def _binary(path: str, names: set[str], version: str, identifier: str) -> str:
+    """The archive member of this platform's binary (FMI 2.0: binaries/linux64, 3.0: binaries/x86_64-linux)."""
+    import fmpy
+
+    folder = fmpy.platform if version == "2.0" else fmpy.platform_tuple
+    member = f"binaries/{folder}/{identifier}{fmpy.sharedLibraryExtension}"
+    if member not in names:
+        present = sorted({n.split("/")[1] for n in names if n.startswith("binaries/") and n.count("/") >= 2})
+        raise FmuFileError(f"{path}: no binary for this platform ({member} is missing; binaries for: "
+                           f"{', '.join(present) or 'none'})")
+    return member
+
+
+def _check_loadable(path: str, z: zipfile.ZipFile, member: str) -> None:
+    """Load the binary `member` (unpacked to a private directory) and unload it; the error names the member."""
+    from fmpy import freeLibrary
+
+    with tempfile.TemporaryDirectory(prefix="duhem_fmu_check.") as tmp:
+        library = Path(tmp) / Path(member).name
+        library.write_bytes(_read(path, z, member))
+        try:
+            handle = CDLL(str(library))
+        except OSError as exc:
+            reason = str(exc).replace(str(library), "").strip(": ") or "the loader gives no reason"
+            raise FmuFileError(f"{path}: the binary {member} cannot be loaded on this machine ({reason})") from None
+        freeLibrary(handle._handle)
+
+
+def _stored_model(path: str, z: zipfile.ZipFile, names: set[str]) -> Model:
+    """The model in `_MODEL_MEMBER`; its absence, invalid JSON or a schema error names the member."""
+    if _MODEL_MEMBER not in names:
+        raise FmuFileError(f"{path}: no {_MODEL_MEMBER}: not an FMU exported by duhem (it carries its model there)")
+    try:
+        return model_from_json(_read(path, z, _MODEL_MEMBER), source=f"{path}: {_MODEL_MEMBER}")
+    except ModelFileError as exc:
+        raise FmuFileError(str(exc)) from None
 
 
 def validate_fmu_file(fmu_path: str | os.PathLike) -> list[str]:
@@ -42,15 +163,6 @@ def validate_fmu_file(fmu_path: str | os.PathLike) -> list[str]:
     if not Path(fmu_path).is_file():
         raise FileNotFoundError(f"{fmu_path}: no such FMU file")
     return list(validate_fmu(str(fmu_path)))
-
-
-def model_in_fmu(fmu_path: str | os.PathLike):
-    """The model stored in the FMU's ``resources/model.json`` (None when there is none)."""
-    with zipfile.ZipFile(fmu_path) as z:
-        if "resources/model.json" not in z.namelist():
-            return None
-        data = json.loads(z.read("resources/model.json").decode("utf-8"))
-    return model_from_dict(data, source=f"{fmu_path}!resources/model.json")
 
 
 def _check_input(t, u, fmu_path) -> tuple[np.ndarray, np.ndarray]:
@@ -122,6 +234,9 @@ def simulate_fmu(fmu_path: str | os.PathLike, t, u) -> np.ndarray:
     if not Path(fmu_path).is_file():
         raise FileNotFoundError(f"{fmu_path}: no such FMU file")
     md = read_model_description(str(fmu_path))
+    if md.fmiVersion != "2.0":
+        raise FmuRunError(f"{fmu_path}: an FMI {md.fmiVersion} FMU: this host drives FMI 2.0 FMUs (export for FMI 2.0 "
+                          f"to simulate or validate it here)")
     if md.coSimulation is None:
         raise FmuRunError(f"{fmu_path}: not a Co-Simulation FMU")
     vr_u, vr_y = _value_references(md)

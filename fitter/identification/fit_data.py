@@ -127,7 +127,7 @@ def _loop_pieces(rec: Recording, prep: Prepared, cycle: tuple[int, int]) -> list
 def _prepare_one(rec: Recording) -> tuple[Prepared, Recording, tuple[int, int], list[str]]:
     reversals = find_reversals(rec.u)
     if len(reversals) < 1:
-        raise FitError(f"{rec.name}: the input never reverses (it must go up and down at least once: "
+        raise FitError(f"{rec.label}: the input never reverses (it must go up and down at least once: "
                        f"a single loop, or periodically)")
     try:
         prep = prepare(rec, min_cycles=0)
@@ -188,7 +188,7 @@ def _prepare_general(recordings: Sequence[Recording]) -> FitData:
     preps, notes = [], []
     for rec in recordings:
         if len(find_reversals(rec.u)) < 1:
-            raise FitError(f"{rec.name}: the input never reverses (it must go up and down at least once)")
+            raise FitError(f"{rec.label}: the input never reverses (it must go up and down at least once)")
         prep = prepare(rec, min_cycles=0, drop_transient=False)
         preps.append(prep)
         notes.append(list(prep.notes) + [
@@ -277,6 +277,10 @@ def rate_levels(norm: Sequence[Recording]) -> RateLevels:
     meds, pooled, triangle = [], [], True
     for r in norm:
         v = np.abs(np.diff(r.u) / np.diff(r.t))
+        if not np.any(v > 0):
+            raise FitError(f"{r.label}: the input does not move at the scale of all recordings together (another "
+                           f"recording's input range is so much wider that this one's span is below its rounding): "
+                           f"fit the recordings apart, or remove the outlier that widens the range")
         v = v[v > 1e-3 * np.median(v[v > 0])]
         meds.append(np.median(v))
         pooled.append(v)

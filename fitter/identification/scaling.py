@@ -39,7 +39,9 @@ class Normalisation:
         y = np.concatenate([r.y for r in recs])
         us, ys = 0.5 * np.ptp(u), 0.5 * np.ptp(y)
         if not (us > 0 and ys > 0):
-            raise DuhemError("the input or the output is constant over all recordings")
+            column = recs[0].input.name if not us > 0 else recs[0].output.name
+            raise DuhemError(f"{', '.join(r.label for r in recs)}: the {'input' if not us > 0 else 'output'} "
+                             f"(column {column!r}) is constant over all recordings: nothing to fit")
         return cls(0.5 * (u.max() + u.min()), us, 0.5 * (y.max() + y.min()), ys)
 
     def normalise(self, rec: Recording) -> Recording:
