@@ -123,8 +123,10 @@ def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.nd
 def _candidate(param, starts, data: FitData, info, progress: Progress) -> _Candidate:
     """Best refinement over the starts, with the convergence barrier.
 
-    With several starts, each first gets `RACE_NFEV` evaluations (no covariance); only the
-    lowest-cost one is refined further, with the rest of the `MAX_NFEV` budget.
+    With several starts, each first gets `RACE_NFEV` evaluations (no covariance); only the one of
+    lowest objective (output error plus barrier) is refined further, with the rest of the `MAX_NFEV`
+    budget.  Rate-dependent candidates of order >= `GLOBAL_FROM_ORDER` then get the global stage
+    (`_global_stage`).
     """
     problem = Recordings(data.norm, x0=data.x0_mode, cycles=data.cycles)
     pen = _barrier(param, data)
@@ -135,6 +137,10 @@ def _candidate(param, starts, data: FitData, info, progress: Progress) -> _Candi
         except (ValueError, np.linalg.LinAlgError):
             return None
 
+    def objective(res: RefineResult) -> float:
+        """What the refinement minimises: the output error's cost plus the barrier's."""
+        return res.cost + 0.5 * float(np.sum(pen(res.theta) ** 2))
+
     if len(starts) == 1:
         race = [run(starts[0], FIT_OPTIONS)]
     else:
@@ -142,18 +148,19 @@ def _candidate(param, starts, data: FitData, info, progress: Progress) -> _Candi
     race = [r for r in race if r is not None]
     if not race:
         raise FitError(f"{param.kind} order {param.n}: every start failed to simulate")
-    best = min(race, key=lambda r: r.cost)
+    best = min(race, key=objective)
     if len(starts) > 1:
         more = run(best.theta, replace(FIT_OPTIONS, max_nfev=MAX_NFEV - RACE_NFEV))
-        best = more if more is not None and more.cost <= best.cost else run(best.theta, replace(FIT_OPTIONS, max_nfev=1))
+        best = (more if more is not None and objective(more) <= objective(best)
+                else run(best.theta, replace(FIT_OPTIONS, max_nfev=1)))
     if param.kind == "rd" and param.n >= GLOBAL_FROM_ORDER:
-        best = _global_stage(param, best, run)
+        best = _global_stage(param, best, run, objective)
     return _Candidate(param, best, info)
 
 
-def _global_stage(param: RDCanonical, best: RefineResult,
-                  run: Callable[[np.ndarray, Options], RefineResult | None]) -> RefineResult:
-    """The lowest cost among `best` and `GLOBAL_STARTS` full refinements from perturbed copies of it
+def _global_stage(param: RDCanonical, best: RefineResult, run: Callable[[np.ndarray, Options], RefineResult | None],
+                  objective: Callable[[RefineResult], float]) -> RefineResult:
+    """The lowest objective among `best` and `GLOBAL_STARTS` full refinements from perturbed copies of it
     (`GLOBAL_SCALE`; seeded by the order, so a fit is repeatable)."""
     rng = np.random.default_rng(param.n)
     moving = np.ones(param.size, bool)
@@ -161,7 +168,7 @@ def _global_stage(param: RDCanonical, best: RefineResult,
     for _ in range(GLOBAL_STARTS):
         step = GLOBAL_SCALE * np.maximum(np.abs(best.theta), 1.0) * rng.standard_normal(param.size)
         res = run(best.theta + step * moving, FIT_OPTIONS)
-        if res is not None and res.cost < best.cost:
+        if res is not None and objective(res) < objective(best):
             best = res
     return best
 
