@@ -339,6 +339,11 @@ def _misuse_instantiation(fmu_path: str) -> dict:
         handle = fmu.fmi3InstantiateCoSimulation(instance, token, b"", False, False, event_mode, False,
                                                  none, 0, None, callback, fmi3IntermediateUpdateCallback())
         results[name] = (handle is None, messages[-1] if messages else "")
+    handle = fmu.fmi3InstantiateCoSimulation(b"a", md.guid.encode(), b"", False, False, False, False,
+                                             (c_uint32 * 1)(Y), 1, None, callback, fmi3IntermediateUpdateCallback())
+    results["intermediate variables listed"] = (handle is None, messages[-1] if messages else "")
+    if handle is not None:
+        fmu.fmi3FreeInstance(handle)
     handle = fmu.fmi3InstantiateModelExchange(b"a", md.guid.encode(), b"", False, False, None, callback)
     results["model exchange"] = (handle is None, messages[-1])
     shutil.rmtree(unzipdir, ignore_errors=True)
@@ -357,6 +362,7 @@ def test_state_machine_misuse_is_refused_and_changes_nothing(fmus):
     for name, fragment in INSTANTIATION_EXPECTED.items():
         refused, message = report["instantiation"][name]
         assert refused and fragment in message, (name, message)
+    assert not report["instantiation"]["intermediate variables listed"][0]   # ignored, as the Reference-FMUs do
     t, u = sampled_input(60)
     assert np.abs(np.array(report["y"]) - simulate(MODELS["rd_effects"](), t, u).y).max() <= 1e-10
 

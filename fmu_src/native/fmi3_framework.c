@@ -174,16 +174,17 @@ fmi3Status fmi3SetDebugLogging(fmi3Instance instance, fmi3Boolean loggingOn, siz
     return fmi3OK;
 }
 
-/* Why a Co-Simulation instance cannot be created with these arguments (NULL: it can). */
+/* Why a Co-Simulation instance cannot be created with these arguments (NULL: it can).
+   requiredIntermediateVariables are ignored, as the Reference-FMUs do: this FMU never calls the
+   intermediate-update callback (providesIntermediateUpdate = false), so a host that lists them
+   (fmusim --record-intermediate-values) simply gets no intermediate updates. */
 static const char *instantiation_error(fmi3String instanceName, fmi3String token,
-                                       fmi3Boolean eventModeUsed, size_t nRequired)
+                                       fmi3Boolean eventModeUsed)
 {
     if (!instanceName || !instanceName[0]) return "instanceName must be a non-empty string";
     if (!token || strcmp(token, model_guid()) != 0)
         return "instantiationToken does not match this FMU's (modelDescription.xml)";
     if (eventModeUsed) return "eventModeUsed = true, but this FMU has no event mode (hasEventMode = false)";
-    if (nRequired > 0)
-        return "requiredIntermediateVariables given, but this FMU provides no intermediate update";
     return NULL;
 }
 
@@ -200,12 +201,11 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
     Instance probe, *in;
     const char *msg;
     (void)resourcePath; (void)visible; (void)earlyReturnAllowed;
-    (void)requiredIntermediateVariables; (void)intermediateUpdate;
+    (void)requiredIntermediateVariables; (void)nRequiredIntermediateVariables; (void)intermediateUpdate;
     memset(&probe, 0, sizeof probe);
     probe.logger = logMessage;
     probe.environment = instanceEnvironment;
-    msg = instantiation_error(instanceName, instantiationToken, eventModeUsed,
-                              nRequiredIntermediateVariables);
+    msg = instantiation_error(instanceName, instantiationToken, eventModeUsed);
     if (msg) {
         fail(&probe, "fmi3InstantiateCoSimulation: %s", msg);
         return NULL;
