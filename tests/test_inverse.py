@@ -239,6 +239,41 @@ def test_step_by_step_equals_compensate_and_state_rolls_back():
     assert comp.samples == len(t) and comp.clamped == 0
 
 
+def test_which_root_the_held_input_is_kept_and_the_nearest_root_taken():
+    """Module docstring, "Which root".  Backlash: u's roots are not unique (the dead band); read again at the next
+    time with y_ref unchanged, u is the sample's own u, and a constant stretch of y_ref keeps u constant (it used
+    to jump across the dead band and back, by b).  A branch with the wrong slope: of the roots on both sides the
+    nearer one is taken, though it lies on the side that moves y away from y_ref."""
+    model = ri2([Effect("backlash", {"b": 0.3})])
+    u_true = np.r_[reversals(5, n_turns=6), np.full(20, reversals(5, n_turns=6)[-1])]
+    t = np.arange(len(u_true)) * 0.02
+    y_ref = simulate(model, t, u_true).y
+    comp = Compensator(model, t0=t[0])
+    u, again = np.empty(len(t)), np.empty(len(t) - 1)
+    for k in range(len(t)):
+        u[k] = comp.step(t[k], y_ref[k])
+        if k + 1 < len(t):
+            saved = comp.get_state()
+            again[k] = comp.step(t[k + 1], y_ref[k])
+            comp.set_state(saved)
+    assert comp.clamped == 0
+    np.testing.assert_array_equal(again, u[:-1])
+    assert np.all(u[-20:] == u[-20])
+    assert cascade_error(model, t, y_ref, compensate(model, t, y_ref)) < TOL
+
+    # dy/du = 4 (-3 x + 3 u + 1) + 0.5 = -103.5 rising, 4 (2 x + 2 u - 1) + 0.5 = 84.5 falling at x = 10, u = 1:
+    # y_ref a little below the held output has a root on both sides, the rising one nearer
+    model = RateIndependentModel(A_plus=[[-3.0]], A_minus=[[2.0]], B_plus=[3.0], B_minus=[2.0], C=[4.0],
+                                 E_plus=[1.0], E_minus=[-1.0], D=0.5, x0=[2.0], input_range=(-3.0, 5.0))
+    comp = Compensator(model, t0=0.0, u0=1.0, x0=[10.0])
+    y_held = start_output(model.replace(x0=[10.0]), 0.0, 1.0)
+    assert comp.step(0.0, y_held) == 1.0
+    u = comp.step(0.1, y_held - 0.01)
+    assert not comp.last_clamped and u > 1.0
+    below = simulate(model.replace(x0=[10.0]), [0.0, 0.1], [1.0, 1.0 - (u - 1.0)]).y[1]
+    assert below > y_held - 0.01          # no root below within the same distance
+
+
 # ----------------------------------------------------------------------------- Prandtl-Ishlinskii inverse
 
 def test_prandtl_ishlinskii_inverse_round_trip():

@@ -17,23 +17,56 @@ samples u_k it returns, fed to `simulate` (input piecewise linear between
 samples), reproduce y_ref to the root finder's tolerance (about 1e-13 of the
 input range in u), not to a discretisation error.
 
-* Which root.  Moving u up from u_k follows the rising branch (rate
+* Which root.  One rule: of the inputs that give y_ref, the one nearest the
+  last input u_k is taken; so the held input u_k itself whenever it still
+  gives y_ref.  The inverse is often not unique (the dead band of
+  ``backlash``, a flat stretch, a fitted branch whose slope has the wrong
+  sign for a while), and without the rule the root taken would depend on the
+  order of the search: a host that reads u again at t_{k+1} before setting
+  the new y_ref (fmusim: set y_ref(t_k), doStep, read u) got the other end of
+  the dead band, u off by b, at hundreds of samples of the fitted demo
+  model.  With it that read is continuous: for a rate-independent model the
+  held input gives y(t_{k+1}) = y(t_k) = y_ref(t_k), so the u read is u_k.
+
+  "Gives y_ref" means |y - y_ref| <= 1e-10 Y, Y the output scale |y(hi) -
+  y(lo)| over the search range from the first interval step (kept in the
+  state; at the first sample, t == t0, that sample's own span, which is the
+  feedthrough's only).  Not a few eps of |y| (the test used to be 4 eps
+  |y|): the forward step's rounding is relative to the terms it sums, not
+  to their sum (a fitted state of 3e3 behind an output of 12; an output
+  crossing 0, where 4 eps |y| is 0), and an accepted root keeps the
+  residual of the root finder's input tolerance times the local slope (up
+  to 2e-10 on the demo model, 200 times 4 eps |y|); the held input then
+  failed the test and the search went on across the dead band.  1e-10 Y
+  leaves a margin of 1e3 over the rounding seen and is still far below any
+  tracking requirement.  Brent's method goes on below its input tolerance
+  (to the input's resolution) while the residual is above half of that
+  tolerance (a branch over 500 times steeper than Y / input span), so an
+  exact sample's held input passes the test at the next time, the other
+  half being left for the rounding.
+
+  The search: moving u up from u_k follows the rising branch (rate
   independent: dy/du = C (A+ x + B+ u + E+) + D), moving it down the falling
   one.  The model's orientation o (+1 when its output rises with its input,
   as a piezo's polarization with the voltage; -1 when it falls) is found at
-  the first step from the outputs at the two ends of the search range (or
-  given).  The compensator first searches the side o sign(y_ref - y_held)
-  (y_held: the output at t_{k+1} with the input held), the branch that moves
-  y the way y_ref asks, for the root nearest u_k: it evaluates f at growing
-  distances (factor 4, the first guess from the last step's slope) until
-  f - y_ref changes sign, then Brent's method (inverse quadratic
-  interpolation with bisection as the safeguard; standard library only) in
-  that bracket.  Only when that side has no root is the other side
-  searched.  So a flat stretch (the dead band of ``backlash``, a rate with
-  g(v) = 0) is crossed, and a branch whose slope has the wrong sign for a
-  while (a fitted loop whose output still rises after the input's reversal)
-  is followed through its hump to the first crossing: u jumps there, the
-  output is exact.
+  the first interval step from the outputs at the two ends of the search
+  range (or given).  The compensator first searches the side o sign(y_ref -
+  y_held) (y_held: the output at t_{k+1} with the input held), the branch
+  that moves y the way y_ref asks, for the root nearest u_k: it evaluates f
+  at growing distances (factor 4, the first guess from the last step's
+  slope) until f - y_ref changes sign, then Brent's method (inverse
+  quadratic interpolation with bisection as the safeguard; standard library
+  only) in that bracket.  Then it searches the other side, only up to the
+  distance of that root: a strictly nearer root there is taken instead
+  (the first side wins a tie); with no root on the first side the other
+  side is searched over the whole range.  Where the inverse is unique this
+  is the root the first side gives.  So a flat stretch (the dead band of
+  ``backlash``, a rate with g(v) = 0) is crossed when y_ref turns, and a
+  branch whose slope has the wrong sign for a while (a fitted loop whose
+  output still rises after the input's reversal) is followed through its
+  hump to the first crossing unless the other side reaches y_ref sooner:
+  u jumps there, the output is exact.  "Nearest" is to the growing grid's
+  resolution: two crossings inside one of its intervals are not seen.
 * Search range.  u is searched in the model's ``input_range`` (beyond it the
   model holds its input at the edge, `models`), or in the range given to the
   compensator (an actuator's voltage limits); with neither, the compensator
@@ -88,7 +121,8 @@ State and stepping
 ------------------
 `Compensator` is a stepper: ``step(t, y_ref) -> u`` per sample, and
 `get_state` / `set_state` for the whole state as a tuple (the plant's
-`Stepper` state at the last sample, the slope guess and the clamp counters),
+`Stepper` state at the last sample, the slope guess, the output scale and
+the clamp counters),
 so an FMU can wrap it as `fmu_src/duhem_slave.py` wraps `Stepper`.
 
 This module needs only numpy: it is shipped inside the FMUs.
@@ -118,6 +152,8 @@ SUPPORTED_EFFECTS = tuple(name for name, spec in REGISTRY.items() if spec.origin
 """Effects inverted as they stand (module docstring)."""
 
 _EPS = np.finfo(float).eps
+_YTOL = 1e-10
+"""An input gives y_ref when |y - y_ref| <= _YTOL * (the output scale) (module docstring, "Which root")."""
 _GROW = 4.0
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
@@ -155,8 +191,13 @@ def _search_range(model, input_range) -> tuple[float, float]:
     return lo, hi
 
 
-def _brent(f, a: float, b: float, fa: float, fb: float, xtol: float, maxiter: int = 200):
-    """A root of f in [a, b] with fa, fb of opposite signs (Brent 1973, as scipy's brentq); returns (x, f(x))."""
+def _brent(f, a: float, b: float, fa: float, fb: float, xtol: float, ftol: float = math.inf, xfloor: float = 0.0,
+           maxiter: int = 200):
+    """A root of f in [a, b] with fa, fb of opposite signs (Brent 1973, as scipy's brentq); returns (x, f(x)).
+
+    It stops when the bracket is below xtol, as scipy's brentq, if then |f(x)| <= ftol; else it goes on with
+    the bracket tolerance xfloor (a steep branch: the residual is brought under ftol where the input's
+    resolution allows)."""
     xpre, xcur, fpre, fcur = a, b, fa, fb
     xblk, fblk, spre, scur = 0.0, 0.0, 0.0, 0.0
     rtol = 4 * _EPS
@@ -170,7 +211,12 @@ def _brent(f, a: float, b: float, fa: float, fb: float, xtol: float, maxiter: in
         delta = (xtol + rtol * abs(xcur)) / 2
         sbis = (xblk - xcur) / 2
         if fcur == 0 or abs(sbis) < delta:
-            return xcur, fcur
+            if fcur == 0 or abs(fcur) <= ftol or xtol <= xfloor:
+                return xcur, fcur
+            xtol = xfloor           # polish: from here on the finer bracket tolerance
+            delta = (xtol + rtol * abs(xcur)) / 2
+            if abs(sbis) < delta:
+                return xcur, fcur
         if abs(spre) > delta and abs(fcur) < abs(fpre):
             if xpre == xblk:
                 stry = -fcur * (xcur - xpre) / (fcur - fpre)
@@ -222,6 +268,7 @@ class Compensator:
         lo, hi = self.input_range
         self._span = hi - lo
         self._xtol = 1e-13 * max(self._span, abs(lo), abs(hi))
+        self._xfloor = _EPS * max(self._span, abs(lo), abs(hi))
         self._stepper = Stepper(self.plant)
         self.reset(t0, u0, x0)
 
@@ -238,6 +285,7 @@ class Compensator:
         self.y = math.nan
         self.u = self._anchor[1]
         self.slope = math.nan
+        self.scale = math.nan
         self.orientation = self._given_orientation
         self.samples = 0
         self.clamped = 0
@@ -245,18 +293,19 @@ class Compensator:
         self.last_clamped = False
 
     def get_state(self) -> tuple:
-        """The whole state: (plant stepper state at the last sample, started, u, y, slope, orientation, samples,
-        clamped, max_shortfall, last_clamped); `set_state` restores exactly the same future."""
+        """The whole state: (plant stepper state at the last sample, started, u, y, slope, scale, orientation,
+        samples, clamped, max_shortfall, last_clamped); `set_state` restores exactly the same future."""
         a = self._anchor
         anchor = a[:2] + (np.array(a[2], dtype=float),) + a[3:]
-        return (anchor, self.started, self.u, self.y, self.slope, self.orientation, self.samples, self.clamped,
-                self.max_shortfall, self.last_clamped)
+        return (anchor, self.started, self.u, self.y, self.slope, self.scale, self.orientation, self.samples,
+                self.clamped, self.max_shortfall, self.last_clamped)
 
     def set_state(self, state: tuple) -> None:
-        anchor, started, u, y, slope, orientation, samples, clamped, shortfall, last = state
+        anchor, started, u, y, slope, scale, orientation, samples, clamped, shortfall, last = state
         self._stepper.set_state(anchor)
         self._anchor = self._stepper.get_state()
         self.started, self.u, self.y, self.slope = bool(started), float(u), float(y), float(slope)
+        self.scale = float(scale)
         self.orientation = None if orientation is None else float(orientation)
         self.samples, self.clamped, self.max_shortfall = int(samples), int(clamped), float(shortfall)
         self.last_clamped = bool(last)
@@ -309,36 +358,56 @@ class Compensator:
         def f(u: float) -> float:
             return self._trial(t, u) - y_ref
 
+        if t == self._anchor[0]:          # the first sample: its own span (feedthrough only), not kept
+            scale = self._span_at(f)
+        else:
+            if math.isnan(self.scale):    # the first interval step: the output scale, and the orientation
+                self._calibrate(f)
+            scale = self.scale
+        tol = _YTOL * scale
         r0 = f(u_a)
         if not math.isfinite(r0):
             raise KernelError(f"the model's output is not finite at t = {t:.6g} for the held input u = {u_a:.6g}")
-        tol = 4 * _EPS * max(abs(y_ref), abs(r0 + y_ref))
-        if abs(r0) <= tol:
+        if abs(r0) <= tol:               # the held input still gives y_ref: kept
             return u_a, r0 + y_ref, True
-        if self.orientation is None and t != self._anchor[0]:
-            self.orientation = self._orientation(f)   # from an interval step, not the first sample's feedthrough
         # first distance: the last step's slope predicts it, else a thousandth of the range
         guess = abs(r0 / self.slope) * 1.5 if self.slope and math.isfinite(self.slope) else 1e-3 * self._span
         guess = min(max(guess, 1e-12 * self._span), self._span)
         preferred = (self.orientation or 1.0) * (1.0 if r0 < 0 else -1.0)
         seen = [(u_a, r0)]
+        found = None
         for s in (preferred, -preferred):
-            found = self._search(f, u_a, r0, s, (hi - u_a) if s > 0 else (u_a - lo), guess, seen)
-            if found is not None:
-                u, r = found
-                if u != u_a:
-                    self.slope = (r - r0) / (u - u_a)
-                return u, r + y_ref, True
+            reach = (hi - u_a) if s > 0 else (u_a - lo)
+            if found is not None:         # the other side: only a strictly nearer root replaces it
+                reach = min(reach, abs(found[0] - u_a))
+            other = self._search(f, u_a, r0, s, reach, guess, seen, tol / 2)
+            if other is not None and (found is None or abs(other[0] - u_a) < abs(found[0] - u_a)):
+                found = other
+        if found is not None:
+            u, r = found
+            if u != u_a:
+                self.slope = (r - r0) / (u - u_a)
+            return u, r + y_ref, True
         u, r = self._nearest(f, seen, r0)
         return u, r + y_ref, False
 
-    def _orientation(self, f) -> float:
-        """+1 when the output rises with the input over the search range (from the current state), else -1."""
+    def _span_at(self, f) -> float:
+        """|y(hi) - y(lo)| for this sample (0 when not finite)."""
+        lo, hi = self.input_range
+        span = abs(f(hi) - f(lo))
+        return span if math.isfinite(span) else 0.0
+
+    def _calibrate(self, f) -> None:
+        """At the first interval step: the output scale |y(hi) - y(lo)| and, unless given, the orientation (+1 when
+        the output rises with the input over the search range, else -1), from the same two evaluations."""
         lo, hi = self.input_range
         r_hi, r_lo = f(hi), f(lo)
-        return -1.0 if math.isfinite(r_hi) and math.isfinite(r_lo) and r_hi < r_lo else 1.0
+        finite = math.isfinite(r_hi) and math.isfinite(r_lo)
+        self.scale = abs(r_hi - r_lo) if finite else 0.0
+        if self.orientation is None:
+            self.orientation = -1.0 if finite and r_hi < r_lo else 1.0
 
-    def _search(self, f, u_a: float, r0: float, s: float, reach: float, d: float, seen: list):
+    def _search(self, f, u_a: float, r0: float, s: float, reach: float, d: float, seen: list, ftol: float):
         """The root of f nearest u_a on side s (distance up to `reach`): (u, f(u)), or None."""
         prev = (u_a, r0)
         while reach > 0:
@@ -351,7 +420,7 @@ class Compensator:
             if r == 0:
                 return u, r
             if (r < 0) != (prev[1] < 0):
-                return _brent(f, prev[0], u, prev[1], r, self._xtol)
+                return _brent(f, prev[0], u, prev[1], r, self._xtol, ftol, self._xfloor)
             if dist >= reach:
                 return None
             prev, d = (u, r), d * _GROW

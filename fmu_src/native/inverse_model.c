@@ -15,11 +15,18 @@
  * f(u) = y_ref, f(u) the plant's output at t for the input linear from u_a to
  * u over [t_a, t] (at the first point, t == t_a, the input is re-anchored and
  * the state does not move); a step commits the solved point and advances t.
- * Which root, the search range [DUHEM_INPUT_LO, DUHEM_INPUT_HI], the growing
- * bracket search (factor 4, first guess from the last slope), Brent's method
- * and the clamp (the evaluated input whose output is nearest y_ref, refined
- * by golden-section search at an interior extremum) are those of
- * Compensator._solve, step for step, so the two agree to rounding.  An input
+ * Which root (of the inputs that give y_ref, |y - y_ref| <= YTOL times the
+ * output scale, the one nearest the last input: the held input whenever it
+ * still gives y_ref, so u read again after a step with y_ref unchanged is the
+ * sample's u), the output scale (|y(hi) - y(lo)| at the first interval step,
+ * in Progress), the search range [DUHEM_INPUT_LO, DUHEM_INPUT_HI], the growing
+ * bracket search (factor 4, first guess from the last slope; the preferred
+ * side, then the other one up to the distance of the root found), Brent's
+ * method (polished below its input tolerance while the residual is above half
+ * the output tolerance) and the clamp (the evaluated input whose output is
+ * nearest y_ref, refined by golden-section search at an interior extremum)
+ * are those of Compensator._solve, step for step, so the two agree to
+ * rounding.  An input
  * derivative dy_ref/dt (FMI 2, order 1) moves y_ref on to y_ref + dy h at a
  * step.  A NaN or infinite y_ref is refused.
  */
@@ -83,11 +90,12 @@ typedef struct ModelData ModelData;
 #define GROW 4.0
 #define GOLDEN 0.6180339887498949   /* (sqrt(5) - 1) / 2 */
 #define EPS 2.220446049250313e-16
+#define YTOL 1e-10                  /* an input gives y_ref when |y - y_ref| <= YTOL * the output scale */
 
-/* The compensator's own state, committed at a step (orientation 0: not yet known). */
+/* The compensator's own state, committed at a step (orientation 0, scale NaN: not yet known). */
 typedef struct {
     int started;
-    double slope, orientation;
+    double slope, scale, orientation;
 } Progress;
 
 struct ModelData {
@@ -125,8 +133,9 @@ static double residual(Problem *p, double u)
     return tr->y - p->y_ref;
 }
 
-/* Brent's method on [a, b] with fa, fb of opposite signs (inverse._brent, as scipy's brentq). */
-static Point brent(Problem *p, double a, double b, double fa, double fb, double xtol)
+/* Brent's method on [a, b] with fa, fb of opposite signs (inverse._brent, as scipy's brentq); at a bracket
+   below xtol with |f| > ftol it goes on with the bracket tolerance xfloor. */
+static Point brent(Problem *p, double a, double b, double fa, double fb, double xtol, double ftol, double xfloor)
 {
     double xpre = a, xcur = b, fpre = fa, fcur = fb, xblk = 0.0, fblk = 0.0, spre = 0.0, scur = 0.0;
     const double rtol = 4 * EPS;
@@ -145,7 +154,12 @@ static Point brent(Problem *p, double a, double b, double fa, double fb, double 
         }
         delta = (xtol + rtol * fabs(xcur)) / 2;
         sbis = (xblk - xcur) / 2;
-        if (fcur == 0 || fabs(sbis) < delta) break;
+        if (fcur == 0 || fabs(sbis) < delta) {
+            if (fcur == 0 || fabs(fcur) <= ftol || xtol <= xfloor) break;
+            xtol = xfloor;   /* polish: from here on the finer bracket tolerance */
+            delta = (xtol + rtol * fabs(xcur)) / 2;
+            if (fabs(sbis) < delta) break;
+        }
         if (fabs(spre) > delta && fabs(fcur) < fabs(fpre)) {
             double stry;
             if (xpre == xblk) {
@@ -175,7 +189,7 @@ static Point brent(Problem *p, double a, double b, double fa, double fb, double 
 
 /* The root nearest u_a on side s, distance up to reach (inverse.Compensator._search); 1 if found. */
 static int search(Problem *p, double u_a, double r0, double s, double reach, double d, double xtol,
-                  Point *seen, int *n_seen, Point *found)
+                  double ftol, double xfloor, Point *seen, int *n_seen, Point *found)
 {
     Point prev;
     prev.u = u_a;
@@ -193,7 +207,7 @@ static int search(Problem *p, double u_a, double r0, double s, double reach, dou
             return 1;
         }
         if ((r < 0) != (prev.r < 0)) {
-            *found = brent(p, prev.u, u, prev.r, r, xtol);
+            *found = brent(p, prev.u, u, prev.r, r, xtol, ftol, xfloor);
             return 1;
         }
         if (dist >= reach) return 0;
@@ -241,10 +255,11 @@ static const char *solve(ModelData *m)
 {
     const double lo = DUHEM_INPUT_LO, hi = DUHEM_INPUT_HI, span = hi - lo;
     const double xtol = 1e-13 * fmax(span, fmax(fabs(lo), fabs(hi)));
+    const double xfloor = EPS * fmax(span, fmax(fabs(lo), fabs(hi)));
     Problem local;
-    Point seen[SEEN_MAX], found;
+    Point seen[SEEN_MAX], found = {0.0, 0.0}, other;
     int n_seen = 0, side, ok = 0;
-    double u_a, r0, tol, guess, preferred, u;
+    double u_a, r0, scale, tol, guess, preferred, u;
     const char *msg;
     if (m->solved) return NULL;
     local.m = m;
@@ -252,24 +267,37 @@ static const char *solve(ModelData *m)
     local.y_ref = m->y_ref;
     m->next = m->done;
     u_a = m->anchor.u_a;
+    if (m->t == m->anchor.t_a) {   /* the first point: its own span (feedthrough only), not kept */
+        scale = fabs(residual(&local, hi) - residual(&local, lo));
+        if (!isfinite(scale)) scale = 0.0;
+    } else {
+        if (isnan(m->next.scale)) {   /* the first interval step: the output scale and the orientation */
+            double r_hi = residual(&local, hi), r_lo = residual(&local, lo);
+            int finite = isfinite(r_hi) && isfinite(r_lo);
+            m->next.scale = finite ? fabs(r_hi - r_lo) : 0.0;
+            if (m->next.orientation == 0) m->next.orientation = finite && r_hi < r_lo ? -1.0 : 1.0;
+        }
+        scale = m->next.scale;
+    }
+    tol = YTOL * scale;
     r0 = residual(&local, u_a);
     if (!isfinite(r0)) return "the model's output is not finite for the held input";
-    tol = 4 * EPS * fmax(fabs(m->y_ref), fabs(r0 + m->y_ref));
-    if (fabs(r0) <= tol) {
+    if (fabs(r0) <= tol) {   /* the held input still gives y_ref: kept */
         u = u_a;
     } else {
-        if (m->next.orientation == 0 && m->t != m->anchor.t_a) {
-            double r_hi = residual(&local, hi), r_lo = residual(&local, lo);
-            m->next.orientation = isfinite(r_hi) && isfinite(r_lo) && r_hi < r_lo ? -1.0 : 1.0;
-        }
         guess = m->next.slope != 0 && isfinite(m->next.slope) ? fabs(r0 / m->next.slope) * 1.5 : 1e-3 * span;
         guess = fmin(fmax(guess, 1e-12 * span), span);
         preferred = (m->next.orientation != 0 ? m->next.orientation : 1.0) * (r0 < 0 ? 1.0 : -1.0);
         seen[n_seen].u = u_a;
         seen[n_seen++].r = r0;
-        for (side = 0; side < 2 && !ok; side++) {
-            double s = side == 0 ? preferred : -preferred;
-            ok = search(&local, u_a, r0, s, s > 0 ? hi - u_a : u_a - lo, guess, xtol, seen, &n_seen, &found);
+        for (side = 0; side < 2; side++) {   /* the nearest root; the other side only if strictly nearer */
+            double s = side == 0 ? preferred : -preferred, reach = s > 0 ? hi - u_a : u_a - lo;
+            if (ok) reach = fmin(reach, fabs(found.u - u_a));
+            if (search(&local, u_a, r0, s, reach, guess, xtol, tol / 2, xfloor, seen, &n_seen, &other)
+                && (!ok || fabs(other.u - u_a) < fabs(found.u - u_a))) {
+                found = other;
+                ok = 1;
+            }
         }
         if (ok) {
             if (found.u != u_a) m->next.slope = (found.r - r0) / (found.u - u_a);
@@ -309,6 +337,7 @@ void model_defaults(ModelData *m, double t0)
     m->t = t0;
     m->y_ref = COMPENSATOR_REFERENCE_START;
     m->done.slope = NAN;
+    m->done.scale = NAN;
 }
 
 const char *model_set_start_time(ModelData *m, double t0)
@@ -332,6 +361,7 @@ const char *model_validate(ModelData *m)
     if (m->done.started != 0 && m->done.started != 1) return "corrupt compensator flag";
     if (m->done.orientation != 0 && m->done.orientation != 1 && m->done.orientation != -1)
         return "corrupt orientation";
+    if (!(isnan(m->done.scale) || (isfinite(m->done.scale) && m->done.scale >= 0))) return "corrupt output scale";
     if (m->t < m->anchor.t_a || (m->done.started && m->t == m->anchor.t_a))
         return "time is not after the last communication point";
     if (!(m->anchor.u_a >= DUHEM_INPUT_LO && m->anchor.u_a <= DUHEM_INPUT_HI)) return "input out of range";
