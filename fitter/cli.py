@@ -43,7 +43,7 @@ from fitter.core.inverse import MEASUREMENT_CHOICES, Compensator, linear_gain
 from fitter.core.kernel import simulate as simulate_model
 from fitter.core.models import load_model, save_model
 from fitter.data.metrics import compare
-from fitter.data.recordings import load_recording, load_recordings
+from fitter.data.recordings import load_recording, load_recordings, save_columns
 from fitter.diagnosis import diagnose as run_diagnosis
 from fitter.fmu.build import PYTHON_HOST_NEEDS, build_fmu
 from fitter.fmu.host import check_fmu_file, simulate_fmu
@@ -415,8 +415,7 @@ def simulate(model, input_csv, out, time_col, input_col, as_json):
             raise CliError(f"{input_csv}: data row {bad[0] + 1} (t = {rec.t[bad[0]]:.6g}): the simulated output is "
                            f"{y[bad[0]]} (the model overflows on this input); nothing written")
         warnings = range_warnings(stored, rec.t, rec.u)
-        np.savetxt(tmp, np.column_stack([rec.t, rec.u, y]), delimiter=",", fmt="%.17g",
-                   header="time,u,y", comments="")
+        save_columns(tmp, ["time", "u", "y"], [rec.t, rec.u, y])
     info = {"model": model, "input": input_csv, "out": out, "engine": engine, "samples": len(rec),
             "y_min": float(np.min(y)), "y_max": float(np.max(y)), "warnings": warnings}
     for w in warnings:
@@ -462,8 +461,7 @@ def compensate(model, reference, out, plot, time_col, ref_col, u0, input_range, 
         plot_tmp = outputs.enter_context(atomic_file(plot, suffix=".png")) if plot else None
         say(f"compensating {len(rec)} samples", None)
         result = comp.run(rec.t, rec.u)
-        np.savetxt(csv_tmp, np.column_stack([result.t, result.u, result.y]), delimiter=",", fmt="%.17g",
-                   header="time,u,y_predicted", comments="")
+        save_columns(csv_tmp, ["time", "u", "y_predicted"], [result.t, result.u, result.y])
         info = {"model": model, "reference": reference, "out": out, "plot": plot, "measurement": measurement,
                 **result.summary()}
         if plot_tmp:

@@ -326,3 +326,30 @@ def test_stepper_with_input_derivatives_steps_before_the_input_is_set():
         assert st.output() == pytest.approx(ref[101], abs=1e-12)
     with pytest.raises(KernelError, match="not finite"):
         st.set_input_derivative(float("nan"))
+
+
+@pytest.mark.parametrize("A_plus", [np.diag([-1.0, -3.0, -7.0]), _DEFECTIVE], ids=["modal", "defective"])
+def test_integration_in_pieces_equals_one_pass(monkeypatch, A_plus):
+    """`integrate_blocks` takes the intervals a piece at a time from the last state of the piece before:
+    states, outputs and multi-column responses as in one pass, to rounding (a piece boundary is one more
+    segment start)."""
+    from fitter.core import flow
+    from fitter.core.kernel import state_blocks, state_response
+    from fitter.core.periodic import affine_response, period_map
+    model = RateIndependentModel(A_plus=A_plus, A_minus=-0.8 * A_plus.T, B_plus=[1.0, 0.5, 0.2],
+                                 B_minus=[0.3, 1.0, 0.1], C=[1.0, 0.0, 0.0], E_plus=[0.1, 0.0, 0.0], D=0.3,
+                                 x0=[0.1, 0.2, 0.3])
+    t = np.linspace(0, 40, 5001)
+    u = 3 * np.sin(t) + 0.01 * np.random.default_rng(2).standard_normal(len(t))
+    u[100:110] = u[100]                                  # held samples keep the branch across a piece boundary
+    X0 = np.random.default_rng(4).standard_normal((3, 4))
+    whole, states = simulate(model, t, u), state_response(model, t, u, X0)
+    monkeypatch.setattr(flow, "_BLOCK", 103)
+    pieces = simulate(model, t, u)
+    assert np.abs(pieces.x - whole.x).max() <= 1e-12 * np.abs(whole.x).max()
+    assert np.abs(pieces.y - whole.y).max() <= 1e-12 * np.abs(whole.y).max()
+    assert np.abs(state_response(model, t, u, X0) - states).max() <= 1e-12 * np.abs(states).max()
+    assert [len(X) for X in state_blocks(model, t, u, X0)] == [104] + [103] * 47 + [56]
+    c, Phi = affine_response(model, t, u)
+    Phi_N, c_N = period_map(model, t, u)
+    assert np.array_equal(Phi_N, Phi[-1]) and np.array_equal(c_N, c[-1])

@@ -170,3 +170,48 @@ def test_check_samples_names_file_lines_and_columns():
         check_samples([1, 2, 0.5], [0, 1, 2], source="f.csv", names=("time_s", "u_V"), rows=[2, 3, 4])
     with pytest.raises(RecordingError, match=r"too few samples: 2 data rows, at least 3 needed"):
         check_samples([0, 1], [0, 1], source="f.csv", rows=[2, 3], min_samples=3)
+
+
+# --------------------------------------------------------------------------- large files: read and written in blocks
+
+def test_blocks_read_as_one(tmp_path, monkeypatch):
+    """The reader takes the file a block of lines at a time (a block of simple lines at once, any other
+    row by row): tiny blocks give the values, line numbers and messages of one block."""
+    from fitter.data import recordings
+    rows = ["%.10g,%.17g,%.6g" % (0.1 * k, np.sin(k), np.cos(k)) for k in range(60)]
+    rows[7] = ""                                                    # a blank line
+    rows[20] = '"2",2,3'                                             # a quoted cell: read row by row
+    rows[30] = "  "
+    good = "time,u,y\r\n" + "\r\n".join(rows) + "\r\n"
+    bad = good.replace(rows[45], rows[45].replace(",", ",x", 1))   # a non-number in u
+    ragged = good.replace(rows[50], rows[50] + ",1")
+    cases = [("good.csv", good), ("bad.csv", bad), ("ragged.csv", ragged)]
+    outcomes = {}
+    for block in (1 << 20, 7, 64):
+        monkeypatch.setattr(recordings, "_BLOCK_CHARS", block)
+        for name, text in cases:
+            path = tmp_path / name
+            path.write_bytes(text.encode())
+            try:
+                rec = load_recording(path)
+                outcomes.setdefault(name, set()).add((rec.t.tobytes(), rec.u.tobytes(), rec.y.tobytes()))
+            except RecordingError as exc:
+                outcomes.setdefault(name, set()).add(str(exc))
+    assert all(len(v) == 1 for v in outcomes.values())
+    assert "line 47, column 'u': 'x" in next(iter(outcomes["bad.csv"]))
+    assert "line 52 has 4 fields" in next(iter(outcomes["ragged.csv"]))
+    t = np.frombuffer(next(iter(outcomes["good.csv"]))[0])
+    assert len(t) == 58 and t[19] == 2.0
+
+
+def test_save_columns_writes_the_text_of_savetxt(tmp_path):
+    from fitter.data.recordings import save_columns
+    rng = np.random.default_rng(0)
+    cols = [np.linspace(0, 2, 1001), rng.standard_normal(1001) * 1e-300, np.r_[rng.standard_normal(998), -0.0,
+                                                                                 np.nan, 5e-324]]
+    np.savetxt(tmp_path / "a.csv", np.column_stack(cols), delimiter=",", fmt="%.17g", header="time,u,y",
+               comments="")
+    save_columns(tmp_path / "b.csv", ["time", "u", "y"], cols, block=64)
+    assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
+    rec = load_recording(tmp_path / "b.csv", output="u")
+    assert np.array_equal(rec.u, cols[1])

@@ -39,16 +39,19 @@ shipped inside the FMUs.
 from __future__ import annotations
 
 import math
+from typing import Iterator
 
 import numpy as np
 
 from .errors import KernelError
 
-__all__ = ["AffineFlow", "check_finite", "check_increasing", "expm", "flows", "integrate",
+__all__ = ["AffineFlow", "check_finite", "check_increasing", "expm", "flows", "integrate", "integrate_blocks",
            "interval_coefficients", "linear_recurrence", "one_interval", "phi1", "phi2"]
 
 _COND_LIMIT = 1e6
 _CHUNK_SPAN = 300.0
+_BLOCK = 1 << 16
+"""Intervals that `integrate` sums at a time (its work arrays are a few times block x n x m)."""
 
 
 def phi1(z: np.ndarray) -> np.ndarray:
@@ -253,16 +256,19 @@ def interval_coefficients(model, t: np.ndarray, u: np.ndarray):
     """Per-interval (branch, p, r, S) of (K) for a sampled input; see module docstring.
 
     branch is +1 (u rises, or rate-dependent model), -1 (u falls); for the
-    rate-independent model a held input (du = 0) keeps the previous branch.
+    rate-independent model a held input (du = 0) keeps the previous branch
+    (+1 before the first move), and r = 1 is a read-only broadcast array.
     """
     du = np.diff(u)
     p = u[:-1]
     if model.kind == "ri":
         branch = np.sign(du)
-        idx = np.where(branch != 0, np.arange(len(du)), 0)
-        np.maximum.accumulate(idx, out=idx)
-        branch = np.where(branch[idx] == 0, 1.0, branch[idx])
-        return branch, p, np.ones_like(du), du
+        if not branch.all():
+            idx = np.where(branch != 0, np.arange(len(du)), 0)
+            np.maximum.accumulate(idx, out=idx)
+            branch = branch[idx]
+            branch[branch == 0] = 1.0
+        return branch, p, np.broadcast_to(1.0, du.shape), du
     check_increasing(t)
     dt = np.diff(t)
     v = du / dt
@@ -312,27 +318,44 @@ def integrate(fl: dict, x0: np.ndarray, branch: np.ndarray, p: np.ndarray, r: np
     only) replaces the flows' B and E per column: {branch: (B, E)}, each (n, m);
     column j is then the response to x0[:, j] and the forcing B[:, j] u + E[:, j]
     (the responses the output-error engine needs to eliminate parameters that
-    enter linearly).
+    enter linearly).  The states come from `integrate_blocks`.
+    """
+    X0 = np.asarray(x0, dtype=float)
+    out = np.empty((len(S) + 1,) + X0.shape)
+    out[0] = X0
+    k = 1
+    for X in integrate_blocks(fl, X0, branch, p, r, S, forcing):
+        out[k:k + len(X)] = X
+        k += len(X)
+    return out
+
+
+def integrate_blocks(fl: dict, x0: np.ndarray, branch: np.ndarray, p: np.ndarray, r: np.ndarray,
+                     S: np.ndarray, forcing: dict | None = None) -> Iterator[np.ndarray]:
+    """The states after each interval of `integrate` (x_1 ... x_N), in consecutive pieces of at most
+    `_BLOCK` intervals: (k, n) or (k, n, m) arrays.
 
     When every flow used is modal, the intervals are cut into segments (a
     branch change, or the span limit of `linear_recurrence`), each segment is
     summed in closed form and only the segments' end states are chained one
     after another.  Otherwise every interval's affine map comes from the
     block matrix exponential of `AffineFlow.affine_maps` and the maps are
-    composed by a blocked prefix scan.
+    composed by a blocked prefix scan.  Each piece starts from the last state
+    of the one before (a piece boundary is one more segment start), so the
+    work arrays are those of one piece: a caller that reduces the states as
+    they come (`kernel.state_blocks`) needs memory for one piece only.
     """
-    X0 = np.asarray(x0, dtype=float)
-    out = np.empty((len(S) + 1,) + X0.shape)
-    out[0] = X0
+    x = np.asarray(x0, dtype=float)
     if len(S) == 0:
-        return out
+        return
     used = {b: fl[b] for b in np.unique(branch)}
     force = {b: None if forcing is None else forcing[b] for b in used}
-    if all(flow.modal for flow in used.values()):
-        out[1:] = _integrate_modal(used, force, X0, branch, p, r, S)
-    else:
-        out[1:] = _integrate_dense(used, force, X0, branch, p, r, S)
-    return out
+    run = _integrate_modal if all(flow.modal for flow in used.values()) else _integrate_dense
+    for a in range(0, len(S), _BLOCK):
+        b = min(a + _BLOCK, len(S))
+        X = run(used, force, x, branch[a:b], p[a:b], r[a:b], S[a:b])
+        x = X[-1]
+        yield X
 
 
 def _columns(a: np.ndarray, extra: int) -> np.ndarray:

@@ -12,17 +12,18 @@ This module needs only numpy: it is shipped inside the FMUs.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Iterator
 
 import numpy as np
 
 from .effects import run_with_effects
 from .errors import KernelError
-from .flow import (AffineFlow, check_finite, check_increasing, expm, flows, integrate,
+from .flow import (AffineFlow, check_finite, check_increasing, expm, flows, integrate, integrate_blocks,
                    interval_coefficients, one_interval, phi1, phi2)
 
-__all__ = ["AffineFlow", "check_finite", "check_increasing", "expm", "flows", "integrate",
-           "interval_coefficients", "one_interval", "phi1", "phi2", "simulate", "state_response", "Simulation",
-           "KernelError"]
+__all__ = ["AffineFlow", "check_finite", "check_increasing", "expm", "flows", "integrate", "integrate_blocks",
+           "interval_coefficients", "one_interval", "phi1", "phi2", "simulate", "state_blocks", "state_response",
+           "Simulation", "KernelError"]
 
 
 @dataclass
@@ -77,17 +78,37 @@ def state_response(model, t, u, X0, flow_cache: dict | None = None, forcing: dic
     A base model runs all columns in one pass of the kernel (`flow.integrate`
     takes a matrix of initial states and, optionally, per-column forcings
     {branch: (B, E)} that replace the model's own); a model with effects runs
-    the effect chain once per column (forcings are then refused).
+    the effect chain once per column (forcings are then refused).  The states
+    come from `state_blocks`.
     """
+    out = None
+    k = 0
+    for X in state_blocks(model, t, u, X0, flow_cache, forcing):
+        if out is None:
+            out = np.empty((1 + max(len(u) - 1, 0),) + X.shape[1:])     # x_0 and one state per interval
+        out[k:k + len(X)] = X
+        k += len(X)
+    return out
+
+
+def state_blocks(model, t, u, X0, flow_cache: dict | None = None,
+                 forcing: dict | None = None) -> Iterator[np.ndarray]:
+    """The states of `state_response` in consecutive pieces along the samples ((k, n, m) arrays, the
+    first starting with x_0), so that a caller reducing them as they come (an output, the last state)
+    holds one piece at a time (`flow.integrate_blocks`; a model with effects gives one piece)."""
     X0 = np.asarray(X0, dtype=float)
     fl = flow_cache if flow_cache is not None else flows(model)
     if getattr(model, "effects", None):
         if forcing is not None:
             raise KernelError("per-column forcings need a model without effects")
-        return np.stack([simulate(model, t, u, x0=x, flow_cache=fl).x for x in X0.T], axis=2)
+        yield np.stack([simulate(model, t, u, x0=x, flow_cache=fl).x for x in X0.T], axis=2)
+        return
     u = check_finite("u", u)
     t = check_finite("t", t) if t is not None else np.arange(len(u), dtype=float)
     if len(t) != len(u):
         raise KernelError(f"t and u differ in length ({len(t)} and {len(u)})")
     branch, p, r, S = interval_coefficients(model, t, model.model_input(u))
-    return integrate(fl, X0, branch, p, r, S, forcing)
+    pieces = integrate_blocks(fl, X0, branch, p, r, S, forcing)
+    first = next(pieces, np.empty((0,) + X0.shape))
+    yield np.concatenate([X0[None], first])
+    yield from pieces

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import ConvergenceError, KernelError
-from .kernel import Simulation, expm, flows, simulate, state_response
+from .kernel import Simulation, expm, flows, simulate, state_blocks, state_response
 
 __all__ = ["ConvergenceError", "PeriodicResponse", "periodic_response", "convergence_rho",
            "limiting_loop", "affine_response", "period_map", "fixed_point"]
@@ -35,9 +35,13 @@ def affine_response(model, t, u, cache: dict | None = None) -> tuple[np.ndarray,
 
 
 def period_map(model, t, u, cache: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(Phi, c) of the affine map x_N = Phi x_0 + c over the given samples (one period)."""
-    c, Phi = affine_response(model, t, u, cache)
-    return Phi[-1], c[-1]
+    """(Phi, c) of the affine map x_N = Phi x_0 + c over the given samples (one period): the last
+    state of `affine_response`, the states taken piece by piece (`state_blocks`), only the last kept."""
+    n = model.order
+    for X in state_blocks(model, t, u, np.hstack([np.zeros((n, 1)), np.eye(n)]), cache):
+        last = X[-1]
+    c = last[:, 0]
+    return last[:, 1:] - c[:, None], c
 
 
 def fixed_point(model, t, u, cache: dict | None = None) -> tuple[np.ndarray | None, float]:

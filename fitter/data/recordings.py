@@ -5,7 +5,8 @@ File format
 A text file with one header line, then one row per sample; the delimiter is a
 comma (a tab or semicolon is accepted when the header has no comma).  Blank
 lines are skipped; a UTF-8 byte-order mark is ignored.  Only the three chosen
-columns must be numeric.
+columns must be numeric.  The file is read a block of lines at a time: besides
+the chosen columns (as float arrays) the reader holds about one block.
 
 Choosing columns
 ----------------
@@ -29,11 +30,12 @@ to seconds.
 from __future__ import annotations
 
 import csv
+import io
 import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Iterator, Sequence
 
 import numpy as np
 
@@ -41,7 +43,7 @@ from fitter.core.errors import DuhemError
 from fitter.core.models import Signal
 
 __all__ = ["Recording", "RecordingError", "SCALE_LIMIT", "check_samples", "check_scale", "load_recording",
-           "load_recordings", "split_unit", "MIN_SAMPLES"]
+           "load_recordings", "save_columns", "split_unit", "MIN_SAMPLES"]
 
 MIN_SAMPLES = 3
 """Fewest data rows `load_recording` accepts by default."""
@@ -220,56 +222,215 @@ def _find_column(spec: str | int, header: list[str], path: str, role: str) -> in
     raise RecordingError(f"{path}: {role} column {spec!r} not found (available: {available}){hint}")
 
 
-def _read_rows(path: str) -> tuple[list[str], list[list[str]], list[int]]:
-    """Header, data rows and their 1-based line numbers."""
+_BLOCK_CHARS = 1 << 20
+"""Characters of a CSV file read at a time: the reader holds one block of text (and its lines) besides the
+chosen columns as float arrays."""
+_NOT_SIMPLE = '"\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029'
+r"""A quote, or a line break of `str.splitlines` other than "\n" and "\r\n": such a block is read row by row."""
+
+
+def _text_blocks(path: str) -> Iterator[str]:
+    r"""The file's text (UTF-8, a byte-order mark dropped) in blocks of whole lines.
+
+    Every block but the last ends with "\n", so the blocks' `str.splitlines` are the lines of the
+    whole text, in order ("\n" ends a line and begins no two-character line break).
+    """
     try:
         with open(path, newline="", encoding="utf-8-sig") as fh:
-            text = fh.read()
+            carry = ""
+            while chunk := fh.read(_BLOCK_CHARS):
+                carry += chunk
+                cut = carry.rfind("\n") + 1
+                if cut:
+                    yield carry[:cut]
+                    carry = carry[cut:]
+            if carry:
+                yield carry
     except FileNotFoundError:
         raise RecordingError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise RecordingError(f"{path}: is a directory, not a CSV file") from None
     except UnicodeDecodeError:
         raise RecordingError(f"{path}: not a text (UTF-8) CSV file") from None
-    lines = text.splitlines()
-    first = next((i for i, line in enumerate(lines) if line.strip()), None)
-    if first is None:
-        raise RecordingError(f"{path}: empty file (no header line)")
-    delimiter = "," if "," in lines[first] else "\t" if "\t" in lines[first] else ";" \
-        if ";" in lines[first] else ","
-    reader = csv.reader(lines[first:], delimiter=delimiter)
-    header = [h.strip() for h in next(reader)]
-    rows, numbers = [], []
-    for offset, row in enumerate(reader, start=first + 2):
-        if not row or all(not c.strip() for c in row):
-            continue
-        if len(row) != len(header):
-            raise RecordingError(f"{path}: line {offset} has {len(row)} fields but the header has "
-                                 f"{len(header)}")
-        rows.append(row)
-        numbers.append(offset)
-    return header, rows, numbers
 
 
-def _column_values(rows: list[list[str]], numbers: list[int], i: int, name: str, path: str) -> np.ndarray:
-    cells = [r[i] for r in rows]
-    try:
-        values = np.array(cells, dtype=float)
-    except ValueError:
-        values = None
-    if values is None:
-        for cell, line in zip(cells, numbers):
-            try:
-                float(cell)
-            except ValueError:
+class _Table:
+    """The chosen columns of a CSV file's data rows, gathered block by block as float arrays.
+
+    Errors keep the order of a reader that first splits all rows, then finds the columns, then
+    converts them column by column: a ragged row is raised where it is met; an unknown column, a
+    non-number and a non-finite value are noted and raised by `columns` after the last row (time
+    before input before output; in a column, its first non-number before its first non-finite value).
+    """
+
+    def __init__(self, path: str, header_line: str, specs: dict[str, str | int | None], rows_hint: int):
+        self.path = path
+        self.delimiter = "," if "," in header_line else "\t" if "\t" in header_line else ";" \
+            if ";" in header_line else ","
+        self.header = [h.strip() for h in next(csv.reader([header_line], delimiter=self.delimiter))]
+        self.cols: dict[str, int] = {}
+        self.column_error: RecordingError | None = None
+        try:
+            for role, spec in specs.items():
+                if spec is not None:
+                    self.cols[role] = _find_column(spec, self.header, path, role)
+        except RecordingError as exc:
+            self.cols, self.column_error = {}, exc
+        self.values = {role: _Column(rows_hint) for role in self.cols}
+        self.lines: list[range | np.ndarray] = []
+        self.errors: dict[str, dict[str, str]] = {"number": {}, "finite": {}}
+
+    def add_block(self, text: str, first: int) -> int:
+        """Add the data rows of `text` (whole lines, the first numbered `first`); return its line count."""
+        added = self._add_simple(text, first)
+        if added is None:
+            lines = text.splitlines()
+            self._add_rows(lines, first)
+            added = len(lines)
+        return added
+
+    def _add_simple(self, text: str, first: int) -> int | None:
+        r"""Add a block of simple lines at once and return their count; None (nothing added) otherwise.
+
+        Simple: at least two columns, all chosen ones found, no quote, "\n" (or "\r\n") the only
+        line break, exactly len(header) - 1 delimiters on every line, and `np.loadtxt` reads every
+        chosen cell as a finite number.  Then csv's rows are the lines split at the delimiter, none is
+        blank, and loadtxt's values are those of `float` (it accepts a subset of float's syntax,
+        correctly rounded).
+        """
+        if len(self.header) < 2 or not self.cols or any(c in text for c in _NOT_SIMPLE):
+            return None
+        if "\r" in text:
+            if text.count("\r") != text.count("\r\n"):
+                return None
+            text = text.replace("\r\n", "\n")
+        if not text.endswith("\n"):
+            text += "\n"
+        code = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
+        ends = np.flatnonzero(code == 10)
+        per_line = np.diff(np.searchsorted(np.flatnonzero(code == ord(self.delimiter)), ends), prepend=0)
+        del code
+        if np.any(per_line != len(self.header) - 1):
+            return None
+        try:
+            values = np.loadtxt(io.StringIO(text), delimiter=self.delimiter, usecols=list(self.cols.values()),
+                                comments=None, quotechar=None, dtype=float, ndmin=2)
+        except ValueError:
+            return None
+        if values.shape[0] != len(ends) or not np.isfinite(values).all():
+            return None
+        for j, role in enumerate(self.cols):
+            self.values[role].extend(values[:, j])
+        self.lines.append(range(first, first + len(ends)))
+        return len(ends)
+
+    def _add_rows(self, lines: list[str], first: int) -> None:
+        """Add the data rows of `lines` one by one (csv), skipping blank rows; a ragged row is an error."""
+        rows, numbers = [], []
+        for number, row in enumerate(csv.reader(lines, delimiter=self.delimiter), start=first):
+            if not row or all(not c.strip() for c in row):
+                continue
+            if len(row) != len(self.header):
+                raise RecordingError(f"{self.path}: line {number} has {len(row)} fields but the header has "
+                                     f"{len(self.header)}")
+            rows.append(row)
+            numbers.append(number)
+        follow = bool(numbers) and numbers[-1] - numbers[0] == len(numbers) - 1
+        self.lines.append(range(numbers[0], numbers[-1] + 1) if follow else np.array(numbers, dtype=np.int64))
+        for role, i in self.cols.items():
+            self.values[role].extend(self._values(role, [r[i] for r in rows], numbers))
+
+    def _values(self, role: str, cells: list[str], numbers: list[int]) -> np.ndarray:
+        """`cells` as floats; the first non-number and non-finite value of the column are noted."""
+        name = self.header[self.cols[role]]
+        try:
+            values = np.array(cells, dtype=float)
+        except ValueError:
+            if role not in self.errors["number"]:
+                cell, line = next((c, k) for c, k in zip(cells, numbers) if not _is_number(c))
                 what = "an empty cell" if not cell.strip() else f"{cell.strip()!r} is not a number"
-                raise RecordingError(f"{path}: line {line}, column {name!r}: {what}") from None
-    bad = np.flatnonzero(~np.isfinite(values))
-    if bad.size:
-        k = bad[0]
-        raise RecordingError(f"{path}: line {numbers[k]}, column {name!r}: value {cells[k].strip()!r} "
-                             f"is not finite (NaN or infinity)")
-    return values
+                self.errors["number"][role] = f"{self.path}: line {line}, column {name!r}: {what}"
+            return np.empty(0)
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size and role not in self.errors["finite"]:
+            k = bad[0]
+            self.errors["finite"][role] = (f"{self.path}: line {numbers[k]}, column {name!r}: value "
+                                           f"{cells[k].strip()!r} is not finite (NaN or infinity)")
+        return values
+
+    def columns(self) -> tuple[dict[str, np.ndarray], Sequence[int]]:
+        """The chosen columns by role and the data rows' line numbers; the noted error, if any."""
+        pieces = [p for p in self.lines if len(p)]
+        if not pieces:
+            raise RecordingError(f"{self.path}: no data rows after the header")
+        if self.column_error is not None:
+            raise self.column_error
+        for role in self.cols:
+            for kind in ("number", "finite"):
+                if role in self.errors[kind]:
+                    raise RecordingError(self.errors[kind][role])
+        if all(isinstance(p, range) for p in pieces) and all(a.stop == b.start for a, b in zip(pieces, pieces[1:])):
+            numbers: Sequence[int] = range(pieces[0].start, pieces[-1].stop)     # no blank line: no array
+        else:
+            numbers = np.concatenate([np.asarray(p, dtype=np.int64) for p in pieces])
+        return {role: column.array() for role, column in self.values.items()}, numbers
+
+
+class _Column:
+    """Floats appended block by block to one array that doubles when full.
+
+    A large array's pages take memory only once written, so a generous first capacity (the
+    reader's estimate of the row count) costs nothing; `array` returns the filled part, shrunk
+    in place.
+    """
+
+    def __init__(self, capacity: int):
+        self.data = np.empty(max(capacity, 1))
+        self.size = 0
+
+    def extend(self, values: np.ndarray) -> None:
+        end = self.size + len(values)
+        if end > len(self.data):
+            grown = np.empty(max(end, 2 * len(self.data)))
+            grown[:self.size] = self.data[:self.size]
+            self.data = grown
+        self.data[self.size:end] = values
+        self.size = end
+
+    def array(self) -> np.ndarray:
+        self.data.resize(self.size, refcheck=False)
+        return self.data
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def _read_table(path: str, specs: dict[str, str | int | None]) -> _Table:
+    """The header (the first non-blank line) and the data rows of the CSV file `path`, block by block."""
+    blocks = _text_blocks(path)
+    line = 1
+    for text in blocks:
+        lines = text.splitlines(keepends=True)
+        k = next((i for i, s in enumerate(lines) if s.strip()), None)
+        if k is None:
+            line += len(lines)
+            continue
+        rows_hint = int(1.25 * os.path.getsize(path) * len(lines) / len(text)) + 1024
+        table = _Table(path, lines[k].splitlines()[0], specs, rows_hint)
+        rest = "".join(lines[k + 1:])
+        line += k + 1
+        line += table.add_block(rest, line) if rest else 0
+        break
+    else:
+        raise RecordingError(f"{path}: empty file (no header line)")
+    for text in blocks:
+        line += table.add_block(text, line)
+    return table
 
 
 def load_recording(path: str | os.PathLike, time: str | int | None = "time", input: str | int = "u",
@@ -297,25 +458,22 @@ def load_recording(path: str | os.PathLike, time: str | int | None = "time", inp
         file, header = line 1) and the value.
     """
     path = str(path)
-    header, rows, numbers = _read_rows(path)
-    if not rows:
-        raise RecordingError(f"{path}: no data rows after the header")
-    cols = {}
-    for role, spec in (("time", time), ("input", input), ("output", output)):
-        if spec is not None:
-            cols[role] = _find_column(spec, header, path, role)
-    values = {role: _column_values(rows, numbers, i, header[i], path) for role, i in cols.items()}
-    t = values["time"] if "time" in values else np.arange(len(rows), dtype=float)
+    table = _read_table(path, {"time": time, "input": input, "output": output})
+    values, numbers = table.columns()
+    header, cols = table.header, table.cols
+    n = len(numbers)
+    t = values["time"] if "time" in values else np.arange(n, dtype=float)
     names = [header[cols["time"]] if "time" in cols else "sample index", header[cols["input"]]]
     check_samples(t, values["input"], source=path, names=names, rows=numbers, min_samples=min_samples)
-    if "time" in values:
-        t = t * _TIME_SCALE.get(split_unit(header[cols["time"]])[1], 1.0)
+    scale = _TIME_SCALE.get(split_unit(header[cols["time"]])[1], 1.0) if "time" in cols else 1.0
+    if scale != 1.0:
+        t = t * scale
     signals = {"output": Signal("y")}
     for role in ("input", "output"):
         if role in cols:
             base, unit = split_unit(header[cols[role]])
             signals[role] = Signal(base, unit, f"{role} column {header[cols[role]]!r} of {Path(path).name}")
-    y = values["output"] if "output" in values else np.full(len(rows), np.nan)
+    y = values["output"] if "output" in values else np.full(n, np.nan)
     return Recording(t, values["input"], y, name=name or Path(path).stem,
                      input=signals["input"], output=signals["output"], source=path)
 
@@ -340,3 +498,19 @@ def load_recordings(paths: Sequence[str | os.PathLike], time: str | int | None =
                 raise RecordingError(f"{r.source}: {role} column is {b.name!r} [{b.unit}] but "
                                      f"{first.source} has {a.name!r} [{a.unit}]")
     return recs
+
+
+def save_columns(path: str | os.PathLike, names: Sequence[str], columns: Sequence[np.ndarray],
+                 block: int = 1 << 16) -> None:
+    """Write equal-length columns as a CSV file: the header line ``names`` joined by commas, then one row
+    per sample, each value as ``%.17g`` (it reads back to the same float).
+
+    The text is that of ``np.savetxt(path, np.column_stack(columns), delimiter=",", fmt="%.17g",
+    header=",".join(names), comments="")``, formatted `block` rows at a time (no N x k copy).
+    """
+    row = ",".join(["%.17g"] * len(columns)) + "\n"
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(",".join(names) + "\n")
+        for a in range(0, len(columns[0]), block):
+            values = np.column_stack([c[a:a + block] for c in columns])
+            fh.write(row * len(values) % tuple(values.ravel().tolist()))

@@ -17,8 +17,10 @@ import shutil
 import tempfile
 import zipfile
 import zlib
+from collections import deque
 from ctypes import CDLL, byref
 from pathlib import Path
+from typing import MutableSequence
 from xml.etree import ElementTree
 from xml.parsers.expat import errors as expat_errors
 
@@ -181,8 +183,9 @@ def _value_references(md) -> tuple[int, int]:
     return refs["u"], refs["y"]
 
 
-def collecting_callbacks(messages: list[str]):
-    """fmpy FMI 2.0 callbacks whose logger appends "[STATUS] message" to `messages`.
+def collecting_callbacks(messages: MutableSequence[str]):
+    """fmpy FMI 2.0 callbacks whose logger appends "[STATUS] message" to `messages` (a list, or a
+    ``deque(maxlen=k)`` that keeps the last k: with logging on, an FMU may log every call).
 
     Keep the returned object alive as long as the instance lives.  Instantiate
     with ``loggingOn=True``: pythonfmu FMUs pass even their fatal errors to the
@@ -244,7 +247,7 @@ def simulate_fmu(fmu_path: str | os.PathLike, t, u) -> np.ndarray:
     fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
                     modelIdentifier=md.coSimulation.modelIdentifier, instanceName="duhem")
     y = np.empty(len(u))
-    messages: list[str] = []
+    messages: deque[str] = deque(maxlen=3)     # the log's tail for an error message; not one entry per call
     callbacks = collecting_callbacks(messages)
     instantiated = fatal = False
     try:
@@ -263,7 +266,7 @@ def simulate_fmu(fmu_path: str | os.PathLike, t, u) -> np.ndarray:
         fmu.terminate()
     except Exception as exc:  # fmpy raises FMICallException (and OSError on load)
         fatal = getattr(exc, "status", None) == _FMI2_FATAL
-        log = "; ".join(messages[-3:])
+        log = "; ".join(messages)
         raise FmuRunError(f"{fmu_path}: {exc}" + (f" FMU log: {log}" if log else "")) from exc
     finally:
         if not fatal:

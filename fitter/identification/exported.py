@@ -46,7 +46,7 @@ import numpy as np
 from fitter.core.errors import DuhemError, KernelError
 from fitter.core.models import INPUT_MARGIN
 from fitter.core.kernel import flows, simulate
-from fitter.core.periodic import affine_response, fixed_point
+from fitter.core.periodic import fixed_point, period_map
 from fitter.data.cycles import last_full_cycle
 from fitter.data.metrics import compare
 from fitter.data.preparation import prepare
@@ -73,8 +73,8 @@ def _periodic_x0(model, rec: Recording) -> np.ndarray:
                          "use the fitted initial state")
     if s0 == 0:
         return xs
-    c, Phi = affine_response(model, rec.t[:s0 + 1], rec.u[:s0 + 1], cache)
-    x0, *_ = np.linalg.lstsq(Phi[-1], xs - c[-1], rcond=None)
+    Phi, c = period_map(model, rec.t[:s0 + 1], rec.u[:s0 + 1], cache)
+    x0, *_ = np.linalg.lstsq(Phi, xs - c, rcond=None)
     return x0
 
 

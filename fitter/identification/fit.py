@@ -141,18 +141,21 @@ def _candidate(param, starts, data: FitData, info, progress: Progress) -> _Candi
         """What the refinement minimises: the output error's cost plus the barrier's."""
         return res.cost + 0.5 * float(np.sum(pen(res.theta) ** 2))
 
-    if len(starts) == 1:
-        race = [run(starts[0], FIT_OPTIONS)]
-    else:
-        race = [run(th0, replace(FIT_OPTIONS, max_nfev=RACE_NFEV, covariance=False)) for th0 in starts]
-    race = [r for r in race if r is not None]
-    if not race:
+    options = FIT_OPTIONS if len(starts) == 1 else replace(FIT_OPTIONS, max_nfev=RACE_NFEV, covariance=False)
+    best = None
+    for th0 in starts:      # only the best so far is kept: a result holds residuals on every sample
+        res = run(th0, options)
+        if res is not None and (best is None or objective(res) < objective(best)):
+            best = res
+        del res
+    if best is None:
         raise FitError(f"{param.kind} order {param.n}: every start failed to simulate")
-    best = min(race, key=objective)
     if len(starts) > 1:
         more = run(best.theta, replace(FIT_OPTIONS, max_nfev=MAX_NFEV - RACE_NFEV))
-        best = (more if more is not None and objective(more) <= objective(best)
-                else run(best.theta, replace(FIT_OPTIONS, max_nfev=1)))
+        if not (more is not None and objective(more) <= objective(best)):
+            del more        # freed before the one-evaluation run that gives the race's best its covariance
+            more = run(best.theta, replace(FIT_OPTIONS, max_nfev=1))
+        best = more
     if param.kind == "rd" and param.n >= GLOBAL_FROM_ORDER:
         best = _global_stage(param, best, run, objective)
     return _Candidate(param, best, info)

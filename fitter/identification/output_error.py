@@ -90,8 +90,8 @@ from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
 from fitter.core.errors import DuhemError, KernelError
-from fitter.core.kernel import flows, simulate, state_response
-from fitter.core.periodic import affine_response, fixed_point
+from fitter.core.kernel import flows, simulate, state_blocks, state_response
+from fitter.core.periodic import fixed_point
 from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording
 from fitter.identification.parametrisation import Parametrisation
@@ -190,13 +190,26 @@ def fitted_initial_state(model, t, u, y, cache: dict | None = None):
         ys = [simulate(model, t, u, x0=x, flow_cache=cache).y for x in np.hstack([np.zeros((n, 1)), np.eye(n)]).T]
         base, G = ys[0], np.column_stack(ys[1:]) - ys[0][:, None]
     else:
-        c, Phi = affine_response(model, t, u, cache)
-        G = np.einsum("j,kjl->kl", model.C, Phi)
-        base = c @ model.C + model.D * u
+        base, G = _affine_output(model, t, u, cache)
     if not (np.all(np.isfinite(G)) and np.all(np.isfinite(base))):
         raise KernelError("simulation overflowed")
     x0 = _lstsq_scaled(G, y - base)
     return x0, base + G @ x0
+
+
+def _affine_output(model, t, u, cache: dict | None) -> tuple[np.ndarray, np.ndarray]:
+    """Output of a model without effects as an affine function of x_0: yhat = base + G x_0, with
+    base_k = C c_k + D u_k and G_k = C Phi_k (`fitter.core.periodic.affine_response`), the states
+    (N, n, n + 1) taken piece by piece (`state_blocks`) and reduced to (N,) and (N, n) as they come."""
+    n, k = model.order, 0
+    base, G = np.empty(len(u)), np.empty((len(u), n))
+    for X in state_blocks(model, t, u, np.hstack([np.zeros((n, 1)), np.eye(n)]), cache):
+        c = X[:, :, 0]
+        G[k:k + len(X)] = np.einsum("j,kjl->kl", model.C, X[:, :, 1:] - c[:, :, None])
+        base[k:k + len(X)] = c @ model.C
+        k += len(X)
+    base += model.D * np.asarray(u, dtype=float)
+    return base, G
 
 
 def _lstsq_scaled(M: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -337,7 +350,7 @@ class Recordings:
         if self.cycles is None:
             self.cycles = [_first_cycle(rec) if self.x0 == "periodic" else None for rec in self.recordings]
         w = [None] * len(self.recordings) if self.weights is None else self.weights
-        self._w = [np.ones(len(r.u)) if wi is None else np.broadcast_to(np.asarray(wi, dtype=float), r.u.shape)
+        self._w = [np.broadcast_to(1.0 if wi is None else np.asarray(wi, dtype=float), r.u.shape)
                    for r, wi in zip(self.recordings, w)]
         self.scale = max(float(np.ptp(np.concatenate([r.y for r in self.recordings]))), 1e-300)
 
@@ -362,10 +375,9 @@ class Recordings:
         parts, info = [], []
         for rec, w, cyc in zip(self.recordings, self._w, self.cycles):
             s, x0, r, rho = self._one(model, rec, cyc)
-            keep = w[s:] > 0
-            parts.append((r * np.sqrt(w[s:]))[keep])
+            parts.append(_weighted(r, w[s:]))
             info.append((s, x0, r, rho))
-        return np.concatenate(parts), model, info
+        return (parts[0] if len(parts) == 1 else np.concatenate(parts)), model, info
 
     def projected(self, param: Parametrisation, theta: np.ndarray):
         """Variable projection (module docstring): like `residuals`, with the linear entries of
@@ -382,7 +394,7 @@ class Recordings:
             solution = self._solve(parts, len(lin), model.order)
         except (DuhemError, ValueError, np.linalg.LinAlgError, FloatingPointError):
             info = [self._one(None, rec, cyc) for rec, cyc in zip(self.recordings, self.cycles)]
-            weighted = np.concatenate([(r * np.sqrt(w[s:]))[w[s:] > 0] for (s, _, r, _), w in zip(info, self._w)])
+            weighted = np.concatenate([_weighted(r, w[s:]) for (s, _, r, _), w in zip(info, self._w)])
             return weighted, np.asarray(theta, dtype=float), None, info
         theta = np.array(theta, dtype=float)
         theta[list(lin)] = solution[:len(lin)]
@@ -394,8 +406,7 @@ class Recordings:
                 x0 = solution[len(lin) + i * model.order:len(lin) + (i + 1) * model.order]
                 yhat = yhat + G @ x0
             r = rec.y[start:] - yhat
-            keep = w[start:] > 0
-            weighted.append((r * np.sqrt(w[start:]))[keep])
+            weighted.append(_weighted(r, w[start:]))
             info.append((start, x0, r, rho))
         return np.concatenate(weighted), theta, param.build(theta), info
 
@@ -431,6 +442,13 @@ class Recordings:
             return s, x0, r, rho
         except (KernelError, ValueError, np.linalg.LinAlgError):
             return start, None, np.full(len(rec.y) - start, fail), np.nan
+
+
+def _weighted(r: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """sqrt(w) r on the samples of positive weight: r itself (no copy) when every weight is 1."""
+    if np.all(w == 1.0):
+        return r
+    return (r * np.sqrt(w))[w > 0]
 
 
 # ----------------------------------------------------------------------------- refine
@@ -482,19 +500,19 @@ def refine(param: Parametrisation, theta0: np.ndarray, problem, options: Options
         theta = obj.coarse.projected(param, theta)[1]
     weighted, model, info = problem.residuals(param, theta)
     if not options.covariance:
-        J_free = np.zeros((len(weighted), int(obj.free.sum())))
-    elif obj.lin.any():
-        J_free = _free_jacobian(obj.coarse, param, theta, obj.free) / obj.scale
+        J = np.broadcast_to(0.0, (len(weighted), len(theta)))      # zero, in no memory
     else:
-        J_free = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
-        J_free = J_free[:len(J_free) - (0 if penalty is None else len(penalty(theta)))]
-    J = np.zeros((len(J_free), len(theta)))
-    J[:, obj.free] = J_free * obj.scale
-    n_kept = len(J_free)
+        if obj.lin.any():
+            J_free = _free_jacobian(obj.coarse, param, theta, obj.free) / obj.scale
+        else:
+            J_free = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
+            J_free = J_free[:len(J_free) - (0 if penalty is None else len(penalty(theta)))]
+        J = np.zeros((len(J_free), len(theta)))
+        J[:, obj.free] = J_free * obj.scale
     return RefineResult(theta=theta, model=model, residuals=[i[2] for i in info], weighted=weighted, jac=J,
                         nfev=int(sol.nfev), success=bool(sol.success), message=str(sol.message),
                         starts=[i[0] for i in info], x0s=[i[1] for i in info],
-                        rho=[float(i[3]) for i in info], info_scale=len(weighted) / n_kept)
+                        rho=[float(i[3]) for i in info], info_scale=len(weighted) / len(J))
 
 
 class _Objective:

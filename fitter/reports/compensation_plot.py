@@ -14,13 +14,10 @@ from __future__ import annotations
 
 import os
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from fitter.core.files import atomic_file  # noqa: E402
+from fitter.core.files import atomic_file
+from fitter.reports import pyplot
 
 __all__ = ["write_compensation_plot"]
 
@@ -33,6 +30,7 @@ def write_compensation_plot(path: str | os.PathLike, t: np.ndarray, y_ref: np.nd
                             y_compensated: np.ndarray, clamped: np.ndarray, *, output_label: str = "y",
                             title: str = "") -> None:
     """Write the PNG `path` (module docstring); `clamped` marks the samples the compensator clamped."""
+    plt = pyplot()
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(8.0, 6.0), sharex=True,
                                       gridspec_kw={"height_ratios": [3, 2]})
     e_lin, e_comp = _nrmse(y_linear, y_ref), _nrmse(y_compensated, y_ref)

@@ -17,15 +17,12 @@ import html
 from pathlib import Path
 from typing import Sequence
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from fitter.core.files import atomic_directory  # noqa: E402
-from fitter.data.metrics import compare  # noqa: E402
-from fitter.data.recordings import Recording  # noqa: E402
+from fitter.core.files import atomic_directory
+from fitter.data.metrics import compare
+from fitter.data.recordings import Recording
+from fitter.reports import pyplot
 
 __all__ = ["write_fit_report", "fill_fit_report", "recording_metrics"]
 
@@ -42,6 +39,7 @@ def recording_metrics(result, rec: Recording) -> tuple[dict, np.ndarray]:
 
 
 def _loop_figure(rec: Recording, y_hat, lo, hi, path: Path) -> None:
+    plt = pyplot()
     ok = np.isfinite(y_hat)
     fig, ax = plt.subplots(figsize=(6, 4.5))
     ax.plot(rec.u, rec.y, ".", ms=2, color="0.5", label="data")
@@ -57,6 +55,7 @@ def _loop_figure(rec: Recording, y_hat, lo, hi, path: Path) -> None:
 
 
 def _residual_figure(rec: Recording, y_hat, noise: float | None, path: Path) -> None:
+    plt = pyplot()
     ok = np.isfinite(y_hat)
     r = rec.y[ok] - y_hat[ok]
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.6))

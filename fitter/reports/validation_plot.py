@@ -11,15 +11,12 @@ from __future__ import annotations
 import os
 from typing import Sequence
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from fitter.core.files import atomic_file  # noqa: E402
-from fitter.data.cycles import PreparationError, last_full_cycle  # noqa: E402
-from fitter.data.recordings import Recording  # noqa: E402
+from fitter.core.files import atomic_file
+from fitter.data.cycles import PreparationError, last_full_cycle
+from fitter.data.recordings import Recording
+from fitter.reports import pyplot
 
 __all__ = ["write_validation_plot"]
 
@@ -46,6 +43,7 @@ def write_validation_plot(path: str | os.PathLike, recordings: Sequence[Recordin
                           outputs: Sequence[np.ndarray], nrmses: Sequence[float]) -> None:
     """Write the PNG `path`: per recording, its data and the FMU output `outputs[i]` over the
     last full cycle, titled with `nrmses[i]` (a fraction, shown in percent); up to 3 panels a row."""
+    plt = pyplot()
     n = len(recordings)
     cols = min(n, 3)
     rows = (n + cols - 1) // cols
