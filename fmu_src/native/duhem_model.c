@@ -128,10 +128,28 @@ struct ModelData {
  * The kernel's algorithm (flow.expm): scaling to 1-norm <= 0.5, degree-18
  * Taylor series, squaring.
  */
+/*
+ * P = L R.  Each entry sums L[i][j] R[j][c] over ascending j, as the plain triple loop does, but the
+ * terms with L[i][j] = 0 are skipped: adding them changes nothing (x + 0 = x), so the result is the
+ * plain loop's, and the zero blocks of the augmented matrices (most rows of the Taylor terms, the
+ * identity rows of Z) cost nothing.
+ */
+static void product(double L[M3][M3], double R[M3][M3], double P[M3][M3])
+{
+    int i, j, c;
+    memset(P, 0, sizeof(double) * M3 * M3);
+    for (i = 0; i < M3; i++)
+        for (j = 0; j < M3; j++) {
+            double l = L[i][j];
+            if (l == 0.0) continue;
+            for (c = 0; c < M3; c++) P[i][c] += l * R[j][c];
+        }
+}
+
 static int expm(double X[M3][M3], double Z[M3][M3])
 {
     double T[M3][M3], P[M3][M3], norm = 0.0, scale = 1.0;
-    int i, j, c, k, s = 0;
+    int i, j, k, s = 0;
     for (j = 0; j < M3; j++) {
         double column = 0.0;
         for (i = 0; i < M3; i++) column += fabs(X[i][j]);
@@ -150,25 +168,15 @@ static int expm(double X[M3][M3], double Z[M3][M3])
             Z[i][j] = T[i][j];
         }
     for (k = 1; k <= TAYLOR_DEGREE; k++) {
-        for (i = 0; i < M3; i++)
-            for (c = 0; c < M3; c++) {
-                double acc = 0.0;
-                for (j = 0; j < M3; j++) acc += T[i][j] * X[j][c];
-                P[i][c] = acc / k;
-            }
+        product(T, X, P);
         for (i = 0; i < M3; i++)
             for (j = 0; j < M3; j++) {
-                T[i][j] = P[i][j];
+                T[i][j] = P[i][j] / k;
                 Z[i][j] += T[i][j];
             }
     }
     for (; s > 0; s--) {
-        for (i = 0; i < M3; i++)
-            for (c = 0; c < M3; c++) {
-                double acc = 0.0;
-                for (j = 0; j < M3; j++) acc += Z[i][j] * Z[j][c];
-                P[i][c] = acc;
-            }
+        product(Z, Z, P);
         memcpy(Z, P, sizeof P);
     }
     return 0;
