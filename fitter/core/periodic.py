@@ -12,36 +12,40 @@ of condition (5).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Iterator
 
 import numpy as np
 
 from .errors import ConvergenceError, KernelError
-from .kernel import Simulation, expm, flows, simulate, state_blocks, state_response
+from .kernel import Simulation, expm, flows, simulate, state_blocks
 
 __all__ = ["ConvergenceError", "PeriodicResponse", "periodic_response", "convergence_rho",
-           "limiting_loop", "affine_response", "period_map", "fixed_point"]
+           "limiting_loop", "affine_blocks", "affine_response", "period_map", "fixed_point"]
+
+
+def affine_blocks(model, t, u, cache: dict | None = None) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """States as an affine function of the initial state, x_k = Phi_k x_0 + c_k, in consecutive pieces
+    along the samples (`fitter.core.kernel.state_blocks`): (c (k, n), Phi (k, n, n)) per piece, c the states
+    from x_0 = 0 and column j of Phi the states from x_0 = e_j minus c (every interval flow of the kernel is
+    affine).  A caller that reduces the pieces as they come holds one piece at a time."""
+    n = model.order
+    for X in state_blocks(model, t, u, np.hstack([np.zeros((n, 1)), np.eye(n)]), cache):
+        c = X[:, :, 0]
+        yield c, X[:, :, 1:] - c[:, :, None]
 
 
 def affine_response(model, t, u, cache: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """States as an affine function of the initial state: x_k = Phi_k x_0 + c_k.
-
-    Returns c (N, n), the states from x_0 = 0, and Phi (N, n, n), column j the
-    states from x_0 = e_j minus c (every interval flow of the kernel is affine).
-    """
-    n = model.order
-    X = state_response(model, t, u, np.hstack([np.zeros((n, 1)), np.eye(n)]), cache)
-    c = X[:, :, 0]
-    return c, X[:, :, 1:] - c[:, :, None]
+    """c (N, n) and Phi (N, n, n) of `affine_blocks` over all samples."""
+    pieces = list(affine_blocks(model, t, u, cache))
+    return np.concatenate([c for c, _ in pieces]), np.concatenate([Phi for _, Phi in pieces])
 
 
 def period_map(model, t, u, cache: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(Phi, c) of the affine map x_N = Phi x_0 + c over the given samples (one period): the last
-    state of `affine_response`, the states taken piece by piece (`state_blocks`), only the last kept."""
-    n = model.order
-    for X in state_blocks(model, t, u, np.hstack([np.zeros((n, 1)), np.eye(n)]), cache):
-        last = X[-1]
-    c = last[:, 0]
-    return last[:, 1:] - c[:, None], c
+    state of `affine_blocks`, only the last piece kept."""
+    for c, Phi in affine_blocks(model, t, u, cache):
+        pass
+    return Phi[-1], c[-1]
 
 
 def fixed_point(model, t, u, cache: dict | None = None) -> tuple[np.ndarray | None, float]:

@@ -22,8 +22,9 @@ Pipeline of `fit_recordings`
    rate-dependent model with g >= 0 the period map is e^{A sum g dt}, so
    rho < 1 iff A is Hurwitz, which the parametrisation guarantees; for the
    rate-independent model rho(e^{beta A+} e^{-beta A-}) < 1, condition (5),
-   is kept by a barrier residual 1e3 max(0, rho - 0.99 + `BARRIER_INSIDE`) added to the
-   objective (it starts just inside the limit, so that the fit ends inside it).  The linear parameters (B, E, D, x0) are eliminated by least
+   is kept by a barrier residual 1e3 max(0, rho - 0.99 + `BARRIER_INSIDE`)
+   added to the objective (it starts just inside the limit, so that the fit
+   ends inside it).  The linear parameters (B, E, D, x0) are eliminated by least
    squares at every evaluation (variable projection).  Starts race: each gets
    `RACE_NFEV` evaluations, the best one continues to `MAX_NFEV` in all.
    Rate-dependent fits of order >= 3 add a global stage: seeded perturbed
@@ -100,7 +101,7 @@ class _Candidate:
 
 
 def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.ndarray], np.ndarray]:
-    """1e3 max(0, excess) of the parametrisation's two barrier quantities (`excesses`; 1e3 where they
+    """1e3 max(0, excess + `BARRIER_INSIDE`) of the parametrisation's two barrier quantities (`excesses`; 1e3 where they
     cannot be evaluated): rate-independent, rho of condition (5) <= 0.99 and the branch amplification
     over the fitted span <= 1e6 (`RICanonical.amplification`: a branch that expands a state error by
     1e15 while the other contracts converges, but makes the model's output depend on rounding);
@@ -155,7 +156,7 @@ def _candidate(param, starts, data: FitData, info, progress: Progress) -> _Candi
         if not (more is not None and objective(more) <= objective(best)):
             del more        # freed before the one-evaluation run that gives the race's best its covariance
             more = run(best.theta, replace(FIT_OPTIONS, max_nfev=1))
-        best = more
+        best = more if more is not None else best
     if param.kind == "rd" and param.n >= GLOBAL_FROM_ORDER:
         best = _global_stage(param, best, run, objective)
     return _Candidate(param, best, info)

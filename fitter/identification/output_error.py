@@ -90,8 +90,8 @@ from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
 from fitter.core.errors import DuhemError, KernelError
-from fitter.core.kernel import flows, simulate, state_blocks, state_response
-from fitter.core.periodic import fixed_point
+from fitter.core.kernel import flows, simulate, state_response
+from fitter.core.periodic import affine_blocks, fixed_point
 from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording
 from fitter.identification.parametrisation import Parametrisation
@@ -199,15 +199,14 @@ def fitted_initial_state(model, t, u, y, cache: dict | None = None):
 
 def _affine_output(model, t, u, cache: dict | None) -> tuple[np.ndarray, np.ndarray]:
     """Output of a model without effects as an affine function of x_0: yhat = base + G x_0, with
-    base_k = C c_k + D u_k and G_k = C Phi_k (`fitter.core.periodic.affine_response`), the states
-    (N, n, n + 1) taken piece by piece (`state_blocks`) and reduced to (N,) and (N, n) as they come."""
-    n, k = model.order, 0
-    base, G = np.empty(len(u)), np.empty((len(u), n))
-    for X in state_blocks(model, t, u, np.hstack([np.zeros((n, 1)), np.eye(n)]), cache):
-        c = X[:, :, 0]
-        G[k:k + len(X)] = np.einsum("j,kjl->kl", model.C, X[:, :, 1:] - c[:, :, None])
-        base[k:k + len(X)] = c @ model.C
-        k += len(X)
+    base_k = C c_k + D u_k and G_k = C Phi_k (`fitter.core.periodic.affine_blocks`, reduced to (N,) and
+    (N, n) piece by piece)."""
+    k = 0
+    base, G = np.empty(len(u)), np.empty((len(u), model.order))
+    for c, Phi in affine_blocks(model, t, u, cache):
+        G[k:k + len(c)] = np.einsum("j,kjl->kl", model.C, Phi)
+        base[k:k + len(c)] = c @ model.C
+        k += len(c)
     base += model.D * np.asarray(u, dtype=float)
     return base, G
 
