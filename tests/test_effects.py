@@ -17,6 +17,7 @@ from fitter.core.effects import ORIGINS, REGISTRY, STAGES, Effect, EffectContext
 ALL = {name: dict(spec.example) for name, spec in REGISTRY.items()}
 
 ZERO = {"backlash": {"b": 0.0}, "rate_dependence": {"alpha": 0.0}, "creep": {"k": 0.0, "tau": 1.0},
+        "relaxation": {"k1": 0.0, "k2": 0.0, "k3": 0.0, "k4": 0.0, "tau_min": 0.1, "tau_max": 10.0},
         "viscous": {"c": 0.0}, "thermal_drift": {"kappa": 0.0}, "saturation": {"y_c": 0.1, "beta": 0.0},
         "sensor_lag": {"tau": 0.0}, "measurement_drift": {"rate": 0.0}}
 
@@ -129,6 +130,19 @@ def test_timed_effects_match_ode_solution():
     np.testing.assert_allclose(simulate(model, t, u).y, ref, atol=1e-8)
 
 
+def test_relaxation_is_four_creeps_on_a_log_grid():
+    """relaxation {k_i, tau_min, tau_max} adds exactly what four creeps with tau_i = 0.2 * 10^i add."""
+    t, u = signal()
+    ks = [0.03, -0.02, 0.05, 0.01]
+    base = simulate(ri(), t, u).y
+    relax = simulate(ri([("relaxation", {"k1": ks[0], "k2": ks[1], "k3": ks[2], "k4": ks[3],
+                                         "tau_min": 0.2, "tau_max": 200.0})]), t, u).y
+    creeps = sum(simulate(ri([("creep", {"k": k, "tau": 0.2 * 10.0 ** i})]), t, u).y - base
+                 for i, k in enumerate(ks))
+    np.testing.assert_allclose(relax - base, creeps, rtol=0, atol=1e-13)
+    assert np.ptp(relax - base) > 0.01
+
+
 def test_play_thermal_saturation_viscous_closed_forms():
     t = np.array([0.0, 1.0, 2.0, 3.0, 4.0, 5.0])
     u = np.array([0.0, 1.0, 0.9, 0.5, 0.6, 1.5])
@@ -159,7 +173,7 @@ def test_json_round_trip_and_no_effects_key(tmp_path):
     np.testing.assert_array_equal(simulate(back, t, u).y, simulate(model, t, u).y)
     assert [e.effect for e in back.effects] == list(ALL)
     assert "effects" not in ri().to_dict()
-    assert list(REGISTRY) == list(ALL) == ["backlash", "rate_dependence", "creep", "viscous",
+    assert list(REGISTRY) == list(ALL) == ["backlash", "rate_dependence", "creep", "relaxation", "viscous",
                                            "thermal_drift", "saturation", "sensor_lag", "measurement_drift"]
 
 

@@ -36,29 +36,36 @@ The chain, always applied in this order whatever the order of the list:
    y += c.  Exact for u linear on the interval:
    c_{k+1} = a c_k + k [du_k (1 - q) + (1 - a) u_k], a = e^{-h/tau},
    q = (1 - a) / (h / tau).
-5. ``viscous`` {c}: y += c v, v the rate of u on the interval that ends at the
+5. ``relaxation`` {k1..k4, tau_min, tau_max > 0}: a spectrum of creeps, four
+   states dc_i/dt = (k_i u - c_i) / tau_i, c_i(t_0) = k_i u_0, y += sum_i c_i,
+   the tau_i log-spaced from tau_min to tau_max (tau_i = tau_min
+   (tau_max / tau_min)^((i - 1) / 3)); each state exact as in 4 (a discrete
+   relaxation spectrum, the Prony series of linear viscoelasticity and of
+   dielectric relaxation; a long tau_i also takes a leakage current, whose
+   charge grows as the integral of u).
+6. ``viscous`` {c}: y += c v, v the rate of u on the interval that ends at the
    sample (0 at the first sample).
-6. ``thermal_drift`` {kappa}: y *= 1 - kappa W, W_k = sum_{j<k} |du_j| the
+7. ``thermal_drift`` {kappa}: y *= 1 - kappa W, W_k = sum_{j<k} |du_j| the
    input travel since the start of the experiment (W_0 = 0).
-7. ``saturation`` {y_c, beta >= 0}: y -> y_c + tanh(beta (y - y_c)) / beta
+8. ``saturation`` {y_c, beta >= 0}: y -> y_c + tanh(beta (y - y_c)) / beta
    (beta = 0: unchanged; y_s = 1/beta is the saturation half-range).
-8. ``sensor_lag`` {tau >= 0}: the measured output m obeys dm/dt = (y - m)/tau
-   with y (the output of steps 3-7) taken linear between samples, m_0 = y_0:
+9. ``sensor_lag`` {tau >= 0}: the measured output m obeys dm/dt = (y - m)/tau
+   with y (the output of steps 3-8) taken linear between samples, m_0 = y_0:
    m_{k+1} = a m_k + dy_k (1 - q) + (1 - a) y_k with a, q as in 4 (tau = 0:
    m = y).
-9. ``measurement_drift`` {rate}: y += d, d_k = rate (t_k - t_0), a drift of the
+10. ``measurement_drift`` {rate}: y += d, d_k = rate (t_k - t_0), a drift of the
    measured output linear in time (an offset current integrated by a charge
    amplifier, a sensor zero that wanders); d_0 = 0.  Exact.
 
 Each effect says where it comes from (`EffectSpec.origin`): ``material`` (the
-physics of the device: steps 1-7) or ``measurement`` (the measuring chain:
+physics of the device: steps 1-8) or ``measurement`` (the measuring chain:
 sensor_lag, measurement_drift); the diagnosis reports the two apart.
 
 Each step acts in one stage of the chain (`EffectSpec.stage`): ``input``
 (the base model's input w, step 1), ``rate`` (the coefficients r, S of (K),
-step 2) or ``output`` (the output y, steps 4-8).  The chain's state at a
+step 2) or ``output`` (the output y, steps 4-10).  The chain's state at a
 sample, `EffectState`, is the tuple of the present effects' state variables
-(`EffectSpec.state`) in chain order: backlash (w, the play output), creep (c),
+(`EffectSpec.state`) in chain order: backlash (w, the play output), creep (c), relaxation (c1..c4),
 thermal_drift (W, the travel), sensor_lag (m, the measured output, and y, the
 output before the lag), measurement_drift (d, the drift).  This module needs only numpy: it is shipped inside
 the FMUs.
@@ -75,7 +82,7 @@ from .errors import EffectError, KernelError
 from .flow import check_increasing, integrate, interval_coefficients, linear_recurrence
 
 __all__ = ["play_operator", "REGISTRY", "STAGES", "ORIGINS", "EffectSpec", "ParameterSpec", "EffectContext", "Chain",
-           "EffectError", "Effect", "EffectState", "effects_from_list", "run_with_effects"]
+           "EffectError", "Effect", "EffectState", "effects_from_list", "run_with_effects", "relaxation_taus"]
 
 EffectState = tuple
 """State of the effect chain at one sample: a tuple of floats (module docstring)."""
@@ -333,8 +340,57 @@ class Creep(EffectSpec):
         return {"k": 0.0, "tau": 10 * ctx.dt_min}
 
 
+RELAXATION_TERMS = 4
+"""Number of time constants of the `relaxation` spectrum."""
+
+
+def relaxation_taus(tau_min: float, tau_max: float, m: int = RELAXATION_TERMS) -> np.ndarray:
+    """tau_i = tau_min (tau_max / tau_min)^(i / (m - 1)), i = 0..m-1: log-spaced from tau_min to tau_max."""
+    return tau_min * (tau_max / tau_min) ** (np.arange(m) / (m - 1))
+
+
+class Relaxation(EffectSpec):
+    """Step 5 of the chain: y += sum_i c_i, dc_i/dt = (k_i u - c_i) / tau_i, tau_i log-spaced (a Prony series)."""
+
+    name = "relaxation"
+    description = ("a relaxation spectrum of the material: the output follows input changes through several time "
+                   "constants (dielectric or viscoelastic relaxation; the longest also takes a leakage current)")
+    stage = "output"
+    timed = True
+    parameters = tuple(ParameterSpec(f"k{i + 1}", -_INF, _INF) for i in range(RELAXATION_TERMS)) + (
+        ParameterSpec("tau_min", 0.0, _INF, strict=True, log=True),
+        ParameterSpec("tau_max", 0.0, _INF, strict=True, log=True))
+    state = tuple(f"c{i + 1}" for i in range(RELAXATION_TERMS))
+    example = {"k1": 0.02, "k2": 0.02, "k3": 0.02, "k4": 0.02, "tau_min": 0.3, "tau_max": 30.0}
+
+    def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
+        ends = []
+        for i, tau in enumerate(relaxation_taus(p["tau_min"], p["tau_max"])):
+            k = p[f"k{i + 1}"]
+            c = _first_order(k * chain.u[0] if s0 is None else s0[i], k * chain.u, chain.h, float(tau))
+            chain.y = chain.y + c
+            ends.append(float(c[-1]))
+        return tuple(ends)
+
+    def bounds(self, ctx: EffectContext) -> dict[str, tuple[float, float]]:
+        """The default bounds, but tau_max up to 10 durations: a time constant beyond the experiment turns its
+        state into the integral of u (a leakage current), not a drift in time, so it stays this effect's."""
+        out = super().bounds(ctx)
+        out["tau_max"] = (out["tau_max"][0], 10 * out["tau_max"][1])
+        return out
+
+    def starts(self, ctx: EffectContext) -> list[dict[str, float]]:
+        zero = {f"k{i + 1}": 0.0 for i in range(RELAXATION_TERMS)}
+        return [dict(zero, tau_min=3 * ctx.dt_min, tau_max=max(ctx.duration, 30 * ctx.dt_min)),
+                dict(zero, tau_min=max(ctx.duration, 30 * ctx.dt_min) / 1000, tau_max=max(ctx.duration, 30 * ctx.dt_min) / 3)]
+
+    def null(self, ctx: EffectContext) -> dict[str, float]:
+        return dict({f"k{i + 1}": 0.0 for i in range(RELAXATION_TERMS)}, tau_min=3 * ctx.dt_min,
+                    tau_max=max(ctx.duration, 30 * ctx.dt_min))
+
+
 class Viscous(EffectSpec):
-    """Step 5 of the chain: y += c du/dt."""
+    """Step 6 of the chain: y += c du/dt."""
 
     name = "viscous"
     description = "viscous damping: an output offset proportional to the input rate"
@@ -349,7 +405,7 @@ class Viscous(EffectSpec):
 
 
 class ThermalDrift(EffectSpec):
-    """Step 6 of the chain: y *= 1 - kappa W, W the input travel."""
+    """Step 7 of the chain: y *= 1 - kappa W, W the input travel."""
 
     name = "thermal_drift"
     description = "thermal drift: the gain changes in proportion to the input travel (self-heating)"
@@ -366,7 +422,7 @@ class ThermalDrift(EffectSpec):
 
 
 class Saturation(EffectSpec):
-    """Step 7 of the chain: y -> y_c + tanh(beta (y - y_c)) / beta."""
+    """Step 8 of the chain: y -> y_c + tanh(beta (y - y_c)) / beta."""
 
     name = "saturation"
     description = "saturation: the output flattens smoothly (tanh) away from a centre y_c"
@@ -394,7 +450,7 @@ class Saturation(EffectSpec):
 
 
 class SensorLag(EffectSpec):
-    """Step 8 of the chain: the measured output m, dm/dt = (y - m) / tau."""
+    """Step 9 of the chain: the measured output m, dm/dt = (y - m) / tau."""
 
     name = "sensor_lag"
     description = "sensor lag: the measurement follows the output as a first-order low-pass"
@@ -423,7 +479,7 @@ class SensorLag(EffectSpec):
 
 
 class MeasurementDrift(EffectSpec):
-    """Step 9 of the chain: y += rate (t - t_0), a measurement drift linear in time."""
+    """Step 10 of the chain: y += rate (t - t_0), a measurement drift linear in time."""
 
     name = "measurement_drift"
     description = ("a measurement drift of the output, linear in time (an offset current integrated by the "
@@ -442,7 +498,7 @@ class MeasurementDrift(EffectSpec):
 
 
 REGISTRY: dict[str, EffectSpec] = {spec.name: spec for spec in (
-    Backlash(), RateDependence(), Creep(), Viscous(), ThermalDrift(), Saturation(), SensorLag(),
+    Backlash(), RateDependence(), Creep(), Relaxation(), Viscous(), ThermalDrift(), Saturation(), SensorLag(),
     MeasurementDrift())}
 """Effect name -> `EffectSpec`, in chain order."""
 

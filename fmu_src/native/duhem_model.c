@@ -368,7 +368,25 @@ static void effect_creep(const double *p, const double *s0, double *s1, Chain *c
     }
 }
 
-/* Step 5, stage output, parameters (c): y += c du/h (0 at the anchor alone). */
+/*
+ * Step 5, stage output, parameters (k1..k4, tau_min, tau_max), state (c1..c4): y += sum_i c_i,
+ * dc_i/dt = (k_i u - c_i)/tau_i, tau_i = tau_min (tau_max/tau_min)^(i/3) (effects.relaxation_taus).
+ */
+static void effect_relaxation(const double *p, const double *s0, double *s1, Chain *c)
+{
+    int i;
+    for (i = 0; i < 4; i++) {
+        double k = p[i], tau = p[4] * pow(p[5] / p[4], i / 3.0), c0 = s0 ? s0[i] : k * c->u[0];
+        c->y[0] = c->y[0] + c0;
+        s1[i] = c0;
+        if (c->n == 2) {
+            s1[i] = first_order(c0, k * c->u[0], k * c->u[1], c->h, tau);
+            c->y[1] = c->y[1] + s1[i];
+        }
+    }
+}
+
+/* Step 6, stage output, parameters (c): y += c du/h (0 at the anchor alone). */
 static void effect_viscous(const double *p, const double *s0, double *s1, Chain *c)
 {
     (void)s0;
@@ -376,7 +394,7 @@ static void effect_viscous(const double *p, const double *s0, double *s1, Chain 
     if (c->n == 2) c->y[1] = c->y[1] + p[0] * ((c->u[1] - c->u[0]) / c->h);
 }
 
-/* Step 6, stage output, parameters (kappa), state (W): y *= 1 - kappa W, W the input travel. */
+/* Step 7, stage output, parameters (kappa), state (W): y *= 1 - kappa W, W the input travel. */
 static void effect_thermal_drift(const double *p, const double *s0, double *s1, Chain *c)
 {
     double W = s0 ? s0[0] : 0.0;
@@ -388,7 +406,7 @@ static void effect_thermal_drift(const double *p, const double *s0, double *s1, 
     s1[0] = W;
 }
 
-/* Step 7, stage output, parameters (y_c, beta): y -> y_c + tanh(beta (y - y_c))/beta. */
+/* Step 8, stage output, parameters (y_c, beta): y -> y_c + tanh(beta (y - y_c))/beta. */
 static void effect_saturation(const double *p, const double *s0, double *s1, Chain *c)
 {
     double yc = p[0], beta = p[1];
@@ -398,7 +416,7 @@ static void effect_saturation(const double *p, const double *s0, double *s1, Cha
     for (i = 0; beta > 0 && i < c->n; i++) c->y[i] = yc + tanh(beta * (c->y[i] - yc)) / beta;
 }
 
-/* Step 8, stage output, parameters (tau), state (m, y): first-order lag of y, linear between samples. */
+/* Step 9, stage output, parameters (tau), state (m, y): first-order lag of y, linear between samples. */
 static void effect_sensor_lag(const double *p, const double *s0, double *s1, Chain *c)
 {
     double tau = p[0], target0 = s0 ? s0[1] : c->y[0], y_last = c->y[c->n - 1];
@@ -410,7 +428,7 @@ static void effect_sensor_lag(const double *p, const double *s0, double *s1, Cha
     s1[1] = y_last;
 }
 
-/* Step 9, stage output, parameters (rate), state (d): y += d, d = rate (t - t_0). */
+/* Step 10, stage output, parameters (rate), state (d): y += d, d = rate (t - t_0). */
 static void effect_measurement_drift(const double *p, const double *s0, double *s1, Chain *c)
 {
     double d = s0 ? s0[0] : 0.0;
