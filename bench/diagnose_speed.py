@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from fitter.core.effects import REGISTRY
-from fitter.diagnosis import diagnose, rich_progress, synthetic_experiment
+from fitter.diagnosis import chain_recordings, diagnose, rich_progress, synthetic_experiment
 from fitter.reports.diagnosis_report import write_diagnosis_report
 from fitter.data.preparation import find_holds
 from fitter.data.recordings import Recording, load_recording
@@ -95,23 +95,18 @@ def sweep(seeds: int, samples: int) -> None:
 
 
 def piezo_experiment(files, clean_holds: bool) -> list[Recording]:
-    """The piezo files as one experiment (see the module docstring)."""
-    recs, level, t_end = [], None, None
+    """The piezo files as one experiment (see the module docstring; `chain_recordings`)."""
+    recs = []
     for f in files:
         rec = load_recording(PIEZO / f, time="time_s", input="voltage_V", output="polarization_uC_per_cm2")
-        y, u = rec.y, rec.u.copy()
+        u = rec.u.copy()
         if clean_holds:
             for a, b in find_holds(rec.t, u):
                 u[a:b] = np.median(u[a:b])
-        if level is not None:
-            y = y - y[0] + level
-        level = y[-1]
-        t = rec.t - rec.t[0] + (0.0 if t_end is None else t_end + float(np.median(np.diff(rec.t))))
-        t_end = t[-1]
-        recs.append(Recording(t, u, y, name=Path(f).stem.split("_")[1] + "_"
+        recs.append(Recording(rec.t, u, rec.y, name=Path(f).stem.split("_")[1] + "_"
                               + "_".join(Path(f).stem.split("_")[2:4]), input=rec.input, output=rec.output,
                               source=str(PIEZO / f)))
-    return recs
+    return chain_recordings(recs, relative_output=True)
 
 
 def piezo(out: Path, base_order: int | None) -> None:

@@ -316,3 +316,17 @@ def test_default_base_prefers_an_effect_to_an_extra_order():
     d = diagnose(recs)
     assert [f["effect"] for f in d.findings][:1] == ["backlash"] and d.base_model.order == 1
     assert d.extended["residual_rms"] <= 1.2 * truth["noise_rms"]
+
+
+def test_chain_recordings_puts_files_back_to_back_on_one_clock():
+    from fitter.diagnosis import chain_recordings
+    from fitter.data.recordings import Recording
+    t = np.arange(5) * 0.5
+    a = Recording(t, np.sin(t), 10 + t, name="a")
+    b = Recording(t * 0.2, np.cos(t), -3 + t, name="b")      # own clock, own output zero
+    one = chain_recordings([a, b], relative_output=True)
+    np.testing.assert_array_equal(one[0].t, t)
+    np.testing.assert_allclose(one[1].t, 2.0 + 0.1 + t * 0.2)  # one sample period (0.1) after a ends
+    assert one[1].y[0] == a.y[-1] and np.allclose(np.diff(one[1].y), np.diff(b.y))
+    assert chain_recordings([a, b])[1].y[0] == b.y[0]          # absolute outputs are kept
+    assert one[1].t[0] > one[0].t[-1]                           # one clock that runs on

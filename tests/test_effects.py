@@ -17,7 +17,7 @@ from fitter.core.effects import ORIGINS, REGISTRY, STAGES, Effect, EffectContext
 ALL = {name: dict(spec.example) for name, spec in REGISTRY.items()}
 
 ZERO = {"backlash": {"b": 0.0}, "rate_dependence": {"alpha": 0.0}, "creep": {"k": 0.0, "tau": 1.0},
-        "relaxation": {"k": 0.0, "f2": 0.3, "f3": 0.2, "f4": 0.1, "tau_min": 0.1, "tau_max": 10.0},
+        "relaxation": {"k": 0.0, "w2": 0.3, "w3": 2.0, "w4": 0.1, "tau_min": 0.1, "tau_max": 10.0},
         "viscous": {"c": 0.0}, "thermal_drift": {"kappa": 0.0}, "saturation": {"y_c": 0.1, "beta": 0.0},
         "sensor_lag": {"tau": 0.0}, "measurement_drift": {"rate": 0.0}}
 
@@ -131,11 +131,12 @@ def test_timed_effects_match_ode_solution():
 
 
 def test_relaxation_is_four_creeps_on_a_log_grid():
-    """relaxation {k, f_i, tau_min, tau_max} adds exactly what four creeps k f_i with tau_i = 0.2 * 10^i add."""
+    """relaxation {k, w_i, tau_min, tau_max} adds exactly what four creeps k w_i / sum w with tau_i = 0.2 * 10^i
+    add."""
     t, u = signal()
-    ks = [0.03, -0.02, 0.05, 0.01]          # k = 0.07, f = ks / k
+    ks = [0.02, 0.01, 0.05, 0.02]          # k = 0.1, w = ks / ks[0]
     base = simulate(ri(), t, u).y
-    relax = simulate(ri([("relaxation", {"k": 0.07, "f2": -0.02 / 0.07, "f3": 0.05 / 0.07, "f4": 0.01 / 0.07,
+    relax = simulate(ri([("relaxation", {"k": 0.1, "w2": 0.5, "w3": 2.5, "w4": 1.0,
                                          "tau_min": 0.2, "tau_max": 200.0})]), t, u).y
     creeps = sum(simulate(ri([("creep", {"k": k, "tau": 0.2 * 10.0 ** i})]), t, u).y - base
                  for i, k in enumerate(ks))

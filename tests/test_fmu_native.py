@@ -50,7 +50,7 @@ ALL_EFFECTS = [
     {"effect": "backlash", "parameters": {"b": 0.15}},
     {"effect": "rate_dependence", "parameters": {"alpha": 0.4}},
     {"effect": "creep", "parameters": {"k": 0.2, "tau": 0.6}},
-    {"effect": "relaxation", "parameters": {"k": 0.08, "f2": -0.3, "f3": 0.5, "f4": 0.2, "tau_min": 0.05,
+    {"effect": "relaxation", "parameters": {"k": 0.08, "w2": 0.3, "w3": 1.5, "w4": 0.2, "tau_min": 0.05,
                                             "tau_max": 20.0}},
     {"effect": "viscous", "parameters": {"c": 0.03}},
     {"effect": "thermal_drift", "parameters": {"kappa": 0.02}},

@@ -108,7 +108,7 @@ def test_cascade_triangle(make):
     (ri2, [Effect("rate_dependence", {"alpha": 0.3})]),
     (rd1, ()),
     (rd1, [Effect("creep", {"k": 0.3, "tau": 2.0}), Effect("backlash", {"b": 0.1})]),
-    (ri2, [Effect("relaxation", {"k": 0.4, "f2": 0.3, "f3": -0.2, "f4": 0.4, "tau_min": 0.05, "tau_max": 5.0})]),
+    (ri2, [Effect("relaxation", {"k": 0.4, "w2": 0.3, "w3": 2.0, "w4": 0.4, "tau_min": 0.05, "tau_max": 5.0})]),
 ], ids=["ri1", "ri2", "ri2+backlash", "ri1+backlash+saturation+thermal", "ri1+creep+viscous",
         "ri2+rate_dependence", "rd1", "rd1+creep+backlash", "ri2+relaxation"])
 @pytest.mark.parametrize("seed", [3, 11])

@@ -36,11 +36,12 @@ The chain, always applied in this order whatever the order of the list:
    y += c.  Exact for u linear on the interval:
    c_{k+1} = a c_k + k [du_k (1 - q) + (1 - a) u_k], a = e^{-h/tau},
    q = (1 - a) / (h / tau).
-5. ``relaxation`` {k, f2, f3, f4, tau_min > 0, tau_max > 0}: a spectrum of
-   creeps, four states dc_i/dt = (k_i u - c_i) / tau_i, c_i(t_0) = k_i u_0,
-   y += sum_i c_i, with k_i = k f_i (f_1 = 1 - f_2 - f_3 - f_4: k is the
-   relaxed gain, sum k_i, and f_i the share of time constant i) and the tau_i
-   log-spaced from tau_min to tau_max (tau_i = tau_min
+5. ``relaxation`` {k, w2, w3, w4 >= 0, tau_min > 0, tau_max > 0}: a spectrum
+   of creeps, four states dc_i/dt = (k_i u - c_i) / tau_i, c_i(t_0) = k_i u_0,
+   y += sum_i c_i, with k_i = k w_i / (w_1 + ... + w_4), w_1 = 1 (k is the
+   relaxed gain, sum k_i; every share w_i / sum w in [0, 1], so the creep
+   function sum_i k_i (1 - e^{-t/tau_i}) is monotone, as for a passive
+   material) and the tau_i log-spaced from tau_min to tau_max (tau_i = tau_min
    (tau_max / tau_min)^((i - 1) / 3)); each state exact as in 4 (a discrete
    relaxation spectrum, the Prony series of linear viscoelasticity and of
    dielectric relaxation; a long tau_i also takes a leakage current, whose
@@ -352,7 +353,7 @@ def relaxation_taus(tau_min: float, tau_max: float, m: int = RELAXATION_TERMS) -
 
 
 class Relaxation(EffectSpec):
-    """Step 5 of the chain: y += sum_i c_i, dc_i/dt = (k f_i u - c_i) / tau_i, tau_i log-spaced (a Prony series)."""
+    """Step 5 of the chain: y += sum_i c_i, dc_i/dt = (k_i u - c_i) / tau_i, tau_i log-spaced (a Prony series)."""
 
     name = "relaxation"
     description = ("a relaxation spectrum of the material: the output follows input changes through several time "
@@ -360,17 +361,18 @@ class Relaxation(EffectSpec):
     stage = "output"
     timed = True
     parameters = (ParameterSpec("k", -_INF, _INF),) + tuple(
-        ParameterSpec(f"f{i}", -_INF, _INF) for i in range(2, RELAXATION_TERMS + 1)) + (
+        ParameterSpec(f"w{i}", 0.0, _INF) for i in range(2, RELAXATION_TERMS + 1)) + (
         ParameterSpec("tau_min", 0.0, _INF, strict=True, log=True),
         ParameterSpec("tau_max", 0.0, _INF, strict=True, log=True))
     state = tuple(f"c{i + 1}" for i in range(RELAXATION_TERMS))
-    example = {"k": 0.08, "f2": 0.25, "f3": 0.25, "f4": 0.25, "tau_min": 0.3, "tau_max": 30.0}
+    example = {"k": 0.08, "w2": 1.0, "w3": 1.0, "w4": 1.0, "tau_min": 0.3, "tau_max": 30.0}
 
     @staticmethod
     def gains(p: dict[str, float]) -> list[float]:
-        """k_i = k f_i, f_1 = 1 - f_2 - ... - f_m."""
-        f = [p[f"f{i}"] for i in range(2, RELAXATION_TERMS + 1)]
-        return [p["k"] * fi for fi in [1.0 - sum(f)] + f]
+        """k_i = k w_i / (w_1 + ... + w_m), w_1 = 1."""
+        w = [1.0] + [p[f"w{i}"] for i in range(2, RELAXATION_TERMS + 1)]
+        total = sum(w)
+        return [p["k"] * wi / total for wi in w]
 
     def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
         ends = []
@@ -388,12 +390,12 @@ class Relaxation(EffectSpec):
         return out
 
     def starts(self, ctx: EffectContext) -> list[dict[str, float]]:
-        zero = {"k": 0.0, **{f"f{i}": 0.25 for i in range(2, RELAXATION_TERMS + 1)}}
+        zero = {"k": 0.0, **{f"w{i}": 1.0 for i in range(2, RELAXATION_TERMS + 1)}}
         return [dict(zero, tau_min=3 * ctx.dt_min, tau_max=max(ctx.duration, 30 * ctx.dt_min)),
                 dict(zero, tau_min=max(ctx.duration, 30 * ctx.dt_min) / 1000, tau_max=max(ctx.duration, 30 * ctx.dt_min) / 3)]
 
     def null(self, ctx: EffectContext) -> dict[str, float]:
-        return dict({"k": 0.0, **{f"f{i}": 0.25 for i in range(2, RELAXATION_TERMS + 1)}}, tau_min=3 * ctx.dt_min,
+        return dict({"k": 0.0, **{f"w{i}": 1.0 for i in range(2, RELAXATION_TERMS + 1)}}, tau_min=3 * ctx.dt_min,
                     tau_max=max(ctx.duration, 30 * ctx.dt_min))
 
 

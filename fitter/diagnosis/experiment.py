@@ -19,7 +19,7 @@ from fitter.core.errors import DuhemError
 from fitter.data.cycles import count_reversals
 from fitter.data.recordings import Recording, check_scale
 
-__all__ = ["DiagnoseError", "JoinedExperiment", "MIN_SAMPLES", "join_recordings"]
+__all__ = ["DiagnoseError", "JoinedExperiment", "MIN_SAMPLES", "join_recordings", "chain_recordings"]
 
 MIN_SAMPLES = 200
 
@@ -89,6 +89,26 @@ def join_recordings(recordings: Sequence[Recording]) -> JoinedExperiment:
     bounds = [(int(s - len(r.t)), int(s)) for s, r in zip(stops, recs)]
     return JoinedExperiment(recs, np.concatenate([r.t for r in recs]), u, np.concatenate([r.y for r in recs]),
                             np.concatenate([np.full(len(r.t), i) for i, r in enumerate(recs)]), bounds)
+
+
+def chain_recordings(recordings: Sequence[Recording], relative_output: bool = False) -> list[Recording]:
+    """Recordings that each start their own clock (every file at t = 0), put back to back on one clock.
+
+    Recording i + 1 starts one sample period (its median) after recording i ends: t_i+1 <- t_i+1 - t_i+1[0]
+    + t_i[-1] + dt.  With `relative_output` (an output measured from an arbitrary zero in every file, as the
+    charge a ferroelectric tester integrates and re-references per table) each later output is shifted to
+    start where the previous one ended: y_i+1 <- y_i+1 - y_i+1[0] + y_i[-1].  The input is linear across the
+    joint, as in every experiment (module docstring).
+    """
+    out: list[Recording] = []
+    for r in recordings:
+        t, y = r.t - r.t[0], r.y
+        if out:
+            t = t + out[-1].t[-1] + float(np.median(np.diff(r.t)))
+            if relative_output:
+                y = y - y[0] + out[-1].y[-1]
+        out.append(Recording(t, r.u, y, name=r.name, input=r.input, output=r.output, source=r.source))
+    return out
 
 
 def _check_columns(recs: list[Recording]) -> None:

@@ -369,16 +369,16 @@ static void effect_creep(const double *p, const double *s0, double *s1, Chain *c
 }
 
 /*
- * Step 5, stage output, parameters (k, f2, f3, f4, tau_min, tau_max), state (c1..c4): y += sum_i c_i,
- * dc_i/dt = (k_i u - c_i)/tau_i, k_i = k f_i with f1 = 1 - f2 - f3 - f4, tau_i = tau_min (tau_max/tau_min)^(i/3)
+ * Step 5, stage output, parameters (k, w2, w3, w4, tau_min, tau_max), state (c1..c4): y += sum_i c_i,
+ * dc_i/dt = (k_i u - c_i)/tau_i, k_i = k w_i / (w1 + w2 + w3 + w4) with w1 = 1, tau_i = tau_min (tau_max/tau_min)^(i/3)
  * (effects.Relaxation.gains, effects.relaxation_taus).
  */
 static void effect_relaxation(const double *p, const double *s0, double *s1, Chain *c)
 {
     int i;
-    double f[4] = {1.0 - (p[1] + p[2] + p[3]), p[1], p[2], p[3]};
+    double w[4] = {1.0, p[1], p[2], p[3]}, total = ((1.0 + p[1]) + p[2]) + p[3];
     for (i = 0; i < 4; i++) {
-        double k = p[0] * f[i], tau = p[4] * pow(p[5] / p[4], i / 3.0), c0 = s0 ? s0[i] : k * c->u[0];
+        double k = p[0] * w[i] / total, tau = p[4] * pow(p[5] / p[4], i / 3.0), c0 = s0 ? s0[i] : k * c->u[0];
         c->y[0] = c->y[0] + c0;
         s1[i] = c0;
         if (c->n == 2) {
