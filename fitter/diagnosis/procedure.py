@@ -29,8 +29,11 @@ Procedure (`diagnose`)
    against the model without it (`fitter.diagnosis.statistics`: likelihood
    ratio with an AR(1) effective sample size, Bonferroni over the candidates,
    at least `MIN_EXPLAINED` of the residual energy removed).
-4. The significant candidates are ranked by their residual (lowest first); the
-   winner is added, and the remaining candidates are tested again on top of it
+4. The significant candidates are ranked by BIC, N ln(RSS / N) + p ln N over
+   the fitted samples, p the effect's parameters (lowest first: between two
+   effects that leave nearly the same residual, the one with fewer parameters;
+   a flexible effect such as `relaxation`, six parameters, must remove more
+   than its extra parameters' worth); the winner is added, and the remaining candidates are tested again on top of it
    while the residual stays above `NOISE_MARGIN` times the noise (at most
    `max_findings`); none is added when the base residual is already within
    `NOISE_MARGIN` of the noise (they are still tested and listed: over many
@@ -219,7 +222,8 @@ def _held_out_rms(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> float:
 
 def _test_round(ex: JoinedExperiment, current: Fit, names: Sequence[str], mask: np.ndarray,
                 alpha: float, n_candidates: int, tick: Callable[[str], None]) -> list[tuple[dict, Fit]]:
-    """Fit and test each candidate on top of `current` (base + the effects found); sorted by RSS."""
+    """Fit and test each candidate on top of `current` (base + the effects found); sorted by BIC (`_bic`, the
+    effect's parameters counted: module docstring, step 4)."""
     base = current.theta[:current.family.n_base]
     results = []
     for name in names:
@@ -230,7 +234,7 @@ def _test_round(ex: JoinedExperiment, current: Fit, names: Sequence[str], mask: 
         rep["origin"] = REGISTRY[name].origin
         rep["significant"] = is_significant(rep, alpha, n_candidates)
         results.append((rep, fit))
-    results.sort(key=lambda rf: rf[1].rss)
+    results.sort(key=lambda rf: _bic(rf[1], len(REGISTRY[rf[0]["effect"]].parameters)))
     return results
 
 
