@@ -279,6 +279,33 @@ def test_stacked_expm_equals_one_at_a_time():
     assert np.isnan(expm(np.array([[np.inf]]))).all()
 
 
+def test_phi_blocks_are_the_blocks_of_the_augmented_exponential():
+    """`phi_blocks` (n x n blocks) against `expm` of the 3n x 3n matrix [[A S, I, 0], [0, 0, I], [0, 0, 0]],
+    over scales that need 1 to 10 squarings, zero patterns (triangular, sparse) and a non-finite entry;
+    for n = 1 against the scalar phi-functions."""
+    from fitter.core.flow import phi1, phi2, phi_blocks
+    rng = np.random.default_rng(8)
+    for n in (1, 2, 3, 4, 6):
+        AS = rng.standard_normal((40, n, n)) * np.geomspace(1e-4, 40.0, 40)[:, None, None]
+        AS[::3] = np.triu(AS[::3])
+        AS[1::5][np.abs(AS[1::5]) < 0.5 * np.abs(AS[1::5]).max(axis=(1, 2), keepdims=True)] = 0.0
+        G = np.zeros((len(AS), 3 * n, 3 * n))
+        G[:, :n, :n], G[:, :n, n:2 * n], G[:, n:2 * n, 2 * n:] = AS, np.eye(n), np.eye(n)
+        Z = expm(G)
+        for k, F in enumerate(phi_blocks(AS)):
+            ref = Z[:, :n, k * n:(k + 1) * n]
+            scale = np.abs(Z[:, :n]).max(axis=(1, 2))[:, None, None]
+            assert np.all(np.abs(F - ref) <= 1e-12 * scale)
+    z = np.array([-30.0, -2.0, -0.3, 1e-9, 0.0, 0.7, 5.0])
+    F0, F1, F2 = phi_blocks(z[:, None, None])
+    assert np.allclose(F0[:, 0, 0], np.exp(z), rtol=1e-14, atol=0)
+    assert np.allclose(F1[:, 0, 0], phi1(z), rtol=1e-14, atol=0)
+    assert np.allclose(F2[:, 0, 0], phi2(z), rtol=1e-14, atol=0)
+    bad = np.array([[[1.0, np.nan], [0.0, 1.0]], [[0.5, 0.0], [0.0, 0.5]]])
+    F0, F1, F2 = phi_blocks(bad)
+    assert np.isnan(F0[0]).all() and np.isnan(F2[0]).all() and np.isfinite(F1[1]).all()
+
+
 def test_input_range_holds_the_input_at_its_edges_and_bounds_an_unstable_branch(tmp_path):
     """Beyond input_range the model acts on the held edge value: the state stops, y stays at the edge's value;
     inside it nothing changes.  The loop converges on [-1, 1] (rho = e^(2 * 2 - 3 * 2)), but its rising branch

@@ -28,8 +28,9 @@ products as exponentials of cumulative sums), in chunks short enough that no
 exponential overflows.  When V is ill-conditioned (defective A, e.g. the
 Jordan blocks that a bilinear transform makes of a shift register) the kernel
 falls back to the same phi-functions as matrices, blocks of
-expm([[A S, I, 0], [0, 0, I], [0, 0, 0]]) (`AffineFlow.affine_maps`, the
-native FMU's flow), for all intervals at once.
+expm([[A S, I, 0], [0, 0, I], [0, 0, 0]]) computed on n x n blocks
+(`phi_blocks`, `AffineFlow.affine_maps`, the native FMU's flow, same numbers),
+for all intervals at once.
 
 `kernel.simulate` (base model) and `effects.run_with_effects` (effect chain)
 both run on these functions; `check_finite` and `check_increasing` are the
@@ -46,7 +47,7 @@ import numpy as np
 from .errors import KernelError
 
 __all__ = ["AffineFlow", "check_finite", "check_increasing", "expm", "flows", "integrate", "integrate_blocks",
-           "interval_coefficients", "linear_recurrence", "one_interval", "phi1", "phi2"]
+           "interval_coefficients", "linear_recurrence", "one_interval", "phi1", "phi2", "phi_blocks"]
 
 _COND_LIMIT = 1e6
 _CHUNK_SPAN = 300.0
@@ -117,6 +118,96 @@ def expm(M: np.ndarray) -> np.ndarray:
     return result if M.ndim == 3 else result[0]
 
 
+_SMALL_STACK = 64
+"""Up to this many matrices, `_product` forms all the terms at once and sums them with one call."""
+
+
+def _product(L: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """L R for stacks laid out (n, n, N), the stack index last: every entry sums L[i, j] R[j, c] over
+    ascending j, one rounding per product and per sum, as the native FMU's `product` does (numpy's
+    matmul may order the sums otherwise), so that `phi_blocks` gives the C's numbers.
+
+    A small stack takes two numpy calls: the products L[i, j] R[j, c] as one array, summed over j
+    by `np.add.accumulate` (sequential by definition: ((t0 + t1) + t2) + ...); a large one adds
+    the terms j = 1, 2, ... in place (the same sums, less memory traffic)."""
+    if L.shape[-1] <= _SMALL_STACK:
+        return np.add.accumulate(L[:, :, None] * R[None], axis=1)[:, -1]
+    P = L[:, :1] * R[:1]
+    for j in range(1, L.shape[1]):
+        P += L[:, j:j + 1] * R[j:j + 1]
+    return P
+
+
+def phi_blocks(AS: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """F0 = e^{AS}, F1 = phi1(AS), F2 = phi2(AS) for a stack (N, n, n) of matrices AS: the top
+    blocks of
+
+        e^X = [[F0, F1, F2], [0, I, I], [0, 0, I]],   X = [[AS, I, 0], [0, 0, I], [0, 0, 0]]   (3n x 3n)
+
+    (Van Loan 1978), computed as `expm` computes e^X (scaling to 1-norm <= 0.5, degree-18 Taylor
+    series, squaring) but on the n x n blocks, O(n^3) instead of O((3n)^3):
+
+    * scaling: the 1-norm of X is max(|AS|_1, 1) (the identity blocks' columns sum to 1); with s
+      the least number of halvings bringing it to <= 0.5, Y = X / 2^s = [[a, cI, 0], [0, 0, cI],
+      [0, 0, 0]], a = AS / 2^s, c = 2^-s;
+    * Taylor: Y^k = [[a^k, c a^(k-1), c^2 a^(k-2)], [0, 0, [k = 1] cI], [0, 0, 0]]
+      (a^-1 = a^-2 = 0), so the terms T_k = T_(k-1) Y / k have the top blocks
+      T0_k = T0_(k-1) a / k, T1_k = (c T0_(k-1)) / k, T2_k = (c T1_(k-1)) / k, and
+      e^Y = sum_(k<=18) T_k = [[F0, F1, F2], [0, I, cI], [0, 0, I]];
+    * squaring: [[F0, F1, F2], [0, I, cI], [0, 0, I]]^2
+      = [[F0 F0, F0 F1 + F1, F0 F2 + c F1 + F2], [0, I, 2c I], [0, 0, I]], s times, c doubling up
+      to 1 (in the phi-functions, the doubling formulas phi1(2z) = (e^z + 1) phi1(z) / 2 and
+      phi2(2z) = (e^z phi2(z) + phi1(z) + phi2(z)) / 4; Skaflestad & Wright 2009).
+
+    Every entry is the sum of the 3n x 3n product with its zero terms dropped, in the same order:
+    the numbers of the 3n x 3n algorithm with its products summed in ascending order (`_product`),
+    and those of the native FMU's `phi_blocks` (duhem_model.c), operation for operation.  A stack
+    entry with a NaN or infinite entry gives NaN blocks.  The work arrays are laid out (n, n, N),
+    so that every numpy operation runs over the stack, and [T0, T1, T2], [F0, F1, F2] are
+    stacked, so that a Taylor term costs few numpy calls (one interval, `AffineFlow.step`).
+    """
+    AS = np.asarray(AS, dtype=float)
+    n = AS.shape[-1]
+    norm = np.maximum(np.abs(AS).sum(axis=-2).max(axis=-1, initial=0.0), 1.0)
+    finite = np.isfinite(norm)
+    # s: the least s >= 0 with norm / 2^s <= 0.5, from the exact binary exponent (norm = m 2^e,
+    # 0.5 <= m < 1): s = e when m = 0.5, else e + 1 (what halving norm until <= 0.5 counts)
+    mant, expo = np.frexp(np.where(finite, norm, 1.0))
+    s = np.where(mant > 0.5, expo + 1, expo).astype(np.int64)
+    # sorted by decreasing s, the squarings run on leading slices of the stack (views)
+    order = np.argsort(-s, kind="stable")
+    s = s[order]
+    scale = np.exp2(s.astype(float))
+    a = np.ascontiguousarray(np.where(finite[order, None, None], AS[order], 0.0).transpose(1, 2, 0)) / scale
+    c = 1.0 / scale
+    # k = 1: T0 = I a / 1 = a, T1 = (c I) / 1, T2 = 0; F = I + T (F0 = I + T0, F1 = T1, F2 = T2)
+    T = np.zeros((3,) + a.shape)
+    T[0] = a
+    T[1] = np.eye(n)[:, :, None] * c
+    F = T.copy()
+    F[0] += np.eye(n)[:, :, None]
+    for k in range(2, 19):
+        P = _product(T[0], a)
+        T[1:] = T[:2] * c / k       # T2 = (c T1) / k, T1 = (c T0) / k, from the previous T0, T1
+        np.divide(P, k, out=T[0])   # T0 = (T0 a) / k
+        F += T
+    F0, F1, F2 = F
+    counts = np.searchsorted(-s, -np.arange(1, int(s.max(initial=0)) + 1), side="right")
+    for m in counts:
+        f0, f1, f2, cm = F0[..., :m], F1[..., :m], F2[..., :m], c[:m]
+        f2[...] = _product(f0, f2) + f1 * cm + f2
+        f1[...] = _product(f0, f1) + f1
+        f0[...] = _product(f0, f0)
+        cm *= 2.0
+    out = []
+    for G in (F0, F1, F2):
+        H = np.empty(AS.shape)
+        H[order] = G.transpose(2, 0, 1)
+        H[~finite] = np.nan
+        out.append(H)
+    return out[0], out[1], out[2]
+
+
 class AffineFlow:
     """Exact flow of (K) for one matrix A; see the module docstring.
 
@@ -178,21 +269,18 @@ class AffineFlow:
     def affine_maps(self, p: np.ndarray, r: np.ndarray, S: np.ndarray,
                     forcing: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Per interval, x(S) = M x(0) + g with M = e^{A S}, g = S K1 (B p + E) + S^2 K2 B r, where
-        [[M, K1, K2], ...] = expm([[A S, I, 0], [0, 0, I], [0, 0, 0]]) (one stacked `expm`).
+        [[M, K1, K2], ...] = expm([[A S, I, 0], [0, 0, I], [0, 0, 0]]), computed on the n x n
+        blocks by `phi_blocks` (all intervals at once).
 
         This is the phi-function form of the module docstring (S K1 = S phi1(A S),
         S^2 K2 = S^2 phi2(A S)), balanced so that the input level p does not enter the
         matrix: its norm, and the number of squarings, is that of A S (the native FMU's
-        flow is the same).  M is (N, n, n); g is (N, n), or (N, n, m) for m forcing
-        columns (B, E) as in `modal_terms`.
+        flow is the same, with the same numbers).  M is (N, n, n); g is (N, n), or (N, n, m)
+        for m forcing columns (B, E) as in `modal_terms`.
         """
-        n = self.n
-        G = np.zeros((len(S), 3 * n, 3 * n))
-        G[:, :n, :n] = self.A * S[:, None, None]
-        G[:, :n, n:2 * n] = np.eye(n)
-        G[:, n:2 * n, 2 * n:] = np.eye(n)
-        Z = expm(G)
-        M, K1, K2 = Z[:, :n, :n], Z[:, :n, n:2 * n] * S[:, None, None], Z[:, :n, 2 * n:] * (S ** 2)[:, None, None]
+        M, K1, K2 = phi_blocks(self.A * S[:, None, None])
+        K1 = K1 * S[:, None, None]
+        K2 = K2 * (S ** 2)[:, None, None]
         if forcing is None:
             return M, (np.einsum("kij,j->ki", K1, self.B) * p[:, None] + K1 @ self.E
                        + np.einsum("kij,j->ki", K2, self.B) * r[:, None])

@@ -96,7 +96,8 @@ LOG_CATEGORIES = {
     "logStatusDiscard": "Status requests that are not available (always reported).",
     "logCalls": "Every FMI call (with debug logging on).",
 }
-OPTIMIZE = ("-O2",)
+OPTIMIZE = ("-O2", "-ffp-contract=off")
+"""-ffp-contract=off: no fused multiply-adds (aarch64 compilers fuse by default), so the C flow rounds as numpy does."""
 SANITIZE = ("-O1", "-g", "-fno-omit-frame-pointer", "-fsanitize=address,undefined",
             "-fno-sanitize-recover=undefined")
 NATIVE_EFFECTS = frozenset(name for name, spec in REGISTRY.items() if spec.native)

@@ -22,16 +22,16 @@
  *
  * Exact flow (kernel module docstring, eq (K)): over one interval
  * dx/ds = A x + B (p + r s) + E for 0 <= s <= S,
- *   x(S) = Z00 x(0) + S Z01 (B p + E) + S^2 Z02 B r,
- *   Z = expm([[A S, I, 0], [0, 0, I], [0, 0, 0]])   (3n x 3n, blocks n x n),
+ *   x(S) = F0 x(0) + S F1 (B p + E) + S^2 F2 B r,  F0 = e^{AS}, F1 = phi1(AS), F2 = phi2(AS),
+ *   [[F0, F1, F2], ...] = expm([[A S, I, 0], [0, 0, I], [0, 0, 0]])   (3n x 3n, blocks n x n),
  * the balanced form of the phi-functions (flow.AffineFlow.affine_maps): the
  * input level p does not enter the matrix, so its norm, and the number of
  * squarings, is that of A S; with, for the rate-independent model, p = u_a, r = 1, S = u - u_a and the
  * branch chosen by the sign of u - u_a (a held input keeps the + branch,
  * where S = 0); for the rate-dependent model v = (u - u_a)/(t - t_a),
  * p = u_a, S = g(v) (t - t_a), r = v / g(v) (r = 0 when g(v) = 0, where
- * S = 0).  The matrix exponential is the kernel's: scaling to 1-norm <= 0.5,
- * degree-18 Taylor series, squaring.
+ * S = 0).  The matrix exponential is the kernel's (flow.phi_blocks): scaling to 1-norm <= 0.5,
+ * degree-18 Taylor series, squaring, computed on the n x n blocks (phi_blocks).
  *
  * Rate function: TabulatedRate, a PCHIP (Fritsch-Carlson slopes, limited
  * three-point end slopes) through (0, 0), separately on v <= 0 and v >= 0,
@@ -58,7 +58,6 @@
 #include "model_data.h"
 
 #define N DUHEM_ORDER
-#define M3 (3 * DUHEM_ORDER)
 #define TAYLOR_DEGREE 18
 #define EXPM_NORM_LIMIT 1e250
 
@@ -124,35 +123,55 @@ struct ModelData {
 /* ---------------------------------------------------------------- exact flow */
 
 /*
- * Z = e^X, X (M3 x M3) overwritten; -1 when X is not finite or too large to scale.
- * The kernel's algorithm (flow.expm): scaling to 1-norm <= 0.5, degree-18
- * Taylor series, squaring.
+ * P = L R on n x n blocks.  Each entry sums L[i][j] R[j][c] over ascending j, as the plain triple loop
+ * does, but the terms with L[i][j] = 0 are skipped: adding them changes nothing (x + 0 = x), so the
+ * result is the plain loop's (flow._product sums the same terms in the same order).
  */
-/*
- * P = L R.  Each entry sums L[i][j] R[j][c] over ascending j, as the plain triple loop does, but the
- * terms with L[i][j] = 0 are skipped: adding them changes nothing (x + 0 = x), so the result is the
- * plain loop's, and the zero blocks of the augmented matrices (most rows of the Taylor terms, the
- * identity rows of Z) cost nothing.
- */
-static void product(double L[M3][M3], double R[M3][M3], double P[M3][M3])
+static void product(double L[N][N], double R[N][N], double P[N][N])
 {
     int i, j, c;
-    memset(P, 0, sizeof(double) * M3 * M3);
-    for (i = 0; i < M3; i++)
-        for (j = 0; j < M3; j++) {
+    memset(P, 0, sizeof(double) * N * N);
+    for (i = 0; i < N; i++)
+        for (j = 0; j < N; j++) {
             double l = L[i][j];
             if (l == 0.0) continue;
-            for (c = 0; c < M3; c++) P[i][c] += l * R[j][c];
+            for (c = 0; c < N; c++) P[i][c] += l * R[j][c];
         }
 }
 
-static int expm(double X[M3][M3], double Z[M3][M3])
+/*
+ * The phi-function blocks of the augmented exponential (flow.phi_blocks, the kernel's algorithm):
+ *
+ *   e^X = [[F0, F1, F2], [0, I, I], [0, 0, I]],   X = [[A S, I, 0], [0, 0, I], [0, 0, 0]]  (3n x 3n),
+ *   F0 = e^{AS}, F1 = phi1(AS), F2 = phi2(AS)      (Van Loan 1978, block-triangular exponentials),
+ *
+ * by the kernel's expm of X (scaling to 1-norm <= 0.5, degree-18 Taylor series, squaring) restated
+ * on the n x n blocks, O(n^3) a step instead of O((3n)^3); -1 when A S is not finite or too large.
+ *
+ * Scaling: the 1-norm of X is max(|A S|_1, 1) (the identity blocks' columns sum to 1), s the least
+ * number of halvings that brings it to <= 0.5, and
+ *   Y = X / 2^s = [[a, cI, 0], [0, 0, cI], [0, 0, 0]],   a = A S / 2^s,  c = 2^-s.
+ * Taylor: Y^k = [[a^k, c a^(k-1), c^2 a^(k-2)], [0, 0, [k = 1] cI], [0, 0, 0]] (a^-1 = a^-2 = 0), so the
+ * terms T_k = T_(k-1) Y / k have the top blocks
+ *   T0_k = T0_(k-1) a / k,   T1_k = (c T0_(k-1)) / k,   T2_k = (c T1_(k-1)) / k,
+ * and e^Y = sum_(k<=18) T_k = [[F0, F1, F2], [0, I, cI], [0, 0, I]].
+ * Squaring (block product of two such matrices):
+ *   [[F0, F1, F2], [0, I, cI], [0, 0, I]]^2 = [[F0 F0, F0 F1 + F1, F0 F2 + c F1 + F2], [0, I, 2c I], [0, 0, I]],
+ * s times, c doubling each time up to 1; in the phi-functions these are the doubling formulas
+ * phi1(2z) = (e^z + 1) phi1(z) / 2, phi2(2z) = (e^z phi2(z) + phi1(z) + phi2(z)) / 4 (Skaflestad &
+ * Wright 2009).  Every block entry is the same sum, in the same order, as the 3n x 3n products with
+ * their zero terms skipped, so the numbers are those of the 3n x 3n algorithm.
+ */
+static int phi_blocks(const double *A, double S, double F0[N][N], double F1[N][N], double F2[N][N])
 {
-    double T[M3][M3], P[M3][M3], norm = 0.0, scale = 1.0;
+    double a[N][N], T0[N][N], T1[N][N], T2[N][N], P[N][N], norm = 1.0, scale = 1.0, c;
     int i, j, k, s = 0;
-    for (j = 0; j < M3; j++) {
+    for (j = 0; j < N; j++) {
         double column = 0.0;
-        for (i = 0; i < M3; i++) column += fabs(X[i][j]);
+        for (i = 0; i < N; i++) {
+            a[i][j] = A[i * N + j] * S;
+            column += fabs(a[i][j]);
+        }
         if (!(column <= EXPM_NORM_LIMIT)) return -1;
         if (column > norm) norm = column;
     }
@@ -161,23 +180,35 @@ static int expm(double X[M3][M3], double Z[M3][M3])
         scale *= 2.0;
         s++;
     }
-    for (i = 0; i < M3; i++)
-        for (j = 0; j < M3; j++) {
-            X[i][j] /= scale;
-            T[i][j] = (i == j ? 1.0 : 0.0);
-            Z[i][j] = T[i][j];
+    c = 1.0 / scale;
+    for (i = 0; i < N; i++)
+        for (j = 0; j < N; j++) {
+            a[i][j] /= scale;
+            T0[i][j] = F0[i][j] = (i == j ? 1.0 : 0.0);
+            T1[i][j] = F1[i][j] = T2[i][j] = F2[i][j] = 0.0;
         }
     for (k = 1; k <= TAYLOR_DEGREE; k++) {
-        product(T, X, P);
-        for (i = 0; i < M3; i++)
-            for (j = 0; j < M3; j++) {
-                T[i][j] = P[i][j] / k;
-                Z[i][j] += T[i][j];
+        product(T0, a, P);
+        for (i = 0; i < N; i++)
+            for (j = 0; j < N; j++) {
+                T2[i][j] = T1[i][j] * c / k;
+                T1[i][j] = T0[i][j] * c / k;
+                T0[i][j] = P[i][j] / k;
+                F0[i][j] += T0[i][j];
+                F1[i][j] += T1[i][j];
+                F2[i][j] += T2[i][j];
             }
     }
     for (; s > 0; s--) {
-        product(Z, Z, P);
-        memcpy(Z, P, sizeof P);
+        product(F0, F2, P);
+        for (i = 0; i < N; i++)
+            for (j = 0; j < N; j++) F2[i][j] = P[i][j] + F1[i][j] * c + F2[i][j];
+        product(F0, F1, P);
+        for (i = 0; i < N; i++)
+            for (j = 0; j < N; j++) F1[i][j] = P[i][j] + F1[i][j];
+        product(F0, F0, P);
+        memcpy(F0, P, sizeof P);
+        c *= 2.0;
     }
     return 0;
 }
@@ -186,23 +217,17 @@ static int expm(double X[M3][M3], double Z[M3][M3])
 static int flow(const double *A, const double *B, const double *E, const double *x, double p,
                 double r, double S, double *out)
 {
-    double X[M3][M3], Z[M3][M3];
+    double F0[N][N], F1[N][N], F2[N][N];
     int i, j;
     if (S == 0.0) {
         memcpy(out, x, N * sizeof(double));
         return 0;
     }
-    memset(X, 0, sizeof X);
-    for (i = 0; i < N; i++) {
-        for (j = 0; j < N; j++) X[i][j] = A[i * N + j] * S;
-        X[i][N + i] = 1.0;
-        X[N + i][2 * N + i] = 1.0;
-    }
-    if (expm(X, Z)) return -1;
+    if (phi_blocks(A, S, F0, F1, F2)) return -1;
     for (i = 0; i < N; i++) {
         double acc = 0.0;
         for (j = 0; j < N; j++)
-            acc += Z[i][j] * x[j] + S * Z[i][N + j] * (B[j] * p + E[j]) + S * S * Z[i][2 * N + j] * B[j] * r;
+            acc += F0[i][j] * x[j] + S * F1[i][j] * (B[j] * p + E[j]) + S * S * F2[i][j] * B[j] * r;
         out[i] = acc;
         if (!isfinite(out[i])) return -1;
     }
