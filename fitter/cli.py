@@ -544,6 +544,9 @@ def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order,
     if findings:
         _table("findings (most important first)", ["effect", "origin", "p-value", "explained fraction"],
                [[f.get("effect"), f.get("origin"), f.get("p_value"), f.get("explained_fraction")] for f in findings])
+        if result.verdict == "unexplained":
+            click.echo("unexplained: the findings explain part of the residual; what they leave is not the noise "
+                       "and no candidate effect explains it (the findings are partial: the nearest effects)")
     elif result.verdict == "nothing_missing":
         click.echo("nothing missing: the residual is consistent with the noise level")
     else:

@@ -15,7 +15,15 @@ Procedure (`diagnose`)
    predicts the held-out last recording better (an effect is not hidden by
    an extra order that fits as well but generalises worse; one recording:
    the lower BIC); a higher order that leaves a misfit above the noise is
-   not taken (the misfit is then physics for the effects to explain).  Or
+   not taken (the misfit is then physics for the effects to explain), unless
+   the first-order account fails and its first finding stands in for the
+   missing order: when the first-order base with its findings (steps 3-4)
+   stays above `NOISE_MARGIN` times the noise, its first finding does not
+   hold with one parameter set across the recordings, and that effect is
+   not significant on the higher-order base (the order was what it
+   fitted), the search is run on the higher order too, and its account is
+   taken when it reaches the noise and predicts the held-out last recording
+   better (one recording: the lower BIC).  Or
    a fixed order, or a given model.  The base's A, B, E (per branch) and
    x0 are refined (`fitter.diagnosis.fitting.fit_base`).
 2. Noise level sigma: `fitter.data.metrics.noise_rms` of each recording's output,
@@ -28,12 +36,16 @@ Procedure (`diagnose`)
    ``least_squares``, several starts for its nonlinear parameters) and tested
    against the model without it (`fitter.diagnosis.statistics`: likelihood
    ratio with an AR(1) effective sample size, Bonferroni over the candidates,
-   at least `MIN_EXPLAINED` of the residual energy removed).
+   at least `MIN_EXPLAINED` of the residual energy removed).  A creep must
+   also follow the input (`statistics.creep_response_report`): its start
+   transient alone is a change in time, a drift, not a creep of the
+   material; a creep that fits only its start is not significant.
 4. The significant candidates are ranked by BIC, N ln(RSS / N) + p ln N over
    the fitted samples, p the effect's parameters (lowest first: between two
    effects that leave nearly the same residual, the one with fewer parameters;
    a flexible effect such as `relaxation`, six parameters, must remove more
-   than its extra parameters' worth); the winner is added, and the remaining candidates are tested again on top of it
+   than its extra parameters' worth); the winner is added, and the remaining
+   candidates are tested again on top of it
    while the residual stays above `NOISE_MARGIN` times the noise (at most
    `max_findings`); none is added when the base residual is already within
    `NOISE_MARGIN` of the noise (they are still tested and listed: over many
@@ -53,11 +65,24 @@ the material's physics or the measuring chain (a sensor lag, a drift of the
 measured output); ``extended`` lists them apart (``material_effects``,
 ``measurement_effects``) and the paragraph says which is which.
 
-The verdict: "effects_found" (findings non-empty), "nothing_missing" (no
-finding and the base residual within `NOISE_MARGIN` of the noise) or
-"unexplained" (no finding, residual above the noise: the missing physics is
-not in the catalogue, or the base model is too simple).  The result is a
-`Diagnosis`; ``to_json()`` is the stable ``--json`` output.
+The remainder (``extended["remainder"]``, `_remainder`): is the residual the
+extended model leaves the noise?  `statistics.remainder_report` tests it
+for structure (the lag-1 autocorrelation over neighbouring samples, which
+white noise keeps at 0 +- 1/sqrt(N)); it is *explained* when it is not
+structured and its RMS is within `NOISE_MARGIN` of the noise.  It also says
+where it is largest (recording, branch, input range).
+
+The verdict: "effects_found" (findings, and the remainder explained),
+"nothing_missing" (no finding and the base residual within `NOISE_MARGIN`
+of the noise) or "unexplained": the residual is not explained, either with
+no finding (above the noise, no candidate significant) or with findings
+that leave a structured remainder or one above `NOISE_MARGIN` times the
+noise.  Findings of an "unexplained" diagnosis are *partial* (``partial``
+is true in each): the nearest effects of the catalogue, not necessarily the
+physics; what is missing is another functional form, an effect outside the
+catalogue, or a base model too simple, and the paragraph says so and where
+the remainder lives.  The result is a `Diagnosis`; ``to_json()`` is the
+stable ``--json`` output.
 """
 from __future__ import annotations
 
@@ -72,7 +97,8 @@ from fitter.diagnosis.experiment import DiagnoseError, JoinedExperiment, join_re
 from fitter.diagnosis.fitting import Fit, fit_base, fit_family, fit_per_recording
 from fitter.diagnosis.locate import locate_mismatch, where_differs
 from fitter.diagnosis.result import Diagnosis
-from fitter.diagnosis.statistics import ALPHA, NOISE_MARGIN, consistency_report, effect_report, is_significant
+from fitter.diagnosis.statistics import (ALPHA, NOISE_MARGIN, consistency_report, creep_response_report,
+                                         effect_report, is_significant, remainder_report)
 from fitter.diagnosis.text import comparison_text, summary_paragraph
 from fitter.identification.fit import fit_recordings
 from fitter.identification.output_error import effective_samples
@@ -125,13 +151,50 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
         done[0] += 1
         progress(msg, min(done[0] / n_steps, 0.99))
 
+    alternative = None
     if model is None and base_order is None:
-        base, first_round = _adequate_base(ex, mask, noise, candidates, alpha, tick)
+        base, first_round, alternative = _adequate_base(ex, mask, noise, candidates, alpha, tick)
     else:
         if model is None and base_order != 1:
             model = fit_recordings(ex.recordings, kind="ri", order=base_order).model
         base, first_round = fit_base(ex, model, mask), None
+    account = _search(ex, base, first_round, candidates, mask, noise, alpha, max_findings, tick)
+    if alternative is not None and account[1] and rms(account[0].residual) > NOISE_MARGIN * noise and \
+            not (account[1][0]["consistency"] or {}).get("consistent", False):
+        high, k_high = alternative
+        stand_in = _test_round(ex, high, [account[1][0]["effect"]], mask, alpha, len(candidates), tick)
+        if not stand_in[0][0]["significant"]:
+            other = _search(ex, high, None, candidates, mask, noise, alpha, max_findings, tick)
+            if other[1] and rms(other[0].residual) <= NOISE_MARGIN * noise and \
+                    _account_error(ex, other, k_high, mask) < _account_error(ex, account, 7, mask):
+                base, account = high, other
+    current, findings, tested, fits = account
     mismatch = locate_mismatch(ex, base.residual, noise)
+    tick("checking on held-out data")
+    remainder = _remainder(ex, current, mask, noise, alpha)
+    for f in findings:
+        f["partial"] = not remainder["explained"]
+    validation, comparison = _validate(ex, base, findings, tested, fits, mask, noise)
+    ext_model = current.model.replace(fit_info={
+        "method": "duhem diagnose", "effects": [f["effect"] for f in findings], "noise_rms": noise})
+    extended = dict(_summary(ex, current, noise), effects=[e.to_dict() for e in ext_model.effects],
+                    **{f"{origin}_effects": [f["effect"] for f in findings if f["origin"] == origin]
+                       for origin in ORIGINS}, remainder=remainder)
+    baseline = _summary(ex, base, noise)
+    progress("done", 1.0)
+    diag = Diagnosis(noise_rms=noise, verdict=_verdict(findings, baseline, remainder, noise), baseline=baseline,
+                     mismatch=mismatch, candidates=tested, findings=findings, extended=extended,
+                     validation=validation, comparison=comparison, paragraph="", base_model=base.model,
+                     extended_model=ext_model, baseline_output=ex.y - base.residual,
+                     extended_output=ex.y - current.residual)
+    diag.paragraph = summary_paragraph(diag)
+    return diag
+
+
+def _search(ex: JoinedExperiment, base: Fit, first_round: list | None, candidates: Sequence[str], mask: np.ndarray,
+            noise: float, alpha: float, max_findings: int, tick: Callable[[str], None]) -> tuple:
+    """Steps 3-4 on `base` (module docstring): (extended fit, findings, first-round candidate reports with
+    their rank, first-round fits by effect).  `first_round`: the base's first round when already run."""
     present = {e.effect for e in base.model.effects}
     candidates = [c for c in candidates if c not in present]
     current, findings, tested, fits = base, [], [], {}
@@ -148,27 +211,22 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
         if winner is None:
             break
         rep, current = winner
-        findings.append({k: rep[k] for k in _FINDING_KEYS})
+        findings.append({k: rep[k] for k in _FINDING_KEYS + ("response",) if k in rep})
         findings[-1]["consistency"] = _consistency(ex, current, mask, alpha)
         remaining = [c for c in remaining if c != rep["effect"]]
         if rms(current.residual) <= NOISE_MARGIN * noise:
             break
-    tick("checking on held-out data")
-    validation, comparison = _validate(ex, base, findings, tested, fits, mask, noise)
-    ext_model = current.model.replace(fit_info={
-        "method": "duhem diagnose", "effects": [f["effect"] for f in findings], "noise_rms": noise})
-    extended = dict(_summary(ex, current, noise), effects=[e.to_dict() for e in ext_model.effects],
-                    **{f"{origin}_effects": [f["effect"] for f in findings if f["origin"] == origin]
-                       for origin in ORIGINS})
-    baseline = _summary(ex, base, noise)
-    progress("done", 1.0)
-    diag = Diagnosis(noise_rms=noise, verdict=_verdict(findings, baseline, noise), baseline=baseline,
-                     mismatch=mismatch, candidates=tested, findings=findings, extended=extended,
-                     validation=validation, comparison=comparison, paragraph="", base_model=base.model,
-                     extended_model=ext_model, baseline_output=ex.y - base.residual,
-                     extended_output=ex.y - current.residual)
-    diag.paragraph = summary_paragraph(diag)
-    return diag
+    return current, findings, tested, fits
+
+
+def _account_error(ex: JoinedExperiment, account: tuple, k_base: int, mask: np.ndarray) -> float:
+    """How well a base with its findings (an account, `_search`) generalises: the RMS error on the held-out
+    last recording (`_held_out_rms`), or with a single recording its BIC (`k_base` base parameters plus
+    the findings' parameters)."""
+    current, findings = account[0], account[1]
+    if len(ex.recordings) > 1:
+        return _held_out_rms(ex, current, mask)
+    return _bic(current, k_base + sum(len(f["parameters"]) for f in findings))
 
 
 def _bic(fit: Fit, n_parameters: int) -> float:
@@ -178,7 +236,7 @@ def _bic(fit: Fit, n_parameters: int) -> float:
 
 
 def _adequate_base(ex: JoinedExperiment, mask: np.ndarray, noise: float, candidates: Sequence[str],
-                   alpha: float, tick: Callable[[str], None]) -> tuple[Fit, list | None]:
+                   alpha: float, tick: Callable[[str], None]) -> tuple[Fit, list | None, tuple | None]:
     """The base of step 1 (module docstring) and, when it is the first-order base, its first round of
     candidate tests (reused by the search).
 
@@ -192,23 +250,25 @@ def _adequate_base(ex: JoinedExperiment, mask: np.ndarray, noise: float, candida
     (`fit_recordings`) plus its n initial states)."""
     first = fit_base(ex, None, mask)
     if rms(first.residual) <= NOISE_MARGIN * noise:
-        return first, None
+        return first, None, None
     tick("choosing the base order (BIC)")
     higher = fit_recordings(ex.recordings, kind="ri")
     order = higher.model.order
     if order == 1:
-        return first, None
+        return first, None, None
     high = fit_base(ex, higher.model, mask)
-    if rms(high.residual) > NOISE_MARGIN * noise:
-        return first, None
     k_high = next(c["parameters"] for c in higher.summary["candidates"] if c["order"] == order) + order
+    if rms(high.residual) > NOISE_MARGIN * noise:
+        return first, None, (high, k_high)
     results = _test_round(ex, first, candidates, mask, alpha, len(candidates), tick)
     best = next((f for r, f in results if r["significant"]), None)
     if best is None or rms(best.residual) > NOISE_MARGIN * noise:
-        return high, None
+        return high, None, None
     if len(ex.recordings) > 1:
-        return (first, results) if _held_out_rms(ex, best, mask) < _held_out_rms(ex, high, mask) else (high, None)
-    return (first, results) if _bic(best, best.family.size) < _bic(high, k_high) else (high, None)
+        better = _held_out_rms(ex, best, mask) < _held_out_rms(ex, high, mask)
+    else:
+        better = _bic(best, best.family.size) < _bic(high, k_high)
+    return (first, results, None) if better else (high, None, None)
 
 
 def _held_out_rms(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> float:
@@ -233,6 +293,9 @@ def _test_round(ex: JoinedExperiment, current: Fit, names: Sequence[str], mask: 
         rep["effect"] = name
         rep["origin"] = REGISTRY[name].origin
         rep["significant"] = is_significant(rep, alpha, n_candidates)
+        if name == "creep" and rep["significant"]:
+            rep["response"] = creep_response_report(fit, ex, rep["n_eff"], alpha, n_candidates)
+            rep["significant"] = rep["response"]["follows_input"]
         results.append((rep, fit))
     results.sort(key=lambda rf: _bic(rf[1], len(REGISTRY[rf[0]["effect"]].parameters)))
     return results
@@ -247,9 +310,30 @@ def _consistency(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, alpha: float)
                               alpha)
 
 
-def _verdict(findings: list, baseline: dict, noise: float) -> str:
+def _remainder(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, noise: float, alpha: float) -> dict:
+    """The residual the extended model leaves: `statistics.remainder_report` (is it white noise?), its
+    RMS against the noise, ``explained`` (RMS within `NOISE_MARGIN` of the noise and not structured) and
+    where it is largest (recording, branch, input range: `locate.locate_mismatch`)."""
+    rep = remainder_report(ex, fit.residual, mask, alpha)
+    where = locate_mismatch(ex, fit.residual, noise)
+    worst_range = max((b for b in where["per_input_range"] if b["residual_rms"] is not None),
+                      key=lambda b: b["residual_rms"])
+    branches = {k: v for k, v in where["per_branch"].items() if v is not None}
+    rep.update(residual_rms=rms(fit.residual[mask]), noise_ratio=rms(fit.residual[mask]) / noise if noise else None,
+               explained=bool(rms(fit.residual[mask]) <= NOISE_MARGIN * noise and not rep["structured"]),
+               worst_recording=where["worst_recording"], worst_branch=max(branches, key=branches.get),
+               worst_input_range=[worst_range["u_from"], worst_range["u_to"]],
+               per_recording={p["name"]: p["residual_rms"] for p in where["per_recording"]},
+               per_branch=where["per_branch"])
+    return rep
+
+
+def _verdict(findings: list, baseline: dict, remainder: dict, noise: float) -> str:
+    """The verdict (module docstring): "effects_found" when the findings leave an explained remainder,
+    "nothing_missing" when there are none and the base residual is within `NOISE_MARGIN` of the noise,
+    else "unexplained"."""
     if findings:
-        return "effects_found"
+        return "effects_found" if remainder["explained"] else "unexplained"
     if baseline["residual_rms"] <= NOISE_MARGIN * noise:
         return "nothing_missing"
     return "unexplained"

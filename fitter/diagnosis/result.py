@@ -13,7 +13,7 @@ class Diagnosis:
     """Result of `diagnose`; ``to_json()`` is the stable ``--json`` output."""
 
     noise_rms: float
-    verdict: str               # "effects_found", "nothing_missing" or "unexplained"
+    verdict: str               # "effects_found", "nothing_missing" or "unexplained" (findings then partial)
     baseline: dict
     mismatch: dict
     candidates: list

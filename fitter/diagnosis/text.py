@@ -45,7 +45,26 @@ def summary_paragraph(d: Diagnosis) -> str:
         text += " " + d.comparison + "."
     text += (f" The extended model leaves {e['residual_rms']:.3g} RMS ({_times(e['residual_rms'], d.noise_rms)}); "
              f"NRMSE {100 * b['nrmse']:.2f}% -> {100 * e['nrmse']:.2f}%.")
+    if d.verdict == "unexplained":
+        text += " " + _remainder_text(e["remainder"], len(d.findings))
     return text
+
+
+def _remainder_text(rem: dict, n_findings: int) -> str:
+    """Why a diagnosis with findings is "unexplained": the remainder is not noise, and where it lives."""
+    if rem["structured"]:
+        why = (f"its neighbouring samples correlate (lag-1 autocorrelation {rem['lag1']:.2f}, "
+               f"{_p_text(rem['p_value'])}; white noise gives 0 ± {1 / max(rem['pairs'], 1) ** 0.5:.2g}): "
+               f"a structured part of about {100 * rem['lag1']:.0f}% of it")
+    else:
+        why = f"it stays above {NOISE_MARGIN:g} times the noise"
+    lo, hi = rem["worst_input_range"]
+    effects = ("the finding is partial: the nearest effect" if n_findings == 1 else
+               "the findings are partial: the nearest effects")
+    return (f"Unexplained: the residual left is not the noise, {why} that no effect of the catalogue explains "
+            f"(largest in {rem['worst_recording']}, on the {rem['worst_branch']} branch, for inputs "
+            f"{lo:.3g} to {hi:.3g}). So {effects} of the catalogue, not necessarily the physics; what is "
+            "missing is another functional form, an effect outside the catalogue, or a base model too simple.")
 
 
 def comparison_text(winner: dict, runner: dict | None, hold_out: dict, noise: float, worst: str) -> str:
@@ -66,6 +85,12 @@ def comparison_text(winner: dict, runner: dict | None, hold_out: dict, noise: fl
     text += (f"; the runner-up {other} leaves {runner['residual_rms']:.3g}"
              f" (explains {100 * runner['explained_fraction']:.0f}% against "
              f"{100 * winner['explained_fraction']:.0f}%)")
+    resp = runner.get("response")
+    if resp and not resp["follows_input"]:
+        text += (f"; but that {other} does not follow the input (its gain on the input's response is "
+                 f"{resp['gain_response']:.3g} against k = {runner['parameters']['k']:.3g} once its start "
+                 f"transient is free, {_p_text(resp['p_value'])}): what it fits is its start, a change in time, "
+                 "so it is not a finding")
     text += (f". Refitted without {held}, {win} predicts it with a residual of {hold_out[win]:.3g}, "
              f"{other} with {hold_out[other]:.3g}, the base model with {hold_out['base']:.3g}")
     text += f". The runner-up's extra error is largest {worst}"

@@ -129,6 +129,7 @@ def _html(diagnosis) -> str:
         f"{html.escape(d['summary'])}</p>",
         f"<p>Noise level (from the data): {d['noise_rms']:.4g}; base residual RMS "
         f"{d['baseline']['residual_rms']:.4g}; extended residual RMS {d['extended']['residual_rms']:.4g}.</p>",
+        _remainder_html(d["extended"].get("remainder")),
         "<h2>Findings</h2>", findings,
         "<h2>All candidates (first round)</h2>",
         _table(d["candidates"], ["rank", "effect", "residual_rms", "explained_fraction", "p_value", "n_eff",
@@ -168,3 +169,15 @@ def fill_diagnosis_report(diagnosis, recordings, directory: Path) -> None:
     _loops(diagnosis, recordings, directory / "loops.png")
     _nrmse(diagnosis, directory / "nrmse.png")
     (directory / "index.html").write_text(_html(diagnosis), encoding="utf-8")
+
+
+def _remainder_html(rem: dict | None) -> str:
+    """One line on the residual the extended model leaves (`procedure._remainder`)."""
+    if not rem:
+        return ""
+    state = "explained (the noise)" if rem["explained"] else "not explained"
+    lo, hi = rem["worst_input_range"]
+    return (f"<p>Remainder: {state}; lag-1 autocorrelation {rem['lag1']:.3f} (p = {rem['p_value']:.2g}, white noise "
+            f"0 &plusmn; {1 / max(rem['pairs'], 1) ** 0.5:.2g}); largest in "
+            f"{html.escape(str(rem['worst_recording']))}, {html.escape(str(rem['worst_branch']))} branch, inputs "
+            f"{lo:.3g} to {hi:.3g}.</p>")
