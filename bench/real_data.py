@@ -17,7 +17,7 @@ Beside the classical models (``piezo.best``, ``piezo.baselines``,
 ``friction.baselines``; `fitter.baselines`): every model scored the same way,
 RMS error / output range over all samples with its initial state fitted per
 recording.  ``piezo.best`` is the single model `duhem fit` (``--kind auto``)
-and `duhem diagnose` (the fit as its base) give for all three rates, with the
+and `duhem diagnose --separate` (the fit as its base) give for all three rates, with the
 same structure refitted on two rates predicting the third (``holdout``).
 
 "fit" NRMSE is the fit's own (the saved model from its stored x0, all samples);
@@ -54,7 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from fitter.baselines import compare_baselines, duhem_nrmse
-from fitter.diagnosis import chain_recordings, diagnose
+from fitter.diagnosis import diagnose
 from fitter.core import RateDependentModel, RateIndependentModel, TabulatedRate, simulate
 from fitter.core.models import Signal
 from fitter.identification.fit import fit_recordings
@@ -160,18 +160,19 @@ def _scores(model, recs: dict[str, Recording], labels: list[str]) -> dict[str, f
 
 
 def _diagnosed(model, recs: list[Recording], **options):
-    """`duhem diagnose` of the recordings (on one clock, `chain_recordings`: P is re-referenced per file) with
-    `model` as the base: (its extended model, the diagnosis)."""
-    d = diagnose(chain_recordings(recs, relative_output=True), model=model, **options)
+    """`duhem diagnose --separate` of the recordings (separate files, each from its own start, scored as the
+    fit scores them) with `model` as the base: (its extended model, the diagnosis)."""
+    d = diagnose(recs, model=model, separate=True, **options)
     return d.extended_model, d
 
 
 def _best(recs: dict[str, Recording], labels: list[str]) -> dict:
     """The best single Duhem model (one parameter set) for all rates that `duhem fit` (``--kind auto``) and then
     `duhem diagnose` (that fit as its base) give without hand-tuning, scored as the baselines are (x0 fitted per
-    recording, all samples): the diagnosed model when the diagnosis finds an effect and it scores lower on the
-    mean NRMSE, else the fit.  ``candidates`` lists both.  The held-out rates: the same structure (kind, order,
-    effects) refitted on two rates (fit, then the diagnosis restricted to those effects), predicting the third."""
+    recording, all samples): the diagnosis' model (its base refined on the records, with the effects it found)
+    when it scores lower on the mean NRMSE, else the fit.  ``candidates`` lists both.  The held-out rates: the
+    same pipeline on two rates (the fit of the same kind and order, then, when the diagnosis' model was picked,
+    the diagnosis restricted to its effects), predicting the third."""
     _log("piezo: best single model: duhem fit on all three rates")
     t0 = time.perf_counter()
     r = fit_recordings([recs[k] for k in labels])
@@ -182,14 +183,13 @@ def _best(recs: dict[str, Recording], labels: list[str]) -> dict:
     cands = {"fit": {"model": _model_tag(r), "effects": [], "fit": fitted},
              "fit+diagnose": {"model": _model_tag(r), "effects": [e.effect for e in ext.effects],
                               "verdict": d.verdict, "fit": diagnosed}}
-    pick = "fit+diagnose" if ext.effects and np.mean(list(diagnosed.values())) < np.mean(list(fitted.values())) \
-        else "fit"
+    pick = "fit+diagnose" if np.mean(list(diagnosed.values())) < np.mean(list(fitted.values())) else "fit"
     out = dict(cands[pick], source=pick, seconds=time.perf_counter() - t0, candidates=cands, holdout={})
     for held in labels:
         _log(f"piezo: best structure without {held}")
         train = [recs[k] for k in labels if k != held]
         h = fit_recordings(train, kind=r.model.kind, order=r.model.order).model
-        if out["effects"]:
+        if pick == "fit+diagnose":
             h, _ = _diagnosed(h, train, candidates=out["effects"], alpha=1.0, max_findings=len(out["effects"]))
         out["holdout"][held] = duhem_nrmse(h, recs[held])
     return out

@@ -505,13 +505,17 @@ def _axis_name(signal) -> str:
               help="without --model: order of the rate-independent base model (auto: the order 'duhem fit' "
                    "chooses by BIC, so the base is adequate before effects are tested; 1: fitted here, fast; "
                    "2-4: fitted by 'duhem fit --kind ri --order N' first; its A matrices are then held)")
+@click.option("--separate", is_flag=True,
+              help="the recordings are separate runs, each on its own clock (e.g. every file from t = 0): each is "
+                   "simulated alone from the initial state fitted to it, as 'duhem fit' scores")
 @_column_options
-def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order, time_col, input_col,
+def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order, separate, time_col, input_col,
              output_col):
     """Locate the model-data mismatch of one experiment, name the physics left out, model it.
 
     The recordings are one experiment in time order on one clock (e.g.
-    several rates and a repeat of the first run).
+    several rates and a repeat of the first run), or with --separate
+    separate runs, each on its own clock.
     """
     _check_fmu_name(fmu)
     if model_path and base_order != "auto":
@@ -527,7 +531,8 @@ def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order,
         fmu_tmp = outputs.enter_context(atomic_file(fmu, suffix=".fmu")) if fmu else None
         with stderr_progress("diagnosing", bar=True) as progress:
             result = run_diagnosis(recs, model=base, progress=progress,
-                                   base_order=None if base_order == "auto" else int(base_order))
+                                   base_order=None if base_order == "auto" else int(base_order),
+                                   separate=separate)
         data = jsonable(result.to_json())
         if report_tmp:
             fill_diagnosis_report(result, recs, report_tmp)

@@ -93,7 +93,8 @@ the model's) and the effect chain starts afresh there.  A first call of
 the feedthrough D u and output effects such as creep depend on it; with
 D = 0 and no such effect the output there is C x0 whatever u, and the
 sample is clamped unless y_ref(t0) equals it; u then stays at u0).  u0
-defaults to the middle of the search range.
+defaults to the model's first input (the input at which its x0 was fitted,
+`first_input`), else the middle of the search range.
 
 Effects
 -------
@@ -243,7 +244,8 @@ class Compensator:
     ----------
     model : a `RateIndependentModel` or `RateDependentModel`, with effects or not
     t0 : time of the first sample (a first `step` at t0 solves that sample; see the module docstring)
-    u0 : the plant's input before the first step (default: the middle of the search range)
+    u0 : the plant's input before the first step (default: the model's `first_input`, the input at which its
+        x0 was fitted, else the middle of the search range)
     x0 : the plant's state at the first sample (default: the model's x0)
     measurement : "refuse" (default), "drop" or "invert": what to do with the model's measurement effects
     input_range : (lo, hi), the inputs searched (default: the model's ``input_range``)
@@ -276,7 +278,8 @@ class Compensator:
     def reset(self, t0: float = 0.0, u0: float | None = None, x0=None) -> None:
         """Back to time t0, the plant at input u0 with state x0 (defaults as in the constructor)."""
         lo, hi = self.input_range
-        u0 = (lo + hi) / 2 if u0 is None else float(u0)
+        if u0 is None:
+            u0 = self.model.first_input if self.model.first_input is not None else (lo + hi) / 2
         if not (math.isfinite(t0) and math.isfinite(u0)):
             raise KernelError(f"t0 = {t0} and u0 = {u0} must be finite")
         self._stepper.reset(float(t0), min(hi, max(lo, u0)), x0)

@@ -243,6 +243,15 @@ class _ModelBase:
     def order(self) -> int:
         return self.C.shape[0]
 
+    @property
+    def first_input(self) -> float | None:
+        """The input at which the stored x0 holds (the first sample of the recording it was fitted on,
+        ``fit_info["x0"]["u0"]``), None when the fit did not record it.  A simulation starts x0 at its own
+        first input; an FMU or a compensator that is not told its first input starts here."""
+        x0 = self.fit_info.get("x0")
+        u0 = x0.get("u0") if isinstance(x0, dict) else None
+        return None if u0 is None else float(u0)
+
     def model_input(self, u):
         """The input the model acts on: u held at the edges of `input_range` (module docstring)."""
         if self.input_range is None:

@@ -6,6 +6,14 @@ signal: the input is piecewise linear between all samples, including across a
 gap (the straight line from the last sample of one file to the first of the
 next), so model states, creep and the input travel of a thermal drift carry
 over from file to file.
+
+Or (``separate``) a list of separate runs, each on its own clock (every file
+may start at t = 0, as a tester that writes one file per measurement does):
+each recording is simulated alone, from the initial state that fits it best
+(least squares over all its samples, the fit's and the baselines' policy,
+`fitter.identification.output_error.fitted_initial_state`), and every effect
+state restarts at its own start (a creep at equilibrium with the first input,
+a drift at 0).  `runs` gives the slices that are simulated as one signal.
 """
 from __future__ import annotations
 
@@ -38,10 +46,15 @@ class JoinedExperiment:
     y: np.ndarray
     index: np.ndarray          # recording number of each sample
     bounds: list               # [start, stop) of each recording in the arrays
+    separate: bool = False     # each recording its own run (module docstring)
 
     def part(self, i: int) -> slice:
         """The samples of recording `i` in the joined arrays."""
         return slice(*self.bounds[i])
+
+    def runs(self) -> list[slice]:
+        """The slices simulated as one signal: the whole experiment, or each recording when `separate`."""
+        return [self.part(i) for i in range(len(self.recordings))] if self.separate else [slice(0, len(self.t))]
 
     def min_dt(self) -> float:
         """The shortest of the recordings' median sample periods."""
@@ -50,20 +63,25 @@ class JoinedExperiment:
     def effect_context(self, y_mean: float) -> EffectContext:
         """The experiment's `EffectContext`, `y_mean` the mean output of the model an effect would extend.
 
-        v95 is the 95th percentile of |du/dt| over all intervals (1.0 when it is 0).
+        v95 is the 95th percentile of |du/dt| over all intervals of the runs (1.0 when it is 0); the duration is
+        the longest run's.
         """
-        v95 = float(np.percentile(np.abs(np.diff(self.u) / np.diff(self.t)), 95)) or 1.0
-        return EffectContext(dt_min=self.min_dt(), duration=float(np.ptp(self.t)), u_span=float(np.ptp(self.u)),
+        rates = np.concatenate([np.diff(self.u[s]) / np.diff(self.t[s]) for s in self.runs()])
+        v95 = float(np.percentile(np.abs(rates), 95)) or 1.0
+        duration = max(float(np.ptp(self.t[s])) for s in self.runs())
+        return EffectContext(dt_min=self.min_dt(), duration=duration, u_span=float(np.ptp(self.u)),
                              y_min=float(self.y.min()), y_max=float(self.y.max()), y_mean=y_mean, v95=v95)
 
 
-def join_recordings(recordings: Sequence[Recording]) -> JoinedExperiment:
-    """Check the recordings of one experiment and join them on its clock.
+def join_recordings(recordings: Sequence[Recording], separate: bool = False) -> JoinedExperiment:
+    """Check the recordings of one experiment and join them on its clock (`separate`: as separate runs,
+    module docstring).
 
     Raises
     ------
     DiagnoseError : no recordings, different columns, a non-finite output, time not running on from
-        file to file, fewer than `MIN_SAMPLES` samples, an input reversing fewer than twice.
+        file to file (unless `separate`), fewer than `MIN_SAMPLES` samples, an input reversing fewer than
+        twice.
     """
     recs = list(recordings)
     if not recs:
@@ -73,10 +91,11 @@ def join_recordings(recordings: Sequence[Recording]) -> JoinedExperiment:
         _check_output(r)
     check_scale(recs)
     for a, b in zip(recs[:-1], recs[1:]):
-        if b.t[0] <= a.t[-1]:
+        if b.t[0] <= a.t[-1] and not separate:
             raise DiagnoseError(f"{b.source}: starts at t = {b.t[0]} before {a.source} ends (t = {a.t[-1]}); "
                                 "the recordings of one experiment must share one clock that runs on from "
-                                "file to file (shift the time of later files)")
+                                "file to file (shift the time of later files, or diagnose them as separate runs: "
+                                "--separate)")
     n = sum(len(r.t) for r in recs)
     if n < MIN_SAMPLES:
         raise DiagnoseError(f"{n} samples in all ({', '.join(r.source for r in recs)}): too short to "
@@ -88,7 +107,7 @@ def join_recordings(recordings: Sequence[Recording]) -> JoinedExperiment:
     stops = np.cumsum([len(r.t) for r in recs])
     bounds = [(int(s - len(r.t)), int(s)) for s, r in zip(stops, recs)]
     return JoinedExperiment(recs, np.concatenate([r.t for r in recs]), u, np.concatenate([r.y for r in recs]),
-                            np.concatenate([np.full(len(r.t), i) for i, r in enumerate(recs)]), bounds)
+                            np.concatenate([np.full(len(r.t), i) for i, r in enumerate(recs)]), bounds, separate)
 
 
 def chain_recordings(recordings: Sequence[Recording], relative_output: bool = False) -> list[Recording]:

@@ -2,8 +2,11 @@
 
 Every fit is `fitter.identification.output_error.refine` on the joined
 experiment as one recording (x0 = "model": the initial state is part of
-theta), with the mask as 0/1 weights, residuals normalised by the output range
-and the tolerances of `OPTIONS`.  The parametrisation (`family`) is
+theta) or, for separate runs (`JoinedExperiment.separate`), on each recording
+alone with its initial state fitted to it (x0 = "fit"; theta's x0 is then
+held, and a fit's model carries the first recording's initial state), with
+the mask as 0/1 weights, residuals normalised by the output range and the
+tolerances of `OPTIONS` (`problem`).  The parametrisation (`family`) is
 `WithEffects(StateSpace(template), effects, ctx)`: the template's free
 matrices and x0, then the candidate effects' parameters (registry order; a
 ``log`` parameter such as a time constant enters as its logarithm); the
@@ -11,8 +14,8 @@ template's own effects (those already found) are kept fixed.
 
 Base model (`fit_base`): a first-order rate-independent model, eqs (1)-(2)
 with C = 1, D = 0 (D is redundant at order 1): a grid over A+ = -A- < 0 (both
-branches converge, condition (5)) with B+-, E+-, x0 solved by linear least
-squares, since the output is affine in them for fixed A, then a joint
+branches converge, condition (5)) with B+-, E+-, x0 (one per run) solved by
+linear least squares, since the output is affine in them for fixed A, then a joint
 nonlinear least-squares refinement; or a given model whose A, B, E (per
 branch) and x0 are refined.
 
@@ -47,7 +50,8 @@ from fitter.diagnosis.experiment import JoinedExperiment
 from fitter.identification.output_error import Options, Recordings, RefineResult, refine
 from fitter.identification.parametrisation import StateSpace, WithEffects
 
-__all__ = ["Fit", "family", "fit_base", "fit_family", "fit_per_recording", "first_order_ri", "free_base", "OPTIONS"]
+__all__ = ["Fit", "family", "fit_base", "fit_family", "fit_per_recording", "first_order_ri", "free_base", "problem",
+           "OPTIONS"]
 
 OPTIONS = Options(xtol=1e-7, ftol=1e-7, gtol=1e-8, max_samples=None, normalise=True)
 """Tolerances of every diagnosis fit; the budget is 30 (free parameters + 1) evaluations."""
@@ -60,6 +64,7 @@ class Fit:
     family: WithEffects
     result: RefineResult
     mask: np.ndarray
+    separate: bool = False
 
     @property
     def theta(self) -> np.ndarray:
@@ -67,7 +72,7 @@ class Fit:
 
     @property
     def residual(self) -> np.ndarray:
-        return self.result.residuals[0]
+        return np.concatenate(self.result.residuals)
 
     @property
     def rss(self) -> float:
@@ -76,6 +81,9 @@ class Fit:
 
     @property
     def model(self):
+        """The fitted model; for separate runs with the initial state fitted to the first recording."""
+        if self.separate:
+            return self.result.model.replace(x0=self.result.x0s[0])
         return self.result.model
 
 
@@ -117,13 +125,25 @@ def _effects_only(fam: WithEffects) -> np.ndarray:
     return np.r_[np.zeros(fam.n_base, bool), np.ones(fam.size - fam.n_base, bool)]
 
 
+def problem(ex: JoinedExperiment, mask: np.ndarray) -> Recordings:
+    """The output-error problem of every diagnosis fit (module docstring): the experiment as one recording
+    (x0 = "model"), or its separate runs (x0 = "fit"), `mask` as 0/1 weights."""
+    if ex.separate:
+        return Recordings(list(ex.recordings), x0="fit",
+                          weights=[mask[s].astype(float) for s in ex.runs()])
+    return Recordings([Recording(ex.t, ex.u, ex.y, "experiment")], x0="model", weights=[mask.astype(float)])
+
+
 def _refine(fam: WithEffects, theta0: np.ndarray, ex: JoinedExperiment, mask: np.ndarray,
             free: np.ndarray | None = None) -> Fit:
-    """Minimise the sum over `mask` of (y - yhat(theta))^2; only the `free` entries of theta move."""
+    """Minimise the sum over `mask` of (y - yhat(theta))^2; only the `free` entries of theta move (and
+    never theta's x0 for separate runs: each run's initial state is fitted inside `problem`)."""
+    if ex.separate:
+        held = np.r_[[name.startswith("x0[") for name in fam.base.names()], np.zeros(fam.size - fam.n_base, bool)]
+        free = ~held if free is None else free & ~held
     n_free = len(theta0) if free is None else int(np.count_nonzero(free))
-    problem = Recordings([Recording(ex.t, ex.u, ex.y, "experiment")], x0="model", weights=[mask.astype(float)])
     options = Options(**{**vars(OPTIONS), "max_nfev": 30 * (n_free + 1)})
-    return Fit(fam, refine(fam, theta0, problem, options, free=free), mask)
+    return Fit(fam, refine(fam, theta0, problem(ex, mask), options, free=free), mask, ex.separate)
 
 
 def fit_family(template, effects: Sequence[str], base: np.ndarray, ex: JoinedExperiment, mask: np.ndarray,
@@ -144,7 +164,7 @@ def fit_family(template, effects: Sequence[str], base: np.ndarray, ex: JoinedExp
         theta0 = min(screened, key=lambda f: f.rss).theta
     fit = _refine(fam, theta0, ex, mask, free_base(fam))
     null = np.r_[base, fam.null()]
-    null_rss = float(np.sum((ex.y - simulate(fam.build(null), ex.t, ex.u).y)[mask] ** 2))
+    null_rss = float(np.sum(problem(ex, mask).residuals(fam, null)[0] ** 2))
     if fit.rss > null_rss * (1 + 1e-4):
         fit = _refine(fam, null, ex, mask, free_base(fam))
     return fit
@@ -158,14 +178,25 @@ def fit_base(ex: JoinedExperiment, model, mask: np.ndarray) -> Fit:
     span = max(np.ptp(ex.u), 1e-300)
     best = None
     for a in -np.geomspace(0.5, 64, 8) * 2 / span:  # inside the bounds of `_base_bounds`
-        basis = np.column_stack([simulate(first_order_ri(a, -a, *(np.eye(5)[j])), ex.t, ex.u).y for j in range(5)])
+        basis = _grid_basis(ex, a)
         coef, *_ = np.linalg.lstsq(basis[mask], ex.y[mask], rcond=None)
         rss = float(np.sum((ex.y[mask] - basis[mask] @ coef) ** 2))
         if best is None or rss < best[0]:
             best = (rss, a, coef)
-    _, a, (bp, bm, ep, em, x0) = best
+    _, a, (bp, bm, ep, em, x0, *_) = best
     fam = family(first_order_ri(a, -a, bp, bm, ep, em, x0), [], ex, None)
     return _refine(fam, np.array([a, -a, bp, bm, ep, em, x0]), ex, mask)
+
+
+def _grid_basis(ex: JoinedExperiment, a: float) -> np.ndarray:
+    """Columns of the first-order base's output (A+ = a = -A-) per unit B+, B-, E+, E- and per unit initial
+    state of each run (`JoinedExperiment.runs`): the output is their sum, weighted by the values."""
+    runs = ex.runs()
+    basis = np.zeros((len(ex.t), 4 + len(runs)))
+    for r, s in enumerate(runs):
+        for j in range(5):
+            basis[s, j if j < 4 else 4 + r] = simulate(first_order_ri(a, -a, *np.eye(5)[j]), ex.t[s], ex.u[s]).y
+    return basis
 
 
 def fit_per_recording(fit: Fit, ex: JoinedExperiment, mask: np.ndarray) -> list[Fit]:

@@ -1,7 +1,8 @@
 """Diagnose a model-data mismatch: locate it, name the physics left out, model it.
 
-One experiment is a list of recordings on one clock, simulated as one signal
-(`fitter.diagnosis.experiment`).
+One experiment is a list of recordings on one clock, simulated as one signal,
+or separate runs, each simulated alone from its own fitted initial state
+(``separate``; `fitter.diagnosis.experiment`).
 
 Procedure (`diagnose`)
 ----------------------
@@ -113,7 +114,7 @@ _FINDING_KEYS = ("effect", "origin", "p_value", "parameters", "stderr", "explain
 
 def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress = silent,
              candidates: Sequence[str] = CANDIDATES, alpha: float = ALPHA, max_findings: int = 2,
-             base_order: int | None = None) -> Diagnosis:
+             base_order: int | None = None, separate: bool = False) -> Diagnosis:
     """Diagnose one experiment; see the module docstring for the procedure.
 
     Parameters
@@ -131,6 +132,8 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
         model already has (a given model's effects, or the input dead band of a fitted base) are skipped.
     alpha : family-wise significance level (Bonferroni over the candidates).
     max_findings : most effects added to the model.
+    separate : the recordings are separate runs, each on its own clock (`join_recordings`): each is
+        simulated alone from the initial state fitted to it, as `duhem fit` and the baselines score.
 
     Raises
     ------
@@ -140,7 +143,7 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
     unknown = [c for c in candidates if c not in REGISTRY]
     if unknown:
         raise DiagnoseError(f"unknown candidate effect {unknown[0]!r} (known: {', '.join(REGISTRY)})")
-    ex = join_recordings(recordings)
+    ex = join_recordings(recordings, separate)
     mask = np.ones(len(ex.t), bool)
     progress("fitting the base model", 0.0)
     noise = float(np.median([noise_rms(r.y) for r in ex.recordings if len(r.y) >= 14]))
@@ -176,7 +179,9 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
         f["partial"] = not remainder["explained"]
     validation, comparison = _validate(ex, base, findings, tested, fits, mask, noise)
     ext_model = current.model.replace(fit_info={
-        "method": "duhem diagnose", "effects": [f["effect"] for f in findings], "noise_rms": noise})
+        "method": "duhem diagnose", "effects": [f["effect"] for f in findings], "noise_rms": noise,
+        "x0": {"stored": np.ravel(current.model.x0).tolist(), "recording": ex.recordings[0].name,
+               "u0": float(ex.u[0])}})
     extended = dict(_summary(ex, current, noise), effects=[e.to_dict() for e in ext_model.effects],
                     **{f"{origin}_effects": [f["effect"] for f in findings if f["origin"] == origin]
                        for origin in ORIGINS}, remainder=remainder)
@@ -186,7 +191,7 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
                      mismatch=mismatch, candidates=tested, findings=findings, extended=extended,
                      validation=validation, comparison=comparison, paragraph="", base_model=base.model,
                      extended_model=ext_model, baseline_output=ex.y - base.residual,
-                     extended_output=ex.y - current.residual)
+                     extended_output=ex.y - current.residual, separate=separate)
     diag.paragraph = summary_paragraph(diag)
     return diag
 

@@ -120,10 +120,13 @@ def creep_response_report(fit: Fit, ex: JoinedExperiment, n_eff: float, alpha: f
     keys = [i for i, (e, _) in enumerate(fam.keys) if e == "creep"]
     par = {fam.keys[i][1].name: fit.theta[fam.n_base + i] for i in keys}
     k, tau = float(par["k"]), math.exp(float(par["tau"]))
-    chain = Chain(t=ex.t, u=ex.u, h=np.diff(ex.t), w=ex.u, y=np.zeros(len(ex.t)))
-    REGISTRY["creep"].apply({"k": 1.0, "tau": tau}, chain, None)
-    L = chain.y[mask]                                       # the creep's output per unit k
-    E = np.exp(-(ex.t - ex.t[0]) / tau)[mask]               # its start transient
+    L = np.zeros(len(ex.t))                                 # the creep's output per unit k
+    E = np.zeros((len(ex.t), len(ex.runs())))               # its start transient, one per run
+    for j, s in enumerate(ex.runs()):
+        chain = Chain(t=ex.t[s], u=ex.u[s], h=np.diff(ex.t[s]), w=ex.u[s], y=np.zeros(s.stop - s.start))
+        REGISTRY["creep"].apply({"k": 1.0, "tau": tau}, chain, None)
+        L[s], E[s, j] = chain.y, np.exp(-(ex.t[s] - ex.t[s][0]) / tau)
+    L, E = L[mask], E[mask]
     J = fit.result.jac[mask] if len(fit.result.jac) == len(ex.t) else fit.result.jac
     moving = [j for j in np.flatnonzero(np.any(J != 0, axis=0)) if j - fam.n_base not in keys]
     r = fit.residual[mask]

@@ -157,7 +157,7 @@ def model_variables(model) -> list[FmiVariable]:
                         "(tabulate it with TabulatedRate.from_function)")
     sig = model.signals
     variables = [
-        FmiVariable("u", U_REF, "Real", "input", "continuous", 0.0,
+        FmiVariable("u", U_REF, "Real", "input", "continuous", model.first_input or 0.0,
                     _signal_text("hysteresis input", sig.input), unit=sig.input.unit),
         FmiVariable("y", Y_REF, "Real", "output", "continuous", None,
                     _signal_text("hysteresis output y = C x + D u", sig.output),
@@ -189,8 +189,9 @@ def model_variables(model) -> list[FmiVariable]:
 
 
 def reference_start(model) -> float:
-    """The start value of the compensator's y_ref: the plant's output at its first sample with the input in the
-    middle of the search range (the compensator's default u0), so that an unset reference keeps u there."""
+    """The start value of the compensator's y_ref: the plant's output at its first sample with the compensator's
+    default u0 (the model's `first_input`, else the middle of the search range), so that an unset reference
+    keeps u there."""
     from fitter.core.inverse import Compensator
     from fitter.core.stepper import Stepper
 

@@ -371,7 +371,7 @@ def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels:
         "input_deadband": data.deadband,
         "rate_levels": levels.levels, "triangle_inputs": levels.triangle,
         "v_ref": levels.v_ref * data.scaling.u_s if param.kind == "rd" else None,
-        "x0": {"policy": x0_policy, "stored": model.x0.tolist(), "recording": r0.name,
+        "x0": {"policy": x0_policy, "stored": model.x0.tolist(), "recording": r0.name, "u0": float(r0.u[0]),
                "fit": X0_TEXT[data.x0_mode]},
         "optimiser": {"success": res.success, "nfev": res.nfev, "message": res.message},
         "preparation": [dict(p.to_dict(), notes=n) for p, n in zip(data.preps, data.notes)],
