@@ -390,11 +390,12 @@ class Relaxation(EffectSpec):
         return out
 
     def starts(self, ctx: EffectContext) -> list[dict[str, float]]:
-        zero = {"k": 0.0, **{f"w{i}": 1.0 for i in range(2, RELAXATION_TERMS + 1)}}
-        return [dict(zero, tau_min=3 * ctx.dt_min, tau_max=max(ctx.duration, 30 * ctx.dt_min)),
-                dict(zero, tau_min=max(ctx.duration, 30 * ctx.dt_min) / 1000, tau_max=max(ctx.duration, 30 * ctx.dt_min) / 3)]
+        """The null spectrum (3 samples to the duration), and one from a thousandth to a third of the duration."""
+        null = self.null(ctx)
+        return [null, dict(null, tau_min=null["tau_max"] / 1000, tau_max=null["tau_max"] / 3)]
 
     def null(self, ctx: EffectContext) -> dict[str, float]:
+        """k = 0, equal shares, tau from 3 samples to the duration (at least 30 samples)."""
         return dict({"k": 0.0, **{f"w{i}": 1.0 for i in range(2, RELAXATION_TERMS + 1)}}, tau_min=3 * ctx.dt_min,
                     tau_max=max(ctx.duration, 30 * ctx.dt_min))
 

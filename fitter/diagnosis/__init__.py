@@ -13,5 +13,5 @@ from fitter.diagnosis.result import Diagnosis
 from fitter.diagnosis.synthetic import synthetic_experiment
 from fitter.progress import rich_progress
 
-__all__ = ["DiagnoseError", "Diagnosis", "JoinedExperiment", "chain_recordings", "diagnose", "locate_mismatch", "rich_progress",
-           "synthetic_experiment"]
+__all__ = ["DiagnoseError", "Diagnosis", "JoinedExperiment", "chain_recordings", "diagnose", "locate_mismatch",
+           "rich_progress", "synthetic_experiment"]
