@@ -12,14 +12,13 @@ Pipeline of `fit_recordings`
 3. **Starts** (`fitter.identification.starts`): the loop methods of the
    paper (Section III, Section V) and simple branch regressions.
 4. **Output-error refinement** (`fitter.identification.output_error.refine`).
-   Initial state ``x0="fit"``: every sample is fitted and the state at each
-   recording's first sample is eliminated by linear least squares, so a
-   start-up transient is the initial state's to explain, not mistaken for the
-   loop; also when every recording holds a single cycle (the piezo files:
-   taking each as settled, from the fixed point of its one-cycle map, cost
-   0.4-0.6 % NRMSE on every rate), where the convergence barrier below keeps
-   a barely convergent model from mimicking a non-closing loop.  The
-   convergence condition is enforced: for the
+   Initial state ``x0="fit"`` (recordings with several cycles, and general
+   inputs): every sample is fitted and the state at each recording's first
+   sample is eliminated by linear least squares, so a start-up transient is
+   the initial state's to explain, not mistaken for the loop.  When every
+   recording holds a single cycle (e.g. the piezo files), a free initial state would let a barely convergent model
+   mimic a non-closing loop, so ``x0="periodic"`` is used instead: the cycle
+   is taken as settled.  The convergence condition is enforced: for the
    rate-dependent model with g >= 0 the period map is e^{A sum g dt}, so
    rho < 1 iff A is Hurwitz, which the parametrisation guarantees; for the
    rate-independent model rho(e^{beta A+} e^{-beta A-}) < 1, condition (5),
@@ -82,8 +81,10 @@ max(|theta|, 1) times a seeded normal draw.  Measured on the three piezo rates: 
 and 4 end in minima of 1.2-3x the best cost, depending on the start and on the numerical stack."""
 FIT_OPTIONS = Options(ftol=1e-9, xtol=1e-10, max_nfev=MAX_NFEV, max_samples=3000, eliminate=True)
 
-X0_TEXT = ("during the fit, every sample is fitted and the state at each recording's first sample is fitted "
-           "(linear least squares)")
+X0_TEXT = {"fit": "during the fit, every sample is fitted and the state at each recording's first sample is "
+                  "fitted (linear least squares)",
+           "periodic": "every recording holds a single cycle, so transient and loop cannot be told apart: "
+                       "each is taken as settled and starts from the fixed point of its one-cycle map"}
 
 
 # --------------------------------------------------------------------- one candidate
@@ -128,7 +129,7 @@ def _candidate(param, starts, data: FitData, info, progress: Progress) -> _Candi
     budget.  Rate-dependent candidates of order >= `GLOBAL_FROM_ORDER` then get the global stage
     (`_global_stage`).
     """
-    problem = Recordings(data.norm, x0="fit", cycles=data.cycles)
+    problem = Recordings(data.norm, x0=data.x0_mode, cycles=data.cycles)
     pen = _barrier(param, data)
 
     def run(theta0, options):
@@ -371,7 +372,7 @@ def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels:
         "rate_levels": levels.levels, "triangle_inputs": levels.triangle,
         "v_ref": levels.v_ref * data.scaling.u_s if param.kind == "rd" else None,
         "x0": {"policy": x0_policy, "stored": model.x0.tolist(), "recording": r0.name, "u0": float(r0.u[0]),
-               "fit": X0_TEXT},
+               "fit": X0_TEXT[data.x0_mode]},
         "optimiser": {"success": res.success, "nfev": res.nfev, "message": res.message},
         "preparation": [dict(p.to_dict(), notes=n) for p, n in zip(data.preps, data.notes)],
     }

@@ -12,11 +12,10 @@
    neither a full cycle nor one closing period (a single loop from one
    extreme to the other and back counts), is rejected (`FitError`).
 2. The model is fitted on the *raw* input (what an FMU will be driven with),
-   on every sample, with the initial state fitted (the start-up transient is
-   the initial state's to explain, and what is optimised is what
-   `exported.score` and the baselines report), also when each recording holds
-   a single cycle (a measured single cycle starts in a transient too: taking
-   it as settled cost the piezo triangles 0.4-0.6 % NRMSE).
+   on every sample when the initial state is fitted (``x0_mode = "fit"``,
+   several cycles: the start-up transient is then the initial state's to
+   explain, and what is optimised is what `exported.score` reports); from the
+   first settled cycle when each recording holds a single cycle (``"periodic"``).
    Where measurement noise on u makes it reverse at many more samples than
    its true reversals (more than `NOISY_RUNS` times), the noise reversals
    would switch the branches of a rate-independent model at every sample; the
@@ -72,8 +71,8 @@ class FitData:
     """Prepared recordings: physical (trimmed, raw input) and normalised, with cycles and the
     loops (monotone input) that give starting values.
 
-    Every sample of `recs` is fitted, with the initial state fitted (module docstring, step 2); `cycles`
-    are the first settled cycles in those samples.
+    x0_mode: "periodic" when every recording holds a single cycle (transient and
+    loop cannot be told apart, so each is taken as settled), else "fit".
     """
 
     preps: list[Prepared]
@@ -84,6 +83,7 @@ class FitData:
     """The settled cycles as loops (starting values); None for a general input (step 0)."""
     notes: list[list[str]]
     scaling: Normalisation
+    x0_mode: str = "fit"
     deadband: float = 0.0
     """Width b of the input dead band (physical input units; 0: none), step 2 of the module docstring."""
 
@@ -161,13 +161,14 @@ def _deadband(preps: list[Prepared], notes: list[list[str]]) -> float:
     return b
 
 
-def _fit_input(prep: Prepared, b: float) -> Recording:
-    """The recording the model is fitted on: all raw samples, its input through the dead band of width b
-    (from the first raw sample, w_0 = u_0, as the exported model runs it) when b > 0."""
-    r = prep.original
+def _fit_input(prep: Prepared, b: float, whole: bool) -> Recording:
+    """The recording the model is fitted on: all raw samples (`whole`) or the trimmed ones, its
+    input through the dead band of width b (from the first raw sample, w_0 = u_0, as the
+    exported model runs it) when b > 0."""
+    r = prep.original if whole else prep.recording
     if b <= 0:
         return r
-    w = play_operator(r.u, b, float(r.u[0]))
+    w = play_operator(prep.original.u, b, float(prep.original.u[0]))[0 if whole else prep.transient_end:]
     return Recording(r.t, w, r.y, r.name, r.input, r.output, r.source)
 
 
@@ -195,12 +196,13 @@ def _prepare_general(recordings: Sequence[Recording]) -> FitData:
             f"{100 * extremes_spread(rec.u):.0f}% of the input range): fitted as a general input, on every "
             f"sample, with the initial state fitted and generic starting values (no input dead band: the "
             f"reversals of such an input cannot be told from noise)"])
-    recs = [_fit_input(p, 0.0) for p in preps]
+    recs = [_fit_input(p, 0.0, True) for p in preps]
     try:
         scaling = Normalisation.of(recs)
     except DuhemError as exc:
         raise FitError(str(exc)) from None
-    return FitData(preps, recs, [scaling.normalise(r) for r in recs], [None] * len(recs), None, notes, scaling, 0.0)
+    return FitData(preps, recs, [scaling.normalise(r) for r in recs], [None] * len(recs), None, notes, scaling,
+                   "fit", 0.0)
 
 
 def prepare_for_fit(recordings: Sequence[Recording]) -> FitData:
@@ -217,15 +219,18 @@ def prepare_for_fit(recordings: Sequence[Recording]) -> FitData:
         loops.append(_loop_pieces(clean, prep, cycle))
         notes.append(n)
     b = _deadband(preps, notes)
-    recs = [_fit_input(p, b) for p in preps]
-    cycles = [(s0 + p.transient_end, s1 + p.transient_end) for (s0, s1), p in zip(cycles, preps)]
+    x0_mode = "periodic" if all(len(p.cycles) <= 1 for p in preps) else "fit"
+    whole = x0_mode == "fit"
+    recs = [_fit_input(p, b, whole) for p in preps]
+    if whole:
+        cycles = [(s0 + p.transient_end, s1 + p.transient_end) for (s0, s1), p in zip(cycles, preps)]
     try:
         scaling = Normalisation.of(recs)
     except DuhemError as exc:
         raise FitError(str(exc)) from None
     norm = [scaling.normalise(r) for r in recs]
     loops = [[scaling.normalise(p) for p in pieces] for pieces in loops]
-    return FitData(preps, recs, norm, cycles, loops, notes, scaling, b)
+    return FitData(preps, recs, norm, cycles, loops, notes, scaling, x0_mode, b)
 
 
 def averaged_loop(loops: list[list[Recording]], points: int = GRID_POINTS):
