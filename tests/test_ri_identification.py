@@ -244,3 +244,18 @@ def test_discrete_rho_survives_overflow_and_underflow():
     assert _spectral_radius_of_powers([(big, 400), (big, 400)]) == float("inf")
     assert _spectral_radius_of_powers([(small, 400), (small, 400)]) == pytest.approx(0.5 ** 800)
     assert _spectral_radius_of_powers([(big, 3), (small, 2)]) == pytest.approx(250.0)
+
+
+def test_an_unobservable_lower_order_start_is_skipped_not_a_crash():
+    """The order-(n-1) fit embedded as a start has no canonical form when (A+, C) is not observable (here C = 0):
+    that start is left out with the reason recorded, and the other starts are made (it used to raise
+    LinAlgError out of `fit_recordings`)."""
+    from fitter.identification.starts import ri_starts
+    m = true_model()
+    grid = np.linspace(-1.0, 1.0, 41)
+    g, yr, yf, rho = limiting_loop(m, -1.0, 1.0, len(grid))
+    lower = RateIndependentModel(A_plus=[[-2.0]], A_minus=[[2.0]], B_plus=[1.0], B_minus=[-1.0], C=[0.0],
+                                 E_plus=[0.0], E_minus=[0.0])
+    starts, info = ri_starts(g, yr, yf, 2, None, lower=lower)
+    assert len(starts) >= 1 and all(np.all(np.isfinite(s)) for s in starts)
+    assert any("embedded" in e and "Singular" in e for e in info["ri_identification_errors"])

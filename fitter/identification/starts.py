@@ -103,7 +103,10 @@ def ri_starts(grid, yr, yf, n: int, q: float | None, lower=None) -> tuple[list[n
     cands, info = [], {}
     if lower is not None:
         m = embed(lower, n)
-        cands.append((_loop_error(m, grid, yr, yf) * 0.5, par.theta(m), f"order {n - 1} fit, embedded"))
+        try:
+            cands.append((_loop_error(m, grid, yr, yf) * 0.5, par.theta(m), f"order {n - 1} fit, embedded"))
+        except np.linalg.LinAlgError as exc:     # (A+, C) of the embedding not observable: no canonical form
+            info.setdefault("ri_identification_errors", []).append(f"order {n - 1} fit, embedded: {exc}")
     base = embed(_ri_first_order(grid, yr, yf), n)
     cands.append((_loop_error(base, grid, yr, yf), par.theta(base), "branch regression"))
     if n % 2 == 1:
