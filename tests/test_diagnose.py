@@ -370,6 +370,27 @@ def test_an_exponential_drift_is_not_named_creep():
     assert d.verdict == "unexplained"
 
 
+def test_an_exponential_drift_is_not_named_relaxation():
+    """The same drift against the relaxation spectrum: four creeps fit it by their start transients, but the
+    spectrum's gain on the input's response (the four transients free) is not significant, so it is not a
+    finding either (the generality bench named it first before this check covered it)."""
+    recs, truth = synthetic_experiment(None, seed=2, samples=SAMPLES)
+    ex = join_recordings(recs)
+    y = ex.y + 0.04 * (1 - np.exp(-3 * (ex.t - ex.t[0]) / np.ptp(ex.t)))
+    d = diagnose(_with_output(recs, y), base_order=1, candidates=("relaxation", "measurement_drift"))
+    relax = next(c for c in d.candidates if c["effect"] == "relaxation")
+    assert relax["explained_fraction"] > 0.5 and not relax["significant"]
+    assert not relax["response"]["follows_input"]
+    assert [f["effect"] for f in d.findings] == ["measurement_drift"]
+
+
+def test_a_concealed_relaxation_follows_the_input():
+    recs, truth, d = run("relaxation", 0)
+    f = d.findings[0]
+    assert f["effect"] == "relaxation" and f["response"]["follows_input"] and f["response"]["p_value"] < 1e-6
+    assert f["response"]["gain_response"] * f["parameters"]["k"] > 0
+
+
 def test_a_concealed_creep_follows_the_input():
     """The catalogue's creep (project simulator): its response to the input carries the fit, with the sign of k."""
     recs, truth, d = run("creep", 0)

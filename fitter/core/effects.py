@@ -228,6 +228,12 @@ class EffectSpec(ABC):
         """Starting values in physical units (several for a nonlinear effect); default: the null."""
         return [self.null(ctx)]
 
+    def memory_taus(self, p: dict[str, float]) -> list[float] | None:
+        """For an effect whose output is a linear memory of the input started at equilibrium (k times a unit
+        response, whose free response from another start is a sum of e^{-(t - t0)/tau_i}): its time
+        constants tau_i; None (the default) for every other effect."""
+        return None
+
     def null(self, ctx: EffectContext) -> dict[str, float]:
         """Parameter values at which the effect (almost) vanishes (the nested model); default all 0."""
         return {par.name: 0.0 for par in self.parameters}
@@ -339,6 +345,9 @@ class Creep(EffectSpec):
     def starts(self, ctx: EffectContext) -> list[dict[str, float]]:
         return [{"k": 0.0, "tau": float(tau)} for tau in _taus(ctx)]
 
+    def memory_taus(self, p: dict[str, float]) -> list[float]:
+        return [p["tau"]]
+
     def null(self, ctx: EffectContext) -> dict[str, float]:
         return {"k": 0.0, "tau": 10 * ctx.dt_min}
 
@@ -388,6 +397,9 @@ class Relaxation(EffectSpec):
         out = super().bounds(ctx)
         out["tau_max"] = (out["tau_max"][0], 10 * out["tau_max"][1])
         return out
+
+    def memory_taus(self, p: dict[str, float]) -> list[float]:
+        return [float(tau) for tau in relaxation_taus(p["tau_min"], p["tau_max"])]
 
     def starts(self, ctx: EffectContext) -> list[dict[str, float]]:
         """The null spectrum (3 samples to the duration), and one from a thousandth to a third of the duration."""

@@ -37,10 +37,11 @@ Procedure (`diagnose`)
    ``least_squares``, several starts for its nonlinear parameters) and tested
    against the model without it (`fitter.diagnosis.statistics`: likelihood
    ratio with an AR(1) effective sample size, Bonferroni over the candidates,
-   at least `MIN_EXPLAINED` of the residual energy removed).  A creep must
-   also follow the input (`statistics.creep_response_report`): its start
-   transient alone is a change in time, a drift, not a creep of the
-   material; a creep that fits only its start is not significant.
+   at least `MIN_EXPLAINED` of the residual energy removed).  A creep or a
+   relaxation spectrum must also follow the input
+   (`statistics.memory_response_report`): its start transient alone is a
+   change in time, a drift, not a memory of the material; one that fits only
+   its start is not significant.
 4. The significant candidates are ranked by BIC, N ln(RSS / N) + p ln N over
    the fitted samples, p the effect's parameters (lowest first: between two
    effects that leave nearly the same residual, the one with fewer parameters;
@@ -98,7 +99,7 @@ from fitter.diagnosis.experiment import DiagnoseError, JoinedExperiment, join_re
 from fitter.diagnosis.fitting import Fit, fit_base, fit_family, fit_per_recording
 from fitter.diagnosis.locate import locate_mismatch, where_differs
 from fitter.diagnosis.result import Diagnosis
-from fitter.diagnosis.statistics import (ALPHA, NOISE_MARGIN, consistency_report, creep_response_report,
+from fitter.diagnosis.statistics import (ALPHA, NOISE_MARGIN, consistency_report, memory_response_report,
                                          effect_report, is_significant, remainder_report)
 from fitter.diagnosis.text import comparison_text, summary_paragraph
 from fitter.identification.fit import fit_recordings
@@ -298,8 +299,8 @@ def _test_round(ex: JoinedExperiment, current: Fit, names: Sequence[str], mask: 
         rep["effect"] = name
         rep["origin"] = REGISTRY[name].origin
         rep["significant"] = is_significant(rep, alpha, n_candidates)
-        if name == "creep" and rep["significant"]:
-            rep["response"] = creep_response_report(fit, ex, rep["n_eff"], alpha, n_candidates)
+        if rep["significant"] and REGISTRY[name].memory_taus(rep["parameters"]) is not None:
+            rep["response"] = memory_response_report(fit, ex, name, rep["n_eff"], alpha, n_candidates)
             rep["significant"] = rep["response"]["follows_input"]
         results.append((rep, fit))
     results.sort(key=lambda rf: _bic(rf[1], len(REGISTRY[rf[0]["effect"]].parameters)))

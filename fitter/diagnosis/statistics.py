@@ -22,19 +22,21 @@ sqrt(diag(s^2 (J^T J)^+ N / n_eff)), s^2 = RSS_1 / (N - p), J the Jacobian of
 the residual in theta (`RefineResult.stderr`; a log-parameter's error is scaled
 back by its value).
 
-Does a creep follow the input (`creep_response_report`)?  The catalogue's
-creep starts at rest at the first input (c_0 = k u_0), so besides its
-response to input changes it carries a start transient
+Does an input memory follow the input (`memory_response_report`)?  A creep
+(and each creep of a relaxation spectrum: the effects with
+`EffectSpec.memory_taus`) starts at rest at the first input (c_0 = k u_0),
+so besides its response to input changes it carries a start transient
 k (u_0 - mean u) e^{-(t - t_0)/tau}: a function of time alone, which a slow
-drift of the measured output fits as well.  In the creep fit's neighbourhood
-(its Jacobian in the other free parameters, tau held) the creep's response L
-(its output per unit k) and the transient E = e^{-(t - t_0)/tau} are given
-separate gains: the creep is the input's creep only when the gain of L, with
-E free, has the sign of k and is significant (LR = n_eff ln(RSS_without L /
-RSS_with L), one degree of freedom, p < alpha / number of candidates).
-Otherwise what the creep fits is its start, a change in time (a drift: an
-exponential drift over the experiment is fitted by a creep with tau near the
-duration and no response, or one of the opposite sign, to the input).
+drift of the measured output fits as well.  In the fit's neighbourhood (its
+Jacobian in the other free parameters, the time constants held) the effect's
+response L (its output per unit k) and the transients e^{-(t - t_0)/tau_i}
+(one per time constant and run) are given separate gains: the effect is the
+input's memory only when the gain of L, with the transients free, has the
+sign of k and is significant (LR = n_eff ln(RSS_without L / RSS_with L), one
+degree of freedom, p < alpha / number of candidates).  Otherwise what it fits
+is its start, a change in time (a drift: an exponential drift over the
+experiment is fitted by a creep with tau near the duration, or a relaxation
+spectrum, with no response, or one of the opposite sign, to the input).
 
 Is the residual left explained (`remainder_report`)?  Under "explained" it is
 the white measurement noise the noise level assumes; a remainder that a
@@ -62,8 +64,8 @@ from fitter.core.effects import REGISTRY, Chain
 from fitter.diagnosis.experiment import JoinedExperiment
 from fitter.diagnosis.fitting import Fit
 
-__all__ = ["ALPHA", "MIN_EXPLAINED", "NOISE_MARGIN", "consistency_report", "creep_response_report", "effect_report",
-           "is_significant", "remainder_report"]
+__all__ = ["ALPHA", "MIN_EXPLAINED", "NOISE_MARGIN", "consistency_report", "effect_report", "is_significant",
+           "memory_response_report", "remainder_report"]
 
 ALPHA = 0.01
 MIN_EXPLAINED = 0.02
@@ -112,23 +114,29 @@ def is_significant(report: dict, alpha: float, n_candidates: int) -> bool:
     return bool(report["p_value"] < alpha / n_candidates and report["explained_fraction"] >= MIN_EXPLAINED)
 
 
-def creep_response_report(fit: Fit, ex: JoinedExperiment, n_eff: float, alpha: float, n_candidates: int) -> dict:
-    """Does the creep of `fit` (its family's last effect) follow the input, or only its start transient
-    (module docstring)?  ``gain_response``: the creep's gain with the transient free (to compare with
-    ``k``); ``follows_input``: that gain has the sign of k and p < alpha / n_candidates."""
+def memory_response_report(fit: Fit, ex: JoinedExperiment, name: str, n_eff: float, alpha: float,
+                           n_candidates: int) -> dict:
+    """Does the input memory `name` of `fit` (a creep or a relaxation spectrum: `EffectSpec.memory_taus`)
+    follow the input, or only its start transient (module docstring)?  ``gain_response``: its gain k with
+    the transient free (a free e^{-(t - t0)/tau_i} per time constant and run); ``follows_input``: that gain
+    has the sign of k and p < alpha / n_candidates."""
     fam, mask = fit.family, fit.mask
-    keys = [i for i, (e, _) in enumerate(fam.keys) if e == "creep"]
-    par = {fam.keys[i][1].name: fit.theta[fam.n_base + i] for i in keys}
-    k, tau = float(par["k"]), math.exp(float(par["tau"]))
-    L = np.zeros(len(ex.t))                                 # the creep's output per unit k
-    E = np.zeros((len(ex.t), len(ex.runs())))               # its start transient, one per run
+    spec = REGISTRY[name]
+    par = next(e.parameters for e in fam.effect_list(fit.theta) if e.effect == name)
+    k, taus = float(par["k"]), spec.memory_taus(par)
+    unit = dict(par, k=1.0)
+    L = np.zeros(len(ex.t))                                         # the output per unit k
+    E = np.zeros((len(ex.t), len(ex.runs()) * len(taus)))           # the start transients
     for j, s in enumerate(ex.runs()):
         chain = Chain(t=ex.t[s], u=ex.u[s], h=np.diff(ex.t[s]), w=ex.u[s], y=np.zeros(s.stop - s.start))
-        REGISTRY["creep"].apply({"k": 1.0, "tau": tau}, chain, None)
-        L[s], E[s, j] = chain.y, np.exp(-(ex.t[s] - ex.t[s][0]) / tau)
+        spec.apply(unit, chain, None)
+        L[s] = chain.y
+        for i, tau in enumerate(taus):
+            E[s, j * len(taus) + i] = np.exp(-(ex.t[s] - ex.t[s][0]) / tau)
     L, E = L[mask], E[mask]
     J = fit.result.jac[mask] if len(fit.result.jac) == len(ex.t) else fit.result.jac
-    moving = [j for j in np.flatnonzero(np.any(J != 0, axis=0)) if j - fam.n_base not in keys]
+    own = {fam.n_base + i for i, (e, _) in enumerate(fam.keys) if e == name}
+    moving = [j for j in np.flatnonzero(np.any(J != 0, axis=0)) if j not in own]
     r = fit.residual[mask]
 
     def least_squares(columns, target):
