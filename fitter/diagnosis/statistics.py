@@ -139,17 +139,19 @@ def memory_response_report(fit: Fit, ex: JoinedExperiment, name: str, n_eff: flo
     moving = [j for j in np.flatnonzero(np.any(J != 0, axis=0)) if j not in own]
     r = fit.residual[mask]
 
-    def least_squares(columns, target):
-        coef, *_ = np.linalg.lstsq(columns, target, rcond=None)
-        return coef, float(np.sum((target - columns @ coef) ** 2))
-
-    coef, rss_with = least_squares(np.column_stack([J[:, moving], E, L]), r)
-    _, rss_without = least_squares(np.column_stack([J[:, moving], E]), r + k * L)
+    coef, rss_with = _linear_fit(np.column_stack([J[:, moving], E, L]), r)
+    _, rss_without = _linear_fit(np.column_stack([J[:, moving], E]), r + k * L)
     gain = k + float(coef[-1])
     lr = n_eff * math.log(max(rss_without, 1e-300) / max(rss_with, 1e-300))
     p = float(chi2.sf(max(lr, 0.0), 1))
     return {"gain_response": gain, "lr": lr, "p_value": p,
             "follows_input": bool(gain * k > 0 and p < alpha / n_candidates)}
+
+
+def _linear_fit(columns: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, float]:
+    """Linear least squares of `target` on `columns`: (coefficients, residual sum of squares)."""
+    coef, *_ = np.linalg.lstsq(columns, target, rcond=None)
+    return coef, float(np.sum((target - columns @ coef) ** 2))
 
 
 def remainder_report(ex: JoinedExperiment, residual: np.ndarray, mask: np.ndarray, alpha: float) -> dict:
