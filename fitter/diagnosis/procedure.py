@@ -163,15 +163,9 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
             model = fit_recordings(ex.recordings, kind="ri", order=base_order).model
         base, first_round = fit_base(ex, model, mask), None
     account = _search(ex, base, first_round, candidates, mask, noise, alpha, max_findings, tick)
-    if alternative is not None and account[1] and rms(account[0].residual) > NOISE_MARGIN * noise and \
-            not (account[1][0]["consistency"] or {}).get("consistent", False):
-        high, k_high = alternative
-        stand_in = _test_round(ex, high, [account[1][0]["effect"]], mask, alpha, len(candidates), tick)
-        if not stand_in[0][0]["significant"]:
-            other = _search(ex, high, None, candidates, mask, noise, alpha, max_findings, tick)
-            if other[1] and rms(other[0].residual) <= NOISE_MARGIN * noise and \
-                    _account_error(ex, other, k_high, mask) < _account_error(ex, account, 7, mask):
-                base, account = high, other
+    if alternative is not None:
+        base, account = _higher_order_account(ex, base, account, alternative, candidates, mask, noise, alpha,
+                                              max_findings, tick)
     current, findings, tested, fits = account
     mismatch = locate_mismatch(ex, base.residual, noise)
     tick("checking on held-out data")
@@ -223,6 +217,28 @@ def _search(ex: JoinedExperiment, base: Fit, first_round: list | None, candidate
         if rms(current.residual) <= NOISE_MARGIN * noise:
             break
     return current, findings, tested, fits
+
+
+def _higher_order_account(ex: JoinedExperiment, base: Fit, account: tuple, alternative: tuple,
+                          candidates: Sequence[str], mask: np.ndarray, noise: float, alpha: float,
+                          max_findings: int, tick: Callable[[str], None]) -> tuple[Fit, tuple]:
+    """Step 1's retry (module docstring): the first-order `base` and its `account`, or the higher-order base
+    of `alternative` (its fit and parameter count) with its own account when the first-order account stays
+    above the noise, its first finding is inconsistent across the recordings and not significant on the
+    higher-order base, and the higher-order account reaches the noise and generalises better."""
+    findings = account[1]
+    if not findings or rms(account[0].residual) <= NOISE_MARGIN * noise or \
+            (findings[0]["consistency"] or {}).get("consistent", False):
+        return base, account
+    high, k_high = alternative
+    stand_in = _test_round(ex, high, [findings[0]["effect"]], mask, alpha, len(candidates), tick)
+    if stand_in[0][0]["significant"]:
+        return base, account
+    other = _search(ex, high, None, candidates, mask, noise, alpha, max_findings, tick)
+    if other[1] and rms(other[0].residual) <= NOISE_MARGIN * noise and \
+            _account_error(ex, other, k_high, mask) < _account_error(ex, account, base.family.n_base, mask):
+        return high, other
+    return base, account
 
 
 def _account_error(ex: JoinedExperiment, account: tuple, k_base: int, mask: np.ndarray) -> float:
