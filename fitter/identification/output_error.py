@@ -477,7 +477,8 @@ def refine(param: Parametrisation, theta0: np.ndarray, problem, options: Options
     problem : `Recordings` or any object with ``residuals(param, theta) -> (r, model, info)``,
         ``decimated(max_samples)`` and ``scale`` (output range).
     options : tolerances, budget, decimation, normalisation.
-    penalty : optional theta -> extra residuals (e.g. a convergence barrier).
+    penalty : optional theta -> extra residuals (e.g. a convergence barrier), of the theta whose residuals they
+        join: with elimination, its linear entries at their least-squares values.
     free : boolean mask of the entries of theta that move (default all).
     jac_sparsity : sparsity structure of the Jacobian (scipy's argument).
     jac : optional theta -> Jacobian of the problem's residuals in all entries of theta (a problem that
@@ -541,8 +542,11 @@ class _Objective:
 
     def __call__(self, z: np.ndarray) -> np.ndarray:
         theta = self.full_theta(z)
-        fit = self.coarse.projected if self.lin.any() else self.coarse.residuals
-        r = fit(self.param, theta)[0] / self.scale
+        if self.lin.any():
+            r, theta = self.coarse.projected(self.param, theta)[:2]
+        else:
+            r = self.coarse.residuals(self.param, theta)[0]
+        r = r / self.scale
         return r if self.penalty is None else np.r_[r, self.penalty(theta)]
 
 
