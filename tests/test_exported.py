@@ -166,6 +166,51 @@ def test_exported_fmu_reproduces_the_fit_on_measured_recordings(case, tmp_path):
     assert all(math.isfinite(r["nrmse"]) for r in fit.summary["recordings"])
     assert fit.summary["convergence"]["satisfied"], fit.summary["convergence"]
     _reproduces(fit, recs, tmp_path)
+    _minor_loops_stay_bounded(fit.model, recs)
+
+
+def _minor_loop_input(lo: float, hi: float, cycles: int = 40, points: int = 20) -> np.ndarray:
+    """`cycles` triangle cycles between two levels b apart around the middle of [lo, hi], for b = 1/8, 2/8,
+    ..., 8/8 of the span in turn (the sub-spans of `fitter.core.periodic.minor_loop_rho`)."""
+    mid, parts = 0.5 * (lo + hi), []
+    for k in range(1, 9):
+        b = (hi - lo) * k / 8
+        leg = np.linspace(mid - b / 2, mid + b / 2, points + 1)
+        parts.append(np.tile(np.r_[leg[:-1], leg[:0:-1]], cycles))
+    return np.r_[mid, np.concatenate(parts)]
+
+
+def _minor_loops_stay_bounded(model, recs) -> None:
+    """Driven by minor loops of every sub-span of its stored input range, the saved model stays within a few
+    output ranges of the data (a fit that met condition (5) on the fitted span only grew by 1e4 and more)."""
+    if model.kind != "ri":
+        return
+    lo, hi = model.input_range
+    u = _minor_loop_input(lo, hi)
+    y = simulate(model, np.arange(len(u), dtype=float), u).y
+    y_lo, y_hi = min(r.y.min() for r in recs), max(r.y.max() for r in recs)
+    assert np.all(np.isfinite(y))
+    assert y.min() >= y_lo - 2 * (y_hi - y_lo) and y.max() <= y_hi + 2 * (y_hi - y_lo), (y.min(), y.max())
+
+
+def test_condition_5_on_the_span_does_not_make_minor_loops_converge():
+    """Both branches contract and the full-span period map has radius 0.12, yet a minor loop of 1/8 of the
+    span grows 6x per span of travel: `minor_loop_rho` sees it, the fit's barrier refuses it, and the
+    simulation of repeated minor loops grows while full-span cycles settle."""
+    from fitter.core.models import RateIndependentModel
+    from fitter.core.periodic import convergence_rho, minor_loop_rho
+    from fitter.identification.parametrisation import RICanonical
+    model = RateIndependentModel(A_plus=[[-5.0, -5.0], [4.0, 3.0]], A_minus=[[3.0, -4.0], [4.0, 1.0]],
+                                 B_plus=[1.0, 0.0], B_minus=[1.0, 0.0], C=[0.0, 1.0])
+    assert convergence_rho(model, 0.0, 1.0) == pytest.approx(0.1203, abs=1e-4)
+    assert minor_loop_rho(model, 0.0, 1.0) == pytest.approx(5.985, abs=1e-3)
+    assert RICanonical.excesses(model, 0.05, 0.95)[0] > 4.0
+    leg = np.linspace(0.4375, 0.5625, 21)
+    minor = np.tile(np.r_[leg[:-1], leg[:0:-1]], 200)
+    full = np.tile(np.r_[np.linspace(0, 1, 21)[:-1], np.linspace(1, 0, 21)[:-1]], 25)
+    grow = [np.abs(simulate(model, np.arange(len(u), dtype=float), u).x).max(axis=1) for u in (minor, full)]
+    assert grow[0][-1] > 1e3 * grow[0][40]          # 200 minor cycles = 25 spans of travel: 6^25 / 6^1.25
+    assert grow[1][-1] < 10 * grow[1][40]
 
 
 def test_rates_spread_over_1_9x_are_not_chained_into_one_level():

@@ -19,7 +19,7 @@ import numpy as np
 from .errors import ConvergenceError, KernelError
 from .kernel import Simulation, expm, flows, simulate, state_blocks
 
-__all__ = ["ConvergenceError", "PeriodicResponse", "periodic_response", "convergence_rho",
+__all__ = ["ConvergenceError", "PeriodicResponse", "periodic_response", "convergence_rho", "minor_loop_rho",
            "limiting_loop", "affine_blocks", "affine_response", "period_map", "fixed_point"]
 
 
@@ -99,6 +99,36 @@ def convergence_rho(model, u_min: float, u_max: float) -> float:
     beta = u_max - u_min
     M = expm(beta * model.A_plus) @ expm(-beta * model.A_minus)
     return float(np.max(np.abs(np.linalg.eigvals(M))))
+
+
+MINOR_SPANS = 8
+"""Sub-spans at which `minor_loop_rho` evaluates condition (5): b = beta k / MINOR_SPANS, k = 1..MINOR_SPANS."""
+
+
+def minor_loop_rho(model, u_min: float, u_max: float, spans: int = MINOR_SPANS) -> float:
+    """Condition (5) for every minor loop, per full-span travel: max over b = beta k / spans (k = 1..spans,
+    beta = u_max - u_min) of rho(e^{b A+} e^{-b A-})^(beta / b).
+
+    Condition (5) is stated for an input that sweeps the whole span [u_min, u_max] (Theorem 1).  An input that
+    cycles between two interior levels b apart (a minor loop) has the period map e^{b A+} e^{-b A-}, whose
+    spectral radius may exceed 1 although the full-span one does not: the state then grows from cycle to cycle
+    and a simulation driven by any other input than the fitted one diverges.  Raised to beta / b, the radius
+    is the contraction per travel of one full span, so a single limit applies to every sub-span; at b = beta
+    it is condition (5) itself, and as b -> 0 it tends to e^{beta alpha(A+ - A-)}, alpha the spectral abscissa
+    (the first-order term of the product).  inf when an exponential overflows."""
+    if model.kind != "ri":
+        raise KernelError("condition (5) is for the rate-independent model")
+    beta = u_max - u_min
+    worst = 0.0
+    for k in range(1, spans + 1):
+        b = beta * k / spans
+        M = expm(b * model.A_plus) @ expm(-b * model.A_minus)
+        if not np.all(np.isfinite(M)):
+            return float("inf")
+        rho = np.max(np.abs(np.linalg.eigvals(M)))
+        with np.errstate(over="ignore"):
+            worst = max(worst, float(rho ** (spans / k)))
+    return worst
 
 
 def limiting_loop(model, u_min: float, u_max: float, points: int = 201):

@@ -21,9 +21,11 @@ Pipeline of `fit_recordings`
    is taken as settled.  The convergence condition is enforced: for the
    rate-dependent model with g >= 0 the period map is e^{A sum g dt}, so
    rho < 1 iff A is Hurwitz, which the parametrisation guarantees; for the
-   rate-independent model rho(e^{beta A+} e^{-beta A-}) < 1, condition (5),
-   is kept by a barrier residual 1e3 max(0, rho - 0.99 + `BARRIER_INSIDE`)
-   added to the objective (it starts just inside the limit, so that the fit
+   rate-independent model condition (5), rho(e^{beta A+} e^{-beta A-}) < 1, is
+   required of every minor loop of the stored input range (sub-span b: radius
+   raised to beta / b, `fitter.core.periodic.minor_loop_rho`), so that the
+   saved model also converges on inputs other than the fitted one, and kept by
+   a barrier residual 1e3 max(0, rho - 0.99 + `BARRIER_INSIDE`) added to the objective (it starts just inside the limit, so that the fit
    ends inside it).  The linear parameters (B, E, D, x0) are eliminated by least
    squares at every evaluation (variable projection).  Starts race: each gets
    `RACE_NFEV` evaluations, the best one continues to `MAX_NFEV` in all.
