@@ -22,6 +22,7 @@ from fitter.fmu.build import FmuBuildError
 from fitter.fmu.host import simulate_fmu
 from fitter.core.kernel import simulate
 from fitter.core.periodic import fixed_point as periodic_fixed_point
+from fitter.core.periodic import minor_loop_input
 from fitter.identification.exported import range_warnings, raw_input_rho
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -169,24 +170,13 @@ def test_exported_fmu_reproduces_the_fit_on_measured_recordings(case, tmp_path):
     _minor_loops_stay_bounded(fit.model, recs)
 
 
-def _minor_loop_input(lo: float, hi: float, cycles: int = 40, points: int = 20) -> np.ndarray:
-    """`cycles` triangle cycles between two levels b apart around the middle of [lo, hi], for b = 1/8, 2/8,
-    ..., 8/8 of the span in turn (the sub-spans of `fitter.core.periodic.minor_loop_rho`)."""
-    mid, parts = 0.5 * (lo + hi), []
-    for k in range(1, 9):
-        b = (hi - lo) * k / 8
-        leg = np.linspace(mid - b / 2, mid + b / 2, points + 1)
-        parts.append(np.tile(np.r_[leg[:-1], leg[:0:-1]], cycles))
-    return np.r_[mid, np.concatenate(parts)]
-
-
 def _minor_loops_stay_bounded(model, recs) -> None:
     """Driven by minor loops of every sub-span of its stored input range, the saved model stays within a few
     output ranges of the data (a fit that met condition (5) on the fitted span only grew by 1e4 and more)."""
     if model.kind != "ri":
         return
     lo, hi = model.input_range
-    u = _minor_loop_input(lo, hi)
+    u = minor_loop_input(lo, hi)
     y = simulate(model, np.arange(len(u), dtype=float), u).y
     y_lo, y_hi = min(r.y.min() for r in recs), max(r.y.max() for r in recs)
     assert np.all(np.isfinite(y))

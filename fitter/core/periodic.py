@@ -20,7 +20,7 @@ from .errors import ConvergenceError, KernelError
 from .kernel import Simulation, expm, flows, simulate, state_blocks
 
 __all__ = ["ConvergenceError", "PeriodicResponse", "periodic_response", "convergence_rho", "minor_loop_rho",
-           "limiting_loop", "affine_blocks", "affine_response", "period_map", "fixed_point"]
+           "minor_loop_input", "limiting_loop", "affine_blocks", "affine_response", "period_map", "fixed_point"]
 
 
 def affine_blocks(model, t, u, cache: dict | None = None) -> Iterator[tuple[np.ndarray, np.ndarray]]:
@@ -129,6 +129,19 @@ def minor_loop_rho(model, u_min: float, u_max: float, spans: int = MINOR_SPANS) 
         with np.errstate(over="ignore"):
             worst = max(worst, float(rho ** (spans / k)))
     return worst
+
+
+def minor_loop_input(u_min: float, u_max: float, cycles: int = 40, points: int = 20,
+                     spans: int = MINOR_SPANS) -> np.ndarray:
+    """The sub-spans of `minor_loop_rho` as an input: from the middle of [u_min, u_max], `cycles` triangle
+    cycles between two levels b apart around the middle, for b = beta k / spans, k = 1..spans in turn
+    (`points` samples per leg).  A model whose `minor_loop_rho` is below 1 stays bounded on it."""
+    mid, parts = 0.5 * (u_min + u_max), []
+    for k in range(1, spans + 1):
+        b = (u_max - u_min) * k / spans
+        leg = np.linspace(mid - b / 2, mid + b / 2, points + 1)
+        parts.append(np.tile(np.r_[leg[:-1], leg[:0:-1]], cycles))
+    return np.r_[mid, np.concatenate(parts)]
 
 
 def limiting_loop(model, u_min: float, u_max: float, points: int = 201):
