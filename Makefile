@@ -31,4 +31,5 @@ bench: install
 	$(BIN)/python bench/diagnose_generality.py
 	$(BIN)/python bench/export_agreement.py
 	$(BIN)/python bench/compensation.py
+	$(BIN)/python bench/other_systems.py
 	$(BIN)/python bench/batch.py
