@@ -100,7 +100,7 @@ SYSTEMS = {"b-h": b_h, "mr-damper": mr_damper, "member": member}
 def excursion(model, rec: Recording) -> float:
     """Largest distance of the saved model's output beyond the recorded output range on `minor_loop_input` of its
     stored input range, in output ranges (inf when it overflows)."""
-    u = minor_loop_input(*model.input_range)
+    u = minor_loop_input(*model.input_range, start=model.first_input)
     with np.errstate(all="ignore"):
         y = simulate(model, np.arange(len(u), dtype=float), u).y
     if not np.all(np.isfinite(y)):

@@ -176,7 +176,7 @@ def _minor_loops_stay_bounded(model, recs) -> None:
     if model.kind != "ri":
         return
     lo, hi = model.input_range
-    u = minor_loop_input(lo, hi)
+    u = minor_loop_input(lo, hi, start=model.first_input)
     y = simulate(model, np.arange(len(u), dtype=float), u).y
     y_lo, y_hi = min(r.y.min() for r in recs), max(r.y.max() for r in recs)
     assert np.all(np.isfinite(y))

@@ -132,16 +132,21 @@ def minor_loop_rho(model, u_min: float, u_max: float, spans: int = MINOR_SPANS) 
 
 
 def minor_loop_input(u_min: float, u_max: float, cycles: int = 40, points: int = 20,
-                     spans: int = MINOR_SPANS) -> np.ndarray:
+                     spans: int = MINOR_SPANS, start: float | None = None) -> np.ndarray:
     """The sub-spans of `minor_loop_rho` as an input: from the middle of [u_min, u_max], `cycles` triangle
     cycles between two levels b apart around the middle, for b = beta k / spans, k = 1..spans in turn
-    (`points` samples per leg).  A model whose `minor_loop_rho` is below 1 stays bounded on it."""
-    mid, parts = 0.5 * (u_min + u_max), []
+    (`points` samples per leg).  A model whose `minor_loop_rho` is below 1 stays bounded on it.  `start`: the
+    input at which the model's initial state holds (a fitted model's `first_input`); the input then begins
+    there and goes straight to the middle (default: it begins at the middle)."""
+    mid = 0.5 * (u_min + u_max)
+    parts = [np.array([mid if start is None else start])]
     for k in range(1, spans + 1):
         b = (u_max - u_min) * k / spans
         leg = np.linspace(mid - b / 2, mid + b / 2, points + 1)
         parts.append(np.tile(np.r_[leg[:-1], leg[:0:-1]], cycles))
-    return np.r_[mid, np.concatenate(parts)]
+    if start is not None:
+        parts.insert(1, np.array([mid]))
+    return np.concatenate(parts)
 
 
 def limiting_loop(model, u_min: float, u_max: float, points: int = 201):
