@@ -304,19 +304,3 @@ def test_branch_amplification_is_the_largest_growth_along_one_branch():
     excess = RICanonical.excesses(rising.replace(A_plus=[[10.0]], A_minus=[[11.0]]), -1.0, 1.0)[1]
     assert excess == pytest.approx(20.0 / math.log(1e6) - 1.0)
 
-
-def test_small_minor_loops_settle_on_the_centre_the_barrier_bounds():
-    """A+ - A- = -2, (B+ - B-) = 0, E+ - E- = 20: small loops around any input settle where -2 x + 20 = 0, at
-    output 10 in units where the data span [-1, 1]; the fit's third barrier quantity is 10 / 2 - 1 = 4 (the
-    bound is 2), and 0 - 1 with E+- = 0."""
-    from fitter.core.models import RateIndependentModel
-    from fitter.identification.parametrisation import RICanonical
-    model = RateIndependentModel(A_plus=[[-1.0]], A_minus=[[1.0]], B_plus=[1.0], B_minus=[1.0], E_plus=[10.0],
-                                 E_minus=[-10.0], C=[1.0])
-    assert RICanonical.small_loop_centre(model, 0.3) == pytest.approx(10.0)
-    assert RICanonical.excesses(model, -1.0, 1.0)[2] == pytest.approx(4.0)
-    assert RICanonical.excesses(model.replace(E_plus=[0.0], E_minus=[0.0]), -1.0, 1.0)[2] == pytest.approx(-1.0)
-    leg = np.linspace(0.295, 0.305, 11)
-    u = np.r_[0.3, np.tile(np.r_[leg[:-1], leg[:0:-1]], 2000)]
-    y = simulate(model, np.arange(len(u), dtype=float), u).y
-    assert y[0] == 0.0 and abs(y[-1] - 10.0) < 0.05

@@ -103,11 +103,10 @@ class _Candidate:
 
 
 def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.ndarray], np.ndarray]:
-    """1e3 max(0, excess + `BARRIER_INSIDE`) of the parametrisation's barrier quantities (`excesses`, `BARRIERS` of
-    them; 1e3 where they cannot be evaluated): rate-independent, rho of condition (5) on every minor loop
-    <= 0.99, the branch amplification over the fitted span <= 1e6 (`RICanonical.amplification`: a branch that
-    expands a state error by 1e15 while the other contracts converges, but makes the model's output depend on
-    rounding) and the small-loop centre within half an output range of the data (`small_loop_centre`);
+    """1e3 max(0, excess + `BARRIER_INSIDE`) of the parametrisation's two barrier quantities (`excesses`; 1e3 where they
+    cannot be evaluated): rate-independent, rho of condition (5) <= 0.99 and the branch amplification
+    over the fitted span <= 1e6 (`RICanonical.amplification`: a branch that expands a state error by
+    1e15 while the other contracts converges, but makes the model's output depend on rounding);
     rate-dependent, max Re eig(A) <= -1e-3 (normalised units; A is Hurwitz by construction, the barrier
     keeps a margin from 0) and every mode damped (`RDCanonical.damping_excess` <= 0: a nearly undamped
     oscillation fits the data by cancellation and blows up at rates it was not fitted on)."""
@@ -117,9 +116,9 @@ def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.nd
         try:
             with np.errstate(all="ignore"):
                 model = param.build(th) if np.all(np.isfinite(th)) else None
-                vals = [np.inf] * param.BARRIERS if model is None else param.excesses(model, lo, hi)
+                vals = [np.inf] * 2 if model is None else param.excesses(model, lo, hi)
         except (ValueError, np.linalg.LinAlgError):
-            vals = [np.inf] * param.BARRIERS
+            vals = [np.inf] * 2
         return np.array([1e3 * max(0.0, v + BARRIER_INSIDE) if np.isfinite(v) else 1e3 for v in vals])
     return pen
 

@@ -221,40 +221,12 @@ class RICanonical(Parametrisation):
                 return np.inf
         return float(np.log(max(top, 1.0))) if np.isfinite(top) else np.inf
 
-    BARRIERS = 3
-    """Number of `excesses`."""
-    CENTRE_BOUND = 2.0
-    """Largest |output| of a small minor loop's centre in the fit's normalised units, where the data's output
-    spans [-1, 1]: half an output range beyond the data on either side."""
-
-    @staticmethod
-    def small_loop_centre(model, u: float) -> float:
-        """Output at the centre onto which minor loops of vanishing span b around the input u settle.  One
-        cycle moves the state by b ((A+ - A-) x + (B+ - B-) u + E+ - E-) + O(b^2), so the centre solves
-        (A+ - A-) x* = -((B+ - B-) u + E+ - E-) and its output is C x* + D u (inf when A+ - A- is singular).
-        A fit may meet condition (5) on every minor loop and still put this centre far outside the data:
-        small loops then drift there, slowly (measured: 5 to 47 output ranges away on shared and generated
-        records)."""
-        with np.errstate(all="ignore"):
-            try:
-                x = np.linalg.solve(model.A_plus - model.A_minus,
-                                    -((model.B_plus - model.B_minus) * u + model.E_plus - model.E_minus))
-            except np.linalg.LinAlgError:
-                return np.inf
-        y = float(model.C @ x + model.D * u)
-        return y if np.isfinite(y) else np.inf
-
     @classmethod
     def excesses(cls, model, u_min: float, u_max: float) -> list[float]:
-        """The fit's barrier quantities (each <= 0 when met): condition (5) on every minor loop beyond `LIMIT`,
-        the branch amplification beyond `AMPLIFICATION` (relative, in logs), and the small-loop centre
-        beyond `CENTRE_BOUND` (relative; the centre is affine in u, so its ends on the stored input range
-        bound it; normalised units)."""
-        pad = INPUT_MARGIN * (u_max - u_min)
-        centre = max(abs(cls.small_loop_centre(model, u)) for u in (u_min - pad, u_max + pad))
+        """The fit's barrier quantities (each <= 0 when met): condition (5) beyond `LIMIT`, and the branch
+        amplification beyond `AMPLIFICATION` (relative, in logs)."""
         return [cls.convergence(model, u_min, u_max) - cls.LIMIT,
-                cls.amplification(model, u_min, u_max) / math.log(cls.AMPLIFICATION) - 1.0,
-                centre / cls.CENTRE_BOUND - 1.0]
+                cls.amplification(model, u_min, u_max) / math.log(cls.AMPLIFICATION) - 1.0]
 
 
 class RDCanonical(Parametrisation):
@@ -309,8 +281,6 @@ class RDCanonical(Parametrisation):
     def converges(value: float) -> bool:
         return value < 0
 
-    BARRIERS = 2
-    """Number of `excesses`."""
     LIMIT = -1e-3
     QUANTITY = "max Re eig(A) (< 0 <=> rho(period map) < 1 since g >= 0)"
     DAMPING = 0.1
