@@ -92,13 +92,19 @@ def periodic_response(model, t, u) -> PeriodicResponse:
                             x_periodic=xs)
 
 
-def convergence_rho(model, u_min: float, u_max: float) -> float:
-    """rho(e^{beta A+} e^{-beta A-}), condition (5), for a rate-independent model."""
+def _span_rho(model, b: float) -> float:
+    """rho(e^{b A+} e^{-b A-}): the spectral radius of the period map of a loop of span b (inf on overflow)."""
     if model.kind != "ri":
         raise KernelError("condition (5) is for the rate-independent model")
-    beta = u_max - u_min
-    M = expm(beta * model.A_plus) @ expm(-beta * model.A_minus)
+    M = expm(b * model.A_plus) @ expm(-b * model.A_minus)
+    if not np.all(np.isfinite(M)):
+        return float("inf")
     return float(np.max(np.abs(np.linalg.eigvals(M))))
+
+
+def convergence_rho(model, u_min: float, u_max: float) -> float:
+    """rho(e^{beta A+} e^{-beta A-}), condition (5), for a rate-independent model."""
+    return _span_rho(model, u_max - u_min)
 
 
 MINOR_SPANS = 8
@@ -116,18 +122,10 @@ def minor_loop_rho(model, u_min: float, u_max: float, spans: int = MINOR_SPANS) 
     is the contraction per travel of one full span, so a single limit applies to every sub-span; at b = beta
     it is condition (5) itself, and as b -> 0 it tends to e^{beta alpha(A+ - A-)}, alpha the spectral abscissa
     (the first-order term of the product).  inf when an exponential overflows."""
-    if model.kind != "ri":
-        raise KernelError("condition (5) is for the rate-independent model")
-    beta = u_max - u_min
     worst = 0.0
     for k in range(1, spans + 1):
-        b = beta * k / spans
-        M = expm(b * model.A_plus) @ expm(-b * model.A_minus)
-        if not np.all(np.isfinite(M)):
-            return float("inf")
-        rho = np.max(np.abs(np.linalg.eigvals(M)))
         with np.errstate(over="ignore"):
-            worst = max(worst, float(rho ** (spans / k)))
+            worst = max(worst, float(np.float64(_span_rho(model, (u_max - u_min) * k / spans)) ** (spans / k)))
     return worst
 
 

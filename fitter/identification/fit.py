@@ -25,8 +25,8 @@ Pipeline of `fit_recordings`
    required of every minor loop of the stored input range (sub-span b: radius
    raised to beta / b, `fitter.core.periodic.minor_loop_rho`), so that the
    saved model also converges on inputs other than the fitted one, and kept by
-   a barrier residual 1e3 max(0, rho - 0.99 + `BARRIER_INSIDE`) added to the objective (it starts just inside the limit, so that the fit
-   ends inside it).  The linear parameters (B, E, D, x0) are eliminated by least
+   a barrier residual 1e3 max(0, rho - 0.99 + `BARRIER_INSIDE`) added to the
+   objective (it starts just inside the limit, so that the fit ends inside it).  The linear parameters (B, E, D, x0) are eliminated by least
    squares at every evaluation (variable projection).  Starts race: each gets
    `RACE_NFEV` evaluations, the best one continues to `MAX_NFEV` in all.
    Rate-dependent fits of order >= 3 add a global stage: seeded perturbed
