@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from real_data import DATA, piezo_recordings  # noqa: E402
+from real_data import DATA, piezo_recordings, stack  # noqa: E402
 
 from fitter.baselines import PrandtlIshlinskii  # noqa: E402
 from fitter.core import compensate, simulate  # noqa: E402
@@ -150,11 +150,13 @@ def main() -> None:
     t0 = time.perf_counter()
     res = {"records": {label: record_part(rec) for label, rec in piezo_recordings(args.data).items()}}
     res["total_seconds"] = time.perf_counter() - t0
+    res["stack"] = stack()
     if args.json:
         print(json.dumps(res, indent=2, default=float))
     else:
         _print(res)
-        print(f"\ntotal run time {res['total_seconds']:.0f} s")
+        versions = ", ".join(f"{k} {v}" for k, v in res["stack"].items())
+        print(f"\ntotal run time {res['total_seconds']:.0f} s; {versions}")
 
 
 if __name__ == "__main__":

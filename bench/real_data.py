@@ -95,6 +95,16 @@ def friction_recordings() -> dict[str, Recording]:
     return out
 
 
+def stack() -> dict[str, str]:
+    """Versions of the numerical stack: the fits' local minima depend on rounding, so the figures are
+    stated with the versions that printed them (the piezo one-for-all fit moved between two stacks
+    before its rate-dependent starts were each refined in full)."""
+    import platform
+
+    import scipy
+    return {"python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__}
+
+
 def _log(msg: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
 
@@ -321,11 +331,13 @@ def main() -> None:
            "friction": friction_part(args.report) if (DATA / "friction-pneumatic").is_dir() else None,
            "timing": timing_part()}
     res["total_seconds"] = time.perf_counter() - t0
+    res["stack"] = stack()
     if args.json:
         print(json.dumps(res, indent=2, default=float))
     else:
         _print(res)
-        print(f"\ntotal run time {res['total_seconds']:.0f} s")
+        versions = ", ".join(f"{k} {v}" for k, v in res["stack"].items())
+        print(f"\ntotal run time {res['total_seconds']:.0f} s; {versions}")
 
 
 if __name__ == "__main__":

@@ -158,10 +158,17 @@ def _piezo(names):
 
 @pytest.mark.skipif(not (DATA / "piezo-pnzt").is_dir(), reason="../shared/data is absent")
 def test_piezo_rate_dependent_beats_rate_independent_on_each_rate():
+    """`duhem fit` (auto) on the three rates picks a rate-dependent model.  Its two starts (the embedded
+    lower-order fit, the rate-independent fit's branch) are each refined in full: a race of three evaluations
+    picked the one that ended worse (rd3 at BIC -5779 instead of -5901; 7.1 % instead of 2.8 % at 1 Hz)."""
+    from fitter.baselines import duhem_nrmse
     recs = _piezo(["slow_T06_triangle_1400V_1Hz", "slow_T01_triangle_1400V_0.1Hz",
                    "slow_T02_triangle_1400V_0.01Hz"])
-    rd = fit_recordings(recs, kind="rd")
-    ri = fit_recordings(recs, kind="ri", order=1)  # the order BIC picks among 1-3
+    rd = fit_recordings(recs)
+    ri = fit_recordings(recs, kind="ri", order=1)
+    assert rd.model.kind == "rd"
+    scores = [duhem_nrmse(rd.model, rec) for rec in recs]     # x0 fitted per record, as the baselines
+    assert all(s < limit for s, limit in zip(scores, (0.035, 0.045, 0.055))), scores
     assert rd.summary["convergence"]["satisfied"] is True
     assert rd.model.to_dict()["g"]["type"] == "table"
     # the model class compared on each rate with its own initial state (the optimiser's figure); the saved
