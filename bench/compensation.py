@@ -7,7 +7,10 @@ linear gain and a Prandtl-Ishlinskii inverse.
 
 Per record (``piezo-pnzt/slow_T06/T01/T02``: 1400 V triangles at 1, 0.1, 0.01 Hz; voltage_V ->
 polarization_uC_per_cm2), as ``bench/real_data.py`` (a) fits them: a rate-independent Duhem model fitted to that
-record alone (`fit_recordings(kind="ri")`, order by BIC), and the same fit at orders 1-3.
+record alone (`fit_recordings(kind="ri")`, order by BIC), and the same fit at orders 1-3.  Then one model for
+the three rates, as `duhem fit` gives it on the three files (`fit_recordings`, kind and order by BIC; a
+rate-dependent model), beside one Prandtl-Ishlinskii model fitted to the three; each record's plant starts from
+the state fitted to that record.
 
 The plant is the fitted Duhem model, started as the record starts (its stored x0 at the record's first voltage).
 The reference: that first output, then a triangle in the output between 10 % and 90 % of the measured range
@@ -43,8 +46,10 @@ from real_data import DATA, piezo_recordings, stack  # noqa: E402
 from fitter.baselines import PrandtlIshlinskii  # noqa: E402
 from fitter.core import compensate, simulate  # noqa: E402
 from fitter.core.inverse import linear_gain  # noqa: E402
+from fitter.data.metrics import compare  # noqa: E402
 from fitter.data.recordings import Recording  # noqa: E402
 from fitter.identification.fit import fit_recordings  # noqa: E402
+from fitter.identification.output_error import fitted_initial_state  # noqa: E402
 
 ORDERS = (None, 1, 2, 3)
 """Duhem model orders per record: None = chosen by BIC (as bench/real_data.py), then fixed orders."""
@@ -75,6 +80,29 @@ def _pi_output(pi: PrandtlIshlinskii, t: np.ndarray, u: np.ndarray) -> np.ndarra
     return pi.predict(Recording(t, u, np.full(len(t), np.nan)))
 
 
+def _rows(model, rec: Recording, pi: PrandtlIshlinskii, y0: float, gain: float) -> dict:
+    """Tracking of the 10-90 % reference with `model` as the plant (x0 as stored: the record's start), and
+    the input each inverse gives for the measured output."""
+    u0 = float(rec.u[0])
+    t, y_ref = reference(rec, float(simulate(model, rec.t[:1], rec.u[:1]).y[0]))
+    t1 = time.perf_counter()
+    comp = compensate(model, t, y_ref, u0=u0)
+    comp_seconds = time.perf_counter() - t1
+    inputs = {"compensated": comp.u,
+              "linear gain": np.r_[u0, np.clip((y_ref[1:] - y0) / gain, rec.u.min(), rec.u.max())],
+              "PI inverse": np.r_[u0, pi.invert(y_ref[1:])]}
+    duhem = {k: _error(simulate(model, t, u).y, y_ref) for k, u in inputs.items()}
+    on_pi = {k: _error(_pi_output(pi, t, u), y_ref) for k, u in inputs.items()}
+    # on the record itself: the input each inverse gives for the measured output, against the measured input
+    back = compensate(model, rec.t, rec.y, u0=u0)
+    recovered = {"compensated": back.u, "linear gain": (rec.y - y0) / gain, "PI inverse": pi.invert(rec.y)}
+    on_record = {k: float(np.sqrt(np.mean((u - rec.u) ** 2)) / np.ptp(rec.u)) for k, u in recovered.items()}
+    return {"samples": len(t), "clamped": comp.n_clamped, "max_shortfall": comp.max_shortfall,
+            "compensation_seconds": comp_seconds, "plant_duhem": duhem, "plant_pi": on_pi,
+            "record_input_error": on_record, "record_clamped": back.n_clamped, "record_samples": len(rec),
+            "u_range": [float(comp.u.min()), float(comp.u.max())]}
+
+
 def record_part(rec: Recording) -> dict:
     _log(f"{rec.name}: Prandtl-Ishlinskii fit")
     pi = PrandtlIshlinskii(deadband=False, invertible=True).fit(rec)
@@ -84,29 +112,28 @@ def record_part(rec: Recording) -> dict:
         _log(f"{rec.name}: Duhem fit, order {'by BIC' if order is None else order}")
         t0 = time.perf_counter()
         fit = fit_recordings([rec], kind="ri", order=order)
-        model = fit.model
-        seconds = time.perf_counter() - t0
-        u0 = float(rec.u[0])
-        t, y_ref = reference(rec, float(simulate(model, rec.t[:1], rec.u[:1]).y[0]))
-        t1 = time.perf_counter()
-        comp = compensate(model, t, y_ref, u0=u0)
-        comp_seconds = time.perf_counter() - t1
-        inputs = {"compensated": comp.u,
-                  "linear gain": np.r_[u0, np.clip((y_ref[1:] - y0) / gain, rec.u.min(), rec.u.max())],
-                  "PI inverse": np.r_[u0, pi.invert(y_ref[1:])]}
-        duhem = {k: _error(simulate(model, t, u).y, y_ref) for k, u in inputs.items()}
-        on_pi = {k: _error(_pi_output(pi, t, u), y_ref) for k, u in inputs.items()}
-        # on the record itself: the input each inverse gives for the measured output, against the measured input
-        back = compensate(model, rec.t, rec.y, u0=u0)
-        recovered = {"compensated": back.u, "linear gain": (rec.y - y0) / gain, "PI inverse": pi.invert(rec.y)}
-        on_record = {k: float(np.sqrt(np.mean((u - rec.u) ** 2)) / np.ptp(rec.u)) for k, u in recovered.items()}
         out["models"].append({
-            "model": f"ri{model.order}", "order_rule": "BIC" if order is None else "fixed",
-            "fit_nrmse": fit.summary["recordings"][0]["nrmse"], "fit_seconds": seconds,
-            "samples": len(t), "clamped": comp.n_clamped, "max_shortfall": comp.max_shortfall,
-            "compensation_seconds": comp_seconds, "plant_duhem": duhem, "plant_pi": on_pi,
-            "record_input_error": on_record, "record_clamped": back.n_clamped, "record_samples": len(rec),
-            "u_range": [float(comp.u.min()), float(comp.u.max())]})
+            "model": f"ri{fit.model.order}", "order_rule": "BIC" if order is None else "fixed",
+            "fit_nrmse": fit.summary["recordings"][0]["nrmse"], "fit_seconds": time.perf_counter() - t0,
+            **_rows(fit.model, rec, pi, y0, gain)})
+    return out
+
+
+def joint_part(recs: dict[str, Recording]) -> dict:
+    """One Duhem model for the three rates (`duhem fit` on all three, kind and order by BIC) and one
+    Prandtl-Ishlinskii model for the three, each record's plant started from the state fitted to that record
+    (`fitted_initial_state`, as `bench/real_data.py` scores it)."""
+    _log("all rates: Duhem fit (auto) and Prandtl-Ishlinskii fit")
+    t0 = time.perf_counter()
+    fit = fit_recordings(list(recs.values()))
+    seconds = time.perf_counter() - t0
+    pi = PrandtlIshlinskii(deadband=False, invertible=True).fit(list(recs.values()))
+    out = {"model": f"{fit.model.kind}{fit.model.order}", "fit_seconds": seconds, "records": {}}
+    for label, rec in recs.items():
+        x0, y_fit = fitted_initial_state(fit.model, rec.t, rec.u, rec.y)
+        y0, gain = linear_gain(rec.u, rec.y)
+        out["records"][label] = {"fit_nrmse": compare(rec, y_fit)["nrmse"], "pi_nrmse": pi.score(rec)["nrmse"],
+                                 **_rows(fit.model.replace(x0=x0), rec, pi, y0, gain)}
     return out
 
 
@@ -133,6 +160,16 @@ def _print(res: dict) -> None:
             tag = f"{m['model']} ({'BIC' if m['order_rule'] == 'BIC' else 'fix'})"
             print(f"{rec:8s} {tag:10s} {m['record_clamped']:4d}/{m['record_samples']:<4d} | {e['compensated']:8.2%} "
                   f"{e['linear gain']:8.2%} {e['PI inverse']:8.2%}")
+    j = res["one_for_all"]
+    print(f"\nOne model for the three rates ({j['model']} by `duhem fit`, one Prandtl-Ishlinskii model), each record's "
+          "plant from the state fitted to it:")
+    print(f"{'record':8s} {'fit':>6s} {'clamped':>9s} | {'comp.':>9s} {'linear':>8s} {'PI inv.':>8s} | "
+          f"{'on the record: comp.':>20s} {'linear':>8s} {'PI inv.':>8s}")
+    for rec, m in j["records"].items():
+        d, e = m["plant_duhem"], m["record_input_error"]
+        print(f"{rec:8s} {m['fit_nrmse']:6.2%} {m['clamped']:4d}/{m['samples']:<4d} | {d['compensated']:9.2e} "
+              f"{d['linear gain']:8.1%} {d['PI inverse']:8.1%} | {e['compensated']:20.2%} {e['linear gain']:8.2%} "
+              f"{e['PI inverse']:8.2%}")
     print("\nfit NRMSE of each Duhem model on its record, and of the Prandtl-Ishlinskii model:")
     for rec, part in res["records"].items():
         fits = ", ".join(f"{m['model']} {m['fit_nrmse']:.2%}" for m in part["models"])
@@ -148,7 +185,8 @@ def main() -> None:
         print(f"compensation bench: skipped ({args.data / 'piezo-pnzt'} is absent)")
         return
     t0 = time.perf_counter()
-    res = {"records": {label: record_part(rec) for label, rec in piezo_recordings(args.data).items()}}
+    recs = piezo_recordings(args.data)
+    res = {"records": {label: record_part(rec) for label, rec in recs.items()}, "one_for_all": joint_part(recs)}
     res["total_seconds"] = time.perf_counter() - t0
     res["stack"] = stack()
     if args.json:

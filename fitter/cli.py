@@ -247,6 +247,7 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, allow_
         if not conv.get("satisfied"):
             click.echo("warning: the convergence condition is violated: a wrong initial state need not die out; "
                        "the FMU is exported only with --allow-unstable", err=True)
+    _minor_loop_lines(summary.get("minor_loops"))
     click.echo(f"NRMSE: {summary.get('nrmse_convention')}")
     rows = [[r.get("recording"), r.get("nrmse"), r.get("nrmse_last_cycle"), r.get("max_error"),
              r.get("loop_area_error"), r.get("residual_rms"), r.get("noise_rms")]
@@ -256,6 +257,20 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, allow_
             "noise RMS"], rows)
     if "comparison" in summary:
         _comparison_tables(summary["comparison"])
+
+
+def _minor_loop_lines(minor: dict | None) -> None:
+    """The fit's `minor_loops` check: one line, and a warning when the model leaves the recorded range."""
+    if not minor:
+        return
+    exc = minor.get("excursion")
+    size = "overflows" if exc is None else f"leaves the recorded output range by {exc:.3g} output ranges"
+    click.echo(f"minor loops inside the input range: the output {size} at most ({minor.get('input')})")
+    if not minor.get("faithful"):
+        click.echo("warning: on minor loops smaller than the recorded ones the model's output goes far outside "
+                   "anything recorded: it reproduces the recorded loops, not necessarily smaller ones (a semilinear "
+                   "model's small loops settle on a centre line affine in u); check it on a recording with minor "
+                   "loops before using it, or its compensator, there", err=True)
 
 
 def _comparison_tables(comp: dict) -> None:

@@ -474,3 +474,20 @@ def test_simulate_refuses_a_non_finite_output_and_writes_nothing(bad):
 def test_a_python_backend_export_says_what_a_host_needs(work):
     (line,) = [x for x in work["python_stderr"].splitlines() if x.startswith("note:")]
     assert "libpython3" in line and "numpy" in line and "--backend native" in line
+
+
+PIEZO_1HZ = ROOT.parent / "shared" / "data" / "piezo-pnzt" / "slow_T06_triangle_1400V_1Hz.csv"
+
+
+@pytest.mark.skipif(not PIEZO_1HZ.is_file(), reason="../shared/data is absent")
+def test_fit_warns_when_minor_loops_leave_the_recorded_range(tmp_path):
+    """The piezo 1 Hz triangle's fit reproduces its loop, but driven by minor loops inside its input range
+    its output settles far outside anything recorded: `duhem fit` says so on stderr and in the summary."""
+    result = ok(invoke("fit", PIEZO_1HZ, "--time", "time_s", "--input", "voltage_V", "--output",
+                       "polarization_uC_per_cm2", "--kind", "ri", "-o", tmp_path / "m.json"))
+    assert "warning: on minor loops smaller than the recorded ones" in result.stderr
+    assert "minor loops inside the input range: the output leaves the recorded output range by" in result.stdout
+    summary = json.loads(ok(invoke("fit", PIEZO_1HZ, "--time", "time_s", "--input", "voltage_V", "--output",
+                                   "polarization_uC_per_cm2", "--kind", "ri", "-o", tmp_path / "m2.json",
+                                   "--json")).stdout)["summary"]["minor_loops"]
+    assert summary["faithful"] is False and summary["excursion"] > 10

@@ -23,7 +23,7 @@ from fitter.fmu.host import simulate_fmu
 from fitter.core.kernel import simulate
 from fitter.core.periodic import fixed_point as periodic_fixed_point
 from fitter.core.periodic import minor_loop_rho
-from fitter.identification.exported import range_warnings, raw_input_rho
+from fitter.identification.exported import MINOR_LOOP_WARNING, minor_loop_excursion, range_warnings, raw_input_rho
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
@@ -169,6 +169,9 @@ def test_exported_fmu_reproduces_the_fit_on_measured_recordings(case, tmp_path):
     _reproduces(fit, recs, tmp_path)
     if fit.model.kind == "ri":      # condition (5) of every minor loop, on the physical model and its stored range
         assert minor_loop_rho(fit.model, *fit.model.input_range) < 1
+    minor = fit.summary["minor_loops"]    # the saved model, from its stored x0, off its recorded loops
+    assert minor["excursion"] == pytest.approx(minor_loop_excursion(fit.model, recs), rel=1e-12)
+    assert minor["faithful"] is (minor["excursion"] <= MINOR_LOOP_WARNING)
 
 
 def test_condition_5_on_the_span_does_not_make_minor_loops_converge():
@@ -189,6 +192,24 @@ def test_condition_5_on_the_span_does_not_make_minor_loops_converge():
     grow = [np.abs(simulate(model, np.arange(len(u), dtype=float), u).x).max(axis=1) for u in (minor, full)]
     assert grow[0][-1] > 1e3 * grow[0][40]          # 200 minor cycles = 25 spans of travel: 6^25 / 6^1.25
     assert grow[1][-1] < 10 * grow[1][40]
+
+
+def test_minor_loop_excursion_separates_a_faithful_model_from_an_expanding_one():
+    """The demo's ground truth, a diagonal second-order model, keeps its minor loops inside its own recorded
+    range; the model of the test above, whose minor loops expand, leaves it by orders of magnitude; each
+    judged on its own output to a full-span triangle."""
+    from fitter.core.models import RateIndependentModel, load_model
+    truth = load_model(ROOT / "examples" / "demo_truth.json").replace(input_range=(-5.0, 105.0), x0=[1.0, 1.0])
+    expanding = RateIndependentModel(A_plus=[[-5.0, -5.0], [4.0, 3.0]], A_minus=[[3.0, -4.0], [4.0, 1.0]],
+                                     B_plus=[1.0, 0.0], B_minus=[1.0, 0.0], C=[0.0, 1.0], input_range=(0.0, 1.0))
+    out = []
+    for model in (truth, expanding):
+        lo, hi = model.input_range
+        u = np.tile(np.r_[np.linspace(lo, hi, 41)[:-1], np.linspace(hi, lo, 41)[:-1]], 5)
+        t = np.arange(len(u), dtype=float)
+        out.append(minor_loop_excursion(model, [Recording(t, u, simulate(model, t, u).y)]))
+    assert out[0] < 0.1 * MINOR_LOOP_WARNING
+    assert out[1] > 1e3
 
 
 def test_rates_spread_over_1_9x_are_not_chained_into_one_level():

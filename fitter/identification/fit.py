@@ -60,8 +60,8 @@ from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording, check_scale
 from fitter.identification.fit_data import (FitData, FitError, RateLevels, averaged_loop, monotone_input,
                                             prepare_for_fit, rate_levels)
-from fitter.identification.exported import (NRMSE_CONVENTION, X0_POLICIES, fitted_range, initial_state, input_range,
-                                            raw_input_rho, score)
+from fitter.identification.exported import (MINOR_LOOP_WARNING, NRMSE_CONVENTION, X0_POLICIES, fitted_range,
+                                            initial_state, input_range, minor_loop_excursion, raw_input_rho, score)
 from fitter.identification.output_error import Options, Recordings, RefineResult, jacobian, refine
 from fitter.identification.parametrisation import Parametrisation, Physical, RDCanonical, RICanonical
 from fitter.identification.starts import Q_CANDIDATES, generic_ri_starts, ri_starts, rd_starts
@@ -386,7 +386,17 @@ def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels:
     }
     model = model.replace(fit_info=jsonable({k: summary[k] for k in ("kind", "order", "why", "convergence",
                                                                      "fitted_range", "x0", "nrmse_convention")}))
+    summary["minor_loops"] = _minor_loops(model, recordings)
     return FitResult(model=model, summary=jsonable(summary), theta=res.theta, cov=res.covariance(), param=physical)
+
+
+def _minor_loops(model, recordings) -> dict:
+    """The saved model off its recorded loops (`minor_loop_excursion`), with the verdict `duhem fit` prints."""
+    exc = minor_loop_excursion(model, recordings)
+    return {"excursion": exc, "warning_above": MINOR_LOOP_WARNING, "faithful": bool(exc <= MINOR_LOOP_WARNING),
+            "input": "40 triangle cycles of each of 8 sub-spans (1/8 to 8/8) of the model's input range around its "
+                     "middle, from the stored x0 at the first input, at the recordings' median rate",
+            "quantity": "largest distance of the output beyond the recorded output range, in output ranges"}
 
 
 def _why(best: _Candidate, cands, kind: str, levels: int, outside: Sequence[_Candidate] = ()) -> str:
