@@ -141,6 +141,9 @@ def test_report_writes_html_and_figures(ri_fit, tmp_path):
         assert name in html
         assert (index.parent / name).read_bytes()[:4] == b"\x89PNG"
     assert "NRMSE" in html and "w2.0" in html
+    exc = ri_fit.summary["minor_loops"]["excursion"]
+    assert f"leaves the recorded output range by at most {exc:.3g} output ranges" in html
+    assert ("not necessarily smaller ones" in html) is (exc > 1.0)
 
 
 def _piezo(names):

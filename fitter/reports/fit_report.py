@@ -79,6 +79,17 @@ def _fmt(x, spec=".4g") -> str:
     return "–" if x is None else format(x, spec)
 
 
+def _minor_loops(minor: dict | None) -> str:
+    """The summary's `minor_loops` check as a paragraph (empty without it)."""
+    if not minor:
+        return ""
+    exc = minor.get("excursion")
+    size = "overflows" if exc is None else f"leaves the recorded output range by at most {exc:.3g} output ranges"
+    verdict = ("" if minor.get("faithful") else " <b>The model reproduces the recorded loops, not necessarily "
+               "smaller ones: check it on a recording with minor loops before using it there.</b>")
+    return f"<p>Minor loops inside the input range ({html.escape(minor['input'])}): the output {size}.{verdict}</p>"
+
+
 def _page(result, rows: list[tuple[str, dict, str, str]]) -> str:
     s = result.summary
     conv = s["convergence"]
@@ -104,6 +115,7 @@ td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}img{{max-width:10
 Chosen by: {html.escape(s['why'])}.</p>
 <p>Convergence condition: <b>{'satisfied' if conv['satisfied'] else 'NOT satisfied'}</b>
 ({html.escape(conv['quantity'])} = {_fmt(conv['value'])}).</p>
+{_minor_loops(s.get("minor_loops"))}
 <h2>Errors per recording</h2><p>The saved model, simulated from its stored initial state over all samples
 of each recording (what the FMU gives and what <code>duhem validate</code> reports).  NRMSE = RMS error /
 output range; the last full input cycle beside it.</p>
