@@ -7,7 +7,8 @@ linear gain and a Prandtl-Ishlinskii inverse.
 
 Per record (``piezo-pnzt/slow_T06/T01/T02``: 1400 V triangles at 1, 0.1, 0.01 Hz; voltage_V ->
 polarization_uC_per_cm2), as ``bench/real_data.py`` (a) fits them: a rate-independent Duhem model fitted to that
-record alone (`fit_recordings(kind="ri")`, order by BIC), and the same fit at orders 1-3.  Then one model for
+record alone (`fit_recordings(kind="ri")`, order by BIC), the same fit at orders 1-3, and the BIC fit with
+faithful minor loops (`faithful_minor_loops=True`: its small-loop centres near the data).  Then one model for
 the three rates, as `duhem fit` gives it on the three files (`fit_recordings`, kind and order by BIC; a
 rate-dependent model), beside one Prandtl-Ishlinskii model fitted to the three; each record's plant starts from
 the state fitted to that record.
@@ -51,8 +52,11 @@ from fitter.data.recordings import Recording  # noqa: E402
 from fitter.identification.fit import fit_recordings  # noqa: E402
 from fitter.identification.output_error import fitted_initial_state  # noqa: E402
 
-ORDERS = (None, 1, 2, 3)
-"""Duhem model orders per record: None = chosen by BIC (as bench/real_data.py), then fixed orders."""
+FITS = ((None, False), (1, False), (2, False), (3, False), (None, True))
+"""Duhem fits per record, (order, faithful minor loops): order None = chosen by BIC (as bench/real_data.py),
+then fixed orders, then the BIC order with `fit_recordings(faithful_minor_loops=True)`."""
+RULES = {(True, False): "BIC", (False, False): "fix", (True, True): "BIC+f"}
+"""Short names of the fits in the table (order by BIC?, faithful?); +f: faithful minor loops."""
 
 
 def _log(msg: str) -> None:
@@ -108,12 +112,14 @@ def record_part(rec: Recording) -> dict:
     pi = PrandtlIshlinskii(deadband=False, invertible=True).fit(rec)
     y0, gain = linear_gain(rec.u, rec.y)
     out = {"linear_gain": {"y0": y0, "gain": gain}, "pi_nrmse": pi.score(rec)["nrmse"], "models": []}
-    for order in ORDERS:
-        _log(f"{rec.name}: Duhem fit, order {'by BIC' if order is None else order}")
+    for order, faithful in FITS:
+        _log(f"{rec.name}: Duhem fit, order {'by BIC' if order is None else order}"
+             + (", faithful minor loops" if faithful else ""))
         t0 = time.perf_counter()
-        fit = fit_recordings([rec], kind="ri", order=order)
+        fit = fit_recordings([rec], kind="ri", order=order, faithful_minor_loops=faithful)
         out["models"].append({
-            "model": f"ri{fit.model.order}", "order_rule": "BIC" if order is None else "fixed",
+            "model": f"ri{fit.model.order}", "order_rule": RULES[order is None, faithful],
+            "minor_loop_excursion": fit.summary["minor_loops"]["excursion"],
             "fit_nrmse": fit.summary["recordings"][0]["nrmse"], "fit_seconds": time.perf_counter() - t0,
             **_rows(fit.model, rec, pi, y0, gain)})
     return out
@@ -137,28 +143,33 @@ def joint_part(recs: dict[str, Recording]) -> dict:
     return out
 
 
+def _excursion(value: float | None) -> str:
+    """The fit's minor-loop excursion in output ranges (None: the output overflowed)."""
+    return "overflow" if value is None else f"{value:.3g}"
+
+
 def _print(res: dict) -> None:
     print("Tracking a triangle over 10-90 % of the measured output range, two periods: RMS(y - y_ref) / range")
     print("plant = the fitted Duhem model (columns 4-6) or the fitted Prandtl-Ishlinskii model (columns 7-9)\n")
-    head = f"{'record':8s} {'model':10s} {'clamped':>9s} | {'comp.':>9s} {'linear':>8s} {'PI inv.':>8s} | " \
+    head = f"{'record':8s} {'model':12s} {'clamped':>9s} | {'comp.':>9s} {'linear':>8s} {'PI inv.':>8s} | " \
            f"{'comp.':>8s} {'linear':>8s} {'PI inv.':>8s}"
     print(head)
     print("-" * len(head))
     for rec, part in res["records"].items():
         for m in part["models"]:
             d, p = m["plant_duhem"], m["plant_pi"]
-            tag = f"{m['model']} ({'BIC' if m['order_rule'] == 'BIC' else 'fix'})"
-            print(f"{rec:8s} {tag:10s} {m['clamped']:4d}/{m['samples']:<4d} | {d['compensated']:9.2e} "
+            tag = f"{m['model']} ({m['order_rule']})"
+            print(f"{rec:8s} {tag:12s} {m['clamped']:4d}/{m['samples']:<4d} | {d['compensated']:9.2e} "
                   f"{d['linear gain']:8.1%} {d['PI inverse']:8.1%} | {p['compensated']:8.1%} "
                   f"{p['linear gain']:8.1%} {p['PI inverse']:8.2e}")
     print("\nOn the record itself (no extrapolation): the input each inverse gives for the measured output, "
           "RMS(u - u_measured) / range(u)")
-    print(f"{'record':8s} {'model':10s} {'clamped':>9s} | {'comp.':>8s} {'linear':>8s} {'PI inv.':>8s}")
+    print(f"{'record':8s} {'model':12s} {'clamped':>9s} | {'comp.':>8s} {'linear':>8s} {'PI inv.':>8s}")
     for rec, part in res["records"].items():
         for m in part["models"]:
             e = m["record_input_error"]
-            tag = f"{m['model']} ({'BIC' if m['order_rule'] == 'BIC' else 'fix'})"
-            print(f"{rec:8s} {tag:10s} {m['record_clamped']:4d}/{m['record_samples']:<4d} | {e['compensated']:8.2%} "
+            tag = f"{m['model']} ({m['order_rule']})"
+            print(f"{rec:8s} {tag:12s} {m['record_clamped']:4d}/{m['record_samples']:<4d} | {e['compensated']:8.2%} "
                   f"{e['linear gain']:8.2%} {e['PI inverse']:8.2%}")
     j = res["one_for_all"]
     print(f"\nOne model for the three rates ({j['model']} by `duhem fit`, one Prandtl-Ishlinskii model), each record's "
@@ -170,9 +181,11 @@ def _print(res: dict) -> None:
         print(f"{rec:8s} {m['fit_nrmse']:6.2%} {m['clamped']:4d}/{m['samples']:<4d} | {d['compensated']:9.2e} "
               f"{d['linear gain']:8.1%} {d['PI inverse']:8.1%} | {e['compensated']:20.2%} {e['linear gain']:8.2%} "
               f"{e['PI inverse']:8.2%}")
-    print("\nfit NRMSE of each Duhem model on its record, and of the Prandtl-Ishlinskii model:")
+    print("\nfit NRMSE of each Duhem model on its record [its summary's minor-loop excursion, output ranges], and "
+          "of the Prandtl-Ishlinskii model:")
     for rec, part in res["records"].items():
-        fits = ", ".join(f"{m['model']} {m['fit_nrmse']:.2%}" for m in part["models"])
+        fits = ", ".join(f"{m['model']} ({m['order_rule']}) {m['fit_nrmse']:.2%} [minor loops "
+                         f"{_excursion(m['minor_loop_excursion'])}]" for m in part["models"])
         print(f"  {rec}: {fits}; PI {part['pi_nrmse']:.2%}")
 
 

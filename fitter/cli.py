@@ -196,14 +196,18 @@ main.add_command(reproduce_paper)
 @click.option("--x0", "x0_policy", type=click.Choice(["fitted", "periodic"]), default="fitted", show_default=True,
               help="stored initial state at the first sample of the first recording: fitted to it (least "
                    "squares), or leading onto the periodic response of its first cycle")
+@click.option("--faithful-minor-loops", "faithful", is_flag=True,
+              help="keep every settled minor loop within half an output range of the recorded output "
+                   "(rate-independent candidates): the model stays near the data on loops smaller than the "
+                   "recorded ones, at a cost in accuracy where the recorded loop switches sharply")
 @_allow_unstable_option
 @_column_options
 @click.option("--compare", is_flag=True,
               help="also fit the classical models (Preisach, Prandtl-Ishlinskii, Bouc-Wen) to the same recordings "
                    "and show their NRMSE beside the Duhem model's (summary key 'comparison', and in the report)")
 @click.option("--json", "as_json", is_flag=True, help="print the fit summary as JSON")
-def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, allow_unstable, time_col, input_col,
-        output_col, compare, as_json):
+def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithful, allow_unstable, time_col,
+        input_col, output_col, compare, as_json):
     """Fit a model to one or more recordings (one CSV file per experiment, e.g. per rate)."""
     _check_fmu_name(fmu)
     if fmu:
@@ -216,7 +220,8 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, allow_
             model_tmp, fmu_tmp = outputs.enter_context(atomic_file(out, suffix=".json")), None
         report_tmp = outputs.enter_context(atomic_directory(report)) if report else None
         say(f"fitting {len(recs)} recording(s)", None)
-        result = fit_recordings(recs, kind=kind, order=order, q=q, x0=x0_policy, progress=say)
+        result = fit_recordings(recs, kind=kind, order=order, q=q, x0=x0_policy, faithful_minor_loops=faithful,
+                                progress=say)
         if compare:
             say("fitting the classical models (Preisach, Prandtl-Ishlinskii, Bouc-Wen)", None)
             result.summary["comparison"] = jsonable(comparison(result.model, recs))
@@ -270,7 +275,7 @@ def _minor_loop_lines(minor: dict | None) -> None:
         click.echo("warning: on minor loops smaller than the recorded ones the model's output goes far outside "
                    "anything recorded: it reproduces the recorded loops, not necessarily smaller ones (a semilinear "
                    "model's small loops settle on a centre line affine in u); check it on a recording with minor "
-                   "loops before using it, or its compensator, there", err=True)
+                   "loops before using it, or its compensator, there (or fit with --faithful-minor-loops)", err=True)
 
 
 def _comparison_tables(comp: dict) -> None:

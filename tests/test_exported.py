@@ -185,7 +185,7 @@ def test_condition_5_on_the_span_does_not_make_minor_loops_converge():
                                  B_plus=[1.0, 0.0], B_minus=[1.0, 0.0], C=[0.0, 1.0])
     assert convergence_rho(model, 0.0, 1.0) == pytest.approx(0.1203, abs=1e-4)
     assert minor_loop_rho(model, 0.0, 1.0) == pytest.approx(5.985, abs=1e-3)
-    assert RICanonical.excesses(model, 0.05, 0.95)[0] > 4.0
+    assert RICanonical(2).excesses(model, 0.05, 0.95)[0] > 4.0
     leg = np.linspace(0.4375, 0.5625, 21)
     minor = np.tile(np.r_[leg[:-1], leg[:0:-1]], 200)
     full = np.tile(np.r_[np.linspace(0, 1, 21)[:-1], np.linspace(1, 0, 21)[:-1]], 25)
@@ -210,6 +210,35 @@ def test_minor_loop_excursion_separates_a_faithful_model_from_an_expanding_one()
         out.append(minor_loop_excursion(model, [Recording(t, u, simulate(model, t, u).y)]))
     assert out[0] < 0.1 * MINOR_LOOP_WARNING
     assert out[1] > 1e3
+
+
+def test_settled_minor_loops_are_the_limit_of_repeated_cycles():
+    """`minor_loop_outputs` (the fixed point of each loop's period map) against brute force: 300 cycles of
+    each loop simulated from x0 = 0, the last turning points, for a coupled second-order model."""
+    from fitter.core.models import RateIndependentModel
+    from fitter.core.periodic import minor_loop_outputs
+    model = RateIndependentModel(A_plus=[[-2.0, 0.5], [0.3, -1.0]], A_minus=[[1.5, -0.4], [0.2, 2.5]],
+                                 B_plus=[1.0, 0.5], B_minus=[-0.5, 1.0], C=[1.0, -0.7], E_plus=[0.2, 0.0],
+                                 E_minus=[0.0, -0.1], D=0.3)
+    fixed = minor_loop_outputs(model, -1.0, 1.0, spans=4, centres=3)
+    assert fixed.shape == (3 * 3 + 1, 2)
+    row = 0
+    for k in range(1, 5):
+        b = 2.0 * k / 4
+        for lo in np.linspace(-1.0, 1.0 - b, 3 if k < 4 else 1):
+            u = np.tile([lo, lo + b], 300)
+            y = simulate(model, np.arange(len(u), dtype=float), u).y
+            assert np.allclose(fixed[row], y[-2:], atol=1e-9), (k, lo)
+            row += 1
+
+
+def test_faithful_minor_loops_keep_the_demo_fit_near_its_data():
+    """With `faithful_minor_loops` the demo's fit keeps every settled minor loop near the recorded range, as
+    the model that generated it does (excursion 0.04), at a fit error still below 0.2 %."""
+    fit = fit_recordings(_demo(), faithful_minor_loops=True)
+    assert fit.summary["minor_loops"]["constrained"] is True
+    assert fit.summary["minor_loops"]["excursion"] < 0.1
+    assert fit.summary["recordings"][0]["nrmse"] < 0.002
 
 
 def test_rates_spread_over_1_9x_are_not_chained_into_one_level():
@@ -322,6 +351,6 @@ def test_branch_amplification_is_the_largest_growth_along_one_branch():
     assert RICanonical.amplification(rising, -1.0, 1.0) == pytest.approx(4.0)
     assert RICanonical.amplification(falling, -1.0, 1.0) == pytest.approx(5.0)
     assert RICanonical.amplification(both_contract, -1.0, 1.0) == 0.0
-    excess = RICanonical.excesses(rising.replace(A_plus=[[10.0]], A_minus=[[11.0]]), -1.0, 1.0)[1]
+    excess = RICanonical(1).excesses(rising.replace(A_plus=[[10.0]], A_minus=[[11.0]]), -1.0, 1.0)[1]
     assert excess == pytest.approx(20.0 / math.log(1e6) - 1.0)
 

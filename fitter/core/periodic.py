@@ -20,7 +20,8 @@ from .errors import ConvergenceError, KernelError
 from .kernel import Simulation, expm, flows, simulate, state_blocks
 
 __all__ = ["ConvergenceError", "PeriodicResponse", "periodic_response", "convergence_rho", "minor_loop_rho",
-           "minor_loop_input", "limiting_loop", "affine_blocks", "affine_response", "period_map", "fixed_point"]
+           "minor_loop_outputs", "minor_loop_input", "limiting_loop", "affine_blocks", "affine_response",
+           "period_map", "fixed_point"]
 
 
 def affine_blocks(model, t, u, cache: dict | None = None) -> Iterator[tuple[np.ndarray, np.ndarray]]:
@@ -127,6 +128,33 @@ def minor_loop_rho(model, u_min: float, u_max: float, spans: int = MINOR_SPANS) 
         with np.errstate(over="ignore"):
             worst = max(worst, float(np.float64(_span_rho(model, (u_max - u_min) * k / spans)) ** (spans / k)))
     return worst
+
+
+MINOR_CENTRES = 5
+"""Centres at which `minor_loop_outputs` places each sub-span's loop, evenly from the lowest to the highest."""
+
+
+def minor_loop_outputs(model, u_min: float, u_max: float, spans: int = MINOR_SPANS,
+                       centres: int = MINOR_CENTRES) -> np.ndarray:
+    """Outputs at the two turning points of every settled minor loop, shape (spans * centres, 2).
+
+    A loop of span b = beta k / spans (k = 1..spans, beta = u_max - u_min) between u_lo and u_lo + b, with
+    u_lo evenly placed on [u_min, u_max - b] (`centres` places; one for the full span), repeated, settles
+    on the periodic state x* = (I - Phi)^{-1} c of its cycle u_lo -> u_lo + b -> u_lo (`fixed_point`,
+    exact: the kernel's affine period map); the outputs at u_lo (from x*) and at u_lo + b (after the
+    rising branch) are the loop's turning points.  inf where a loop has no fixed point (its period map has
+    radius >= 1) or overflows.  Rate-independent models (the time of a sample does not matter)."""
+    out = []
+    for k in range(1, spans + 1):
+        b = (u_max - u_min) * k / spans
+        for lo in np.linspace(u_min, u_max - b, centres if k < spans else 1):
+            u = np.array([lo, lo + b, lo])
+            with np.errstate(all="ignore"):
+                x, _ = fixed_point(model, np.arange(3.0), u)
+                y = (np.full(2, np.inf) if x is None
+                     else simulate(model, np.arange(2.0), u[:2], x0=x).y)
+            out.append(np.where(np.isfinite(y), y, np.inf))
+    return np.array(out)
 
 
 def minor_loop_input(u_min: float, u_max: float, cycles: int = 40, points: int = 20,

@@ -105,10 +105,12 @@ class _Candidate:
 
 
 def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.ndarray], np.ndarray]:
-    """1e3 max(0, excess + `BARRIER_INSIDE`) of the parametrisation's two barrier quantities (`excesses`; 1e3 where they
-    cannot be evaluated): rate-independent, rho of condition (5) <= 0.99 and the branch amplification
-    over the fitted span <= 1e6 (`RICanonical.amplification`: a branch that expands a state error by
-    1e15 while the other contracts converges, but makes the model's output depend on rounding);
+    """1e3 max(0, excess + `BARRIER_INSIDE`) of the parametrisation's barrier quantities (`excesses`, `barriers` of
+    them; 1e3 where they cannot be evaluated): rate-independent, rho of condition (5) <= 0.99, the branch
+    amplification over the fitted span <= 1e6 (`RICanonical.amplification`: a branch that expands a state
+    error by 1e15 while the other contracts converges, but makes the model's output depend on rounding) and,
+    with faithful minor loops, every settled minor loop within half an output range of the data
+    (`RICanonical.minor_loop_extent`);
     rate-dependent, max Re eig(A) <= -1e-3 (normalised units; A is Hurwitz by construction, the barrier
     keeps a margin from 0) and every mode damped (`RDCanonical.damping_excess` <= 0: a nearly undamped
     oscillation fits the data by cancellation and blows up at rates it was not fitted on)."""
@@ -118,9 +120,9 @@ def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.nd
         try:
             with np.errstate(all="ignore"):
                 model = param.build(th) if np.all(np.isfinite(th)) else None
-                vals = [np.inf] * 2 if model is None else param.excesses(model, lo, hi)
+                vals = [np.inf] * param.barriers if model is None else param.excesses(model, lo, hi)
         except (ValueError, np.linalg.LinAlgError):
-            vals = [np.inf] * 2
+            vals = [np.inf] * param.barriers
         return np.array([1e3 * max(0.0, v + BARRIER_INSIDE) if np.isfinite(v) else 1e3 for v in vals])
     return pen
 
@@ -185,8 +187,10 @@ def _global_stage(param: RDCanonical, best: RefineResult, run: Callable[[np.ndar
     return best
 
 
-def _search(data: FitData, kind: str, orders, q, levels: RateLevels, progress: Progress) -> list[_Candidate]:
-    """Candidates of the order (and kind) search of the module docstring, item 5."""
+def _search(data: FitData, kind: str, orders, q, levels: RateLevels, progress: Progress,
+            faithful: bool = False) -> list[_Candidate]:
+    """Candidates of the order (and kind) search of the module docstring, item 5; `faithful`: the
+    rate-independent candidates keep their settled minor loops near the data (`fit_recordings`)."""
     loop = averaged_loop(data.loops) if data.loops is not None else None
     cands: list[_Candidate] = []
     ri_fits: dict[int, _Candidate] = {}
@@ -196,7 +200,7 @@ def _search(data: FitData, kind: str, orders, q, levels: RateLevels, progress: P
         lower_model = lower.res.model if lower else None
         starts, info = (ri_starts(*loop, n, q, lower_model) if loop is not None
                         else generic_ri_starts(n, lower_model))
-        ri_fits[n] = _candidate(RICanonical(n), starts, data, info, progress)
+        ri_fits[n] = _candidate(RICanonical(n, faithful), starts, data, info, progress)
         if kind in ("auto", "ri"):
             cands.append(ri_fits[n])
         if lower is not None and ri_fits[n].bic > lower.bic and (kind == "ri" or levels.levels < 2):
@@ -268,7 +272,8 @@ def _experiment(recordings: Sequence[Recording]) -> Experiment:
 
 
 def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order: int | None = None,
-                   q: float | None = None, x0: str = "fitted", progress: Progress = silent) -> FitResult:
+                   q: float | None = None, x0: str = "fitted", faithful_minor_loops: bool = False,
+                   progress: Progress = silent) -> FitResult:
     """Fit a semilinear Duhem model to one or more recordings (see the module docstring).
 
     Parameters
@@ -278,6 +283,12 @@ def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order
     order : state dimension n; default chosen by BIC among 1, 2, 3.
     q : bound of the Section III constrained least squares; default chosen by loop error.
     x0 : the stored initial state, "fitted" or "periodic" (`fitter.identification.exported`).
+    faithful_minor_loops : a further barrier on the rate-independent candidates: the turning points of the
+        settled minor loops (8 sub-spans at 5 places each, `RICanonical.minor_loop_extent`) within half an
+        output range of the recorded output over the stored input range, so that the model stays near the
+        data on loops smaller than the recorded ones (the summary's ``minor_loops``; a semilinear model's
+        small loops settle on a centre line affine in u).  It costs accuracy on the recorded loops where they
+        switch sharply (piezo triangles, measured in the README); rate-dependent candidates are unchanged.
     progress : `fitter.progress.Progress` callback, called with one-line status messages.
 
     Returns
@@ -294,7 +305,8 @@ def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order
     with threadpool_limits(limits=1, user_api="blas"):    # small matrices: one thread, the same rounding every run
         data = prepare_for_fit(recordings)
         levels = rate_levels(data.norm)
-        cands = _search(data, kind, ORDERS if order is None else (order,), q, levels, progress)
+        orders = ORDERS if order is None else (order,)
+        cands = _search(data, kind, orders, q, levels, progress, faithful_minor_loops)
         best = min([c for c in cands if _meets_barrier(c, data)] or cands, key=lambda c: c.bic)
         return _result(best, cands, data, recordings, kind, q, levels, x0)
 
@@ -386,7 +398,8 @@ def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels:
     }
     model = model.replace(fit_info=jsonable({k: summary[k] for k in ("kind", "order", "why", "convergence",
                                                                      "fitted_range", "x0", "nrmse_convention")}))
-    summary["minor_loops"] = _minor_loops(model, recordings)
+    summary["minor_loops"] = dict(_minor_loops(model, recordings),
+                                   constrained=bool(getattr(param, "faithful_minor_loops", False)))
     return FitResult(model=model, summary=jsonable(summary), theta=res.theta, cov=res.covariance(), param=physical)
 
 

@@ -40,7 +40,8 @@ import numpy as np
 from fitter.core.effects import REGISTRY, Effect, EffectContext
 from fitter.core.models import INPUT_MARGIN, RateDependentModel, RateIndependentModel
 from fitter.core.flow import expm
-from fitter.core.periodic import minor_loop_rho
+from fitter.core.errors import KernelError
+from fitter.core.periodic import minor_loop_outputs, minor_loop_rho
 from fitter.core.rates import TabulatedRate
 
 __all__ = ["Parametrisation", "RICanonical", "RDCanonical", "StateSpace", "WithEffects", "Physical",
@@ -142,10 +143,15 @@ class RICanonical(Parametrisation):
     """Rate-independent canonical parameters of order n (module docstring)."""
 
     kind = "ri"
+    EXTENT_BOUND = 2.0
+    """`minor_loop_extent` bound of a fit with faithful minor loops, in the fit's normalised units (the data's
+    output spans [-1, 1]): half an output range beyond the data on either side."""
 
-    def __init__(self, n: int):
+    def __init__(self, n: int, faithful_minor_loops: bool = False):
         self.n = n
         self.size = n * n + 5 * n + 1
+        self.faithful_minor_loops = faithful_minor_loops
+        self.barriers = 3 if faithful_minor_loops else 2
 
     def names(self) -> list[str]:
         n = self.n
@@ -221,12 +227,29 @@ class RICanonical(Parametrisation):
                 return np.inf
         return float(np.log(max(top, 1.0))) if np.isfinite(top) else np.inf
 
-    @classmethod
-    def excesses(cls, model, u_min: float, u_max: float) -> list[float]:
-        """The fit's barrier quantities (each <= 0 when met): condition (5) beyond `LIMIT`, and the branch
-        amplification beyond `AMPLIFICATION` (relative, in logs)."""
-        return [cls.convergence(model, u_min, u_max) - cls.LIMIT,
-                cls.amplification(model, u_min, u_max) / math.log(cls.AMPLIFICATION) - 1.0]
+    @staticmethod
+    def minor_loop_extent(model, u_min: float, u_max: float) -> float:
+        """Largest |output| at the turning points of the settled minor loops of the stored input range (the
+        fitted span widened by `INPUT_MARGIN`; `fitter.core.periodic.minor_loop_outputs`), inf when one has no
+        fixed point.  Condition (5) on every minor loop makes such loops settle; this says where."""
+        pad = INPUT_MARGIN * (u_max - u_min)
+        with np.errstate(all="ignore"):
+            try:
+                y = minor_loop_outputs(model, u_min - pad, u_max + pad)
+            except (ValueError, np.linalg.LinAlgError, KernelError):
+                return np.inf
+        top = float(np.max(np.abs(y)))
+        return top if np.isfinite(top) else np.inf
+
+    def excesses(self, model, u_min: float, u_max: float) -> list[float]:
+        """The fit's barrier quantities (each <= 0 when met): condition (5) beyond `LIMIT`, the branch
+        amplification beyond `AMPLIFICATION` (relative, in logs) and, with `faithful_minor_loops`, the
+        `minor_loop_extent` beyond `EXTENT_BOUND` (relative; normalised units)."""
+        out = [self.convergence(model, u_min, u_max) - self.LIMIT,
+               self.amplification(model, u_min, u_max) / math.log(self.AMPLIFICATION) - 1.0]
+        if self.faithful_minor_loops:
+            out.append(self.minor_loop_extent(model, u_min, u_max) / self.EXTENT_BOUND - 1.0)
+        return out
 
 
 class RDCanonical(Parametrisation):
@@ -281,6 +304,7 @@ class RDCanonical(Parametrisation):
     def converges(value: float) -> bool:
         return value < 0
 
+    barriers = 2
     LIMIT = -1e-3
     QUANTITY = "max Re eig(A) (< 0 <=> rho(period map) < 1 since g >= 0)"
     DAMPING = 0.1
