@@ -49,7 +49,7 @@ from fitter.fmu.build import PYTHON_HOST_NEEDS, build_fmu
 from fitter.fmu.host import check_fmu_file, simulate_fmu
 from fitter.fmu.native import find_c_compiler
 from fitter.fmu.pair import check_fmu_pair, recorded_fmu_digest, with_fmu_record
-from fitter.identification.exported import range_warnings
+from fitter.identification.exported import minor_loop_warning, range_warnings
 from fitter.identification.fit import fit_recordings
 from fitter.paper.report import command as reproduce_paper
 from fitter.progress import stderr_progress
@@ -253,6 +253,7 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithf
             click.echo("warning: the convergence condition is violated: a wrong initial state need not die out; "
                        "the FMU is exported only with --allow-unstable", err=True)
     _minor_loop_lines(summary.get("minor_loops"))
+    _warn_minor_loops(result.model)
     click.echo(f"NRMSE: {summary.get('nrmse_convention')}")
     rows = [[r.get("recording"), r.get("nrmse"), r.get("nrmse_last_cycle"), r.get("max_error"),
              r.get("loop_area_error"), r.get("residual_rms"), r.get("noise_rms")]
@@ -265,17 +266,19 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithf
 
 
 def _minor_loop_lines(minor: dict | None) -> None:
-    """The fit's `minor_loops` check: one line, and a warning when the model leaves the recorded range."""
+    """The fit's `minor_loops` check in one line."""
     if not minor:
         return
     exc = minor.get("excursion")
     size = "overflows" if exc is None else f"leaves the recorded output range by {exc:.3g} output ranges"
     click.echo(f"minor loops inside the input range: the output {size} at most ({minor.get('input')})")
-    if not minor.get("faithful"):
-        click.echo("warning: on minor loops smaller than the recorded ones the model's output goes far outside "
-                   "anything recorded: it reproduces the recorded loops, not necessarily smaller ones (a semilinear "
-                   "model's small loops settle on a centre line affine in u); check it on a recording with minor "
-                   "loops before using it, or its compensator, there (or fit with --faithful-minor-loops)", err=True)
+
+
+def _warn_minor_loops(model) -> None:
+    """`minor_loop_warning` on stderr, when the model's fit recorded unfaithful minor loops."""
+    text = minor_loop_warning(model)
+    if text:
+        click.echo(f"warning: {text}", err=True)
 
 
 def _comparison_tables(comp: dict) -> None:
@@ -331,6 +334,8 @@ def export(model, out, backend, fmi_version, allow_unstable, inverse, measuremen
                    f"FMI {fmi_version}.0)" if not inverse else
                    f"compensator of the {m.kind} model of order {m.order} exported to {out} (input y_ref, output "
                    f"u; {backend} backend, FMI {fmi_version}.0)")
+    if inverse:
+        _warn_minor_loops(m)
     _python_host_note(out, backend)
 
 
@@ -497,6 +502,7 @@ def compensate(model, reference, out, plot, time_col, ref_col, u0, input_range, 
             write_compensation_plot(plot_tmp, result.t, result.y_ref, y_linear, result.y, result.clamped,
                                     output_label=_axis_name(m.signals.output),
                                     title=f"{Path(reference).name}: compensation of {Path(model).name}")
+    _warn_minor_loops(m)
     if result.n_clamped:
         click.echo(f"warning: {reference}: {result.n_clamped} of {len(rec)} samples clamped (no input in "
                    f"[{result.input_range[0]:.6g}, {result.input_range[1]:.6g}] reaches y_ref); largest shortfall "

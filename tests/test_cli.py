@@ -491,3 +491,10 @@ def test_fit_warns_when_minor_loops_leave_the_recorded_range(tmp_path):
                                    "polarization_uC_per_cm2", "--kind", "ri", "-o", tmp_path / "m2.json",
                                    "--json")).stdout)["summary"]["minor_loops"]
     assert summary["faithful"] is False and summary["excursion"] > 10
+    # the model file keeps the record, so its compensator says the same
+    stored = json.loads((tmp_path / "m.json").read_text())["fit_info"]["minor_loops"]
+    assert stored["faithful"] is False and stored["excursion"] == pytest.approx(summary["excursion"], rel=1e-12)
+    t = np.linspace(0.0, 1.0, 101)
+    (tmp_path / "ref.csv").write_text("time,y_ref\n" + "".join(f"{a},{5 * np.sin(2 * np.pi * a)}\n" for a in t))
+    comp = ok(invoke("compensate", tmp_path / "m.json", tmp_path / "ref.csv", "-o", tmp_path / "u.csv"))
+    assert "settles up to" in comp.stderr and "--faithful-minor-loops" in comp.stderr

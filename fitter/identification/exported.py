@@ -63,7 +63,7 @@ from fitter.data.recordings import Recording
 from fitter.identification.output_error import fitted_initial_state
 
 __all__ = ["X0_POLICIES", "NRMSE_CONVENTION", "initial_state", "score", "raw_input_rho", "fitted_range",
-           "minor_loop_excursion", "MINOR_LOOP_WARNING", "input_range", "range_warnings"]
+           "minor_loop_excursion", "minor_loop_warning", "MINOR_LOOP_WARNING", "input_range", "range_warnings"]
 
 X0_POLICIES = ("fitted", "periodic")
 NRMSE_CONVENTION = ("nrmse: RMS error / output range over all samples of the raw recording, the saved model "
@@ -180,6 +180,22 @@ def minor_loop_excursion(model, recordings: Sequence[Recording]) -> float:
     ys = np.concatenate([r.y for r in recordings])
     lo, hi = float(ys.min()), float(ys.max())
     return float(max(0.0, lo - y.min(), y.max() - hi) / max(hi - lo, 1e-300))
+
+
+def minor_loop_warning(model) -> str | None:
+    """The sentence `duhem fit`, `duhem compensate` and `duhem export --inverse` print when the fit recorded
+    (``fit_info["minor_loops"]``) that the model's minor loops leave the recorded range by more than
+    `MINOR_LOOP_WARNING` output ranges; None otherwise, or when the model has no such record."""
+    minor = model.fit_info.get("minor_loops") if isinstance(model.fit_info, dict) else None
+    if not isinstance(minor, dict) or minor.get("faithful", True):
+        return None
+    exc = minor.get("excursion")
+    size = "overflows" if exc is None else f"settles up to {exc:.3g} output ranges outside anything recorded"
+    return ("on minor loops smaller than the recorded ones the model's output " + size + ": it reproduces "
+            "the recorded loops, not necessarily smaller ones (a semilinear model's small loops settle on a "
+            "centre line affine in u); its compensator inverts the model exactly but may ask for inputs far from "
+            "the recorded path; check it on a recording with minor loops before using it there, or fit with "
+            "--faithful-minor-loops")
 
 
 def input_range(recordings: Sequence[Recording]) -> tuple[float, float]:

@@ -400,6 +400,8 @@ def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels:
                                                                      "fitted_range", "x0", "nrmse_convention")}))
     summary["minor_loops"] = dict(_minor_loops(model, recordings),
                                    constrained=bool(getattr(param, "faithful_minor_loops", False)))
+    model = model.replace(fit_info=dict(model.fit_info, minor_loops=jsonable(
+        {k: summary["minor_loops"][k] for k in ("excursion", "faithful", "constrained")})))
     return FitResult(model=model, summary=jsonable(summary), theta=res.theta, cov=res.covariance(), param=physical)
 
 
