@@ -32,7 +32,7 @@ summary says why.
 
 Per device (a task on a Dask worker, `process_device`)
 ------------------------------------------------------
-fit (`fit_recordings`, ``kind``/``order`` as ``duhem fit``) -> ``model.json``
+fit (`fit_recordings`, ``kind``/``order``/``faithful_minor_loops`` as ``duhem fit``) -> ``model.json``
 and ``fit.json`` (the fit summary); the FMU ``model.fmu`` (``backend``,
 native by default); validation of the FMU against every recording with fmpy,
 as ``duhem validate`` does (``validation.json``, ``validation.png``; NRMSE
@@ -48,7 +48,7 @@ beside ``OUTDIR/<device>`` renamed into place (`atomic_directory`), the last
 file being ``done.json`` (status, the row of the summary, every output
 file with its size, and the input hash).  The input hash is the SHA-256 of
 the package version, `BATCH_FORMAT`, the options that change the outputs
-(kind, order, backend, diagnose, threshold), the device's column and unit
+(kind, order, backend, diagnose, threshold, faithful minor loops), the device's column and unit
 choices, and each recording's name as written in the manifest and its bytes
 (the recording's location on disk does not enter: a copied tree stays
 current).  A re-run skips a device whose ``done.json`` has the same hash and
@@ -263,6 +263,7 @@ class BatchOptions:
     backend: str = "native"
     diagnose: bool = False
     threshold: float = 0.05
+    faithful_minor_loops: bool = False
 
     def __post_init__(self):
         if self.kind not in ("auto", "ri", "rd"):
@@ -392,7 +393,8 @@ def process_device(task: DeviceTask) -> dict:
 
         try:
             recs = _load(task, scratch)
-            result = fit_recordings(recs, kind=opts.kind, order=opts.order)
+            result = fit_recordings(recs, kind=opts.kind, order=opts.order,
+                                    faithful_minor_loops=opts.faithful_minor_loops)
             lap("fit")
             model = result.model
             save_model(model, out / "model.json")

@@ -136,6 +136,20 @@ def test_device_task_with_diagnosis(tmp_path):
     assert set(result["row"]["timings"]) == {"fit", "fmu", "validation", "report", "diagnosis"}
 
 
+def test_device_task_passes_faithful_minor_loops_to_the_fit(tmp_path):
+    """The worker's function alone: with faithful_minor_loops the fit carries the barrier (its model file
+    records it), without it not."""
+    manifest = make_batch(tmp_path, rates=(3.0,), bad=False)
+    (d,) = read_manifest(manifest)
+    data = [Path(p).read_bytes() for p in d.paths]
+    for faithful in (False, True):
+        options = BatchOptions(kind="ri", order=2, backend="python", faithful_minor_loops=faithful)
+        result = process_device(DeviceTask(d, data, options, input_hash(d, data, options)))
+        assert result["status"] == "ok", result["reason"]
+        model = json.loads(result["files"]["model.json"])
+        assert model["fit_info"]["minor_loops"]["constrained"] is faithful
+
+
 # --------------------------------------------------------------------------- (e) outliers
 
 def test_outlier_flagged(first_run):
@@ -203,6 +217,7 @@ def test_input_hash_covers_options_columns_and_contents(tmp_path):
     assert h == input_hash(d, [bytes(b) for b in data], BatchOptions(kind="ri", order=1))
     assert h != input_hash(d, data, BatchOptions(kind="ri", order=1, threshold=0.04))
     assert h != input_hash(d, data, BatchOptions(kind="ri", order=1, diagnose=True))
+    assert h != input_hash(d, data, BatchOptions(kind="ri", order=1, faithful_minor_loops=True))
     assert h != input_hash(dataclasses.replace(d, input_unit="V"), data, OPTIONS)
     assert h != input_hash(d, [data[0] + b"\n"], OPTIONS)
 
