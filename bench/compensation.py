@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from real_data import DATA, piezo_recordings, stack  # noqa: E402
+from real_data import DATA, excursion_text, piezo_recordings, stack  # noqa: E402
 
 from fitter.baselines import PrandtlIshlinskii  # noqa: E402
 from fitter.core import compensate, simulate  # noqa: E402
@@ -143,11 +143,6 @@ def joint_part(recs: dict[str, Recording]) -> dict:
     return out
 
 
-def _excursion(value: float | None) -> str:
-    """The fit's minor-loop excursion in output ranges (None: the output overflowed)."""
-    return "overflow" if value is None else f"{value:.3g}"
-
-
 def _print(res: dict) -> None:
     print("Tracking a triangle over 10-90 % of the measured output range, two periods: RMS(y - y_ref) / range")
     print("plant = the fitted Duhem model (columns 4-6) or the fitted Prandtl-Ishlinskii model (columns 7-9)\n")
@@ -185,7 +180,7 @@ def _print(res: dict) -> None:
           "of the Prandtl-Ishlinskii model:")
     for rec, part in res["records"].items():
         fits = ", ".join(f"{m['model']} ({m['order_rule']}) {m['fit_nrmse']:.2%} [minor loops "
-                         f"{_excursion(m['minor_loop_excursion'])}]" for m in part["models"])
+                         f"{excursion_text(m['minor_loop_excursion'])}]" for m in part["models"])
         print(f"  {rec}: {fits}; PI {part['pi_nrmse']:.2%}")
 
 

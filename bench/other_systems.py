@@ -19,16 +19,22 @@ models' (`fitter.baselines.compare_baselines`, same recording, same measure), an
 check (`fitter.identification.exported.minor_loop_excursion`: the saved model driven by
 `fitter.core.periodic.minor_loop_input` over its stored input range, 40 cycles of each of 8 sub-spans): the largest
 output excursion beyond the recorded output range, in output ranges (0 = inside it); then the same fit with
-faithful minor loops (`fit_recordings(faithful_minor_loops=True)`, `duhem fit --faithful-minor-loops`).  Before condition (5) was
-required of every minor loop the B-H and damper fits reached 1.4e17 and 1.6e7 output ranges there.
+faithful minor loops (`fit_recordings(faithful_minor_loops=True)`, `duhem fit --faithful-minor-loops`).  Before
+condition (5) was required of every minor loop the B-H and damper fits reached 1.4e17 and 1.6e7 output ranges
+there.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from real_data import excursion_text  # noqa: E402
 
 from fitter.baselines import compare_baselines
 from fitter.core.periodic import minor_loop_rho
@@ -98,11 +104,6 @@ def member(rng: np.random.Generator) -> Recording:
 SYSTEMS = {"b-h": b_h, "mr-damper": mr_damper, "member": member}
 
 
-def _excursion(value: float | None) -> str:
-    """The summary's excursion (None: the output overflowed)."""
-    return "overflow" if value is None else f"{value:.3g}"
-
-
 def system_part(name: str, seed: int) -> dict:
     rec = SYSTEMS[name](np.random.default_rng(seed))
     t0 = time.perf_counter()
@@ -137,11 +138,11 @@ def main() -> None:
         rho = "-" if r["minor_loop_rho"] is None else f"{r['minor_loop_rho']:.3g}"
         print(f"{name:10s} {r['model']:6s} {r['duhem']:7.2%} "
               + " ".join(f"{r['baselines'][n]:18.2%}" for n in names)
-              + f" {rho:>15s} {_excursion(r['minor_loop_excursion']):>10s} {r['fit_seconds']:6.1f}")
+              + f" {rho:>15s} {excursion_text(r['minor_loop_excursion']):>10s} {r['fit_seconds']:6.1f}")
     print("\nwith --faithful-minor-loops (`fit_recordings(faithful_minor_loops=True)`):")
     for name, r in res.items():
         f = r["faithful"]
-        print(f"{name:10s} {f['model']:6s} {f['duhem']:7.2%}  excursion {_excursion(f['minor_loop_excursion'])}")
+        print(f"{name:10s} {f['model']:6s} {f['duhem']:7.2%}  excursion {excursion_text(f['minor_loop_excursion'])}")
     print("\nNRMSE = RMS error / output range over all samples; excursion = largest distance beyond the recorded "
           "output range on minor loops of every sub-span of the stored input range, in output ranges")
 

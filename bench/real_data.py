@@ -105,6 +105,12 @@ def stack() -> dict[str, str]:
     return {"python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__}
 
 
+def excursion_text(value: float | None) -> str:
+    """A fit summary's ``minor_loops.excursion`` in output ranges, as the benches print it (None: the output
+    overflowed)."""
+    return "overflow" if value is None else f"{value:.3g}"
+
+
 def _log(msg: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
 
