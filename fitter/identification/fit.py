@@ -398,17 +398,18 @@ def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels:
     }
     model = model.replace(fit_info=jsonable({k: summary[k] for k in ("kind", "order", "why", "convergence",
                                                                      "fitted_range", "x0", "nrmse_convention")}))
-    summary["minor_loops"] = dict(_minor_loops(model, recordings),
-                                   constrained=bool(getattr(param, "faithful_minor_loops", False)))
+    summary["minor_loops"] = _minor_loops(model, recordings, getattr(param, "faithful_minor_loops", False))
     model = model.replace(fit_info=dict(model.fit_info, minor_loops=jsonable(
         {k: summary["minor_loops"][k] for k in ("excursion", "faithful", "constrained")})))
     return FitResult(model=model, summary=jsonable(summary), theta=res.theta, cov=res.covariance(), param=physical)
 
 
-def _minor_loops(model, recordings) -> dict:
-    """The saved model off its recorded loops (`minor_loop_excursion`), with the verdict `duhem fit` prints."""
+def _minor_loops(model, recordings, constrained: bool) -> dict:
+    """The saved model off its recorded loops (`minor_loop_excursion`), with the verdict `duhem fit` prints;
+    `constrained`: the fit had the faithful-minor-loops barrier."""
     exc = minor_loop_excursion(model, recordings)
     return {"excursion": exc, "warning_above": MINOR_LOOP_WARNING, "faithful": bool(exc <= MINOR_LOOP_WARNING),
+            "constrained": bool(constrained),
             "input": "40 triangle cycles of each of 8 sub-spans (1/8 to 8/8) of the model's input range around its "
                      "middle, from the stored x0 at the first input, at the recordings' median rate",
             "quantity": "largest distance of the output beyond the recorded output range, in output ranges"}
