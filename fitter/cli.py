@@ -38,6 +38,7 @@ from fitter.baselines import comparison
 from fitter.batch import BatchOptions, run_batch
 from fitter.cli_support import (EXIT_ERROR, CliError, FilePath, GuardedGroup, backend_option,
                                 fmi_version_option)
+from fitter.core.effects import REGISTRY
 from fitter.core.files import atomic_directory, atomic_file, atomic_pair, json_text, jsonable
 from fitter.core.inverse import MEASUREMENT_CHOICES, Compensator, linear_gain
 from fitter.core.kernel import simulate as simulate_model
@@ -200,15 +201,21 @@ main.add_command(reproduce_paper)
               help="keep every settled minor loop within half an output range of the recorded output "
                    "(rate-independent candidates): the model stays near the data on loops smaller than the "
                    "recorded ones, at a cost in accuracy where the recorded loop switches sharply")
+@click.option("--effects", "effects", callback=lambda ctx, param, value: _effect_names(value), metavar="NAMES",
+              help="effects of the catalogue (comma-separated, e.g. switching) fitted jointly with the base model: "
+                   f"physics you know the device has ({', '.join(REGISTRY)})")
 @_allow_unstable_option
 @_column_options
 @click.option("--compare", is_flag=True,
               help="also fit the classical models (Preisach, Prandtl-Ishlinskii, Bouc-Wen) to the same recordings "
                    "and show their NRMSE beside the Duhem model's (summary key 'comparison', and in the report)")
 @click.option("--json", "as_json", is_flag=True, help="print the fit summary as JSON")
-def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithful, allow_unstable, time_col,
-        input_col, output_col, compare, as_json):
+def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithful, effects, allow_unstable,
+        time_col, input_col, output_col, compare, as_json):
     """Fit a model to one or more recordings (one CSV file per experiment, e.g. per rate)."""
+    if effects and (x0_policy != "fitted" or faithful):
+        raise click.UsageError("--effects needs --x0 fitted and no --faithful-minor-loops (each effect's "
+                               "initial state is fitted per recording; the minor-loop barrier is the base's alone)")
     _check_fmu_name(fmu)
     if fmu:
         _check_backend(backend)
@@ -221,7 +228,7 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithf
         report_tmp = outputs.enter_context(atomic_directory(report)) if report else None
         say(f"fitting {len(recs)} recording(s)", None)
         result = fit_recordings(recs, kind=kind, order=order, q=q, x0=x0_policy, faithful_minor_loops=faithful,
-                                progress=say)
+                                effects=effects, progress=say)
         if compare:
             say("fitting the classical models (Preisach, Prandtl-Ishlinskii, Bouc-Wen)", None)
             result.summary["comparison"] = jsonable(comparison(result.model, recs))
@@ -244,6 +251,9 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithf
                + (f", FMU {fmu} ({backend} backend)" if fmu else "") + (f", report in {report}" if report else ""))
     if summary.get("why"):
         click.echo(f"chosen: {summary['why']}")
+    for e in (summary.get("effects") or {}).get("fitted", []):
+        click.echo(f"effect {e['effect']} fitted with the base: "
+                   + ", ".join(f"{k} = {_fmt(v)}" for k, v in e["parameters"].items()))
     conv = summary.get("convergence") or {}
     if conv:
         click.echo(f"convergence condition: {'satisfied' if conv.get('satisfied') else 'VIOLATED'} "
@@ -263,6 +273,15 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithf
             "noise RMS"], rows)
     if "comparison" in summary:
         _comparison_tables(summary["comparison"])
+
+
+def _effect_names(value: str | None) -> tuple[str, ...]:
+    """The names of ``--effects`` (comma-separated), each a key of the effect registry."""
+    names = tuple(n.strip() for n in (value or "").split(",") if n.strip())
+    unknown = [n for n in names if n not in REGISTRY]
+    if unknown:
+        raise click.BadParameter(f"unknown effect {unknown[0]!r} (known: {', '.join(REGISTRY)})")
+    return names
 
 
 def _minor_loop_lines(minor: dict | None) -> None:

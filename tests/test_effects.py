@@ -18,6 +18,8 @@ ALL = {name: dict(spec.example) for name, spec in REGISTRY.items()}
 
 ZERO = {"backlash": {"b": 0.0}, "rate_dependence": {"alpha": 0.0}, "creep": {"k": 0.0, "tau": 1.0},
         "relaxation": {"k": 0.0, "w2": 0.3, "w3": 2.0, "w4": 0.1, "tau_min": 0.1, "tau_max": 10.0},
+        "switching": {"S1": 0.0, "u_up1": 0.5, "u_dn1": -0.5, "width1": 0.1, "q1": 0.4,
+                      "S2": 0.0, "u_up2": 0.9, "u_dn2": -0.7, "width2": 0.3, "q2": -1.0},
         "viscous": {"c": 0.0}, "thermal_drift": {"kappa": 0.0}, "saturation": {"y_c": 0.1, "beta": 0.0},
         "sensor_lag": {"tau": 0.0}, "measurement_drift": {"rate": 0.0}}
 
@@ -130,6 +132,33 @@ def test_timed_effects_match_ode_solution():
     np.testing.assert_allclose(simulate(model, t, u).y, ref, atol=1e-8)
 
 
+@pytest.mark.parametrize("width", [0.05, 0.2])
+def test_switching_matches_ode_solution(width):
+    """`switching` against solve_ivp of ds/dt = k+(u) (S - s) - k-(u) (S + s), u linear between samples: the
+    interval formula is exact where one of k+- is negligible (thresholds many widths apart), and follows the
+    switched output through holds and after turns (it keeps moving while u is held beyond a threshold)."""
+    p = {"S": 0.7, "u_up": 0.45, "u_dn": -0.55, "width": width, "q": -0.6}
+    t, u = signal(n=80, seed=5)
+    u = 1.1 * u
+
+    def rhs(s, z, k0):
+        uu = u[k0] + (u[k0 + 1] - u[k0]) * (s - t[k0]) / (t[k0 + 1] - t[k0])
+        kp = math.exp((uu - p["u_up"]) / width)
+        km = math.exp((p["u_dn"] - uu) / width)
+        return [kp * (p["S"] - z[0]) - km * (p["S"] + z[0])]
+
+    ref = [p["q"] * p["S"]]
+    for k0 in range(len(t) - 1):
+        sol = solve_ivp(rhs, (t[k0], t[k0 + 1]), [ref[-1]], args=(k0,), rtol=1e-12, atol=1e-14, method="Radau")
+        ref.append(sol.y[0, -1])
+    base = simulate(ri(), t, u).y
+    second = {"S2": 0.0, "u_up2": 0.0, "u_dn2": 0.0, "width2": 1.0, "q2": 0.0}
+    y = simulate(ri([("switching", {f"{k}1": v for k, v in p.items()} | second)]), t, u).y
+    tol = 1e-8 if width < 0.1 else 5e-4
+    np.testing.assert_allclose(y - base, ref, atol=tol)
+    assert np.ptp(np.asarray(ref)) > 0.5
+
+
 def test_relaxation_is_four_creeps_on_a_log_grid():
     """relaxation {k, w_i, tau_min, tau_max} adds exactly what four creeps k w_i / sum w with tau_i = 0.2 * 10^i
     add."""
@@ -174,7 +203,7 @@ def test_json_round_trip_and_no_effects_key(tmp_path):
     np.testing.assert_array_equal(simulate(back, t, u).y, simulate(model, t, u).y)
     assert [e.effect for e in back.effects] == list(ALL)
     assert "effects" not in ri().to_dict()
-    assert list(REGISTRY) == list(ALL) == ["backlash", "rate_dependence", "creep", "relaxation", "viscous",
+    assert list(REGISTRY) == list(ALL) == ["backlash", "rate_dependence", "creep", "relaxation", "switching", "viscous",
                                            "thermal_drift", "saturation", "sensor_lag", "measurement_drift"]
 
 

@@ -52,6 +52,8 @@ ALL_EFFECTS = [
     {"effect": "creep", "parameters": {"k": 0.2, "tau": 0.6}},
     {"effect": "relaxation", "parameters": {"k": 0.08, "w2": 0.3, "w3": 1.5, "w4": 0.2, "tau_min": 0.05,
                                             "tau_max": 20.0}},
+    {"effect": "switching", "parameters": {"S1": 0.25, "u_up1": 0.2, "u_dn1": -0.3, "width1": 0.08, "q1": -0.5,
+                                           "S2": 0.1, "u_up2": 0.5, "u_dn2": -0.6, "width2": 0.2, "q2": 0.3}},
     {"effect": "viscous", "parameters": {"c": 0.03}},
     {"effect": "thermal_drift", "parameters": {"kappa": 0.02}},
     {"effect": "saturation", "parameters": {"y_c": 0.1, "beta": 0.7}},

@@ -109,8 +109,10 @@ def test_cascade_triangle(make):
     (rd1, ()),
     (rd1, [Effect("creep", {"k": 0.3, "tau": 2.0}), Effect("backlash", {"b": 0.1})]),
     (ri2, [Effect("relaxation", {"k": 0.4, "w2": 0.3, "w3": 2.0, "w4": 0.4, "tau_min": 0.05, "tau_max": 5.0})]),
+    (ri2, [Effect("switching", {"S1": 0.8, "u_up1": 2.0, "u_dn1": -0.5, "width1": 0.3, "q1": -1.0,
+                                         "S2": 0.3, "u_up2": 3.0, "u_dn2": -1.0, "width2": 0.1, "q2": 0.5})]),
 ], ids=["ri1", "ri2", "ri2+backlash", "ri1+backlash+saturation+thermal", "ri1+creep+viscous",
-        "ri2+rate_dependence", "rd1", "rd1+creep+backlash", "ri2+relaxation"])
+        "ri2+rate_dependence", "rd1", "rd1+creep+backlash", "ri2+relaxation", "ri2+switching"])
 @pytest.mark.parametrize("seed", [3, 11])
 def test_cascade_random_reversals_with_minor_loops(make, effects, seed):
     model = make(effects)
@@ -141,7 +143,7 @@ def test_cascade_with_measurement_effects_inverted_or_dropped():
     res = compensate(model, t, y_dev, u0=u_true[0], measurement="drop")
     assert res.n_clamped == 0 and cascade_error(device, t, y_dev, res) < TOL
     assert set(MEASUREMENT_EFFECTS) == {"sensor_lag", "measurement_drift"}
-    assert {"backlash", "creep", "saturation", "rate_dependence"} <= set(SUPPORTED_EFFECTS)
+    assert {"backlash", "creep", "saturation", "rate_dependence", "switching"} <= set(SUPPORTED_EFFECTS)
 
 
 # ----------------------------------------------------------------------------- bad references

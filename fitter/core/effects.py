@@ -46,29 +46,54 @@ The chain, always applied in this order whatever the order of the list:
    relaxation spectrum, the Prony series of linear viscoelasticity and of
    dielectric relaxation; a long tau_i also takes a leakage current, whose
    charge grows as the integral of u).
-6. ``viscous`` {c}: y += c v, v the rate of u on the interval that ends at the
+6. ``switching`` {S_i >= 0, u_up_i, u_dn_i, width_i > 0, q_i in [-1, 1],
+   i = 1, 2}: field-activated switching (nucleation-limited switching of a
+   ferroelectric, the thermally activated flips of domains in a magnet) of
+   two populations (a distribution of domains, in its simplest form): each a
+   switched output s in [-S, S], y += s_1 + s_2, driven up while u is above
+   u_up and down while it is below u_dn at rates that grow exponentially with
+   the distance (Merz's law, linearised at the threshold)::
+
+       ds/dt = k+(u) (S - s) - k-(u) (S + s),
+       k+(u) = e^{(u - u_up)/width},  k-(u) = e^{(u_dn - u)/width}
+
+   per unit of time (the recording's: u_up is the input at which switching up
+   takes one time unit, as a coercive field is quoted at a time scale; a
+   separate time constant would only shift both thresholds by width ln tau).
+   s_0 = q S (the switched fraction the experiment starts from).  Unlike the
+   Duhem base, whose state moves only while u moves, s moves at a held input
+   (the output keeps rising after the input has turned at a tip) and the
+   switched amount depends on the time spent beyond a threshold, so a slower
+   loop switches more.  Per interval, with I+- = integral of k+- dt (closed
+   form for u linear: I+ = h e^{(u_k - u_up)/width} (e^d - 1)/d,
+   d = du_k/width; I- likewise): s_{k+1} = s_eq + (s_k - s_eq) e^{-(I+ + I-)},
+   s_eq = S (I+ - I-)/(I+ + I-) = S tanh((ln I+ - ln I-)/2).  Exact whenever
+   one of k+- is negligible on the interval; otherwise s_eq is a weighted
+   mean target, with an error of the order of e^{-(u_up - u_dn)/width}
+   (1e-8 of S at 20 widths apart; the loops the effect is for are hundreds).
+7. ``viscous`` {c}: y += c v, v the rate of u on the interval that ends at the
    sample (0 at the first sample).
-7. ``thermal_drift`` {kappa}: y *= 1 - kappa W, W_k = sum_{j<k} |du_j| the
+8. ``thermal_drift`` {kappa}: y *= 1 - kappa W, W_k = sum_{j<k} |du_j| the
    input travel since the start of the experiment (W_0 = 0).
-8. ``saturation`` {y_c, beta >= 0}: y -> y_c + tanh(beta (y - y_c)) / beta
+9. ``saturation`` {y_c, beta >= 0}: y -> y_c + tanh(beta (y - y_c)) / beta
    (beta = 0: unchanged; y_s = 1/beta is the saturation half-range).
-9. ``sensor_lag`` {tau >= 0}: the measured output m obeys dm/dt = (y - m)/tau
-   with y (the output of steps 3-8) taken linear between samples, m_0 = y_0:
+10. ``sensor_lag`` {tau >= 0}: the measured output m obeys dm/dt = (y - m)/tau
+   with y (the output of steps 3-9) taken linear between samples, m_0 = y_0:
    m_{k+1} = a m_k + dy_k (1 - q) + (1 - a) y_k with a, q as in 4 (tau = 0:
    m = y).
-10. ``measurement_drift`` {rate}: y += d, d_k = rate (t_k - t_0), a drift of the
+11. ``measurement_drift`` {rate}: y += d, d_k = rate (t_k - t_0), a drift of the
    measured output linear in time (an offset current integrated by a charge
    amplifier, a sensor zero that wanders); d_0 = 0.  Exact.
 
 Each effect says where it comes from (`EffectSpec.origin`): ``material`` (the
-physics of the device: steps 1-8) or ``measurement`` (the measuring chain:
+physics of the device: steps 1-9) or ``measurement`` (the measuring chain:
 sensor_lag, measurement_drift); the diagnosis reports the two apart.
 
 Each step acts in one stage of the chain (`EffectSpec.stage`): ``input``
 (the base model's input w, step 1), ``rate`` (the coefficients r, S of (K),
-step 2) or ``output`` (the output y, steps 4-10).  The chain's state at a
+step 2) or ``output`` (the output y, steps 4-11).  The chain's state at a
 sample, `EffectState`, is the tuple of the present effects' state variables
-(`EffectSpec.state`) in chain order: backlash (w, the play output), creep (c), relaxation (c1..c4),
+(`EffectSpec.state`) in chain order: backlash (w, the play output), creep (c), relaxation (c1..c4), switching (s1, s2),
 thermal_drift (W, the travel), sensor_lag (m, the measured output, and y, the
 output before the lag), measurement_drift (d, the drift).  This module needs only numpy: it is shipped inside
 the FMUs.
@@ -85,7 +110,8 @@ from .errors import EffectError, KernelError
 from .flow import check_increasing, integrate, interval_coefficients, linear_recurrence
 
 __all__ = ["play_operator", "REGISTRY", "STAGES", "ORIGINS", "EffectSpec", "ParameterSpec", "EffectContext", "Chain",
-           "EffectError", "Effect", "EffectState", "effects_from_list", "run_with_effects", "relaxation_taus"]
+           "EffectError", "Effect", "EffectState", "effects_from_list", "run_with_effects", "relaxation_taus",
+           "switching_states", "SWITCHING_POPULATIONS"]
 
 EffectState = tuple
 """State of the effect chain at one sample: a tuple of floats (module docstring)."""
@@ -137,6 +163,7 @@ class EffectContext:
     y_min, y_max : output range
     y_mean : mean of the fitted base model's output
     v95 : 95th percentile of |du/dt| (1.0 when that is 0)
+    u_mid : middle of the input range, (max u + min u) / 2
     """
 
     dt_min: float
@@ -146,6 +173,21 @@ class EffectContext:
     y_max: float
     y_mean: float
     v95: float
+    u_mid: float = 0.0
+
+    @classmethod
+    def of(cls, runs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], y_mean: float,
+           dt_min: float | None = None) -> "EffectContext":
+        """The context of an experiment given as runs (t, u, y), each simulated as one signal: v95 over the
+        intervals of every run, the duration the longest run's, `dt_min` (default) the shortest median sample
+        period of the runs."""
+        rates = np.concatenate([np.diff(u) / np.diff(t) for t, u, _ in runs])
+        u = np.concatenate([u for _, u, _ in runs])
+        y = np.concatenate([y for _, _, y in runs])
+        return cls(dt_min=float(min(np.median(np.diff(t)) for t, _, _ in runs)) if dt_min is None else dt_min,
+                   duration=max(float(np.ptp(t)) for t, _, _ in runs), u_span=float(np.ptp(u)),
+                   y_min=float(y.min()), y_max=float(y.max()), y_mean=y_mean,
+                   v95=float(np.percentile(np.abs(rates), 95)) or 1.0, u_mid=float(u.max() + u.min()) / 2)
 
 
 @dataclass
@@ -412,8 +454,105 @@ class Relaxation(EffectSpec):
                     tau_max=max(ctx.duration, 30 * ctx.dt_min))
 
 
+def _log_exprel(d: np.ndarray) -> np.ndarray:
+    """log((e^d - 1) / d), elementwise without overflow (its limit 0 at d = 0)."""
+    d = np.asarray(d, dtype=float)
+    out = d / 2
+    pos, neg = d > 1e-12, d < -1e-12
+    out[pos] = d[pos] + np.log(-np.expm1(-d[pos])) - np.log(d[pos])
+    out[neg] = np.log(-np.expm1(d[neg])) - np.log(-d[neg])
+    return out
+
+
+_MAX_EXPONENT = 700.0
+"""Switching integrals I+- are capped at e^700: beyond, e^{-I} is 0 in double precision anyway."""
+
+
+def switching_states(u: np.ndarray, h: np.ndarray, S: float, u_up: float, u_dn: float, width: float,
+                     s0: float) -> np.ndarray:
+    """Samples of one population's switched output s (module docstring, step 6), from s_0 = `s0`."""
+    ua, d = u[:-1], np.diff(u) / width
+    log_h = np.log(h)
+    lp = log_h + (ua - u_up) / width + _log_exprel(d)
+    lm = log_h + (u_dn - ua) / width + _log_exprel(-d)
+    big = np.maximum(lp, lm)
+    total = np.exp(np.minimum(big, _MAX_EXPONENT)) * (1.0 + np.exp(np.minimum(lp, lm) - big))
+    target = S * np.tanh((lp - lm) / 2)
+    out = np.empty_like(u, dtype=float)
+    out[0] = s0
+    if len(h):
+        W = linear_recurrence(np.array([s0]), (-total)[:, None].astype(complex),
+                              np.exp(-total)[:, None].astype(complex),
+                              (-np.expm1(-total) * target)[:, None].astype(complex))
+        out[1:] = W[:, 0].real
+    return out
+
+
+SWITCHING_POPULATIONS = 2
+"""Number of populations of the `switching` effect."""
+
+
+class Switching(EffectSpec):
+    """Step 6 of the chain: y += s1 + s2, two populations ds_i/dt = k+_i(u) (S_i - s_i) - k-_i(u) (S_i + s_i)."""
+
+    name = "switching"
+    description = ("field-activated switching: beyond a threshold input the output switches over in time, at a "
+                   "rate growing exponentially with the input (a ferroelectric's domains, Merz's law), so it goes "
+                   "on after the input turns and a slower loop switches more")
+    stage = "output"
+    timed = True
+    parameters = tuple(par for i in range(1, SWITCHING_POPULATIONS + 1) for par in (
+        ParameterSpec(f"S{i}", 0.0, _INF), ParameterSpec(f"u_up{i}", -_INF, _INF),
+        ParameterSpec(f"u_dn{i}", -_INF, _INF), ParameterSpec(f"width{i}", 0.0, _INF, strict=True, log=True),
+        ParameterSpec(f"q{i}", -1.0, 1.0)))
+    state = tuple(f"s{i}" for i in range(1, SWITCHING_POPULATIONS + 1))
+    example = {"S1": 0.3, "u_up1": 0.5, "u_dn1": -0.5, "width1": 0.1, "q1": -1.0,
+               "S2": 0.0, "u_up2": 0.8, "u_dn2": -0.8, "width2": 0.05, "q2": -1.0}
+    strength = "S1"
+
+    def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
+        ends = []
+        for i in range(1, SWITCHING_POPULATIONS + 1):
+            start = p[f"q{i}"] * p[f"S{i}"] if s0 is None else s0[i - 1]
+            s = switching_states(chain.u, chain.h, p[f"S{i}"], p[f"u_up{i}"], p[f"u_dn{i}"], p[f"width{i}"], start)
+            chain.y = chain.y + s
+            ends.append(float(s[-1]))
+        return tuple(ends)
+
+    def bounds(self, ctx: EffectContext) -> dict[str, tuple[float, float]]:
+        """Thresholds within two input ranges of the middle (a threshold is where switching takes one time
+        unit; at a time scale far from it the loop switches well inside), widths from 1e-3 to 1 input range."""
+        out = super().bounds(ctx)
+        span = max(ctx.u_span, 1e-300)
+        for i in range(1, SWITCHING_POPULATIONS + 1):
+            out[f"u_up{i}"] = out[f"u_dn{i}"] = (ctx.u_mid - 2 * span, ctx.u_mid + 2 * span)
+            out[f"width{i}"] = (1e-3 * span, span)
+        return out
+
+    @staticmethod
+    def _population(ctx: EffectContext, i: int, width: float, time: float) -> dict[str, float]:
+        """Population i switching a third of the output range from the negative state, of width `width` input
+        ranges, its thresholds where switching takes `time` durations at 0.35 input ranges from the middle."""
+        w = width * ctx.u_span
+        shift = w * math.log(max(time * ctx.duration, 1e-300))
+        return {f"S{i}": (ctx.y_max - ctx.y_min) / 3, f"u_up{i}": ctx.u_mid + 0.35 * ctx.u_span + shift,
+                f"u_dn{i}": ctx.u_mid - 0.35 * ctx.u_span - shift, f"width{i}": w, f"q{i}": -0.8}
+
+    def starts(self, ctx: EffectContext) -> list[dict[str, float]]:
+        """Population 1 of widths 3 % and 8 % of the input range, switching at its thresholds in a hundredth
+        or a tenth of the duration; population 2 at either width, in a hundredth."""
+        return [{**self._population(ctx, 1, w1, f1), **self._population(ctx, 2, w2, 0.01)}
+                for w1 in (0.03, 0.08) for f1 in (0.01, 0.1) for w2 in (0.03, 0.08)]
+
+    def null(self, ctx: EffectContext) -> dict[str, float]:
+        """S1 = S2 = 0: nothing switches."""
+        out = {}
+        for i in range(1, SWITCHING_POPULATIONS + 1):
+            out.update(self._population(ctx, i, 0.05, 0.1), **{f"S{i}": 0.0, f"q{i}": 0.0})
+        return out
+
 class Viscous(EffectSpec):
-    """Step 6 of the chain: y += c du/dt."""
+    """Step 7 of the chain: y += c du/dt."""
 
     name = "viscous"
     description = "viscous damping: an output offset proportional to the input rate"
@@ -428,7 +567,7 @@ class Viscous(EffectSpec):
 
 
 class ThermalDrift(EffectSpec):
-    """Step 7 of the chain: y *= 1 - kappa W, W the input travel."""
+    """Step 8 of the chain: y *= 1 - kappa W, W the input travel."""
 
     name = "thermal_drift"
     description = "thermal drift: the gain changes in proportion to the input travel (self-heating)"
@@ -445,7 +584,7 @@ class ThermalDrift(EffectSpec):
 
 
 class Saturation(EffectSpec):
-    """Step 8 of the chain: y -> y_c + tanh(beta (y - y_c)) / beta."""
+    """Step 9 of the chain: y -> y_c + tanh(beta (y - y_c)) / beta."""
 
     name = "saturation"
     description = "saturation: the output flattens smoothly (tanh) away from a centre y_c"
@@ -473,7 +612,7 @@ class Saturation(EffectSpec):
 
 
 class SensorLag(EffectSpec):
-    """Step 9 of the chain: the measured output m, dm/dt = (y - m) / tau."""
+    """Step 10 of the chain: the measured output m, dm/dt = (y - m) / tau."""
 
     name = "sensor_lag"
     description = "sensor lag: the measurement follows the output as a first-order low-pass"
@@ -502,7 +641,7 @@ class SensorLag(EffectSpec):
 
 
 class MeasurementDrift(EffectSpec):
-    """Step 10 of the chain: y += rate (t - t_0), a measurement drift linear in time."""
+    """Step 11 of the chain: y += rate (t - t_0), a measurement drift linear in time."""
 
     name = "measurement_drift"
     description = ("a measurement drift of the output, linear in time (an offset current integrated by the "
@@ -521,7 +660,7 @@ class MeasurementDrift(EffectSpec):
 
 
 REGISTRY: dict[str, EffectSpec] = {spec.name: spec for spec in (
-    Backlash(), RateDependence(), Creep(), Relaxation(), Viscous(), ThermalDrift(), Saturation(), SensorLag(),
+    Backlash(), RateDependence(), Creep(), Relaxation(), Switching(), Viscous(), ThermalDrift(), Saturation(), SensorLag(),
     MeasurementDrift())}
 """Effect name -> `EffectSpec`, in chain order."""
 

@@ -104,7 +104,8 @@ chain, so an effect is inverted exactly when it is part of the step:
 * supported, device (``material``) effects: ``backlash`` (the play's dead
   band is crossed by the search: the play operator's inverse), ``rate_dependence``
   and a rate-dependent base (the step includes the time, the root is found
-  for the interval's rate), ``creep``, ``relaxation``, ``viscous``, ``thermal_drift``,
+  for the interval's rate), ``creep``, ``relaxation``, ``switching`` (its switched output
+  rises with the input in every step), ``viscous``, ``thermal_drift``,
   ``saturation`` (exact where the tanh is not flat; beyond y_c +- 1/beta the
   reference is unreachable and clamped);
 * measurement (``measurement``) effects, ``sensor_lag`` and

@@ -66,11 +66,7 @@ class JoinedExperiment:
         v95 is the 95th percentile of |du/dt| over all intervals of the runs (1.0 when it is 0); the duration is
         the longest run's.
         """
-        rates = np.concatenate([np.diff(self.u[s]) / np.diff(self.t[s]) for s in self.runs()])
-        v95 = float(np.percentile(np.abs(rates), 95)) or 1.0
-        duration = max(float(np.ptp(self.t[s])) for s in self.runs())
-        return EffectContext(dt_min=self.min_dt(), duration=duration, u_span=float(np.ptp(self.u)),
-                             y_min=float(self.y.min()), y_max=float(self.y.max()), y_mean=y_mean, v95=v95)
+        return EffectContext.of([(self.t[s], self.u[s], self.y[s]) for s in self.runs()], y_mean, self.min_dt())
 
 
 def join_recordings(recordings: Sequence[Recording], separate: bool = False) -> JoinedExperiment:

@@ -41,6 +41,12 @@ Pipeline of `fit_recordings`
    model, as a start).  ``kind="auto"`` tries rate-dependent models only when
    the recordings have at least two rate levels.  All candidates are listed
    in the summary.
+6. **Effects** (``effects``, `fitter.identification.effects_fit`): the best
+   rate-independent and the best rate-dependent candidate (lowest BIC within
+   the barrier) are each refined jointly with the named effects of the
+   catalogue on the raw recordings; the lower BIC on every sample (the
+   effects' parameters counted) is kept, and the summary's ``effects`` lists
+   both.
 """
 from __future__ import annotations
 
@@ -60,10 +66,11 @@ from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording, check_scale
 from fitter.identification.fit_data import (FitData, FitError, RateLevels, averaged_loop, monotone_input,
                                             prepare_for_fit, rate_levels)
+from fitter.identification.effects_fit import check_effects, fit_effects
 from fitter.identification.exported import (MINOR_LOOP_WARNING, NRMSE_CONVENTION, X0_POLICIES, fitted_range,
                                             initial_state, input_range, minor_loop_excursion, raw_input_rho, score)
 from fitter.identification.output_error import Options, Recordings, RefineResult, jacobian, refine
-from fitter.identification.parametrisation import Parametrisation, Physical, RDCanonical, RICanonical
+from fitter.identification.parametrisation import Parametrisation, Physical, RDCanonical, RICanonical, WithEffects
 from fitter.identification.starts import Q_CANDIDATES, generic_ri_starts, ri_starts, rd_starts
 from fitter.progress import Progress, silent
 
@@ -240,8 +247,9 @@ class FitResult:
     param: Parametrisation
 
     def build(self, theta: np.ndarray):
-        """The saved model with parameters `theta` (its x0 and effects kept)."""
-        return self.param.build(theta).replace(x0=self.model.x0, effects=self.model.effects)
+        """The saved model with parameters `theta` (its x0 kept; its effects kept unless theta holds them)."""
+        model = self.param.build(theta)
+        return model.replace(x0=self.model.x0, effects=model.effects or self.model.effects)
 
     def simulate(self, rec: Recording) -> np.ndarray:
         """The saved model's output on every sample of `rec`, from its stored x0."""
@@ -273,7 +281,7 @@ def _experiment(recordings: Sequence[Recording]) -> Experiment:
 
 def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order: int | None = None,
                    q: float | None = None, x0: str = "fitted", faithful_minor_loops: bool = False,
-                   progress: Progress = silent) -> FitResult:
+                   effects: Sequence[str] = (), progress: Progress = silent) -> FitResult:
     """Fit a semilinear Duhem model to one or more recordings (see the module docstring).
 
     Parameters
@@ -289,6 +297,8 @@ def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order
         data on loops smaller than the recorded ones (the summary's ``minor_loops``; a semilinear model's
         small loops settle on a centre line affine in u).  It costs accuracy on the recorded loops where they
         switch sharply (piezo triangles, measured in the README); rate-dependent candidates are unchanged.
+    effects : names of catalogue effects (`fitter.core.effects.REGISTRY`) fitted jointly with the base (module
+        docstring, item 6); needs x0 "fitted" and no faithful minor loops (their barrier is the base's alone).
     progress : `fitter.progress.Progress` callback, called with one-line status messages.
 
     Returns
@@ -301,14 +311,78 @@ def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order
         raise ValueError(f"order must be one of {ORDERS}, not {order!r}")
     if x0 not in X0_POLICIES:
         raise ValueError(f"x0 must be one of {X0_POLICIES}, not {x0!r}")
+    effects = check_effects(effects)
+    if effects and (x0 != "fitted" or faithful_minor_loops):
+        raise ValueError("effects are fitted with x0 'fitted' and without faithful minor loops (their initial "
+                         "state is fitted per recording; the minor-loop barrier is the base model's alone)")
     check_scale(recordings)
     with threadpool_limits(limits=1, user_api="blas"):    # small matrices: one thread, the same rounding every run
         data = prepare_for_fit(recordings)
         levels = rate_levels(data.norm)
         orders = ORDERS if order is None else (order,)
         cands = _search(data, kind, orders, q, levels, progress, faithful_minor_loops)
-        best = min([c for c in cands if _meets_barrier(c, data)] or cands, key=lambda c: c.bic)
-        return _result(best, cands, data, recordings, kind, q, levels, x0)
+        eligible = [c for c in cands if _meets_barrier(c, data)] or cands
+        best = min(eligible, key=lambda c: c.bic)
+        extended = _with_effects(eligible, data, recordings, effects, progress) if effects else None
+        return _result(best, cands, data, recordings, kind, q, levels, x0, extended)
+
+
+@dataclass
+class _Extended:
+    """The base candidate and its joint refinement with the effects (`effects_fit.fit_effects`)."""
+
+    candidate: _Candidate
+    model: object
+    res: RefineResult
+    param: WithEffects
+    tried: list
+
+
+def _base_model(cand: _Candidate, data: FitData, recordings):
+    """The candidate in physical units with the preparation's dead band, signals, experiment and input range."""
+    bare = Physical(cand.param, data.scaling).build(cand.res.theta)
+    if data.deadband > 0:
+        bare = bare.replace(effects=[Effect("backlash", {"b": data.deadband})])
+    r0 = recordings[0]
+    return bare.replace(signals=Signals(input=r0.input, output=r0.output), experiment=_experiment(recordings),
+                        input_range=input_range(recordings))
+
+
+def _with_effects(eligible: Sequence[_Candidate], data: FitData, recordings, effects: Sequence[str],
+                  progress: Progress) -> _Extended:
+    """Module docstring, item 6: the best candidate of each kind extended by `effects`; the lowest BIC
+    N ln(RSS/N) + p ln N on every raw sample (p: the base's and the effects' parameters) is kept."""
+    best, tried = None, []
+    for kind in ("ri", "rd"):
+        of_kind = [c for c in eligible if c.param.kind == kind]
+        if not of_kind:
+            continue
+        cand = min(of_kind, key=lambda c: c.bic)
+        progress(f"{kind}{cand.param.n} with {', '.join(effects)}", None)
+        model, res, fam = fit_effects(_base_model(cand, data, recordings), recordings, effects,
+                                      _physical_barrier(cand.param, recordings), progress)
+        n = int(sum(len(r) for r in res.residuals))
+        bic = float(n * np.log(res.rss / n) + (cand.param.size + fam.size - fam.n_base) * np.log(n))
+        tried.append({"base": f"{kind}{cand.param.n}", "bic": bic, "rss_normalised": res.rss, "samples": n})
+        if best is None or bic < best[0]:
+            best = (bic, _Extended(cand, model, res, fam, tried))
+    return best[1]
+
+
+def _physical_barrier(param: RICanonical | RDCanonical, recordings) -> Callable[[object], np.ndarray]:
+    """`_barrier`'s residuals for a model in physical units over the recordings' input range (condition (5),
+    the branch amplification and the damping are invariant under the normalisation of `scaling`)."""
+    lo = min(float(np.min(r.u)) for r in recordings)
+    hi = max(float(np.max(r.u)) for r in recordings)
+
+    def pen(model) -> np.ndarray:
+        try:
+            with np.errstate(all="ignore"):
+                vals = param.excesses(model, lo, hi)
+        except (ValueError, np.linalg.LinAlgError):
+            vals = [np.inf] * param.barriers
+        return np.array([1e3 * max(0.0, v + BARRIER_INSIDE) if np.isfinite(v) else 1e3 for v in vals])
+    return pen
 
 
 def _meets_barrier(cand: _Candidate, data: FitData) -> bool:
@@ -324,13 +398,17 @@ def _meets_barrier(cand: _Candidate, data: FitData) -> bool:
             return False
 
 
-def _per_recording(model, res: RefineResult, data: FitData, recordings) -> list[dict]:
+def _per_recording(model, res: RefineResult | None, data: FitData, recordings) -> list[dict]:
     """The saved model's score on each raw recording (`exported.score`), with the optimiser's own
-    NRMSE on the prepared samples beside it (``nrmse_prepared``)."""
+    NRMSE on the prepared samples beside it (``nrmse_prepared``; None when effects were fitted after it on the
+    raw recordings, `res` None)."""
     out = []
-    for m, rec, prep, r, s in zip(score(model, recordings), data.recs, data.preps, res.residuals, res.starts):
-        m.update(nrmse_prepared=compare(rec.slice(slice(s, None)), rec.y[s:] - r * data.scaling.y_s)["nrmse"],
-                 transient_end=prep.transient_end)
+    for k, (m, rec, prep) in enumerate(zip(score(model, recordings), data.recs, data.preps)):
+        prepared = None
+        if res is not None:
+            s, r = res.starts[k], res.residuals[k]
+            prepared = compare(rec.slice(slice(s, None)), rec.y[s:] - r * data.scaling.y_s)["nrmse"]
+        m.update(nrmse_prepared=prepared, transient_end=prep.transient_end)
         out.append(m)
     return out
 
@@ -357,17 +435,19 @@ def _convergence(best: _Candidate, data: FitData, model, recordings, scores: lis
 
 
 def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels: RateLevels,
-            x0_policy: str) -> FitResult:
+            x0_policy: str, extended: _Extended | None = None) -> FitResult:
+    if extended is not None:
+        best = extended.candidate
     param, res = best.param, best.res
     physical = Physical(param, data.scaling)
     stderr = res.stderr()
-    bare = physical.build(res.theta)
-    if data.deadband > 0:
-        bare = bare.replace(effects=[Effect("backlash", {"b": data.deadband})])
     r0 = recordings[0]
-    model = bare.replace(x0=initial_state(bare, r0, x0_policy), signals=Signals(input=r0.input, output=r0.output),
-                         experiment=_experiment(recordings), input_range=input_range(recordings))
-    per_recording = _per_recording(model, res, data, recordings)
+    if extended is None:
+        model = _base_model(best, data, recordings)
+        model = model.replace(x0=initial_state(model, r0, x0_policy))
+    else:
+        model = extended.model
+    per_recording = _per_recording(model, None if extended else res, data, recordings)
     bad = next((m["recording"] for m in per_recording if not np.isfinite(m["nrmse"])), None)
     if bad is not None:
         raise FitError(f"{bad}: the fitted model gives a non-finite output on its own recording (raw input, stored "
@@ -396,12 +476,31 @@ def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels:
         "optimiser": {"success": res.success, "nfev": res.nfev, "message": res.message},
         "preparation": [dict(p.to_dict(), notes=n) for p, n in zip(data.preps, data.notes)],
     }
+    if extended is not None:
+        summary["effects"] = _effects_summary(extended)
+        names = ", ".join(e["effect"] for e in summary["effects"]["fitted"])
+        summary["why"] += (f"; extended by {names} on the {summary['effects']['base']} base (the lower BIC with "
+                           f"the effects, {summary['effects']['bic']:.1f})")
     model = model.replace(fit_info=jsonable({k: summary[k] for k in ("kind", "order", "why", "convergence",
                                                                      "fitted_range", "x0", "nrmse_convention")}))
     summary["minor_loops"] = _minor_loops(model, recordings, getattr(param, "faithful_minor_loops", False))
     model = model.replace(fit_info=dict(model.fit_info, minor_loops=jsonable(
         {k: summary["minor_loops"][k] for k in ("excursion", "faithful", "constrained")})))
+    if extended is not None:
+        return FitResult(model=model, summary=jsonable(summary), theta=extended.res.theta,
+                         cov=extended.res.covariance(), param=extended.param)
     return FitResult(model=model, summary=jsonable(summary), theta=res.theta, cov=res.covariance(), param=physical)
+
+
+def _effects_summary(extended: _Extended) -> dict:
+    """The summary's ``effects``: what was fitted with the base, on which base, and every base tried."""
+    chosen = next(t for t in extended.tried if t["base"] == f"{extended.candidate.param.kind}{extended.candidate.param.n}")
+    fitted = extended.param.effect_list(extended.res.theta)
+    return {"fitted": [e.to_dict() for e in fitted], "base": chosen["base"], "bic": chosen["bic"],
+            "tried": extended.tried,
+            "method": "the best rate-independent and rate-dependent candidates each refined jointly with the "
+                      "effects by output error on every raw sample (x0 fitted per recording, each effect "
+                      "starting afresh); lowest BIC kept"}
 
 
 def _minor_loops(model, recordings, constrained: bool) -> dict:

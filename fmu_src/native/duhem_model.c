@@ -413,7 +413,41 @@ static void effect_relaxation(const double *p, const double *s0, double *s1, Cha
     }
 }
 
-/* Step 6, stage output, parameters (c): y += c du/h (0 at the anchor alone). */
+/* log((e^d - 1)/d) without overflow, 0 at d = 0 (effects._log_exprel). */
+static double log_exprel(double d)
+{
+    if (d > 1e-12) return d + log(-expm1(-d)) - log(d);
+    if (d < -1e-12) return log(-expm1(d)) - log(-d);
+    return d / 2;
+}
+
+/*
+ * Step 6, stage output, parameters (S1, u_up1, u_dn1, width1, q1, S2, u_up2, u_dn2, width2, q2), state (s1, s2):
+ * y += s1 + s2, ds/dt = k+(u) (S - s) - k-(u) (S + s), k+ = e^{(u - u_up)/width}, k- = e^{(u_dn - u)/width}
+ * per population (effects.switching_states): s1 = s_eq + (s0 - s_eq) e^{-(I+ + I-)},
+ * s_eq = S tanh((ln I+ - ln I-)/2).
+ */
+static void effect_switching(const double *p, const double *s0, double *s1, Chain *c)
+{
+    int i;
+    for (i = 0; i < 2; i++) {
+        const double *q = p + 5 * i;
+        double s = s0 ? s0[i] : q[4] * q[0];
+        c->y[0] = c->y[0] + s;
+        if (c->n == 2) {
+            double d = (c->u[1] - c->u[0]) / q[3], log_h = log(c->h);
+            double lp = log_h + (c->u[0] - q[1]) / q[3] + log_exprel(d);
+            double lm = log_h + (q[2] - c->u[0]) / q[3] + log_exprel(-d);
+            double big = fmax(lp, lm), total = exp(fmin(big, 700.0)) * (1.0 + exp(fmin(lp, lm) - big));
+            double target = q[0] * tanh((lp - lm) / 2);
+            s = exp(-total) * s + -expm1(-total) * target;
+            c->y[1] = c->y[1] + s;
+        }
+        s1[i] = s;
+    }
+}
+
+/* Step 7, stage output, parameters (c): y += c du/h (0 at the anchor alone). */
 static void effect_viscous(const double *p, const double *s0, double *s1, Chain *c)
 {
     (void)s0;
@@ -421,7 +455,7 @@ static void effect_viscous(const double *p, const double *s0, double *s1, Chain 
     if (c->n == 2) c->y[1] = c->y[1] + p[0] * ((c->u[1] - c->u[0]) / c->h);
 }
 
-/* Step 7, stage output, parameters (kappa), state (W): y *= 1 - kappa W, W the input travel. */
+/* Step 8, stage output, parameters (kappa), state (W): y *= 1 - kappa W, W the input travel. */
 static void effect_thermal_drift(const double *p, const double *s0, double *s1, Chain *c)
 {
     double W = s0 ? s0[0] : 0.0;
@@ -433,7 +467,7 @@ static void effect_thermal_drift(const double *p, const double *s0, double *s1, 
     s1[0] = W;
 }
 
-/* Step 8, stage output, parameters (y_c, beta): y -> y_c + tanh(beta (y - y_c))/beta. */
+/* Step 9, stage output, parameters (y_c, beta): y -> y_c + tanh(beta (y - y_c))/beta. */
 static void effect_saturation(const double *p, const double *s0, double *s1, Chain *c)
 {
     double yc = p[0], beta = p[1];
@@ -443,7 +477,7 @@ static void effect_saturation(const double *p, const double *s0, double *s1, Cha
     for (i = 0; beta > 0 && i < c->n; i++) c->y[i] = yc + tanh(beta * (c->y[i] - yc)) / beta;
 }
 
-/* Step 9, stage output, parameters (tau), state (m, y): first-order lag of y, linear between samples. */
+/* Step 10, stage output, parameters (tau), state (m, y): first-order lag of y, linear between samples. */
 static void effect_sensor_lag(const double *p, const double *s0, double *s1, Chain *c)
 {
     double tau = p[0], target0 = s0 ? s0[1] : c->y[0], y_last = c->y[c->n - 1];
@@ -455,7 +489,7 @@ static void effect_sensor_lag(const double *p, const double *s0, double *s1, Cha
     s1[1] = y_last;
 }
 
-/* Step 10, stage output, parameters (rate), state (d): y += d, d = rate (t - t_0). */
+/* Step 11, stage output, parameters (rate), state (d): y += d, d = rate (t - t_0). */
 static void effect_measurement_drift(const double *p, const double *s0, double *s1, Chain *c)
 {
     double d = s0 ? s0[0] : 0.0;

@@ -1,0 +1,104 @@
+"""A fitted base model and effects of the catalogue, refined jointly on the recordings (``duhem fit --effects``).
+
+Where the user knows the physics the Duhem base leaves out (a ferroelectric
+switches over in time: `switching`; a polymer creeps: `relaxation`), the
+effects are fitted with the base rather than found afterwards by `duhem
+diagnose`, whose significance test on a few single loops (an effective
+sample size of about a dozen) cannot establish them.
+
+Method: the base model (physical units, from the order and kind search of
+`fitter.identification.fit`) is parametrised by its free matrices A, B, E
+(`StateSpace`; C, D held) and the effects by their registry parameters
+(`WithEffects`; time constants and widths on a log scale, bounds and starts
+from `EffectSpec.bounds` / `EffectSpec.starts` of the recordings'
+`EffectContext`).  Output error on every sample of every recording, each from
+its own initial state fitted by linear least squares (``x0="fit"``; each
+effect starts afresh at the recording's first sample), residuals divided by
+the output range:
+
+1. screening: every combination of the effects' starts, with the effects and
+   the base's B and E free (its A matrices held: the base was fitted with
+   the effects' share in it, so its forcing must be free to give it up),
+   `SCREEN_NFEV` evaluations each;
+2. the `REFINED` best screened starts refined with base and effects free (up
+   to `MAX_NFEV` evaluations), under the caller's barrier (`penalty`: the
+   fit's convergence barrier on the base's A matrices); the lowest objective
+   is kept.
+
+The model is the base with the effects appended (its own effects, such as a
+dead band found in preparation, kept and held).
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Callable, Sequence
+
+import numpy as np
+
+from fitter.core.effects import REGISTRY, EffectContext
+from fitter.core.errors import DuhemError
+from fitter.core.kernel import simulate
+from fitter.data.recordings import Recording
+from fitter.identification.output_error import Options, Recordings, RefineResult, refine
+from fitter.identification.parametrisation import StateSpace, WithEffects
+from fitter.progress import Progress, silent
+
+__all__ = ["fit_effects", "check_effects", "SCREEN_NFEV", "MAX_NFEV", "REFINED"]
+
+SCREEN_NFEV = 100
+MAX_NFEV = 3000
+REFINED = 2
+OPTIONS = Options(xtol=1e-7, ftol=1e-7, gtol=1e-8, max_samples=None, normalise=True, max_nfev=MAX_NFEV)
+
+
+def check_effects(effects: Sequence[str]) -> list[str]:
+    """The effect names, each once and known to the registry; a `DuhemError` naming the unknown one."""
+    out = []
+    for name in effects:
+        if name not in REGISTRY:
+            raise DuhemError(f"unknown effect {name!r} (known: {', '.join(REGISTRY)})")
+        if name not in out:
+            out.append(name)
+    return [name for name in REGISTRY if name in out]
+
+
+def _context(model, recordings: Sequence[Recording]) -> EffectContext:
+    y_mean = float(np.mean(np.concatenate([simulate(model, r.t, r.u).y for r in recordings])))
+    return EffectContext.of([(r.t, r.u, r.y) for r in recordings], y_mean)
+
+
+def fit_effects(model, recordings: Sequence[Recording], effects: Sequence[str],
+                penalty: Callable[[object], np.ndarray] | None = None,
+                progress: Progress = silent) -> tuple[object, RefineResult, WithEffects]:
+    """`model` and `effects` refined jointly on `recordings` (module docstring).
+
+    `penalty` maps a candidate model to barrier residuals (zero where it is acceptable).
+    Returns the extended model (x0 fitted to the first recording), the refinement's result (its ``rss``
+    in output ranges squared, summed over all samples) and the parametrisation (theta -> model).
+    """
+    names = [e for e in check_effects(effects) if e not in {x.effect for x in model.effects}]
+    template = model.replace(fit_info={})
+    fam = WithEffects(StateSpace(template), names, _context(template, recordings))
+    problem = Recordings(list(recordings), x0="fit")
+    kinds = [n.split("[")[0] for n in fam.base.names()] + [""] * (fam.size - fam.n_base)
+    free = np.array([k != "x0" for k in kinds])
+    screen_free = free & np.array([not k.startswith("A") for k in kinds])
+    pen = None if penalty is None else (lambda th: penalty(fam.build(th)))
+    base = fam.base.theta(template)
+    screened = []
+    for k, start in enumerate(fam.starts()):
+        progress(f"effects {', '.join(names)}: start {k + 1}", None)
+        screened.append(refine(fam, np.r_[base, start], problem, replace(OPTIONS, max_nfev=SCREEN_NFEV,
+                                                                          covariance=False), free=screen_free))
+    screened.sort(key=lambda r: r.rss)
+
+    def objective(res: RefineResult) -> float:
+        return res.cost + (0.0 if pen is None else 0.5 * float(np.sum(pen(res.theta) ** 2)))
+
+    best = None
+    for k, res in enumerate(screened[:REFINED]):
+        progress(f"effects {', '.join(names)}: joint refinement {k + 1}", None)
+        res = refine(fam, res.theta, problem, OPTIONS, free=free, penalty=pen)
+        if best is None or objective(res) < objective(best):
+            best = res
+    return fam.build(best.theta).replace(x0=best.x0s[0]), best, fam
