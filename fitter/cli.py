@@ -46,6 +46,7 @@ from fitter.core.models import load_model, save_model
 from fitter.data.metrics import compare
 from fitter.data.recordings import load_recording, load_recordings, save_columns
 from fitter.diagnosis import diagnose as run_diagnosis
+from fitter.diagnosis.procedure import CANDIDATES
 from fitter.fmu.build import PYTHON_HOST_NEEDS, build_fmu
 from fitter.fmu.host import check_fmu_file, simulate_fmu
 from fitter.fmu.native import find_c_compiler
@@ -553,9 +554,12 @@ def _axis_name(signal) -> str:
 @click.option("--separate", is_flag=True,
               help="the recordings are separate runs, each on its own clock (e.g. every file from t = 0): each is "
                    "simulated alone from the initial state fitted to it, as 'duhem fit' scores")
+@click.option("--candidates", callback=lambda ctx, param, value: _effect_names(value), metavar="NAMES",
+              help="the effects to test (comma-separated; default every effect searched for by default: "
+                   f"{', '.join(CANDIDATES)})")
 @_column_options
-def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order, separate, time_col, input_col,
-             output_col):
+def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order, separate, candidates, time_col,
+             input_col, output_col):
     """Locate the model-data mismatch of one experiment, name the physics left out, model it.
 
     The recordings are one experiment in time order on one clock (e.g.
@@ -577,7 +581,7 @@ def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order,
         with stderr_progress("diagnosing", bar=True) as progress:
             result = run_diagnosis(recs, model=base, progress=progress,
                                    base_order=None if base_order == "auto" else int(base_order),
-                                   separate=separate)
+                                   separate=separate, candidates=candidates or CANDIDATES)
         data = jsonable(result.to_json())
         if report_tmp:
             fill_diagnosis_report(result, recs, report_tmp)

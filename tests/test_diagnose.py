@@ -19,6 +19,7 @@ from fitter.core.effects import REGISTRY, Effect, EffectContext
 from fitter.core.models import Signal
 from fitter.diagnosis import DiagnoseError, JoinedExperiment, diagnose, synthetic_experiment
 from fitter.diagnosis.experiment import join_recordings
+from fitter.diagnosis.procedure import CANDIDATES
 from fitter.diagnosis.fitting import Fit, first_order_ri
 from fitter.diagnosis.statistics import effect_report
 from fitter.diagnosis.synthetic import TRUTH_BASE, cell_base
@@ -38,7 +39,9 @@ def run(effect, seed):
     if key not in _CACHE:
         recs, truth = synthetic_experiment(effect, seed=seed, samples=SAMPLES)
         steps = []
-        d = diagnose(recs, base_order=1, progress=lambda msg, frac: steps.append((msg, frac)))
+        named = () if effect is None or REGISTRY[effect].searched else (effect,)
+        d = diagnose(recs, base_order=1, progress=lambda msg, frac: steps.append((msg, frac)),
+                     candidates=CANDIDATES + named)
         _CACHE[key] = (recs, truth, d)
         _CACHE[key][2].steps = steps
     return _CACHE[key]
@@ -108,7 +111,7 @@ def test_progress_is_reported_in_order():
     fractions = [f for _, f in d.steps]
     assert fractions[0] == 0.0 and fractions[-1] == 1.0
     assert all(b >= a for a, b in zip(fractions, fractions[1:]))
-    assert {f"testing {name}" for name in REGISTRY} <= {m for m, _ in d.steps}
+    assert {f"testing {name}" for name in CANDIDATES} <= {m for m, _ in d.steps}
 
 
 def test_report_is_written(tmp_path):
@@ -283,7 +286,7 @@ def test_clean_second_order_data_with_a_bic_base_has_nothing_missing():
     d = diagnose([rec], base_order=None)
     assert d.base_model.order >= 2
     assert d.baseline["residual_rms"] <= 1.2 * d.noise_rms
-    assert d.verdict == "nothing_missing" and d.findings == [] and len(d.candidates) == len(REGISTRY)
+    assert d.verdict == "nothing_missing" and d.findings == [] and len(d.candidates) == len(CANDIDATES)
 
 
 def _two_rate_triangles(model, seed: int, noise: float = 0.005) -> list[Recording]:

@@ -226,6 +226,9 @@ class EffectSpec(ABC):
         conceal it at these values with `strength` scaled)
     strength : the parameter that sets the effect's size (default: the first one)
     origin : "material" (the device's physics) or "measurement" (the measuring chain), one of `ORIGINS`
+    searched : `duhem diagnose` tests it by default (`fitter.diagnosis.procedure.CANDIDATES`); an effect that
+        can stand in for other physics is tested only when named (``--candidates``) or fitted when named
+        (``duhem fit --effects``)
     """
 
     name: str
@@ -238,6 +241,7 @@ class EffectSpec(ABC):
     example: dict[str, float]
     strength: str | None = None
     origin: str = "material"
+    searched: bool = True
 
     @property
     def strength_parameter(self) -> str:
@@ -509,6 +513,10 @@ class Switching(EffectSpec):
     example = {"S1": 0.3, "u_up1": 0.5, "u_dn1": -0.5, "width1": 0.1, "q1": -1.0,
                "S2": 0.0, "u_up2": 0.8, "u_dn2": -0.8, "width2": 0.05, "q2": -1.0}
     strength = "S1"
+    searched = False
+    """Not tested by `duhem diagnose` unless named: with its thresholds just beyond the input's tips it switches
+    slowly at every tip, a drift in time, and was named for quadratic and exponential output drifts
+    (`bench/diagnose_generality.py`)."""
 
     def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
         ends = []

@@ -108,7 +108,8 @@ from fitter.progress import Progress, silent
 
 __all__ = ["CANDIDATES", "diagnose"]
 
-CANDIDATES = tuple(REGISTRY)
+CANDIDATES = tuple(name for name, spec in REGISTRY.items() if spec.searched)
+"""The effects tested by default (`EffectSpec.searched`)."""
 _FINDING_KEYS = ("effect", "origin", "p_value", "parameters", "stderr", "explained_fraction", "residual_rms", "lr",
                  "df", "n_eff")
 
@@ -129,8 +130,9 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
         every candidate fit refits its 7 parameters).  A fitted base of order 2-4 is refined like a
         given model (its A matrices held).
     progress : callback ``progress(message, fraction_done)`` (`fitter.progress`).
-    candidates : effect names to test (default all of `fitter.core.effects.REGISTRY`); those the base
-        model already has (a given model's effects, or the input dead band of a fitted base) are skipped.
+    candidates : effect names to test (default `CANDIDATES`, the effects of `fitter.core.effects.REGISTRY`
+        searched by default); those the base model already has (a given model's effects, or the input dead
+        band of a fitted base) are skipped.
     alpha : family-wise significance level (Bonferroni over the candidates).
     max_findings : most effects added to the model.
     separate : the recordings are separate runs, each on its own clock (`join_recordings`): each is

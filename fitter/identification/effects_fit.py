@@ -74,7 +74,7 @@ def fit_effects(model, recordings: Sequence[Recording], effects: Sequence[str],
 
     `penalty` maps a candidate model to barrier residuals (zero where it is acceptable).
     Returns the extended model (x0 fitted to the first recording), the refinement's result (its ``rss``
-    in output ranges squared, summed over all samples) and the parametrisation (theta -> model).
+    in output units squared, summed over all samples) and the parametrisation (theta -> model).
     """
     names = [e for e in check_effects(effects) if e not in {x.effect for x in model.effects}]
     template = model.replace(fit_info={})

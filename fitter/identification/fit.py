@@ -363,7 +363,7 @@ def _with_effects(eligible: Sequence[_Candidate], data: FitData, recordings, eff
                                       _physical_barrier(cand.param, recordings), progress)
         n = int(sum(len(r) for r in res.residuals))
         bic = float(n * np.log(res.rss / n) + (cand.param.size + fam.size - fam.n_base) * np.log(n))
-        tried.append({"base": f"{kind}{cand.param.n}", "bic": bic, "rss_normalised": res.rss, "samples": n})
+        tried.append({"base": f"{kind}{cand.param.n}", "bic": bic, "rss": res.rss, "samples": n})
         if best is None or bic < best[0]:
             best = (bic, _Extended(cand, model, res, fam, tried))
     return best[1]
@@ -500,7 +500,7 @@ def _effects_summary(extended: _Extended) -> dict:
             "tried": extended.tried,
             "method": "the best rate-independent and rate-dependent candidates each refined jointly with the "
                       "effects by output error on every raw sample (x0 fitted per recording, each effect "
-                      "starting afresh); lowest BIC kept"}
+                      "starting afresh; rss in output units squared); lowest BIC kept"}
 
 
 def _minor_loops(model, recordings, constrained: bool) -> dict:
