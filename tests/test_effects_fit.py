@@ -51,8 +51,9 @@ def test_switching_fitted_with_the_base_reaches_the_noise(fits):
     fitted = extended.summary["effects"]["fitted"][0]
     assert fitted["effect"] == "switching"
     p = fitted["parameters"]
-    found = [abs(p[f"S{i}"] - SWITCHING["S1"]) < 0.1 * SWITCHING["S1"] and abs(p[f"u_up{i}"] - SWITCHING["u_up1"]) < 0.05
-             and abs(p[f"u_dn{i}"] - SWITCHING["u_dn1"]) < 0.05 for i in (1, 2)]
+    found = [abs(p[f"S{i}"] - SWITCHING["S1"]) < 0.1 * SWITCHING["S1"]
+             and abs(p[f"u_up{i}"] - SWITCHING["u_up1"]) < 0.05 and abs(p[f"u_dn{i}"] - SWITCHING["u_dn1"]) < 0.05
+             for i in (1, 2)]
     assert any(found), p
     assert extended.summary["effects"]["base"] == "ri1" and "extended by switching" in extended.summary["why"]
     assert [e.effect for e in extended.model.effects] == ["switching"]

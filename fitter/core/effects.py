@@ -668,8 +668,8 @@ class MeasurementDrift(EffectSpec):
 
 
 REGISTRY: dict[str, EffectSpec] = {spec.name: spec for spec in (
-    Backlash(), RateDependence(), Creep(), Relaxation(), Switching(), Viscous(), ThermalDrift(), Saturation(), SensorLag(),
-    MeasurementDrift())}
+    Backlash(), RateDependence(), Creep(), Relaxation(), Switching(), Viscous(), ThermalDrift(), Saturation(),
+    SensorLag(), MeasurementDrift())}
 """Effect name -> `EffectSpec`, in chain order."""
 
 

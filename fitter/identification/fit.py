@@ -127,11 +127,21 @@ def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.nd
         try:
             with np.errstate(all="ignore"):
                 model = param.build(th) if np.all(np.isfinite(th)) else None
-                vals = [np.inf] * param.barriers if model is None else param.excesses(model, lo, hi)
         except (ValueError, np.linalg.LinAlgError):
-            vals = [np.inf] * param.barriers
-        return np.array([1e3 * max(0.0, v + BARRIER_INSIDE) if np.isfinite(v) else 1e3 for v in vals])
+            model = None
+        return _barrier_residuals(param, model, lo, hi)
     return pen
+
+
+def _barrier_residuals(param: RICanonical | RDCanonical, model, lo: float, hi: float) -> np.ndarray:
+    """1e3 max(0, excess + `BARRIER_INSIDE`) of `param.excesses(model, lo, hi)`; 1e3 where an excess cannot be
+    evaluated (or `model` is None)."""
+    try:
+        with np.errstate(all="ignore"):
+            vals = [np.inf] * param.barriers if model is None else param.excesses(model, lo, hi)
+    except (ValueError, np.linalg.LinAlgError):
+        vals = [np.inf] * param.barriers
+    return np.array([1e3 * max(0.0, v + BARRIER_INSIDE) if np.isfinite(v) else 1e3 for v in vals])
 
 
 def _candidate(param, starts, data: FitData, info, progress: Progress) -> _Candidate:
@@ -369,20 +379,16 @@ def _with_effects(eligible: Sequence[_Candidate], data: FitData, recordings, eff
     return best[1]
 
 
+def _raw_range(recordings) -> tuple[float, float]:
+    """The recordings' input range in physical units."""
+    return min(float(np.min(r.u)) for r in recordings), max(float(np.max(r.u)) for r in recordings)
+
+
 def _physical_barrier(param: RICanonical | RDCanonical, recordings) -> Callable[[object], np.ndarray]:
     """`_barrier`'s residuals for a model in physical units over the recordings' input range (condition (5),
     the branch amplification and the damping are invariant under the normalisation of `scaling`)."""
-    lo = min(float(np.min(r.u)) for r in recordings)
-    hi = max(float(np.max(r.u)) for r in recordings)
-
-    def pen(model) -> np.ndarray:
-        try:
-            with np.errstate(all="ignore"):
-                vals = param.excesses(model, lo, hi)
-        except (ValueError, np.linalg.LinAlgError):
-            vals = [np.inf] * param.barriers
-        return np.array([1e3 * max(0.0, v + BARRIER_INSIDE) if np.isfinite(v) else 1e3 for v in vals])
-    return pen
+    lo, hi = _raw_range(recordings)
+    return lambda model: _barrier_residuals(param, model, lo, hi)
 
 
 def _meets_barrier(cand: _Candidate, data: FitData) -> bool:
@@ -413,10 +419,14 @@ def _per_recording(model, res: RefineResult | None, data: FitData, recordings) -
     return out
 
 
-def _convergence(best: _Candidate, data: FitData, model, recordings, scores: list[dict]) -> dict:
-    """The condition with its fitting margin (normalised units) and on each raw input (physical model)."""
-    param, res = best.param, best.res
-    val = param.convergence(res.model, *data.input_range())
+def _convergence(best: _Candidate, data: FitData, model, recordings, scores: list[dict],
+                 extended: bool = False) -> dict:
+    """The condition with its fitting margin and on each raw input (physical model).  The structural quantities
+    are the candidate's (normalised units) or, with effects fitted jointly (`extended`), the saved model's over
+    the raw input range (invariant under the normalisation)."""
+    param = best.param
+    structural, lo, hi = (model, *_raw_range(recordings)) if extended else (best.res.model, *data.input_range())
+    val = param.convergence(structural, lo, hi)
     raw = raw_input_rho(model, recordings)
     ok = (param.converges(val) and all(r is None or r < 1 for r in raw)
           and not any(m.get("diverged") for m in scores))
@@ -425,10 +435,10 @@ def _convergence(best: _Candidate, data: FitData, model, recordings, scores: lis
            "rule": "the structural condition holds within its fitting margin and the period map of every raw "
                    "recording's last full cycle has spectral radius < 1"}
     if param.kind == "ri":
-        out["branch_amplification"] = float(np.exp(min(param.amplification(res.model, *data.input_range()), 700.0)))
+        out["branch_amplification"] = float(np.exp(min(param.amplification(structural, lo, hi), 700.0)))
         out["amplification_margin"] = param.AMPLIFICATION
     if param.kind == "rd":
-        lam = np.linalg.eigvals(res.model.A)
+        lam = np.linalg.eigvals(structural.A)
         out["min_damping_ratio"] = float(np.min(-lam.real / np.abs(lam)))
         out["damping_margin"] = param.DAMPING
     return out
@@ -466,7 +476,7 @@ def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels:
         "parameters_normalised": {k: {"value": v, "stderr": e}
                                   for k, v, e in zip(param.names(), res.theta.tolist(), stderr.tolist())},
         "normalisation": vars(data.scaling),
-        "convergence": _convergence(best, data, model, recordings, per_recording),
+        "convergence": _convergence(best, data, model, recordings, per_recording, extended is not None),
         "fitted_range": fitted_range(recordings),
         "input_deadband": data.deadband,
         "rate_levels": levels.levels, "triangle_inputs": levels.triangle,
@@ -494,13 +504,19 @@ def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels:
 
 def _effects_summary(extended: _Extended) -> dict:
     """The summary's ``effects``: what was fitted with the base, on which base, and every base tried."""
-    chosen = next(t for t in extended.tried if t["base"] == f"{extended.candidate.param.kind}{extended.candidate.param.n}")
-    fitted = extended.param.effect_list(extended.res.theta)
-    return {"fitted": [e.to_dict() for e in fitted], "base": chosen["base"], "bic": chosen["bic"],
+    base = f"{extended.candidate.param.kind}{extended.candidate.param.n}"
+    chosen = next(t for t in extended.tried if t["base"] == base)
+    res, fam = extended.res, extended.param
+    return {"fitted": [e.to_dict() for e in fam.effect_list(res.theta)], "base": base, "bic": chosen["bic"],
             "tried": extended.tried,
+            "parameters": {k: {"value": v, "stderr": e}
+                           for k, v, e in zip(fam.names(), res.theta.tolist(), res.stderr().tolist())},
+            "optimiser": {"success": res.success, "nfev": res.nfev, "message": res.message},
             "method": "the best rate-independent and rate-dependent candidates each refined jointly with the "
                       "effects by output error on every raw sample (x0 fitted per recording, each effect "
-                      "starting afresh; rss in output units squared); lowest BIC kept"}
+                      "starting afresh; rss in output units squared); lowest BIC kept; 'parameters' are the saved "
+                      "model's (physical units; the summary's parameters_normalised and optimiser are the base's "
+                      "before the joint refinement)"}
 
 
 def _minor_loops(model, recordings, constrained: bool) -> dict:
