@@ -159,6 +159,19 @@ def test_switching_matches_ode_solution(width):
     assert np.ptp(np.asarray(ref)) > 0.5
 
 
+
+def test_switching_stays_finite_when_it_switches_fully_in_every_interval():
+    """A width of 1e-3 input ranges over a swing 1000 widths past both thresholds: each interval's switching
+    integral is far beyond e^700. The switched output is then S tanh of the log ratio, +-S where one direction
+    dominates, at every sample; it used to overflow the recurrence's cumulative decay into NaN."""
+    t = np.linspace(0.0, 40.0, 4001)
+    u = np.sin(2 * np.pi * t / 4.0)
+    p = {"S1": 0.7, "u_up1": 0.0, "u_dn1": 0.0, "width1": 1e-3, "q1": -1.0,
+         "S2": 0.0, "u_up2": 0.0, "u_dn2": 0.0, "width2": 1.0, "q2": 0.0}
+    s = simulate(ri([("switching", p)]), t, u).y - simulate(ri(), t, u).y
+    assert np.isfinite(s).all()
+    far = np.abs(u[1:]) > 0.05
+    np.testing.assert_allclose(s[1:][far], 0.7 * np.sign(u[1:][far]), atol=1e-12)
 def test_relaxation_is_four_creeps_on_a_log_grid():
     """relaxation {k, w_i, tau_min, tau_max} adds exactly what four creeps k w_i / sum w with tau_i = 0.2 * 10^i
     add."""

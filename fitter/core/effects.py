@@ -471,6 +471,10 @@ def _log_exprel(d: np.ndarray) -> np.ndarray:
 _MAX_EXPONENT = 700.0
 """Switching integrals I+- are capped at e^700: beyond, e^{-I} is 0 in double precision anyway."""
 
+_MAX_DECAY = 800.0
+"""Their sum I+ + I- is capped at 800 (e^{-800} is 0 in double precision), so that the recurrence's cumulative
+decay stays finite over many fully switched intervals."""
+
 
 def switching_states(u: np.ndarray, h: np.ndarray, S: float, u_up: float, u_dn: float, width: float,
                      s0: float) -> np.ndarray:
@@ -480,7 +484,7 @@ def switching_states(u: np.ndarray, h: np.ndarray, S: float, u_up: float, u_dn: 
     lp = log_h + (ua - u_up) / width + _log_exprel(d)
     lm = log_h + (u_dn - ua) / width + _log_exprel(-d)
     big = np.maximum(lp, lm)
-    total = np.exp(np.minimum(big, _MAX_EXPONENT)) * (1.0 + np.exp(np.minimum(lp, lm) - big))
+    total = np.minimum(np.exp(np.minimum(big, _MAX_EXPONENT)) * (1.0 + np.exp(np.minimum(lp, lm) - big)), _MAX_DECAY)
     target = S * np.tanh((lp - lm) / 2)
     out = np.empty_like(u, dtype=float)
     out[0] = s0
