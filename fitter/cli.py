@@ -48,10 +48,10 @@ from fitter.data.recordings import load_recording, load_recordings, save_columns
 from fitter.diagnosis import diagnose as run_diagnosis
 from fitter.diagnosis.procedure import CANDIDATES
 from fitter.fmu.build import PYTHON_HOST_NEEDS, build_fmu
-from fitter.fmu.host import check_fmu_file, simulate_fmu
+from fitter.fmu.host import check_fmu_file, simulate_fmu, start_state_values
 from fitter.fmu.native import find_c_compiler
 from fitter.fmu.pair import check_fmu_pair, recorded_fmu_digest, with_fmu_record
-from fitter.identification.exported import minor_loop_warning, range_warnings
+from fitter.identification.exported import initial_state, minor_loop_warning, range_warnings
 from fitter.identification.fit import fit_recordings
 from fitter.paper.report import command as reproduce_paper
 from fitter.progress import stderr_progress
@@ -266,14 +266,26 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithf
     _minor_loop_lines(summary.get("minor_loops"))
     _warn_minor_loops(result.model)
     click.echo(f"NRMSE: {summary.get('nrmse_convention')}")
-    rows = [[r.get("recording"), r.get("nrmse"), r.get("nrmse_last_cycle"), r.get("max_error"),
-             r.get("loop_area_error"), r.get("residual_rms"), r.get("noise_rms")]
-            for r in summary.get("recordings", [])]
-    _table("the saved model on each recording (from its stored x0)",
-           ["recording", "NRMSE (all samples)", "NRMSE last cycle", "max error", "loop area err", "residual RMS",
-            "noise RMS"], rows)
+    recs = summary.get("recordings", [])
+    rows = [[r.get("recording"), r.get("nrmse"), r.get("nrmse_x0_fitted"), r.get("nrmse_last_cycle"),
+             r.get("max_error"), r.get("loop_area_error"), r.get("residual_rms"), r.get("noise_rms")] for r in recs]
+    _table("the saved model on each recording (from its stored x0, and from the recording's own fitted x0)",
+           ["recording", "NRMSE (all samples)", "NRMSE own x0", "NRMSE last cycle", "max error", "loop area err",
+            "residual RMS", "noise RMS"], rows)
+    _own_start_note(recs)
     if "comparison" in summary:
         _comparison_tables(summary["comparison"])
+
+
+def _own_start_note(recs: list[dict]) -> None:
+    """Where a recording is reproduced much better from its own start than from the stored x0, say how to
+    run the FMU from there."""
+    worse = [r["recording"] for r in recs if r.get("nrmse_x0_fitted") is not None and r.get("nrmse") is not None
+             and r["nrmse"] > 1.5 * r["nrmse_x0_fitted"] + 1e-3]
+    if worse:
+        click.echo(f"note: {', '.join(worse)} started from another state than the stored x0 (fitted to the first "
+                   "recording): each recording's own start is in the summary (recordings[].x0_fitted); "
+                   "`duhem validate --x0 fitted` sets the FMU's x0 parameters to it")
 
 
 def _effect_names(value: str | None) -> tuple[str, ...]:
@@ -365,13 +377,23 @@ def _python_host_note(fmu: str | None, backend: str) -> None:
         click.echo(PYTHON_HOST_NEEDS, err=True)
 
 
-def _validation_row(rec, y_fmu: np.ndarray, model, threshold: float) -> dict:
-    """`compare` of one recording, with the FMU vs in-process difference and the verdict."""
+def _validation_row(rec, y_fmu: np.ndarray, model, threshold: float, x0_rule: str) -> dict:
+    """`compare` of one recording, with the FMU vs in-process difference (`model` from the FMU's start) and the
+    verdict."""
     m = compare(rec, y_fmu)
     m["fmu_vs_in_process_max_abs"] = float(np.max(np.abs(y_fmu - simulate_model(model, rec.t, rec.u).y)))
     m.update(recording=rec.name, source=rec.source, passed=bool(m["nrmse"] <= threshold), judged_on="all samples",
+             x0=x0_rule, x0_value=np.asarray(model.x0, dtype=float).tolist(),
              warnings=range_warnings(model, rec.t, rec.u))
     return m
+
+
+def _validation_start(model, rec, x0_rule: str):
+    """The model as the FMU starts for `rec`: its stored x0, or (``"fitted"``) the state fitted to `rec`
+    (`fitter.identification.exported.initial_state`), which the FMU gets through its x0 parameters."""
+    if x0_rule == "stored":
+        return model
+    return model.replace(x0=initial_state(model, rec, "fitted"))
 
 
 def _judged(row: dict) -> float:
@@ -384,14 +406,19 @@ def _judged(row: dict) -> float:
 @click.option("--threshold", type=float, default=DEFAULT_THRESHOLD, show_default=True,
               help="fail (exit code 3) when the NRMSE over all samples of a recording exceeds this")
 @click.option("--plot", type=FilePath(), help="write a PNG overlay of the loops")
+@click.option("--x0", "x0_rule", type=click.Choice(["stored", "fitted"]), default="stored", show_default=True,
+              help="the FMU's start state: as stored, or fitted to each recording (set through the FMU's x0 "
+                   "parameters; the figure `duhem fit` reports as 'NRMSE own x0')")
 @_column_options
 @click.option("--json", "as_json", is_flag=True, help="print the comparison as JSON")
-def validate(fmu, recordings, threshold, plot, time_col, input_col, output_col, as_json):
+def validate(fmu, recordings, threshold, plot, x0_rule, time_col, input_col, output_col, as_json):
     """Drive an FMU with recorded inputs (fmpy) and compare its closed curves with the data.
 
     Per recording: NRMSE (RMS error / output range) over all samples, the
     FMU started from its stored x0 (the figure `duhem fit` reports, and the
-    one judged), NRMSE and max error over the last full input cycle, the
+    one judged) or, with ``--x0 fitted``, from the state fitted to that
+    recording (one model for recordings made after different histories),
+    NRMSE and max error over the last full input cycle, the
     loop-area error, and the largest difference between the FMU and the
     in-process simulation of the model stored in the FMU.
     """
@@ -405,8 +432,10 @@ def validate(fmu, recordings, threshold, plot, time_col, input_col, output_col, 
     with stderr_progress("duhem validate") as say:
         for rec in recs:
             say(f"simulating {rec.name} in the FMU ({len(rec)} samples)", None)
-            outputs.append(simulate_fmu(fmu, rec.t, rec.u))
-            rows.append(_validation_row(rec, outputs[-1], model, threshold))
+            started = _validation_start(model, rec, x0_rule)
+            outputs.append(simulate_fmu(fmu, rec.t, rec.u,
+                                        start=None if x0_rule == "stored" else start_state_values(started.x0)))
+            rows.append(_validation_row(rec, outputs[-1], started, threshold, x0_rule))
         if plot:
             say("plotting", None)
             write_validation_plot(plot, recs, outputs, [_judged(r) for r in rows])
@@ -414,7 +443,8 @@ def validate(fmu, recordings, threshold, plot, time_col, input_col, output_col, 
     if as_json:
         _emit_json({"fmu": fmu, "threshold": threshold, "passed": passed, "plot": plot, "recordings": rows})
     else:
-        _table(f"validation of {fmu} (threshold NRMSE {threshold:g} over all samples)",
+        _table(f"validation of {fmu} (threshold NRMSE {threshold:g} over all samples; "
+               f"{'stored x0' if x0_rule == 'stored' else 'x0 fitted to each recording'})",
                ["recording", "NRMSE all", "NRMSE last cycle", "max err last cycle", "loop area err",
                 "FMU vs in-process", "pass"],
                [[r["recording"], r["nrmse"], r["nrmse_last_cycle"], r["max_error_last_cycle"],

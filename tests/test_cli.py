@@ -31,7 +31,7 @@ import fitter.cli
 from fitter.cli import main
 from fitter.core import RateIndependentModel, load_model, model_from_dict, save_model, simulate
 from fitter.diagnosis import synthetic_experiment
-from fitter.fmu.host import simulate_fmu
+from fitter.fmu.host import FmuRunError, simulate_fmu
 
 UMASK = 0o022
 USUAL_MODE = 0o666 & ~UMASK
@@ -212,6 +212,33 @@ def test_validate_json(work, fmu):
     assert row["warnings"] == []
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert mode(plot) == USUAL_MODE
+
+
+@pytest.mark.parametrize("fmu", ["native.fmu", "python.fmu"])
+def test_validate_from_each_recordings_own_start(work, fmu):
+    """A recording made after another history (x(0) = 0, not the stored x0 near 2) over a small swing, where the
+    start does not die out: from the stored x0 the FMU misses it; with --x0 fitted the FMU gets the state fitted
+    to that recording through its x0 parameters, recovers the true start and tracks the data."""
+    d = work["dir"]
+    t = np.linspace(0.0, 2 * np.pi, 201)
+    u = 1.0 + 0.3 * np.sin(t)
+    y = simulate(true_model().replace(x0=[0.0]), t, u).y
+    y = y + 1e-3 * np.ptp(y) * np.random.default_rng(3).standard_normal(len(t))
+    other = write_csv(d / f"other_{fmu}.csv", t, u, y)
+    stored = json.loads(invoke("validate", d / fmu, other, "--json").stdout)["recordings"][0]
+    out = json.loads(ok(invoke("validate", d / fmu, other, work["rec"], "--x0", "fitted", "--json")).stdout)
+    own, first = out["recordings"]
+    assert stored["x0"] == "stored" and stored["nrmse"] > 0.1
+    assert own["x0"] == "fitted" and own["nrmse"] < 0.02 and own["fmu_vs_in_process_max_abs"] < 1e-9
+    assert abs(own["x0_value"][0]) < 0.05
+    # on the fitted recording itself its own start is the stored one
+    fitted = work["fit"]["summary"]["recordings"][0]
+    assert abs(first["nrmse"] - fitted["nrmse_x0_fitted"]) < 1e-9 and abs(fitted["nrmse_x0_fitted"] - fitted["nrmse"]) < 1e-9
+
+
+def test_simulate_fmu_names_an_unknown_start_parameter(work):
+    with pytest.raises(FmuRunError, match="no real parameter named x0\\[7\\]"):
+        simulate_fmu(work["dir"] / "native.fmu", work["t"], work["u"], start={"x0[7]": 1.0})
 
 
 def test_validate_threshold_fails(work):

@@ -20,7 +20,7 @@ import zlib
 from collections import deque
 from ctypes import CDLL, byref
 from pathlib import Path
-from typing import MutableSequence
+from typing import Mapping, MutableSequence
 from xml.etree import ElementTree
 from xml.parsers.expat import errors as expat_errors
 
@@ -34,7 +34,7 @@ _FMI2_FATAL = 4
 _MODEL_MEMBER = "resources/model.json"
 """Where an FMU exported by duhem carries its model (`fitter.fmu.build`)."""
 
-__all__ = ["simulate_fmu", "validate_fmu_file", "check_fmu_file", "collecting_callbacks", "FmuFileError",
+__all__ = ["simulate_fmu", "start_state_values", "validate_fmu_file", "check_fmu_file", "collecting_callbacks", "FmuFileError",
            "FmuRunError"]
 
 
@@ -183,6 +183,21 @@ def _value_references(md) -> tuple[int, int]:
     return refs["u"], refs["y"]
 
 
+def _parameter_references(md, values: Mapping[str, float], fmu_path) -> dict[int, float]:
+    """{value reference: value} of the real parameters named in `values`; FmuRunError naming an unknown one."""
+    params = {v.name: v.valueReference for v in md.modelVariables
+              if v.causality == "parameter" and v.type == "Real"}
+    unknown = [n for n in values if n not in params]
+    if unknown:
+        raise FmuRunError(f"{fmu_path}: no real parameter named {', '.join(unknown)}")
+    return {params[n]: float(v) for n, v in values.items()}
+
+
+def start_state_values(x0) -> dict[str, float]:
+    """The FMU parameters that hold the start state x0: ``{"x0[1]": x0[0], ...}`` (`model_description`)."""
+    return {f"x0[{i + 1}]": float(v) for i, v in enumerate(np.ravel(x0))}
+
+
 def collecting_callbacks(messages: MutableSequence[str]):
     """fmpy FMI 2.0 callbacks whose logger appends "[STATUS] message" to `messages` (a list, or a
     ``deque(maxlen=k)`` that keeps the last k: with logging on, an FMU may log every call).
@@ -223,12 +238,14 @@ def _release(fmu, instantiated: bool) -> None:
         fmu.freeLibrary()
 
 
-def simulate_fmu(fmu_path: str | os.PathLike, t, u) -> np.ndarray:
+def simulate_fmu(fmu_path: str | os.PathLike, t, u, start: Mapping[str, float] | None = None) -> np.ndarray:
     """Output y at every sample of (t, u), from the FMU driven by fmpy's `FMU2Slave`.
 
     At each sample k: set u_k, read y_k, then ``doStep(t_k, t_{k+1} - t_k)``.
     `t` may be None for the sample index (rate-independent models ignore time).
-    Raises `FmuRunError` when the FMU fails (with fmpy's message).
+    `start`: real parameters set by name before initialisation (for example ``{"x0[1]": 0.2}``, the start
+    state; `start_state_values`).
+    Raises `FmuRunError` when the FMU fails (with fmpy's message) or has no parameter of a `start` name.
     """
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
@@ -243,6 +260,7 @@ def simulate_fmu(fmu_path: str | os.PathLike, t, u) -> np.ndarray:
     if md.coSimulation is None:
         raise FmuRunError(f"{fmu_path}: not a Co-Simulation FMU")
     vr_u, vr_y = _value_references(md)
+    vr_start = _parameter_references(md, start or {}, fmu_path)
     unzipdir = extract(str(fmu_path))
     fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
                     modelIdentifier=md.coSimulation.modelIdentifier, instanceName="duhem")
@@ -254,6 +272,8 @@ def simulate_fmu(fmu_path: str | os.PathLike, t, u) -> np.ndarray:
         fmu.instantiate(callbacks=callbacks, loggingOn=True)
         instantiated = True
         fmu.setupExperiment(startTime=float(t[0]))
+        if vr_start:
+            fmu.setReal(list(vr_start), list(vr_start.values()))
         fmu.enterInitializationMode()
         fmu.setReal([vr_u], [float(u[0])])
         fmu.exitInitializationMode()

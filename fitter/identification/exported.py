@@ -19,7 +19,10 @@ stored initial state.  This module makes the two the same:
 * **Score** (`score`): every recording is simulated by the saved model from
   its stored x0 on the raw samples, and compared over all samples
   (``nrmse`` = RMS error / output range, the figure `duhem validate` reports),
-  with the last full input cycle beside it (``nrmse_last_cycle``).
+  with the last full input cycle beside it (``nrmse_last_cycle``).  Beside it, each recording's own start
+  state (``x0_fitted``: the "fitted" rule above applied to that recording) and the NRMSE from it
+  (``nrmse_x0_fitted``): one model for several recordings made after different histories starts each
+  from a different state, and `duhem validate --x0 fitted` sets the FMU's x0 parameters to it.
 
 * **Convergence on the raw input** (`raw_input_rho`): the spectral radius of the
   period map of each raw recording's last full cycle, closed back to its
@@ -101,7 +104,8 @@ def initial_state(model, rec: Recording, policy: str = "fitted") -> np.ndarray:
 
 
 def score(model, recordings: Sequence[Recording]) -> list[dict]:
-    """`fitter.data.metrics.compare` of the saved model on each raw recording, from its stored x0.
+    """`fitter.data.metrics.compare` of the saved model on each raw recording, from its stored x0, with the
+    recording's own fitted start beside it (``x0_fitted``, ``nrmse_x0_fitted``; module docstring).
 
     A simulation that overflows scores None (and ``"diverged": True``).
     """
@@ -116,9 +120,22 @@ def score(model, recordings: Sequence[Recording]) -> list[dict]:
             out.append({"recording": rec.name, "nrmse": None, "nrmse_last_cycle": None, "diverged": True})
             continue
         m = compare(rec, y_hat)
-        m.update(recording=rec.name, diverged=False)
+        m.update(recording=rec.name, diverged=False, **_own_start(model, rec))
         out.append(m)
     return out
+
+
+def _own_start(model, rec: Recording) -> dict:
+    """``x0_fitted`` (the state fitted to this recording, `initial_state`) and ``nrmse_x0_fitted`` (the
+    model's NRMSE from it); None for both when that simulation overflows."""
+    with np.errstate(all="ignore"):
+        try:
+            x0, y_hat = fitted_initial_state(model, rec.t, rec.u, rec.y)
+        except (KernelError, np.linalg.LinAlgError):
+            return {"x0_fitted": None, "nrmse_x0_fitted": None}
+    if not (np.all(np.isfinite(y_hat)) and np.all(np.isfinite(x0))):
+        return {"x0_fitted": None, "nrmse_x0_fitted": None}
+    return {"x0_fitted": x0.tolist(), "nrmse_x0_fitted": compare(rec, y_hat)["nrmse"]}
 
 
 def raw_input_rho(model, recordings: Sequence[Recording]) -> list[float | None]:

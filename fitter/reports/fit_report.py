@@ -93,12 +93,14 @@ def _minor_loops(minor: dict | None) -> str:
 def _page(result, rows: list[tuple[str, dict, str, str]]) -> str:
     s = result.summary
     conv = s["convergence"]
-    head = ("<tr><th>recording</th><th>samples used</th><th>NRMSE</th><th>max error</th>"
+    head = ("<tr><th>recording</th><th>samples used</th><th>NRMSE</th><th>NRMSE own x0</th><th>max error</th>"
             "<th>loop-area error</th><th>residual RMS</th><th>noise RMS</th><th>residual / noise</th></tr>")
+    own = {r["recording"]: r.get("nrmse_x0_fitted") for r in s.get("recordings", [])}
     body = []
     for name, m, _, _ in rows:
         ratio = m["residual_rms"] / m["noise_rms"] if m.get("noise_rms") else None
         body.append(f"<tr><td>{html.escape(name)}</td><td>{m['samples']}</td><td>{_fmt(m['nrmse'], '.3%')}</td>"
+                    f"<td>{_fmt(own.get(name), '.3%')}</td>"
                     f"<td>{_fmt(m['max_error'])}</td><td>{_fmt(m['loop_area_error'], '.2%') if m['loop_area_error'] is not None else '–'}</td>"
                     f"<td>{_fmt(m['residual_rms'])}</td><td>{_fmt(m['noise_rms'])}</td><td>{_fmt(ratio, '.2f')}</td></tr>")
     figs = "".join(f"<h3>{html.escape(n)}</h3><img src='{a}' alt='loop {html.escape(n)}'>"
@@ -118,7 +120,9 @@ Chosen by: {html.escape(s['why'])}.</p>
 {_minor_loops(s.get("minor_loops"))}
 <h2>Errors per recording</h2><p>The saved model, simulated from its stored initial state over all samples
 of each recording (what the FMU gives and what <code>duhem validate</code> reports).  NRMSE = RMS error /
-output range; the last full input cycle beside it.</p>
+output range; the last full input cycle beside it.  "NRMSE own x0": from the state fitted to that recording
+(recordings made after different histories start from different states; <code>duhem validate --x0 fitted</code>
+starts the FMU there).</p>
 <table>{head}{''.join(body)}</table>
 {_comparison_html(s.get("comparison"))}
 <h2>Figures</h2>{figs}
