@@ -10,8 +10,9 @@ polarization_uC_per_cm2), as ``bench/real_data.py`` (a) fits them: a rate-indepe
 record alone (`fit_recordings(kind="ri")`, order by BIC), the same fit at orders 1-3, and the BIC fit with
 faithful minor loops (`faithful_minor_loops=True`: its small-loop centres near the data).  Then one model for
 the three rates, as `duhem fit` gives it on the three files (`fit_recordings`, kind and order by BIC; a
-rate-dependent model), beside one Prandtl-Ishlinskii model fitted to the three; each record's plant starts from
-the state fitted to that record.
+rate-dependent model), and as `duhem fit --effects switching` gives it (`JOINT_EFFECTS`: the piezo.best of
+``bench/real_data.py``), each beside one Prandtl-Ishlinskii model fitted to the three; each record's plant starts
+from the state fitted to that record.
 
 The plant is the fitted Duhem model, started as the record starts (its stored x0 at the record's first voltage).
 The reference: that first output, then a triangle in the output between 10 % and 90 % of the measured range
@@ -55,6 +56,8 @@ from fitter.identification.output_error import fitted_initial_state  # noqa: E40
 FITS = ((None, False), (1, False), (2, False), (3, False), (None, True))
 """Duhem fits per record, (order, faithful minor loops): order None = chosen by BIC (as bench/real_data.py),
 then fixed orders, then the BIC order with `fit_recordings(faithful_minor_loops=True)`."""
+JOINT_EFFECTS = ("switching",)
+"""The physics named for the second one-for-all model (`bench/real_data.py`'s ``PIEZO_EFFECTS``: its piezo.best)."""
 RULES = {(True, False): "BIC", (False, False): "fix", (True, True): "BIC+f"}
 """Short names of the fits in the table (order by BIC?, faithful?); +f: faithful minor loops."""
 
@@ -125,16 +128,19 @@ def record_part(rec: Recording) -> dict:
     return out
 
 
-def joint_part(recs: dict[str, Recording]) -> dict:
-    """One Duhem model for the three rates (`duhem fit` on all three, kind and order by BIC) and one
-    Prandtl-Ishlinskii model for the three, each record's plant started from the state fitted to that record
-    (`fitted_initial_state`, as `bench/real_data.py` scores it)."""
-    _log("all rates: Duhem fit (auto) and Prandtl-Ishlinskii fit")
+def joint_part(recs: dict[str, Recording], effects: tuple[str, ...] = ()) -> dict:
+    """One Duhem model for the three rates (`duhem fit` on all three, kind and order by BIC, with `effects`
+    named as `duhem fit --effects`) and one Prandtl-Ishlinskii model for the three, each record's plant started
+    from the state fitted to that record (`fitted_initial_state`, as `bench/real_data.py` scores it: `duhem
+    validate --x0 fitted`)."""
+    _log(f"all rates: Duhem fit (auto{', effects ' + ','.join(effects) if effects else ''}) and "
+         "Prandtl-Ishlinskii fit")
     t0 = time.perf_counter()
-    fit = fit_recordings(list(recs.values()))
+    fit = fit_recordings(list(recs.values()), effects=effects)
     seconds = time.perf_counter() - t0
     pi = PrandtlIshlinskii(deadband=False, invertible=True).fit(list(recs.values()))
-    out = {"model": f"{fit.model.kind}{fit.model.order}", "fit_seconds": seconds, "records": {}}
+    tag = "+".join([f"{fit.model.kind}{fit.model.order}", *(e.effect for e in fit.model.effects)])
+    out = {"model": tag, "fit_seconds": seconds, "records": {}}
     for label, rec in recs.items():
         x0, y_fit = fitted_initial_state(fit.model, rec.t, rec.u, rec.y)
         y0, gain = linear_gain(rec.u, rec.y)
@@ -166,16 +172,17 @@ def _print(res: dict) -> None:
             tag = f"{m['model']} ({m['order_rule']})"
             print(f"{rec:8s} {tag:12s} {m['record_clamped']:4d}/{m['record_samples']:<4d} | {e['compensated']:8.2%} "
                   f"{e['linear gain']:8.2%} {e['PI inverse']:8.2%}")
-    j = res["one_for_all"]
-    print(f"\nOne model for the three rates ({j['model']} by `duhem fit`, one Prandtl-Ishlinskii model), each record's "
-          "plant from the state fitted to it:")
-    print(f"{'record':8s} {'fit':>6s} {'clamped':>9s} | {'comp.':>9s} {'linear':>8s} {'PI inv.':>8s} | "
-          f"{'on the record: comp.':>20s} {'linear':>8s} {'PI inv.':>8s}")
-    for rec, m in j["records"].items():
-        d, e = m["plant_duhem"], m["record_input_error"]
-        print(f"{rec:8s} {m['fit_nrmse']:6.2%} {m['clamped']:4d}/{m['samples']:<4d} | {d['compensated']:9.2e} "
-              f"{d['linear gain']:8.1%} {d['PI inverse']:8.1%} | {e['compensated']:20.2%} {e['linear gain']:8.2%} "
-              f"{e['PI inverse']:8.2%}")
+    for key, how in (("one_for_all", "`duhem fit`"), ("one_for_all_effects", "`duhem fit --effects switching`")):
+        j = res[key]
+        print(f"\nOne model for the three rates ({j['model']} by {how}, one Prandtl-Ishlinskii model), each "
+              "record's plant from the state fitted to it:")
+        print(f"{'record':8s} {'fit':>6s} {'clamped':>9s} | {'comp.':>9s} {'linear':>8s} {'PI inv.':>8s} | "
+              f"{'on the record: comp.':>20s} {'linear':>8s} {'PI inv.':>8s}")
+        for rec, m in j["records"].items():
+            d, e = m["plant_duhem"], m["record_input_error"]
+            print(f"{rec:8s} {m['fit_nrmse']:6.2%} {m['clamped']:4d}/{m['samples']:<4d} | {d['compensated']:9.2e} "
+                  f"{d['linear gain']:8.1%} {d['PI inverse']:8.1%} | {e['compensated']:20.2%} "
+                  f"{e['linear gain']:8.2%} {e['PI inverse']:8.2%}")
     print("\nfit NRMSE of each Duhem model on its record [its summary's minor-loop excursion, output ranges], and "
           "of the Prandtl-Ishlinskii model:")
     for rec, part in res["records"].items():
@@ -194,7 +201,8 @@ def main() -> None:
         return
     t0 = time.perf_counter()
     recs = piezo_recordings(args.data)
-    res = {"records": {label: record_part(rec) for label, rec in recs.items()}, "one_for_all": joint_part(recs)}
+    res = {"records": {label: record_part(rec) for label, rec in recs.items()}, "one_for_all": joint_part(recs),
+           "one_for_all_effects": joint_part(recs, JOINT_EFFECTS)}
     res["total_seconds"] = time.perf_counter() - t0
     res["stack"] = stack()
     if args.json:

@@ -236,6 +236,24 @@ def test_validate_from_each_recordings_own_start(work, fmu):
     assert abs(first["nrmse"] - fitted["nrmse_x0_fitted"]) < 1e-9 and abs(fitted["nrmse_x0_fitted"] - fitted["nrmse"]) < 1e-9
 
 
+def test_fit_reports_each_recordings_own_start(work):
+    """Two recordings, the second made after another history: the fit's table gives the NRMSE from each one's own
+    fitted start beside the stored x0's, and says how to start the FMU there."""
+    d = work["dir"]
+    t = np.linspace(0.0, 2 * np.pi, 201)
+    u = 1.0 + 0.3 * np.sin(t)
+    y = simulate(true_model().replace(x0=[0.0]), t, u).y
+    other = write_csv(d / "other_fit.csv", t, u, y + 1e-3 * np.ptp(y) * np.random.default_rng(4).standard_normal(len(t)))
+    args = ("fit", work["rec"], other, "-o", d / "two.json", "--kind", "ri", "--order", 1)
+    summary = json.loads(ok(invoke(*args, "--json")).stdout)["summary"]
+    first, second = summary["recordings"]
+    assert abs(first["nrmse_x0_fitted"] - first["nrmse"]) < 1e-9
+    assert second["nrmse"] > 0.1 and second["nrmse_x0_fitted"] < 0.02
+    assert abs(second["x0_fitted"][0]) < 0.05
+    text = ok(invoke(*args)).stdout
+    assert "note: other_fit" in text and "duhem validate --x0 fitted" in text
+
+
 def test_simulate_fmu_names_an_unknown_start_parameter(work):
     with pytest.raises(FmuRunError, match="no real parameter named x0\\[7\\]"):
         simulate_fmu(work["dir"] / "native.fmu", work["t"], work["u"], start={"x0[7]": 1.0})
