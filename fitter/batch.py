@@ -32,7 +32,7 @@ summary says why.
 
 Per device (a task on a Dask worker, `process_device`)
 ------------------------------------------------------
-fit (`fit_recordings`, ``kind``/``order``/``faithful_minor_loops`` as ``duhem fit``) -> ``model.json``
+fit (`fit_recordings`, ``kind``/``order``/``faithful_minor_loops``/``effects`` as ``duhem fit``) -> ``model.json``
 and ``fit.json`` (the fit summary); the FMU ``model.fmu`` (``backend``,
 native by default); validation of the FMU against every recording with fmpy,
 as ``duhem validate`` does (``validation.json``, ``validation.png``; NRMSE
@@ -48,7 +48,7 @@ beside ``OUTDIR/<device>`` renamed into place (`atomic_directory`), the last
 file being ``done.json`` (status, the row of the summary, every output
 file with its size, and the input hash).  The input hash is the SHA-256 of
 the package version, `BATCH_FORMAT`, the options that change the outputs
-(kind, order, backend, diagnose, threshold, faithful minor loops), the device's column and unit
+(kind, order, backend, diagnose, threshold, faithful minor loops, effects), the device's column and unit
 choices, and each recording's name as written in the manifest and its bytes
 (the recording's location on disk does not enter: a copied tree stays
 current).  A re-run skips a device whose ``done.json`` has the same hash and
@@ -122,6 +122,7 @@ from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
+from fitter.core.effects import REGISTRY
 from fitter.core.errors import DuhemError
 from fitter.core.files import atomic_directory, atomic_file, json_text, jsonable
 from fitter.core.kernel import simulate as simulate_model
@@ -264,8 +265,15 @@ class BatchOptions:
     diagnose: bool = False
     threshold: float = 0.05
     faithful_minor_loops: bool = False
+    effects: tuple[str, ...] = ()
 
     def __post_init__(self):
+        object.__setattr__(self, "effects", tuple(self.effects))
+        unknown = [e for e in self.effects if e not in REGISTRY]
+        if unknown:
+            raise BatchError(f"unknown effect {unknown[0]!r} (known: {', '.join(REGISTRY)})")
+        if self.effects and self.faithful_minor_loops:
+            raise BatchError("effects are fitted without faithful minor loops (as duhem fit --effects)")
         if self.kind not in ("auto", "ri", "rd"):
             raise BatchError(f"kind must be 'auto', 'ri' or 'rd', not {self.kind!r}")
         if self.backend not in ("native", "python"):
@@ -394,7 +402,7 @@ def process_device(task: DeviceTask) -> dict:
         try:
             recs = _load(task, scratch)
             result = fit_recordings(recs, kind=opts.kind, order=opts.order,
-                                    faithful_minor_loops=opts.faithful_minor_loops)
+                                    faithful_minor_loops=opts.faithful_minor_loops, effects=opts.effects)
             lap("fit")
             model = result.model
             save_model(model, out / "model.json")

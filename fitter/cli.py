@@ -653,12 +653,15 @@ def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order,
 @click.option("--order", type=click.IntRange(1, 4), help="state dimension of every fit (default: chosen by BIC)")
 @click.option("--faithful-minor-loops", "faithful", is_flag=True,
               help="every fit keeps its settled minor loops near the data (as duhem fit --faithful-minor-loops)")
+@click.option("--effects", metavar="NAMES", callback=lambda ctx, param, value: _effect_names(value),
+              help="catalogue effects (comma-separated) fitted jointly with every device's base, as "
+                   "'duhem fit --effects'")
 @click.option("--threshold", type=float, default=DEFAULT_THRESHOLD, show_default=True,
               help="validation: a device whose FMU has an NRMSE above this on a recording is 'invalid'")
 @click.option("--retry-failed", is_flag=True,
               help="run again the devices that failed on unchanged inputs (by default they are skipped)")
 @click.option("--json", "as_json", is_flag=True, help="print what the batch did as JSON")
-def batch(manifest, outdir, with_diagnosis, scheduler, workers, backend, kind, order, faithful, threshold,
+def batch(manifest, outdir, with_diagnosis, scheduler, workers, backend, kind, order, faithful, effects, threshold,
           retry_failed, as_json):
     """Fit, export, validate, report (and diagnose) every device of a manifest, on Dask.
 
@@ -672,8 +675,10 @@ def batch(manifest, outdir, with_diagnosis, scheduler, workers, backend, kind, o
     """
     if scheduler and workers is not None:
         raise CliError("--workers applies to the local cluster only (not with --scheduler)")
+    if effects and faithful:
+        raise click.UsageError("--effects needs no --faithful-minor-loops (each effect's barrier is the base's)")
     options = BatchOptions(kind=kind, order=order, backend=backend, diagnose=with_diagnosis, threshold=threshold,
-                           faithful_minor_loops=faithful)
+                           faithful_minor_loops=faithful, effects=effects)
     _check_backend(backend)
     report = run_batch(manifest, outdir, options=options, workers=workers, scheduler=scheduler,
                        retry_failed=retry_failed, say=lambda line: click.echo(line, err=True))

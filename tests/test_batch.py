@@ -21,7 +21,7 @@ from click.testing import CliRunner
 
 distributed = pytest.importorskip("distributed")
 
-from fitter.batch import (BatchOptions, DeviceTask, flag_outliers, input_hash, process_device,  # noqa: E402
+from fitter.batch import (BatchError, BatchOptions, DeviceTask, flag_outliers, input_hash, process_device,  # noqa: E402
                           read_manifest, run_batch)
 from fitter.cli import main  # noqa: E402
 from fitter.core.kernel import simulate  # noqa: E402
@@ -148,6 +148,36 @@ def test_device_task_passes_faithful_minor_loops_to_the_fit(tmp_path):
         assert result["status"] == "ok", result["reason"]
         model = json.loads(result["files"]["model.json"])
         assert model["fit_info"]["minor_loops"]["constrained"] is faithful
+
+
+def test_device_task_fits_the_named_effects_with_the_base(tmp_path):
+    """The worker's function alone: with effects=("creep",) the saved model carries creep, fitted jointly (the
+    fit summary's effects), as duhem fit --effects does."""
+    manifest = make_batch(tmp_path, rates=(3.0,), bad=False)
+    (d,) = read_manifest(manifest)
+    data = [Path(p).read_bytes() for p in d.paths]
+    options = BatchOptions(kind="ri", order=1, backend="python", effects=("creep",))
+    result = process_device(DeviceTask(d, data, options, input_hash(d, data, options)))
+    assert result["status"] == "ok", result["reason"]
+    assert [e["effect"] for e in json.loads(result["files"]["model.json"])["effects"]] == ["creep"]
+    fit = json.loads(result["files"]["fit.json"])
+    assert [e["effect"] for e in fit["effects"]["fitted"]] == ["creep"]
+    assert input_hash(d, data, options) != input_hash(d, data, BatchOptions(kind="ri", order=1, backend="python"))
+
+
+@pytest.mark.parametrize("options, needle", [({"effects": ("nope",)}, "unknown effect 'nope'"),
+                                             ({"effects": ("creep",), "faithful_minor_loops": True},
+                                              "without faithful minor loops")])
+def test_batch_options_refuse_bad_effects(options, needle):
+    with pytest.raises(BatchError, match=needle):
+        BatchOptions(**options)
+
+
+def test_batch_cli_names_an_unknown_effect(tmp_path):
+    manifest = make_batch(tmp_path, rates=(3.0,), bad=False)
+    result = CliRunner().invoke(main, ["batch", str(manifest), "-o", str(tmp_path / "out"), "--effects", "nope"])
+    assert result.exit_code == 2 and "unknown effect 'nope'" in result.output
+    assert not (tmp_path / "out").exists()
 
 
 # --------------------------------------------------------------------------- (e) outliers
