@@ -48,7 +48,8 @@ from fitter.data.recordings import load_recording, load_recordings, save_columns
 from fitter.diagnosis import diagnose as run_diagnosis
 from fitter.diagnosis.procedure import CANDIDATES
 from fitter.fmu.build import PYTHON_HOST_NEEDS, build_fmu
-from fitter.fmu.host import check_fmu_file, simulate_fmu, start_state_values
+from fitter.fmu.host import check_fmu_file, simulate_fmu
+from fitter.fmu.model_description import start_state_values
 from fitter.fmu.native import find_c_compiler
 from fitter.fmu.pair import check_fmu_pair, recorded_fmu_digest, with_fmu_record
 from fitter.identification.exported import initial_state, minor_loop_warning, range_warnings
@@ -433,8 +434,8 @@ def validate(fmu, recordings, threshold, plot, x0_rule, time_col, input_col, out
         for rec in recs:
             say(f"simulating {rec.name} in the FMU ({len(rec)} samples)", None)
             started = _validation_start(model, rec, x0_rule)
-            outputs.append(simulate_fmu(fmu, rec.t, rec.u,
-                                        start=None if x0_rule == "stored" else start_state_values(started.x0)))
+            start = None if x0_rule == "stored" else start_state_values(model, started.x0)
+            outputs.append(simulate_fmu(fmu, rec.t, rec.u, start=start))
             rows.append(_validation_row(rec, outputs[-1], started, threshold, x0_rule))
         if plot:
             say("plotting", None)

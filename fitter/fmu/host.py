@@ -34,7 +34,7 @@ _FMI2_FATAL = 4
 _MODEL_MEMBER = "resources/model.json"
 """Where an FMU exported by duhem carries its model (`fitter.fmu.build`)."""
 
-__all__ = ["simulate_fmu", "start_state_values", "validate_fmu_file", "check_fmu_file", "collecting_callbacks", "FmuFileError",
+__all__ = ["simulate_fmu", "validate_fmu_file", "check_fmu_file", "collecting_callbacks", "FmuFileError",
            "FmuRunError"]
 
 
@@ -193,11 +193,6 @@ def _parameter_references(md, values: Mapping[str, float], fmu_path) -> dict[int
     return {params[n]: float(v) for n, v in values.items()}
 
 
-def start_state_values(x0) -> dict[str, float]:
-    """The FMU parameters that hold the start state x0: ``{"x0[1]": x0[0], ...}`` (`model_description`)."""
-    return {f"x0[{i + 1}]": float(v) for i, v in enumerate(np.ravel(x0))}
-
-
 def collecting_callbacks(messages: MutableSequence[str]):
     """fmpy FMI 2.0 callbacks whose logger appends "[STATUS] message" to `messages` (a list, or a
     ``deque(maxlen=k)`` that keeps the last k: with logging on, an FMU may log every call).
@@ -244,7 +239,7 @@ def simulate_fmu(fmu_path: str | os.PathLike, t, u, start: Mapping[str, float] |
     At each sample k: set u_k, read y_k, then ``doStep(t_k, t_{k+1} - t_k)``.
     `t` may be None for the sample index (rate-independent models ignore time).
     `start`: real parameters set by name before initialisation (for example ``{"x0[1]": 0.2}``, the start
-    state; `start_state_values`).
+    state: `fitter.fmu.model_description.start_state_values`).
     Raises `FmuRunError` when the FMU fails (with fmpy's message) or has no parameter of a `start` name.
     """
     from fmpy import extract, read_model_description

@@ -60,7 +60,8 @@ from fitter.core.rates import TabulatedRate
 
 __all__ = ["package_version", "FmiVariable", "model_variables", "time_variable", "model_description_xml",
            "model_description_xml3", "semantics_text", "converges", "capabilities", "LOG_CATEGORIES",
-           "U_REF", "Y_REF", "FMI_VERSIONS", "compensator_variables", "compensator_text", "reference_start"]
+           "U_REF", "Y_REF", "FMI_VERSIONS", "compensator_variables", "compensator_text", "reference_start",
+           "start_state_values"]
 
 U_REF = 0
 Y_REF = 1
@@ -186,6 +187,12 @@ def model_variables(model) -> list[FmiVariable]:
                                         f"effect '{effect.effect}': parameter {name} "
                                         "(fitter.core.effects)"))
     return variables
+
+
+def start_state_values(model, x0) -> dict[str, float]:
+    """The FMU's start-state parameters set to `x0`: {name of the variable of x0[i]: x0[i]} (`model_variables`)."""
+    x0 = np.ravel(np.asarray(x0, dtype=float))
+    return {v.name: float(x0[v.path[2]]) for v in model_variables(model) if v.path[:2] == ("parameters", "x0")}
 
 
 def reference_start(model) -> float:
