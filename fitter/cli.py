@@ -39,6 +39,7 @@ from fitter.batch import BatchOptions, run_batch
 from fitter.cli_support import (EXIT_ERROR, CliError, FilePath, GuardedGroup, backend_option,
                                 fmi_version_option)
 from fitter.core.effects import REGISTRY
+from fitter.core.errors import KernelError
 from fitter.core.files import atomic_directory, atomic_file, atomic_pair, json_text, jsonable
 from fitter.core.inverse import MEASUREMENT_CHOICES, Compensator, linear_gain
 from fitter.core.kernel import simulate as simulate_model
@@ -52,8 +53,9 @@ from fitter.fmu.host import check_fmu_file, simulate_fmu
 from fitter.fmu.model_description import start_state_values
 from fitter.fmu.native import find_c_compiler
 from fitter.fmu.pair import check_fmu_pair, recorded_fmu_digest, with_fmu_record
-from fitter.identification.exported import initial_state, minor_loop_warning, range_warnings
+from fitter.identification.exported import minor_loop_warning, range_warnings
 from fitter.identification.fit import fit_recordings
+from fitter.identification.output_error import fitted_initial_state
 from fitter.paper.report import command as reproduce_paper
 from fitter.progress import stderr_progress
 from fitter.reports.compensation_plot import write_compensation_plot
@@ -391,10 +393,17 @@ def _validation_row(rec, y_fmu: np.ndarray, model, threshold: float, x0_rule: st
 
 def _validation_start(model, rec, x0_rule: str):
     """The model as the FMU starts for `rec`: its stored x0, or (``"fitted"``) the state fitted to `rec`
-    (`fitter.identification.exported.initial_state`), which the FMU gets through its x0 parameters."""
+    (`fitted_initial_state`, least squares over all its samples), which the FMU gets through its x0 parameters.
+    CliError naming the recording when that fit overflows (no silent fall-back to the stored x0)."""
     if x0_rule == "stored":
         return model
-    return model.replace(x0=initial_state(model, rec, "fitted"))
+    try:
+        with np.errstate(all="ignore"):
+            x0, _ = fitted_initial_state(model, rec.t, rec.u, rec.y)
+    except (KernelError, np.linalg.LinAlgError) as exc:
+        raise CliError(f"{rec.source}: no start state could be fitted to this recording ({exc}); validate it "
+                       "from the stored x0 (--x0 stored)") from exc
+    return model.replace(x0=x0)
 
 
 def _judged(row: dict) -> float:

@@ -31,6 +31,7 @@ import fitter.cli
 from fitter.cli import main
 from fitter.core import RateIndependentModel, load_model, model_from_dict, save_model, simulate
 from fitter.diagnosis import synthetic_experiment
+from fitter.core.errors import KernelError
 from fitter.fmu.host import FmuRunError, simulate_fmu
 
 UMASK = 0o022
@@ -252,6 +253,19 @@ def test_fit_reports_each_recordings_own_start(work):
     assert abs(second["x0_fitted"][0]) < 0.05
     text = ok(invoke(*args)).stdout
     assert "note: other_fit" in text and "duhem validate --x0 fitted" in text
+
+
+def test_validate_names_a_recording_whose_start_cannot_be_fitted(work, monkeypatch, tmp_path):
+    """--x0 fitted where the start's least squares overflows: one error line naming the file, no plot written (no
+    silent fall-back to the stored x0)."""
+    def overflow(*args, **kwargs):
+        raise KernelError("simulation overflowed")
+
+    monkeypatch.setattr(fitter.cli, "fitted_initial_state", overflow)
+    before = listing(tmp_path)
+    result = invoke("validate", work["dir"] / "native.fmu", work["rec"], "--x0", "fitted", "--plot",
+                    tmp_path / "loops.png")
+    assert_clean_failure(result, tmp_path, before, "rec.csv", "no start state could be fitted", "--x0 stored")
 
 
 def test_simulate_fmu_names_an_unknown_start_parameter(work):
