@@ -39,7 +39,6 @@ from fitter.batch import BatchOptions, run_batch
 from fitter.cli_support import (EXIT_ERROR, CliError, FilePath, GuardedGroup, backend_option,
                                 fmi_version_option)
 from fitter.core.effects import REGISTRY
-from fitter.core.errors import KernelError
 from fitter.core.files import atomic_directory, atomic_file, atomic_pair, json_text, jsonable
 from fitter.core.inverse import MEASUREMENT_CHOICES, Compensator, linear_gain
 from fitter.core.kernel import simulate as simulate_model
@@ -53,9 +52,8 @@ from fitter.fmu.host import check_fmu_file, simulate_fmu
 from fitter.fmu.model_description import start_state_values
 from fitter.fmu.native import find_c_compiler
 from fitter.fmu.pair import check_fmu_pair, recorded_fmu_digest, with_fmu_record
-from fitter.identification.exported import minor_loop_warning, range_warnings
+from fitter.identification.exported import minor_loop_warning, own_start, range_warnings
 from fitter.identification.fit import fit_recordings
-from fitter.identification.output_error import fitted_initial_state
 from fitter.paper.report import command as reproduce_paper
 from fitter.progress import stderr_progress
 from fitter.reports.compensation_plot import write_compensation_plot
@@ -393,17 +391,15 @@ def _validation_row(rec, y_fmu: np.ndarray, model, threshold: float, x0_rule: st
 
 def _validation_start(model, rec, x0_rule: str):
     """The model as the FMU starts for `rec`: its stored x0, or (``"fitted"``) the state fitted to `rec`
-    (`fitted_initial_state`, least squares over all its samples), which the FMU gets through its x0 parameters.
+    (`fitter.identification.exported.own_start`), which the FMU gets through its x0 parameters.
     CliError naming the recording when that fit overflows (no silent fall-back to the stored x0)."""
     if x0_rule == "stored":
         return model
-    try:
-        with np.errstate(all="ignore"):
-            x0, _ = fitted_initial_state(model, rec.t, rec.u, rec.y)
-    except (KernelError, np.linalg.LinAlgError) as exc:
-        raise CliError(f"{rec.source}: no start state could be fitted to this recording ({exc}); validate it "
-                       "from the stored x0 (--x0 stored)") from exc
-    return model.replace(x0=x0)
+    start = own_start(model, rec)
+    if start is None:
+        raise CliError(f"{rec.source}: no start state could be fitted to this recording (the simulation "
+                       "overflowed); validate it from the stored x0 (--x0 stored)")
+    return model.replace(x0=start[0])
 
 
 def _judged(row: dict) -> float:

@@ -28,6 +28,7 @@ from click.testing import CliRunner
 
 import build_fmu
 import fitter.cli
+import fitter.identification.exported
 from fitter.cli import main
 from fitter.core import RateIndependentModel, load_model, model_from_dict, save_model, simulate
 from fitter.diagnosis import synthetic_experiment
@@ -261,7 +262,7 @@ def test_validate_names_a_recording_whose_start_cannot_be_fitted(work, monkeypat
     def overflow(*args, **kwargs):
         raise KernelError("simulation overflowed")
 
-    monkeypatch.setattr(fitter.cli, "fitted_initial_state", overflow)
+    monkeypatch.setattr(fitter.identification.exported, "fitted_initial_state", overflow)
     before = listing(tmp_path)
     result = invoke("validate", work["dir"] / "native.fmu", work["rec"], "--x0", "fitted", "--plot",
                     tmp_path / "loops.png")

@@ -65,7 +65,7 @@ from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording
 from fitter.identification.output_error import fitted_initial_state
 
-__all__ = ["X0_POLICIES", "NRMSE_CONVENTION", "initial_state", "score", "raw_input_rho", "fitted_range",
+__all__ = ["X0_POLICIES", "NRMSE_CONVENTION", "initial_state", "own_start", "score", "raw_input_rho", "fitted_range",
            "minor_loop_excursion", "minor_loop_warning", "MINOR_LOOP_WARNING", "input_range", "range_warnings"]
 
 X0_POLICIES = ("fitted", "periodic")
@@ -94,13 +94,11 @@ def initial_state(model, rec: Recording, policy: str = "fitted") -> np.ndarray:
     """The model's x0 for the first sample of `rec` under `policy` (module docstring)."""
     if policy not in X0_POLICIES:
         raise DuhemError(f"x0 policy must be one of {X0_POLICIES}, not {policy!r}")
-    with np.errstate(all="ignore"):
-        if policy == "periodic":
+    if policy == "periodic":
+        with np.errstate(all="ignore"):
             return _periodic_x0(model, rec)
-        try:
-            return fitted_initial_state(model, rec.t, rec.u, rec.y)[0]
-        except (KernelError, np.linalg.LinAlgError):
-            return np.array(model.x0, dtype=float)
+    start = own_start(model, rec)
+    return np.array(model.x0, dtype=float) if start is None else start[0]
 
 
 def score(model, recordings: Sequence[Recording]) -> list[dict]:
@@ -125,17 +123,24 @@ def score(model, recordings: Sequence[Recording]) -> list[dict]:
     return out
 
 
-def _own_start(model, rec: Recording) -> dict:
-    """``x0_fitted`` (the state fitted to this recording, `initial_state`) and ``nrmse_x0_fitted`` (the
-    model's NRMSE from it); None for both when that simulation overflows."""
+def own_start(model, rec: Recording) -> tuple[np.ndarray, np.ndarray] | None:
+    """(x0, output from it): the state fitted to `rec` by least squares over all its samples
+    (`fitted_initial_state`); None when that simulation overflows or gives a non-finite state or output."""
     with np.errstate(all="ignore"):
         try:
             x0, y_hat = fitted_initial_state(model, rec.t, rec.u, rec.y)
         except (KernelError, np.linalg.LinAlgError):
-            return {"x0_fitted": None, "nrmse_x0_fitted": None}
-    if not (np.all(np.isfinite(y_hat)) and np.all(np.isfinite(x0))):
+            return None
+    return (x0, y_hat) if np.all(np.isfinite(y_hat)) and np.all(np.isfinite(x0)) else None
+
+
+def _own_start(model, rec: Recording) -> dict:
+    """``x0_fitted`` (`own_start`) and ``nrmse_x0_fitted`` (the model's NRMSE from it); None for both when it
+    has none."""
+    start = own_start(model, rec)
+    if start is None:
         return {"x0_fitted": None, "nrmse_x0_fitted": None}
-    return {"x0_fitted": x0.tolist(), "nrmse_x0_fitted": compare(rec, y_hat)["nrmse"]}
+    return {"x0_fitted": start[0].tolist(), "nrmse_x0_fitted": compare(rec, start[1])["nrmse"]}
 
 
 def raw_input_rho(model, recordings: Sequence[Recording]) -> list[float | None]:
