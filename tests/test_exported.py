@@ -176,21 +176,50 @@ def test_exported_fmu_reproduces_the_fit_on_measured_recordings(case, tmp_path):
 
 def test_condition_5_on_the_span_does_not_make_minor_loops_converge():
     """Both branches contract and the full-span period map has radius 0.12, yet a minor loop of 1/8 of the
-    span grows 6x per span of travel: `minor_loop_rho` sees it, the fit's barrier refuses it, and the
-    simulation of repeated minor loops grows while full-span cycles settle."""
+    span grows 6x per span of travel, and small loops e^2 = 7.39x (the limit b -> 0: e^{beta alpha(A+ - A-)},
+    the spectral abscissa alpha(A+ - A-) = 2): `minor_loop_rho` sees it, the fit's barrier refuses it, and
+    the simulation of repeated minor loops grows while full-span cycles settle."""
     from fitter.core.models import RateIndependentModel
     from fitter.core.periodic import convergence_rho
     from fitter.identification.parametrisation import RICanonical
     model = RateIndependentModel(A_plus=[[-5.0, -5.0], [4.0, 3.0]], A_minus=[[3.0, -4.0], [4.0, 1.0]],
                                  B_plus=[1.0, 0.0], B_minus=[1.0, 0.0], C=[0.0, 1.0])
     assert convergence_rho(model, 0.0, 1.0) == pytest.approx(0.1203, abs=1e-4)
-    assert minor_loop_rho(model, 0.0, 1.0) == pytest.approx(5.985, abs=1e-3)
+    assert minor_loop_rho(model, 0.0, 1.0, spans=8) == pytest.approx(5.985, abs=1e-3)
+    alpha = np.max(np.linalg.eigvals(np.array(model.A_plus) - np.array(model.A_minus)).real)
+    assert alpha == pytest.approx(2.0, abs=1e-9)
+    assert minor_loop_rho(model, 0.0, 1.0) == pytest.approx(np.exp(alpha), rel=1e-3)
     assert RICanonical(2).excesses(model, 0.05, 0.95)[0] > 4.0
     leg = np.linspace(0.4375, 0.5625, 21)
     minor = np.tile(np.r_[leg[:-1], leg[:0:-1]], 200)
     full = np.tile(np.r_[np.linspace(0, 1, 21)[:-1], np.linspace(1, 0, 21)[:-1]], 25)
     grow = [np.abs(simulate(model, np.arange(len(u), dtype=float), u).x).max(axis=1) for u in (minor, full)]
     assert grow[0][-1] > 1e3 * grow[0][40]          # 200 minor cycles = 25 spans of travel: 6^25 / 6^1.25
+    assert grow[1][-1] < 10 * grow[1][40]
+
+
+def test_minor_loop_rho_finds_an_expanding_loop_between_eighths_of_the_span():
+    """Branches with complex eigenvalues (-0.5 +- 8.4i rising, 0.5 +- 6.6i falling: both contract): the
+    period map's radius is not monotone in the loop's span b.  At the eighths of the span it is 0.88 down to
+    0.37, but a loop of span 0.208 grows 1.28x per cycle.  `minor_loop_rho` is the maximum over a fine grid
+    (brute force here with scipy's expm on 4000 spans), and the simulated loop of that span diverges while
+    full-span cycles settle."""
+    from scipy.linalg import expm as sp_expm
+    from fitter.core.models import RateIndependentModel
+    A_plus, A_minus = np.array([[-1.0, 7.0], [-10.0, 0.0]]), np.array([[-2.0, -5.0], [10.0, 3.0]])
+    model = RateIndependentModel(A_plus=A_plus.tolist(), A_minus=A_minus.tolist(), B_plus=[1.0, 0.0],
+                                 B_minus=[1.0, 0.0], C=[0.0, 1.0])
+    spans = np.arange(1, 4001) / 4000
+    radius = np.array([np.max(np.abs(np.linalg.eigvals(sp_expm(b * A_plus) @ sp_expm(-b * A_minus)))) for b in spans])
+    assert minor_loop_rho(model, 0.0, 1.0, spans=8) < 0.9
+    assert minor_loop_rho(model, 0.0, 1.0) == pytest.approx(np.max(radius ** (1 / spans)), rel=5e-3)
+    worst = spans[np.argmax(radius)]
+    assert 0.125 < worst < 0.25 and radius.max() > 1.25
+    leg = np.linspace(0.5 - worst / 2, 0.5 + worst / 2, 21)
+    minor = np.tile(np.r_[leg[:-1], leg[:0:-1]], 100)
+    full = np.tile(np.r_[np.linspace(0, 1, 21)[:-1], np.linspace(1, 0, 21)[:-1]], 25)
+    grow = [np.abs(simulate(model, np.arange(len(u), dtype=float), u).x).max(axis=1) for u in (minor, full)]
+    assert grow[0][-1] > 1e6 * grow[0][40]
     assert grow[1][-1] < 10 * grow[1][40]
 
 

@@ -42,6 +42,10 @@ stored initial state.  This module makes the two the same:
   a centre line that is affine in u), so the fit reports it and `duhem fit`
   warns when it exceeds `MINOR_LOOP_WARNING`.
 
+* **Description** (`described`): the signals (names, units, descriptions) of
+  the first recording, the default experiment of the longest one and the
+  ``input_range`` below: what every saved model carries, fitted or diagnosed.
+
 * **Extrapolation** (`input_range`): the model's ``input_range``, the fitted
   input range widened by `fitter.core.models.INPUT_MARGIN` of its span on each
   side; beyond it the model holds the input at the edge (the rule of
@@ -56,7 +60,7 @@ from typing import Sequence
 import numpy as np
 
 from fitter.core.errors import DuhemError, KernelError
-from fitter.core.models import INPUT_MARGIN
+from fitter.core.models import INPUT_MARGIN, Experiment, Signals
 from fitter.core.kernel import flows, simulate
 from fitter.core.periodic import fixed_point, minor_loop_input, period_map
 from fitter.data.cycles import last_full_cycle
@@ -66,7 +70,7 @@ from fitter.data.recordings import Recording
 from fitter.identification.output_error import fitted_initial_state
 
 __all__ = ["X0_POLICIES", "NRMSE_CONVENTION", "initial_state", "own_start", "score", "raw_input_rho", "fitted_range",
-           "minor_loop_excursion", "minor_loop_warning", "MINOR_LOOP_WARNING", "input_range", "range_warnings"]
+           "minor_loop_excursion", "minor_loop_warning", "MINOR_LOOP_WARNING", "input_range", "range_warnings", "described"]
 
 X0_POLICIES = ("fitted", "periodic")
 NRMSE_CONVENTION = ("nrmse: RMS error / output range over all samples of the raw recording, the saved model "
@@ -225,6 +229,16 @@ def input_range(recordings: Sequence[Recording]) -> tuple[float, float]:
     lo, hi = fitted_range(recordings)["input"]
     slack = INPUT_MARGIN * (hi - lo) if hi > lo else max(abs(lo), 1.0)
     return lo - slack, hi + slack
+
+
+def described(model, recordings: Sequence[Recording]):
+    """`model` with the description of `recordings` (module docstring): the first recording's signals, the
+    longest one's span and median step as the default experiment, and their `input_range`."""
+    r0, longest = recordings[0], max(recordings, key=lambda rec: rec.t[-1] - rec.t[0])
+    experiment = Experiment(start_time=float(longest.t[0]), stop_time=float(longest.t[-1]),
+                            step_size=float(np.median(np.diff(longest.t))))
+    return model.replace(signals=Signals(input=r0.input, output=r0.output), experiment=experiment,
+                         input_range=input_range(recordings))
 
 
 def range_warnings(model, t: np.ndarray, u: np.ndarray) -> list[str]:

@@ -57,9 +57,9 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from fitter.core.effects import Effect
+from fitter.core.errors import KernelError
 from fitter.core.files import jsonable
 from fitter.core.kernel import simulate
-from fitter.core.models import Experiment, Signals
 from fitter.core.periodic import fixed_point
 from fitter.data.metrics import compare
 from fitter.data.preparation import prepare
@@ -67,8 +67,8 @@ from fitter.data.recordings import Recording, check_scale
 from fitter.identification.fit_data import (FitData, FitError, RateLevels, averaged_loop, monotone_input,
                                             prepare_for_fit, rate_levels)
 from fitter.identification.effects_fit import check_effects, fit_effects
-from fitter.identification.exported import (MINOR_LOOP_WARNING, NRMSE_CONVENTION, X0_POLICIES, fitted_range,
-                                            initial_state, input_range, minor_loop_excursion, raw_input_rho, score)
+from fitter.identification.exported import (MINOR_LOOP_WARNING, NRMSE_CONVENTION, X0_POLICIES, described,
+                                            fitted_range, initial_state, minor_loop_excursion, raw_input_rho, score)
 from fitter.identification.output_error import Options, Recordings, RefineResult, jacobian, refine
 from fitter.identification.parametrisation import Parametrisation, Physical, RDCanonical, RICanonical, WithEffects
 from fitter.identification.starts import Q_CANDIDATES, generic_ri_starts, ri_starts, rd_starts
@@ -283,12 +283,6 @@ class FitResult:
         return y0 - level * sd, y0 + level * sd
 
 
-def _experiment(recordings: Sequence[Recording]) -> Experiment:
-    r = max(recordings, key=lambda rec: rec.t[-1] - rec.t[0])
-    return Experiment(start_time=float(r.t[0]), stop_time=float(r.t[-1]),
-                      step_size=float(np.median(np.diff(r.t))))
-
-
 def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order: int | None = None,
                    q: float | None = None, x0: str = "fitted", faithful_minor_loops: bool = False,
                    effects: Sequence[str] = (), progress: Progress = silent) -> FitResult:
@@ -331,7 +325,7 @@ def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order
         levels = rate_levels(data.norm)
         orders = ORDERS if order is None else (order,)
         cands = _search(data, kind, orders, q, levels, progress, faithful_minor_loops)
-        eligible = [c for c in cands if _meets_barrier(c, data)] or cands
+        eligible = [c for c in cands if _meets_barrier(c, data, recordings)] or cands
         best = min(eligible, key=lambda c: c.bic)
         extended = _with_effects(eligible, data, recordings, effects, progress) if effects else None
         return _result(best, cands, data, recordings, kind, q, levels, x0, extended)
@@ -353,9 +347,7 @@ def _base_model(cand: _Candidate, data: FitData, recordings):
     bare = Physical(cand.param, data.scaling).build(cand.res.theta)
     if data.deadband > 0:
         bare = bare.replace(effects=[Effect("backlash", {"b": data.deadband})])
-    r0 = recordings[0]
-    return bare.replace(signals=Signals(input=r0.input, output=r0.output), experiment=_experiment(recordings),
-                        input_range=input_range(recordings))
+    return described(bare, recordings)
 
 
 def _with_effects(eligible: Sequence[_Candidate], data: FitData, recordings, effects: Sequence[str],
@@ -391,16 +383,19 @@ def _physical_barrier(param: RICanonical | RDCanonical, recordings) -> Callable[
     return lambda model: _barrier_residuals(param, model, lo, hi)
 
 
-def _meets_barrier(cand: _Candidate, data: FitData) -> bool:
-    """Whether the candidate ends inside the barrier of `_barrier` (every excess <= 0, 1e-9 slack): the
-    barrier is a penalty, so a fit can end beyond it; such a candidate is chosen only when none meets it (a
-    branch that amplifies state errors by more than the bound turns rounding into visible output
-    differences between the kernel and an FMU)."""
+def _meets_barrier(cand: _Candidate, data: FitData, recordings) -> bool:
+    """Whether the candidate ends inside the barrier of `_barrier` (every excess <= 0, 1e-9 slack) and
+    converges on every raw input (`exported.raw_input_rho` < 1, the export's check): the barrier is a
+    penalty, so a fit can end beyond it; such a candidate is chosen only when none meets it (a branch that
+    amplifies state errors by more than the bound turns rounding into visible output differences between
+    the kernel and an FMU; a model that fails the raw-input check is not exported)."""
     with np.errstate(all="ignore"):
         try:
             model = cand.param.build(cand.res.theta)
-            return all(e <= 1e-9 for e in cand.param.excesses(model, *data.input_range()))
-        except (ValueError, np.linalg.LinAlgError):
+            if not all(e <= 1e-9 for e in cand.param.excesses(model, *data.input_range())):
+                return False
+            return all(r is None or r < 1 for r in raw_input_rho(_base_model(cand, data, recordings), recordings))
+        except (ValueError, np.linalg.LinAlgError, KernelError):
             return False
 
 
@@ -467,7 +462,7 @@ def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels:
         "q": q if q is not None else next((c.start_info["q"] for c in cands if "q" in c.start_info), None),
         "q_why": "given" if q is not None else "lowest loop error of the Section III estimate among "
                  f"{list(Q_CANDIDATES)} (a start for the output-error refinement only)",
-        "why": _why(best, cands, kind, levels.levels, [c for c in cands if not _meets_barrier(c, data)]),
+        "why": _why(best, cands, kind, levels.levels, [c for c in cands if not _meets_barrier(c, data, recordings)]),
         "candidates": [{"kind": c.param.kind, "order": c.param.n, "parameters": c.param.size,
                         "rss_normalised": c.res.rss, "bic": c.bic, "start": c.start_info.get("start")}
                        for c in cands],
@@ -535,7 +530,8 @@ def _why(best: _Candidate, cands, kind: str, levels: int, outside: Sequence[_Can
     text = (f"lowest BIC ({best.bic:.1f}) among {len(cands)} candidate(s) "
             f"({', '.join(f'{c.param.kind}{c.param.n}: {c.bic:.1f}' for c in ranked)})")
     if outside and best not in outside:
-        text += (f" that end inside the fit's barrier (condition (5) margin, branch amplification / damping); "
+        text += (f" that end inside the fit's barrier (condition (5) margin, branch amplification / damping) "
+                 f"and converge on every raw input; "
                  f"not eligible: {', '.join(f'{c.param.kind}{c.param.n}' for c in outside)}")
     if kind != "auto":
         text = f"kind {kind!r} requested; order by " + text
