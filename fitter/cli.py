@@ -245,6 +245,11 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithf
         save_model(model, model_tmp)
     _python_host_note(fmu, backend)
     summary = result.summary
+    conv = summary.get("convergence") or {}
+    if conv and not conv.get("satisfied"):
+        click.echo("warning: the convergence condition is violated: a wrong initial state need not die out; "
+                   "the FMU is exported only with --allow-unstable", err=True)
+    _warn_minor_loops(result.model)
     if as_json:
         _emit_json({"model": out, "fmu": fmu, "backend": backend if fmu else None, "report": report,
                     "summary": summary})
@@ -256,16 +261,11 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithf
     for e in (summary.get("effects") or {}).get("fitted", []):
         click.echo(f"effect {e['effect']} fitted with the base: "
                    + ", ".join(f"{k} = {_fmt(v)}" for k, v in e["parameters"].items()))
-    conv = summary.get("convergence") or {}
     if conv:
         click.echo(f"convergence condition: {'satisfied' if conv.get('satisfied') else 'VIOLATED'} "
                    f"({conv.get('quantity')} = {_fmt(conv.get('value'))}, margin {_fmt(conv.get('margin'))}; "
                    f"spectral radius on the raw input {_fmt_list(conv.get('rho_raw_input_per_recording'))})")
-        if not conv.get("satisfied"):
-            click.echo("warning: the convergence condition is violated: a wrong initial state need not die out; "
-                       "the FMU is exported only with --allow-unstable", err=True)
     _minor_loop_lines(summary.get("minor_loops"))
-    _warn_minor_loops(result.model)
     click.echo(f"NRMSE: {summary.get('nrmse_convention')}")
     recs = summary.get("recordings", [])
     rows = [[r.get("recording"), r.get("nrmse"), r.get("nrmse_x0_fitted"), r.get("nrmse_last_cycle"),
@@ -461,7 +461,7 @@ def validate(fmu, recordings, threshold, plot, x0_rule, time_col, input_col, out
             click.echo(f"warning: {r['source']}: {w}", err=True)
     if not passed:
         worst = max(rows, key=_judged)
-        click.echo(f"error: {worst['source']}: NRMSE {_judged(worst):.4g} over the {worst['judged_on']} "
+        click.echo(f"error: {worst['source']}: NRMSE {_judged(worst):.4g} over {worst['judged_on']} "
                    f"exceeds the threshold {threshold:g}", err=True)
         sys.exit(EXIT_VALIDATION_FAILED)
 

@@ -547,9 +547,10 @@ def test_fit_warns_when_minor_loops_leave_the_recorded_range(tmp_path):
                        "polarization_uC_per_cm2", "--kind", "ri", "-o", tmp_path / "m.json"))
     assert "warning: on minor loops smaller than the recorded ones" in result.stderr
     assert "minor loops inside the input range: the output leaves the recorded output range by" in result.stdout
-    summary = json.loads(ok(invoke("fit", PIEZO_1HZ, "--time", "time_s", "--input", "voltage_V", "--output",
-                                   "polarization_uC_per_cm2", "--kind", "ri", "-o", tmp_path / "m2.json",
-                                   "--json")).stdout)["summary"]["minor_loops"]
+    as_json = ok(invoke("fit", PIEZO_1HZ, "--time", "time_s", "--input", "voltage_V", "--output",
+                        "polarization_uC_per_cm2", "--kind", "ri", "-o", tmp_path / "m2.json", "--json"))
+    assert "warning: on minor loops smaller than the recorded ones" in as_json.stderr    # --json keeps warnings
+    summary = json.loads(as_json.stdout)["summary"]["minor_loops"]
     assert summary["faithful"] is False and summary["excursion"] > 10
     # the model file keeps the record, so its compensator says the same
     stored = json.loads((tmp_path / "m.json").read_text())["fit_info"]["minor_loops"]

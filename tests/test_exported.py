@@ -114,6 +114,20 @@ def test_inputs_beyond_the_fitted_range_are_named(transient_fit):
     assert "the model was fitted on" in warning and "holds the input at the edge" in warning
 
 
+def test_no_rate_warning_on_a_recording_the_model_was_fitted_on():
+    """Two recordings ten times apart in rate: each one's own 5-95 % rate range lies inside the stored
+    one (pooled percentiles put the slow recording's 5 % below the pool's by a factor 2, and warned), and an
+    input ten times faster than both is named."""
+    from conftest import rd_model
+    from fitter.identification.exported import fitted_range
+    slow, fast = (Recording(*sine_input(w, 3, 200), np.zeros(601)) for w in (1.0, 10.0))
+    model = rd_model(1).replace(fit_info={"fitted_range": fitted_range([slow, fast])})
+    assert range_warnings(model, slow.t, slow.u) == [] and range_warnings(model, fast.t, fast.u) == []
+    t, u = sine_input(100.0, 3, 200)
+    (warning,) = range_warnings(model, t, u)
+    assert "its rate function g is extrapolated" in warning
+
+
 def test_a_small_amplitude_fit_driven_at_large_amplitude_stays_bounded(transient_fit, tmp_path):
     """The stored input_range is the fitted range widened by INPUT_MARGIN of its span; driven at 3x the
     fitted amplitude the model (and its native FMU) stays within the output it reaches at the range's edges."""
@@ -301,6 +315,19 @@ def test_a_single_loop_is_fitted_and_exported(tmp_path):
     fit = fit_recordings([rec], kind="ri", order=1)
     assert fit.summary["recordings"][0]["nrmse"] < 0.01
     _reproduces(fit, [rec], tmp_path)
+
+
+def test_a_single_loop_that_does_not_close_is_fitted():
+    """One loop that ends 2.4 % of the span above its start (a recording stopped early): its falling branch
+    is shorter than its rising one, and the loop is averaged on the range both cover."""
+    t = np.linspace(0.0, 1.9, 761)
+    u = -np.cos(np.pi * t)                                      # -1 -> 1 -> -0.951
+    truth = ri_model(1)
+    truth = truth.replace(x0=periodic_response(truth, np.linspace(0.0, 2.0, 801),
+                                               -np.cos(np.pi * np.linspace(0.0, 2.0, 801))).x_periodic)
+    rec = noisy_recording(truth, t, u, noise=0.003, seed=2, name="open loop")
+    fit = fit_recordings([rec], kind="ri", order=1)
+    assert fit.summary["recordings"][0]["nrmse"] < 0.01
 
 
 def test_dead_band_is_shared_when_only_some_recordings_have_a_noisy_input():

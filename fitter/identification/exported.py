@@ -173,11 +173,17 @@ def raw_input_rho(model, recordings: Sequence[Recording]) -> list[float | None]:
 
 
 def fitted_range(recordings: Sequence[Recording]) -> dict:
-    """Input range and 5-95 % range of |du/dt| over all recordings."""
+    """Input range over all recordings, and the range of |du/dt| they cover: from the lowest of their 5 %
+    percentiles to the highest of their 95 % percentiles (each recording's own 5-95 % range inside it, so
+    that `range_warnings` is silent on a recording the model was fitted on)."""
     u = np.concatenate([r.u for r in recordings])
-    v = np.concatenate([np.abs(np.diff(r.u) / np.diff(r.t)) for r in recordings])
-    v = v[v > 0]
-    rates = [float(np.percentile(v, 5)), float(np.percentile(v, 95))] if v.size else None
+    spans = []
+    for r in recordings:
+        v = np.abs(np.diff(r.u) / np.diff(r.t))
+        v = v[v > 0]
+        if v.size:
+            spans.append(np.percentile(v, [5, 95]))
+    rates = [float(min(s[0] for s in spans)), float(max(s[1] for s in spans))] if spans else None
     return {"input": [float(u.min()), float(u.max())], "rate": rates}
 
 

@@ -234,17 +234,20 @@ def prepare_for_fit(recordings: Sequence[Recording]) -> FitData:
 
 
 def averaged_loop(loops: list[list[Recording]], points: int = GRID_POINTS):
-    """Rising and falling branches on a common uniform input grid, averaged over all cycles."""
-    lo = max(p.u.min() for ps in loops for p in ps)
-    hi = min(p.u.max() for ps in loops for p in ps)
+    """Rising and falling branches on a common uniform input grid, averaged over all cycles.  Each cycle is
+    split at its largest input into a rising and a falling branch; the grid is the input range every branch
+    covers (a cycle that does not close, ending above its start, has a falling branch shorter than its
+    rising one), less 1 % at each end."""
+    pieces = [(p, int(np.argmax(p.u))) for ps in loops for p in ps]
+    lo = max(max(p.u[:k + 1].min(), p.u[k:].min()) for p, k in pieces)
+    hi = min(p.u[k] for p, k in pieces)
+    if not hi > lo:
+        raise FitError(f"{pieces[0][0].label}: the cycles' rising and falling branches share no input range "
+                       f"(each must sweep from its lowest to its highest input and back)")
     span = hi - lo
     grid = np.linspace(lo + 0.01 * span, hi - 0.01 * span, points)
-    rising, falling = [], []
-    for ps in loops:
-        for p in ps:
-            k = int(np.argmax(p.u))
-            rising.append(branch_on_grid(p.u[:k + 1], p.y[:k + 1], grid))
-            falling.append(branch_on_grid(p.u[k:], p.y[k:], grid))
+    rising = [branch_on_grid(p.u[:k + 1], p.y[:k + 1], grid) for p, k in pieces]
+    falling = [branch_on_grid(p.u[k:], p.y[k:], grid) for p, k in pieces]
     return grid, np.mean(rising, axis=0), np.mean(falling, axis=0)
 
 
