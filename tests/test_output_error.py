@@ -161,3 +161,23 @@ def test_variable_projection_finds_the_linear_parameters_and_matches_the_plain_r
     projected = problem.projected(param, res.theta)[0]
     assert np.abs(projected - res.weighted).max() < 1e-9
     assert res.stderr().shape == (param.size,) and np.all(res.stderr() > 0)
+
+
+def test_covariance_does_not_depend_on_the_units_of_the_parameters():
+    """Two correlated regressors on scales 1e8 apart: the standard errors are the ones of the well-scaled
+    problem divided by each column's scale (the pseudo-inverse of the raw J^T J dropped the small column's
+    direction, giving it a zero error)."""
+    from fitter.identification.output_error import RefineResult
+    rng = np.random.default_rng(0)
+    X = rng.standard_normal((200, 2))
+    X[:, 1] += 0.9 * X[:, 0]
+    residual = rng.standard_normal(200)
+    scale = np.array([1e4, 1e-4])
+
+    def result(J):
+        return RefineResult(theta=np.zeros(2), model=None, residuals=[residual], weighted=residual, jac=J,
+                            nfev=1, success=True)
+
+    plain = result(X).stderr()
+    assert plain == pytest.approx(np.sqrt(np.diag(np.linalg.inv(X.T @ X))) * result(X).sigma, rel=1e-12)
+    assert result(X * scale).stderr() == pytest.approx(plain / scale, rel=1e-9)

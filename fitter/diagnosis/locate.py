@@ -1,7 +1,7 @@
 """Where a residual lives: per recording, branch, input range, across recordings, in a repeat.
 
 `locate_mismatch`: the residual RMS per recording, per branch (rising /
-falling / held input), per input-range bin (5 equal bins), its correlation
+falling / held input, each with at least `_branch_min` samples), per input-range bin (5 equal bins), its correlation
 across recordings with log rate, start time and amplitude, and a model-free
 comparison of a repeated run with its original (the RMS of their output
 difference against sqrt(2) x noise, what noise alone would give).
@@ -48,9 +48,32 @@ def _repeat_pair(ex: JoinedExperiment) -> tuple[int, int] | None:
     return None
 
 
+def _input_steps(ex: JoinedExperiment) -> np.ndarray:
+    """Per sample, the input's change over the interval that ends there; at each recording's first sample
+    (no interval of its own) the change over the interval that follows it."""
+    du = np.empty(len(ex.u))
+    for i in range(len(ex.recordings)):
+        s = ex.part(i)
+        d = np.diff(ex.u[s])
+        du[s] = np.r_[d[:1], d] if len(d) else 0.0
+    return du
+
+
+def _branch_min(n: int) -> int:
+    """The fewest samples a branch needs for its residual RMS to be reported: 10, or 1 % of the `n` samples
+    (a triangle sampled symmetrically about its tips holds for single intervals there)."""
+    return max(10, int(0.01 * n))
+
+
+def _held(ex: JoinedExperiment) -> np.ndarray:
+    """Per sample, True where the input holds (`_input_steps` within 1e-9 of its range)."""
+    return np.abs(_input_steps(ex)) <= 1e-9 * np.ptp(ex.u)
+
+
 def locate_mismatch(ex: JoinedExperiment, residual: np.ndarray, noise: float) -> dict:
-    """Where the residual lives: per recording, branch, input range; growth; repeat."""
-    du = np.r_[0.0, np.diff(ex.u)]
+    """Where the residual lives: per recording, branch (each sample on the branch of the interval that ends
+    there, `_input_steps`), input range; growth; repeat."""
+    du = _input_steps(ex)
     tol = 1e-9 * np.ptp(ex.u)
     per = []
     for i, r in enumerate(ex.recordings):
@@ -61,7 +84,7 @@ def locate_mismatch(ex: JoinedExperiment, residual: np.ndarray, noise: float) ->
                     "residual_mean": float(np.mean(residual[s]))})
     branches = {}
     for name, sel in (("rising", du > tol), ("falling", du < -tol), ("held", np.abs(du) <= tol)):
-        branches[name] = rms(residual[sel]) if sel.any() else None
+        branches[name] = rms(residual[sel]) if np.count_nonzero(sel) >= _branch_min(len(du)) else None
     edges = np.linspace(ex.u.min(), ex.u.max(), 6)
     bins = np.clip(np.digitize(ex.u, edges[1:-1]), 0, 4)
     by_input = [{"u_from": float(edges[j]), "u_to": float(edges[j + 1]),
@@ -89,8 +112,7 @@ def where_differs(ex: JoinedExperiment, r_win: np.ndarray, r_run: np.ndarray) ->
     extra = r_run ** 2 - r_win ** 2
     per = [(float(np.sum(extra[ex.part(i)])), r.name) for i, r in enumerate(ex.recordings)]
     rec = max(per)[1]
-    du = np.r_[0.0, np.diff(ex.u)]
-    held = np.abs(du) <= 1e-9 * np.ptp(ex.u)
+    held = _held(ex)
     parts = {"while the input holds": float(np.sum(extra[held])) / max(held.sum(), 1),
              "while the input moves": float(np.sum(extra[~held])) / max((~held).sum(), 1)}
     where = max(parts, key=parts.get) if held.any() else "while the input moves"

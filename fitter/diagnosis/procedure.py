@@ -24,7 +24,13 @@ Procedure (`diagnose`)
    not significant on the higher-order base (the order was what it
    fitted), the search is run on the higher order too, and its account is
    taken when it reaches the noise and predicts the held-out last recording
-   better (one recording: the lower BIC).  Or
+   better (one recording: the lower BIC).  A higher order that reaches the
+   noise with a loop still far from settled when the experiment ends
+   (`_unsettled_rms` beyond `NOISE_MARGIN` times the noise: a
+   rate-independent base fits a drift of the output with a loop that keeps
+   moving) counts as one that leaves a misfit; and the first-order base with
+   its best effect is not preferred when it leaves a structured residual
+   and the higher order a white one.  Or
    a fixed order, or a given model.  The base's A, B, E (per branch) and
    x0 are refined (`fitter.diagnosis.fitting.fit_base`).
 2. Noise level sigma: `fitter.data.metrics.noise_rms` of each recording's output,
@@ -93,6 +99,10 @@ from typing import Callable, Sequence
 import numpy as np
 
 from fitter.core.effects import ORIGINS, REGISTRY
+from fitter.core.errors import DuhemError, KernelError
+from fitter.core.kernel import simulate
+from fitter.core.periodic import fixed_point
+from fitter.data.cycles import last_full_cycle
 from fitter.data.metrics import noise_rms, nrmse, rms
 from fitter.data.recordings import Recording
 from fitter.diagnosis.experiment import DiagnoseError, JoinedExperiment, join_recordings
@@ -102,6 +112,7 @@ from fitter.diagnosis.result import Diagnosis
 from fitter.diagnosis.statistics import (ALPHA, NOISE_MARGIN, consistency_report, memory_response_report,
                                          effect_report, is_significant, remainder_report)
 from fitter.diagnosis.text import comparison_text, summary_paragraph
+from fitter.identification.exported import described, fitted_range
 from fitter.identification.fit import fit_recordings
 from fitter.identification.output_error import effective_samples
 from fitter.progress import Progress, silent
@@ -175,10 +186,10 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
     for f in findings:
         f["partial"] = not remainder["explained"]
     validation, comparison = _validate(ex, base, findings, tested, fits, mask, noise)
-    ext_model = current.model.replace(fit_info={
+    ext_model = described(current.model, ex.recordings).replace(fit_info={
         "method": "duhem diagnose", "effects": [f["effect"] for f in findings], "noise_rms": noise,
         "x0": {"stored": np.ravel(current.model.x0).tolist(), "recording": ex.recordings[0].name,
-               "u0": float(ex.u[0])}})
+               "u0": float(ex.u[0])}, "fitted_range": fitted_range(ex.recordings)})
     extended = dict(_summary(ex, current, noise), effects=[e.to_dict() for e in ext_model.effects],
                     **{f"{origin}_effects": [f["effect"] for f in findings if f["origin"] == origin]
                        for origin in ORIGINS}, remainder=remainder)
@@ -186,7 +197,8 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
     progress("done", 1.0)
     diag = Diagnosis(noise_rms=noise, verdict=_verdict(findings, baseline, remainder, noise), baseline=baseline,
                      mismatch=mismatch, candidates=tested, findings=findings, extended=extended,
-                     validation=validation, comparison=comparison, paragraph="", base_model=base.model,
+                     validation=validation, comparison=comparison, paragraph="",
+                     base_model=described(base.model, ex.recordings),
                      extended_model=ext_model, baseline_output=ex.y - base.residual,
                      extended_output=ex.y - current.residual, separate=separate)
     diag.paragraph = summary_paragraph(diag)
@@ -282,17 +294,50 @@ def _adequate_base(ex: JoinedExperiment, mask: np.ndarray, noise: float, candida
         return first, None, None
     high = fit_base(ex, higher.model, mask)
     k_high = next(c["parameters"] for c in higher.summary["candidates"] if c["order"] == order) + order
-    if rms(high.residual) > NOISE_MARGIN * noise:
+    if rms(high.residual) > NOISE_MARGIN * noise or _unsettled_rms(high, ex) > NOISE_MARGIN * noise:
         return first, None, (high, k_high)
     results = _test_round(ex, first, candidates, mask, alpha, len(candidates), tick)
     best = next((f for r, f in results if r["significant"]), None)
-    if best is None or rms(best.residual) > NOISE_MARGIN * noise:
+    if best is None or rms(best.residual) > NOISE_MARGIN * noise or \
+            _structured(ex, best, mask, alpha) and not _structured(ex, high, mask, alpha):
         return high, None, None
     if len(ex.recordings) > 1:
         better = _held_out_rms(ex, best, mask) < _held_out_rms(ex, high, mask)
     else:
         better = _bic(best, best.family.size) < _bic(high, k_high)
     return (first, results, None) if better else (high, None, None)
+
+
+def _structured(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, alpha: float) -> bool:
+    """Whether `fit` leaves a structured residual (`statistics.remainder_report`): not white noise."""
+    return remainder_report(ex, fit.residual, mask, alpha)["structured"]
+
+
+def _unsettled_rms(fit: Fit, ex: JoinedExperiment) -> float:
+    """How far the base of `fit` is from settled when the experiment ends: the RMS over the last full input
+    cycle of its output from its state there minus its output from that cycle's periodic state (the
+    fixed point of its period map, the cycle closed as in `exported.raw_input_rho`); inf when the cycle's
+    map does not converge, 0 without a full cycle.  A rate-independent base that fits a change in time
+    (a drift of the output) does so with a loop that never settles: large here although its residual is
+    at the noise."""
+    model, run = fit.model, ex.runs()[-1]
+    t, u = ex.t[run], ex.u[run]
+    try:
+        cycle = last_full_cycle(u)
+    except DuhemError:
+        return 0.0
+    x0 = fit.result.x0s[-1] if ex.separate else None
+    with np.errstate(all="ignore"):
+        try:
+            state = simulate(model, t, u, x0=x0).x[cycle.start]
+            tc, uc = t[cycle], u[cycle]
+            tc, uc = np.r_[tc, tc[-1] + np.median(np.diff(tc))], np.r_[uc, uc[0]]
+            settled, rho = fixed_point(model, tc, uc)
+            if settled is None or not rho < 1:
+                return np.inf
+            return rms(simulate(model, tc, uc, x0=state).y - simulate(model, tc, uc, x0=settled).y)
+        except (KernelError, np.linalg.LinAlgError):
+            return np.inf
 
 
 def _held_out_rms(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> float:

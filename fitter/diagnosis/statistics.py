@@ -30,7 +30,10 @@ k (u_0 - mean u) e^{-(t - t_0)/tau}: a function of time alone, which a slow
 drift of the measured output fits as well.  In the fit's neighbourhood (its
 Jacobian in the other free parameters, the time constants held) the effect's
 response L (its output per unit k) and the transients e^{-(t - t_0)/tau_i}
-(one per time constant and run) are given separate gains: the effect is the
+(one per time constant and run, and as many again log-spaced from three
+samples to the run's duration, `START_TRANSIENTS`: a start-up transient of
+the output, whatever its time constant, is not a memory of the input) are
+given separate gains: the effect is the
 input's memory only when the gain of L, with the transients free, has the
 sign of k and is significant (LR = n_eff ln(RSS_without L / RSS_with L), one
 degree of freedom, p < alpha / number of candidates).  Otherwise what it fits
@@ -70,6 +73,8 @@ __all__ = ["ALPHA", "MIN_EXPLAINED", "NOISE_MARGIN", "consistency_report", "effe
 ALPHA = 0.01
 MIN_EXPLAINED = 0.02
 NOISE_MARGIN = 1.2
+START_TRANSIENTS = 6
+"""Generic start transients per run in `memory_response_report` (module docstring)."""
 
 
 def _physical(fam, theta, se=None) -> tuple[dict, dict]:
@@ -126,13 +131,17 @@ def memory_response_report(fit: Fit, ex: JoinedExperiment, name: str, n_eff: flo
     k, taus = float(par["k"]), spec.memory_taus(par)
     unit = dict(par, k=1.0)
     L = np.zeros(len(ex.t))                                         # the output per unit k
-    E = np.zeros((len(ex.t), len(ex.runs()) * len(taus)))           # the start transients
-    for j, s in enumerate(ex.runs()):
+    runs = ex.runs()
+    E = np.zeros((len(ex.t), len(runs) * (len(taus) + START_TRANSIENTS)))
+    for j, s in enumerate(runs):
         chain = Chain(t=ex.t[s], u=ex.u[s], h=np.diff(ex.t[s]), w=ex.u[s], y=np.zeros(s.stop - s.start))
         spec.apply(unit, chain, None)
         L[s] = chain.y
-        for i, tau in enumerate(taus):
-            E[s, j * len(taus) + i] = np.exp(-(ex.t[s] - ex.t[s][0]) / tau)
+        elapsed = ex.t[s] - ex.t[s][0]
+        step = float(np.median(np.diff(ex.t[s]))) if s.stop - s.start > 1 else 1.0
+        generic = np.geomspace(3 * step, max(elapsed[-1], 3 * step), START_TRANSIENTS)
+        for i, tau in enumerate([*taus, *generic]):
+            E[s, j * (len(taus) + START_TRANSIENTS) + i] = np.exp(-elapsed / tau)
     L, E = L[mask], E[mask]
     J = fit.result.jac[mask] if len(fit.result.jac) == len(ex.t) else fit.result.jac
     own = {fam.n_base + i for i, (e, _) in enumerate(fam.keys) if e == name}

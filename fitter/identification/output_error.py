@@ -76,7 +76,9 @@ Uncertainty
 -----------
 J is the solver's Jacobian at the optimum (in output units; of the kept samples
 when decimated, the information then scaled by N_all / N_kept).
-sigma^2 = RSS / (N - p), cov = sigma^2 (J^T J)^+ (N / n_eff), n_eff the
+sigma^2 = RSS / (N - p), cov = sigma^2 (J^T J)^+ (N / n_eff), the
+pseudo-inverse taken as S (S J^T J S)^+ S with S = diag(1 / ||J_j||) (so a
+parameter's error does not depend on the units of the others), n_eff the
 effective sample size (N when not given; the diagnosis passes the AR(1)
 value of `effective_samples` for autocorrelated residuals).
 """
@@ -162,10 +164,15 @@ class RefineResult:
         return float(np.sqrt(self.rss / max(len(self.weighted) - len(self.theta), 1)))
 
     def covariance(self, n_eff: float | None = None) -> np.ndarray:
-        """sigma^2 (info_scale J^T J)^+ N / n_eff (module docstring)."""
+        """sigma^2 (info_scale J^T J)^+ N / n_eff (module docstring), the pseudo-inverse taken of the
+        column-equilibrated J (the same in any units of the parameters)."""
         n = len(self.weighted)
         inflate = 1.0 if n_eff is None else n / max(n_eff, 1.0)
-        return self.sigma ** 2 * np.linalg.pinv(self.info_scale * (self.jac.T @ self.jac)) * inflate
+        norms = np.linalg.norm(self.jac, axis=0)
+        norms = np.where(norms > 0, norms, 1.0)
+        scaled = self.jac / norms
+        inverse = np.linalg.pinv(self.info_scale * (scaled.T @ scaled)) / np.outer(norms, norms)
+        return self.sigma ** 2 * inverse * inflate
 
     def stderr(self, n_eff: float | None = None) -> np.ndarray:
         return np.sqrt(np.clip(np.diag(self.covariance(n_eff)), 0, None))
