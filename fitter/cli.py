@@ -559,6 +559,10 @@ def compensate(model, reference, out, plot, time_col, ref_col, u0, input_range, 
                                     output_label=_axis_name(m.signals.output),
                                     title=f"{Path(reference).name}: compensation of {Path(model).name}")
     _warn_minor_loops(m)
+    lo, hi = result.input_range
+    if u0 is not None and not lo <= u0 <= hi:
+        click.echo(f"warning: --u0 {u0:g} is outside the input range [{lo:.6g}, {hi:.6g}]: the plant holds its "
+                   f"input at the nearest edge there", err=True)
     if result.n_clamped:
         click.echo(f"warning: {reference}: {result.n_clamped} of {len(rec)} samples clamped (no input in "
                    f"[{result.input_range[0]:.6g}, {result.input_range[1]:.6g}] reaches y_ref); largest shortfall "

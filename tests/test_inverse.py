@@ -326,6 +326,15 @@ def test_cli_compensate_writes_u_and_the_prediction(files):
     assert "0 clamped" in res.stdout
 
 
+def test_cli_warns_of_a_first_input_outside_the_input_range(files):
+    d = files["dir"]
+    lo, hi = files["model"].input_range
+    res = run(d / "model.json", d / "ref.csv", "-o", d / "u.csv", "--u0", hi + 10 * (hi - lo))
+    assert res.exit_code == 0, res.output
+    assert "warning: --u0" in res.stderr and "is outside the input range" in res.stderr
+    assert "--u0" not in run(d / "model.json", d / "ref.csv", "-o", d / "u.csv", "--u0", hi).stderr
+
+
 def test_cli_reports_clamped_samples(files):
     d = files["dir"]
     _write(d / "far.csv", "t_s,target", files["t"], files["y_ref"] * 10)
