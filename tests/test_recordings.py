@@ -62,6 +62,14 @@ def test_skips_blank_lines_and_accepts_semicolons(tmp_path):
     np.testing.assert_array_equal(rec.y, [2, 3, 4])
 
 
+def test_skips_comment_lines_before_the_header_and_keeps_line_numbers(tmp_path):
+    """Instruments write '# ...' lines before the data; a bad cell after them is still named by its line."""
+    rec = load_recording(write(tmp_path, "# rig 3\n  # 2024-01-01\ntime,u,y\n0,1,2\n1,2,3\n2,3,4\n"))
+    np.testing.assert_array_equal(rec.y, [2, 3, 4])
+    msg = error_of(tmp_path, "# rig 3\ntime,u,y\n0,0,0\n1,1,1\n2,abc,2\n3,3,3\n")
+    assert "line 5" in msg and "column 'u'" in msg
+
+
 def error_of(tmp_path, text, **kw):
     with pytest.raises(RecordingError) as exc:
         load_recording(write(tmp_path, text), **kw)

@@ -4,7 +4,8 @@ File format
 -----------
 A text file with one header line, then one row per sample; the delimiter is a
 comma (a tab or semicolon is accepted when the header has no comma).  Blank
-lines are skipped; a UTF-8 byte-order mark is ignored.  Only the three chosen
+lines, and comment lines starting with '#' before the header, are skipped; a
+UTF-8 byte-order mark is ignored.  Only the three chosen
 columns must be numeric.  The file is read a block of lines at a time: besides
 the chosen columns (as float arrays) the reader holds about one block.
 
@@ -411,12 +412,13 @@ def _is_number(cell: str) -> bool:
 
 
 def _read_table(path: str, specs: dict[str, str | int | None]) -> _Table:
-    """The header (the first non-blank line) and the data rows of the CSV file `path`, block by block."""
+    """The header (the first line that is neither blank nor a comment starting with '#', as instruments write
+    before their data) and the data rows of the CSV file `path`, block by block."""
     blocks = _text_blocks(path)
     line = 1
     for text in blocks:
         lines = text.splitlines(keepends=True)
-        k = next((i for i, s in enumerate(lines) if s.strip()), None)
+        k = next((i for i, s in enumerate(lines) if s.strip() and not s.lstrip().startswith("#")), None)
         if k is None:
             line += len(lines)
             continue
