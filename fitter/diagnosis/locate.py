@@ -1,8 +1,9 @@
 """Where a residual lives: per recording, branch, input range, across recordings, in a repeat.
 
 `locate_mismatch`: the residual RMS per recording, per branch (rising /
-falling / held input, each with at least `_branch_min` samples), per input-range bin (5 equal bins), its correlation
-across recordings with log rate, start time and amplitude, and a model-free
+falling / held input, each with at least `_branch_min` samples), per
+input-range bin (5 equal bins), its correlation across recordings with log
+rate, start time and amplitude, and a model-free
 comparison of a repeated run with its original (the RMS of their output
 difference against sqrt(2) x noise, what noise alone would give).
 `where_differs` names where one candidate's residual exceeds another's.

@@ -70,7 +70,8 @@ from fitter.data.recordings import Recording
 from fitter.identification.output_error import fitted_initial_state
 
 __all__ = ["X0_POLICIES", "NRMSE_CONVENTION", "initial_state", "own_start", "score", "raw_input_rho", "fitted_range",
-           "minor_loop_excursion", "minor_loop_warning", "MINOR_LOOP_WARNING", "input_range", "range_warnings", "described"]
+           "minor_loop_excursion", "minor_loop_warning", "MINOR_LOOP_WARNING", "input_range", "range_warnings",
+           "described"]
 
 X0_POLICIES = ("fitted", "periodic")
 NRMSE_CONVENTION = ("nrmse: RMS error / output range over all samples of the raw recording, the saved model "
