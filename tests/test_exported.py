@@ -255,6 +255,31 @@ def test_minor_loop_excursion_separates_a_faithful_model_from_an_expanding_one()
     assert out[1] > 1e3
 
 
+def test_minor_loop_excursion_counts_where_slow_loops_settle():
+    """A first-order model whose small loops contract by 0.99996 per cycle and drift by (E+ - E-) b: 40 cycles
+    of each of 8 sub-spans leave the recorded range by 17 output ranges, while the loops settle about 100
+    ranges out (20000 cycles of a loop of a fifth of the range, simulated here).  The excursion is where they
+    settle (the fixed points of their period maps), not where 40 cycles got."""
+    from fitter.core.models import RateIndependentModel
+    from fitter.core.periodic import minor_loop_input
+    model = RateIndependentModel(A_plus=[[-0.0005]], A_minus=[[0.0005]], B_plus=[1.0], B_minus=[1.0], C=[1.0],
+                                 E_plus=[0.05], E_minus=[-0.05], input_range=(0.0, 1.0))
+    u = np.tile(np.r_[np.linspace(0, 1, 41)[:-1], np.linspace(1, 0, 41)[:-1]], 5)
+    t = np.arange(len(u), dtype=float)
+    rec = Recording(t, u, simulate(model, t, u).y)
+    lo, hi = rec.y.min(), rec.y.max()
+
+    def beyond(y):
+        return max(0.0, lo - y.min(), y.max() - hi) / (hi - lo)
+
+    path = beyond(simulate(model, None, minor_loop_input(0.0, 1.0, start=model.first_input)).y)
+    leg = np.linspace(0.4, 0.6, 21)
+    long = beyond(simulate(model, None, np.r_[0.0, np.tile(np.r_[leg[:-1], leg[:0:-1]], 20000)]).y)
+    excursion = minor_loop_excursion(model, [rec])
+    assert path < 0.2 * long
+    assert long <= excursion <= 1.1 * long
+
+
 def test_settled_minor_loops_are_the_limit_of_repeated_cycles():
     """`minor_loop_outputs` (the fixed point of each loop's period map) against brute force: 300 cycles of
     each loop simulated from x0 = 0, the last turning points, for a coupled second-order model."""

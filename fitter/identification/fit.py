@@ -521,7 +521,8 @@ def _minor_loops(model, recordings, constrained: bool) -> dict:
     return {"excursion": exc, "warning_above": MINOR_LOOP_WARNING, "faithful": bool(exc <= MINOR_LOOP_WARNING),
             "constrained": bool(constrained),
             "input": "40 triangle cycles of each of 8 sub-spans (1/8 to 8/8) of the model's input range around its "
-                     "middle, from the stored x0 at the first input, at the recordings' median rate",
+                     "middle, from the stored x0 at the first input, at the recordings' median rate; for a "
+                     "rate-independent model also the settled loops of 64 sub-spans at 5 places each",
             "quantity": "largest distance of the output beyond the recorded output range, in output ranges"}
 
 
