@@ -42,7 +42,7 @@ from fitter.data.recordings import Recording
 
 __all__ = ["PreparationError", "REVERSAL_FRACTION", "REVERSAL_NOISE_FACTOR", "reversal_threshold",
            "find_reversals", "count_reversals", "cycle_reversals", "period_cycle", "closing_period",
-           "single_loop", "split_cycles", "last_full_cycle"]
+           "single_loop", "split_cycles", "last_full_cycle", "closed_last_cycle"]
 
 REVERSAL_FRACTION = 0.05
 REVERSAL_NOISE_FACTOR = 6.0
@@ -217,3 +217,13 @@ def last_full_cycle(u, *, threshold: float | None = None) -> slice:
         raise PreparationError(f"no full input cycle: the input reverses {len(r)} time(s) and does not "
                                f"cover a whole period")
     return whole
+
+
+def closed_last_cycle(t, u) -> tuple[slice, np.ndarray, np.ndarray]:
+    """The last full input cycle (`last_full_cycle`) and its samples closed back to its starting input: one
+    more sample, one median sample period later, at the cycle's first input (a measured cycle rarely ends
+    exactly where it started; the closed one is the input that repeats it).  Raises `PreparationError`
+    when there is no full cycle."""
+    s = last_full_cycle(u)
+    tc, uc = np.asarray(t)[s], np.asarray(u)[s]
+    return s, np.r_[tc, tc[-1] + np.median(np.diff(tc))], np.r_[uc, uc[0]]

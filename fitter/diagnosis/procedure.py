@@ -102,7 +102,7 @@ from fitter.core.effects import ORIGINS, REGISTRY
 from fitter.core.errors import DuhemError, KernelError
 from fitter.core.kernel import simulate
 from fitter.core.periodic import fixed_point
-from fitter.data.cycles import last_full_cycle
+from fitter.data.cycles import closed_last_cycle
 from fitter.data.metrics import noise_rms, nrmse, rms
 from fitter.data.recordings import Recording
 from fitter.diagnosis.experiment import DiagnoseError, JoinedExperiment, join_recordings
@@ -315,23 +315,21 @@ def _structured(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, alpha: float) 
 
 def _unsettled_rms(fit: Fit, ex: JoinedExperiment) -> float:
     """How far the base of `fit` is from settled when the experiment ends: the RMS over the last full input
-    cycle of its output from its state there minus its output from that cycle's periodic state (the
-    fixed point of its period map, the cycle closed as in `exported.raw_input_rho`); inf when the cycle's
-    map does not converge, 0 without a full cycle.  A rate-independent base that fits a change in time
+    cycle (closed, `fitter.data.cycles.closed_last_cycle`) of its output from its state there minus its output
+    from that cycle's periodic state (the fixed point of its period map); inf when the cycle's map does not
+    converge, 0 without a full cycle.  A rate-independent base that fits a change in time
     (a drift of the output) does so with a loop that never settles: large here although its residual is
     at the noise."""
     model, run = fit.model, ex.runs()[-1]
     t, u = ex.t[run], ex.u[run]
     try:
-        cycle = last_full_cycle(u)
+        cycle, tc, uc = closed_last_cycle(t, u)
     except DuhemError:
         return 0.0
     x0 = fit.result.x0s[-1] if ex.separate else None
     with np.errstate(all="ignore"):
         try:
             state = simulate(model, t, u, x0=x0).x[cycle.start]
-            tc, uc = t[cycle], u[cycle]
-            tc, uc = np.r_[tc, tc[-1] + np.median(np.diff(tc))], np.r_[uc, uc[0]]
             settled, rho = fixed_point(model, tc, uc)
             if settled is None or not rho < 1:
                 return np.inf

@@ -63,7 +63,7 @@ from fitter.core.errors import DuhemError, KernelError
 from fitter.core.models import INPUT_MARGIN, Experiment, Signals
 from fitter.core.kernel import flows, simulate
 from fitter.core.periodic import fixed_point, minor_loop_input, minor_loop_outputs, period_map
-from fitter.data.cycles import last_full_cycle
+from fitter.data.cycles import closed_last_cycle
 from fitter.data.metrics import compare
 from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording
@@ -159,12 +159,10 @@ def raw_input_rho(model, recordings: Sequence[Recording]) -> list[float | None]:
     rhos = []
     for rec in recordings:
         try:
-            s = last_full_cycle(rec.u)
+            _, t, u = closed_last_cycle(rec.t, rec.u)
         except DuhemError:
             rhos.append(None)
             continue
-        t, u = rec.t[s], rec.u[s]
-        t, u = np.r_[t, t[-1] + np.median(np.diff(t))], np.r_[u, u[0]]
         with np.errstate(all="ignore"):
             try:
                 rhos.append(fixed_point(model, t, u)[1])
