@@ -171,17 +171,18 @@ def raw_input_rho(model, recordings: Sequence[Recording]) -> list[float | None]:
     return rhos
 
 
+def _moving_rates(t: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """|du/dt| on the intervals where the input moves."""
+    v = np.abs(np.diff(u) / np.diff(t))
+    return v[v > 0]
+
+
 def fitted_range(recordings: Sequence[Recording]) -> dict:
     """Input range over all recordings, and the range of |du/dt| they cover: from the lowest of their 5 %
     percentiles to the highest of their 95 % percentiles (each recording's own 5-95 % range inside it, so
     that `range_warnings` is silent on a recording the model was fitted on)."""
     u = np.concatenate([r.u for r in recordings])
-    spans = []
-    for r in recordings:
-        v = np.abs(np.diff(r.u) / np.diff(r.t))
-        v = v[v > 0]
-        if v.size:
-            spans.append(np.percentile(v, [5, 95]))
+    spans = [np.percentile(v, [5, 95]) for v in (_moving_rates(r.t, r.u) for r in recordings) if v.size]
     rates = [float(min(s[0] for s in spans)), float(max(s[1] for s in spans))] if spans else None
     return {"input": [float(u.min()), float(u.max())], "rate": rates}
 
@@ -219,8 +220,8 @@ def minor_loop_excursion(model, recordings: Sequence[Recording]) -> float:
             return float("inf")
         settled = max(0.0, lo - turns.min(), turns.max() - hi)
     u = minor_loop_input(*model.input_range, start=model.first_input)
-    v = np.concatenate([np.abs(np.diff(r.u) / np.diff(r.t)) for r in recordings])
-    rate = float(np.median(v[v > 0])) if np.any(v > 0) else 1.0
+    v = np.concatenate([_moving_rates(r.t, r.u) for r in recordings])
+    rate = float(np.median(v)) if v.size else 1.0
     t = np.r_[0.0, np.cumsum(np.maximum(np.abs(np.diff(u)), 1e-6 * np.ptp(model.input_range)) / rate)]
     with np.errstate(all="ignore"):
         try:
@@ -282,8 +283,7 @@ def range_warnings(model, t: np.ndarray, u: np.ndarray) -> list[str]:
                 else "outside it the model extrapolates (no input_range: unbounded)")
         out.append(f"the input spans [{u.min():.6g}, {u.max():.6g}] but the model was fitted on "
                    f"[{lo:.6g}, {hi:.6g}]: {held}")
-    v = np.abs(np.diff(u) / np.diff(t))
-    v = v[v > 0]
+    v = _moving_rates(t, u)
     if model.kind == "rd" and rng.get("rate") and v.size:
         v_lo, v_hi = np.percentile(v, [5, 95])
         f_lo, f_hi = rng["rate"]
