@@ -172,6 +172,24 @@ def test_switching_stays_finite_when_it_switches_fully_in_every_interval():
     assert np.isfinite(s).all()
     far = np.abs(u[1:]) > 0.05
     np.testing.assert_allclose(s[1:][far], 0.7 * np.sign(u[1:][far]), atol=1e-12)
+def test_switching_spread_is_the_mean_of_shares_at_normal_quantiles():
+    """A population with spread 0.2 adds exactly the mean of 16 spread-free populations with thresholds
+    u_up + 0.2 z_j, u_dn - 0.2 z_j, z_j the normal quantiles at (j + 1/2) / 16; a model saved without spread
+    (spread 0, the default) gets spread 0; the state holds 2 x 16 shares."""
+    from statistics import NormalDist
+    t, u = signal()
+    base = simulate(ri(), t, u).y
+    one = {"S1": 0.4, "u_up1": 0.3, "u_dn1": -0.2, "width1": 0.05, "q1": -1.0,
+           "S2": 0.0, "u_up2": 0.9, "u_dn2": -0.7, "width2": 0.3, "q2": -1.0}
+    spread = simulate(ri([("switching", {**one, "spread1": 0.2})]), t, u).y - base
+    shares = [simulate(ri([("switching", {**one, "u_up1": 0.3 + 0.2 * z, "u_dn1": -0.2 - 0.2 * z})]), t, u).y - base
+              for z in (NormalDist().inv_cdf((j + 0.5) / 16) for j in range(16))]
+    np.testing.assert_allclose(spread, np.mean(shares, axis=0), rtol=0, atol=1e-13)
+    assert not np.allclose(spread, shares[8], atol=1e-3)
+    assert Effect("switching", one).parameters["spread1"] == 0.0
+    assert len(REGISTRY["switching"].state) == 32
+
+
 def test_relaxation_is_four_creeps_on_a_log_grid():
     """relaxation {k, w_i, tau_min, tau_max} adds exactly what four creeps k w_i / sum w with tau_i = 0.2 * 10^i
     add."""

@@ -47,12 +47,17 @@ The chain, always applied in this order whatever the order of the list:
    dielectric relaxation; a long tau_i also takes a leakage current, whose
    charge grows as the integral of u).
 6. ``switching`` {S_i >= 0, u_up_i, u_dn_i, width_i > 0, q_i in [-1, 1],
-   i = 1, 2}: field-activated switching (nucleation-limited switching of a
-   ferroelectric, the thermally activated flips of domains in a magnet) of
-   two populations (a distribution of domains, in its simplest form): each a
-   switched output s in [-S, S], y += s_1 + s_2, driven up while u is above
-   u_up and down while it is below u_dn at rates that grow exponentially with
-   the distance (Merz's law, linearised at the threshold)::
+   spread_i >= 0, i = 1, 2}: field-activated switching (nucleation-limited
+   switching of a ferroelectric, the thermally activated flips of domains in
+   a magnet) of two populations of domains, each with a Gaussian spread of
+   coercive inputs (the distribution of domains' switching fields): population
+   i is `SWITCHING_NODES` equal shares j, at the normal quantiles z_j =
+   Phi^-1((j - 1/2) / N) (`SWITCHING_NODES_Z`), each a switched output
+   s_ij in [-S_i, S_i], y += sum_i mean_j s_ij, driven up while u is above
+   u_up_i + spread_i z_j and down while it is below u_dn_i - spread_i z_j
+   (a share that switches up late switches down late: its loop is wider) at
+   rates that grow exponentially with the distance (Merz's law, linearised
+   at the threshold)::
 
        ds/dt = k+(u) (S - s) - k-(u) (S + s),
        k+(u) = e^{(u - u_up)/width},  k-(u) = e^{(u_dn - u)/width}
@@ -60,13 +65,16 @@ The chain, always applied in this order whatever the order of the list:
    per unit of time (the recording's: u_up is the input at which switching up
    takes one time unit, as a coercive field is quoted at a time scale; a
    separate time constant would only shift both thresholds by width ln tau).
-   s_0 = q S (the switched fraction the experiment starts from).  Unlike the
-   Duhem base, whose state moves only while u moves, s moves at a held input
-   (the output keeps rising after the input has turned at a tip) and the
-   switched amount depends on the time spent beyond a threshold, so a slower
-   loop switches more.  Per interval, with I+- = integral of k+- dt (closed
-   form for u linear: I+ = h e^{(u_k - u_up)/width} (e^d - 1)/d,
-   d = du_k/width; I- likewise): s_{k+1} = s_eq + (s_k - s_eq) e^{-(I+ + I-)},
+   spread_i = 0 (the default of a model saved without it) gives one threshold
+   pair per population.  s_ij,0 = q_i S_i (the switched fraction the
+   experiment starts from).  Unlike the Duhem base, whose state moves only
+   while u moves, s moves at a held input (the output keeps rising after the
+   input has turned at a tip) and the switched amount depends on the time
+   spent beyond a threshold, so a slower loop switches more, and the spread
+   of thresholds makes that growth gradual over decades of rate.  Per
+   interval, with I+- = integral of k+- dt (closed form for u linear:
+   I+ = h e^{(u_k - u_up)/width} (e^d - 1)/d, d = du_k/width; I- likewise):
+   s_{k+1} = s_eq + (s_k - s_eq) e^{-(I+ + I-)},
    s_eq = S (I+ - I-)/(I+ + I-) = S tanh((ln I+ - ln I-)/2).  Exact whenever
    one of k+- is negligible on the interval; otherwise s_eq is a weighted
    mean target, with an error of the order of e^{-(u_up - u_dn)/width}
@@ -103,6 +111,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
+from statistics import NormalDist
 
 import numpy as np
 
@@ -111,7 +120,8 @@ from .flow import check_increasing, integrate, interval_coefficients, linear_rec
 
 __all__ = ["play_operator", "REGISTRY", "STAGES", "ORIGINS", "EffectSpec", "ParameterSpec", "EffectContext", "Chain",
            "EffectError", "Effect", "EffectState", "effects_from_list", "run_with_effects", "relaxation_taus",
-           "switching_states", "SWITCHING_POPULATIONS"]
+           "switching_states", "SWITCHING_POPULATIONS", "SWITCHING_NODES",
+           "SWITCHING_NODES_Z"]
 
 EffectState = tuple
 """State of the effect chain at one sample: a tuple of floats (module docstring)."""
@@ -131,6 +141,8 @@ class ParameterSpec:
 
     `log`: a time constant, fitted on a log scale (its fitting bounds are
     relative to the sample period and the duration, see `EffectSpec.bounds`).
+    `default`: the value a model file that omits the parameter gets (a parameter added to an effect after
+    models were saved; its default gives the effect as it was); None: the parameter is required.
     """
 
     name: str
@@ -138,6 +150,7 @@ class ParameterSpec:
     upper: float
     strict: bool = False
     log: bool = False
+    default: float | None = None
 
     def allows(self, value: float) -> bool:
         """Whether `value` is finite and in the allowed range."""
@@ -471,37 +484,45 @@ def _log_exprel(d: np.ndarray) -> np.ndarray:
 _MAX_EXPONENT = 700.0
 """Switching integrals I+- are capped at e^700: beyond, e^{-I} is 0 in double precision anyway."""
 
-_MAX_DECAY = 800.0
-"""Their sum I+ + I- is capped at 800 (e^{-800} is 0 in double precision), so that the recurrence's cumulative
-decay stays finite over many fully switched intervals."""
+_MAX_DECAY = 40.0
+"""Their sum I+ + I- is capped at 40: e^{-40} = 4e-18 of |s - s_eq| <= 2 S is below the rounding of S, and the
+cap keeps the recurrence's chunks (`linear_recurrence`) long over fully switched intervals."""
 
 
-def switching_states(u: np.ndarray, h: np.ndarray, S: float, u_up: float, u_dn: float, width: float,
-                     s0: float) -> np.ndarray:
-    """Samples of one population's switched output s (module docstring, step 6), from s_0 = `s0`."""
-    ua, d = u[:-1], np.diff(u) / width
-    log_h = np.log(h)
-    lp = log_h + (ua - u_up) / width + _log_exprel(d)
-    lm = log_h + (u_dn - ua) / width + _log_exprel(-d)
+def switching_states(u: np.ndarray, h: np.ndarray, S: float, u_up, u_dn, width: float, s0) -> np.ndarray:
+    """Samples (N, m) of m shares' switched outputs s (module docstring, step 6): thresholds `u_up`, `u_dn`
+    and starts `s0` of shape (m,) (or scalars: m = 1)."""
+    up, dn = np.atleast_1d(np.asarray(u_up, dtype=float)), np.atleast_1d(np.asarray(u_dn, dtype=float))
+    start = np.broadcast_to(np.asarray(s0, dtype=float), up.shape)
+    ua, d = u[:-1, None], (np.diff(u) / width)[:, None]
+    log_h = np.log(h)[:, None]
+    lp = log_h + (ua - up) / width + _log_exprel(d)
+    lm = log_h + (dn - ua) / width + _log_exprel(-d)
     big = np.maximum(lp, lm)
     total = np.minimum(np.exp(np.minimum(big, _MAX_EXPONENT)) * (1.0 + np.exp(np.minimum(lp, lm) - big)), _MAX_DECAY)
     target = S * np.tanh((lp - lm) / 2)
-    out = np.empty_like(u, dtype=float)
-    out[0] = s0
+    out = np.empty((len(u), len(up)))
+    out[0] = start
     if len(h):
-        W = linear_recurrence(np.array([s0]), (-total)[:, None].astype(complex),
-                              np.exp(-total)[:, None].astype(complex),
-                              (-np.expm1(-total) * target)[:, None].astype(complex))
-        out[1:] = W[:, 0].real
+        W = linear_recurrence(start, (-total).astype(complex), np.exp(-total).astype(complex),
+                              (-np.expm1(-total) * target).astype(complex))
+        out[1:] = W.real
     return out
 
 
 SWITCHING_POPULATIONS = 2
 """Number of populations of the `switching` effect."""
 
+SWITCHING_NODES = 16
+"""Equal shares of each `switching` population (module docstring, step 6)."""
+
+SWITCHING_NODES_Z = tuple(NormalDist().inv_cdf((j + 0.5) / SWITCHING_NODES) for j in range(SWITCHING_NODES))
+"""Their threshold offsets in units of the spread: the normal quantiles Phi^-1((j + 1/2) / N), j = 0..N-1."""
+
 
 class Switching(EffectSpec):
-    """Step 6 of the chain: y += s1 + s2, two populations ds_i/dt = k+_i(u) (S_i - s_i) - k-_i(u) (S_i + s_i)."""
+    """Step 6 of the chain: y += sum_i mean_j s_ij, two populations of `SWITCHING_NODES` shares
+    ds_ij/dt = k+_ij(u) (S_i - s_ij) - k-_ij(u) (S_i + s_ij), thresholds spread by spread_i z_j."""
 
     name = "switching"
     description = ("field-activated switching: beyond a threshold input the output switches over in time, at a "
@@ -512,10 +533,10 @@ class Switching(EffectSpec):
     parameters = tuple(par for i in range(1, SWITCHING_POPULATIONS + 1) for par in (
         ParameterSpec(f"S{i}", 0.0, _INF), ParameterSpec(f"u_up{i}", -_INF, _INF),
         ParameterSpec(f"u_dn{i}", -_INF, _INF), ParameterSpec(f"width{i}", 0.0, _INF, strict=True, log=True),
-        ParameterSpec(f"q{i}", -1.0, 1.0)))
-    state = tuple(f"s{i}" for i in range(1, SWITCHING_POPULATIONS + 1))
-    example = {"S1": 0.3, "u_up1": 0.5, "u_dn1": -0.5, "width1": 0.1, "q1": -1.0,
-               "S2": 0.0, "u_up2": 0.8, "u_dn2": -0.8, "width2": 0.05, "q2": -1.0}
+        ParameterSpec(f"q{i}", -1.0, 1.0), ParameterSpec(f"spread{i}", 0.0, _INF, log=True, default=0.0)))
+    state = tuple(f"s{i}_{j}" for i in range(1, SWITCHING_POPULATIONS + 1) for j in range(1, SWITCHING_NODES + 1))
+    example = {"S1": 0.3, "u_up1": 0.5, "u_dn1": -0.5, "width1": 0.1, "q1": -1.0, "spread1": 0.1,
+               "S2": 0.0, "u_up2": 0.8, "u_dn2": -0.8, "width2": 0.05, "q2": -1.0, "spread2": 0.0}
     strength = "S1"
     searched = False
     """Not tested by `duhem diagnose` unless named: with its thresholds just beyond the input's tips it switches
@@ -525,30 +546,37 @@ class Switching(EffectSpec):
     def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
         ends = []
         for i in range(1, SWITCHING_POPULATIONS + 1):
-            start = p[f"q{i}"] * p[f"S{i}"] if s0 is None else s0[i - 1]
-            s = switching_states(chain.u, chain.h, p[f"S{i}"], p[f"u_up{i}"], p[f"u_dn{i}"], p[f"width{i}"], start)
-            chain.y = chain.y + s
-            ends.append(float(s[-1]))
+            S, shift = p[f"S{i}"], p[f"spread{i}"] * np.array(SWITCHING_NODES_Z)
+            nodes = slice((i - 1) * SWITCHING_NODES, i * SWITCHING_NODES)
+            start = p[f"q{i}"] * S if s0 is None else np.array(s0[nodes])
+            s = switching_states(chain.u, chain.h, S, p[f"u_up{i}"] + shift, p[f"u_dn{i}"] - shift, p[f"width{i}"],
+                                 start)
+            for j in range(SWITCHING_NODES):
+                chain.y = chain.y + s[:, j] / SWITCHING_NODES
+            ends += s[-1].tolist()
         return tuple(ends)
 
     def bounds(self, ctx: EffectContext) -> dict[str, tuple[float, float]]:
         """Thresholds within two input ranges of the middle (a threshold is where switching takes one time
-        unit; at a time scale far from it the loop switches well inside), widths from 1e-3 to 1 input range."""
+        unit; at a time scale far from it the loop switches well inside), widths and spreads from 1e-3 to 1
+        input range."""
         out = super().bounds(ctx)
         span = max(ctx.u_span, 1e-300)
         for i in range(1, SWITCHING_POPULATIONS + 1):
             out[f"u_up{i}"] = out[f"u_dn{i}"] = (ctx.u_mid - 2 * span, ctx.u_mid + 2 * span)
-            out[f"width{i}"] = (1e-3 * span, span)
+            out[f"width{i}"] = out[f"spread{i}"] = (1e-3 * span, span)
         return out
 
     @staticmethod
     def _population(ctx: EffectContext, i: int, width: float, time: float) -> dict[str, float]:
         """Population i switching a third of the output range from the negative state, of width `width` input
-        ranges, its thresholds where switching takes `time` durations at 0.35 input ranges from the middle."""
+        ranges, its thresholds where switching takes `time` durations at 0.35 input ranges from the middle,
+        spread by 5 % of the input range."""
         w = width * ctx.u_span
         shift = w * math.log(max(time * ctx.duration, 1e-300))
         return {f"S{i}": (ctx.y_max - ctx.y_min) / 3, f"u_up{i}": ctx.u_mid + 0.35 * ctx.u_span + shift,
-                f"u_dn{i}": ctx.u_mid - 0.35 * ctx.u_span - shift, f"width{i}": w, f"q{i}": -0.8}
+                f"u_dn{i}": ctx.u_mid - 0.35 * ctx.u_span - shift, f"width{i}": w, f"q{i}": -0.8,
+                f"spread{i}": 0.05 * ctx.u_span}
 
     def starts(self, ctx: EffectContext) -> list[dict[str, float]]:
         """Population 1 of widths 3 % and 8 % of the input range, switching at its thresholds in a hundredth
@@ -689,6 +717,9 @@ class Effect:
         if spec is None:
             raise EffectError(f"unknown effect {self.effect!r} (known: {', '.join(REGISTRY)})")
         names = [par.name for par in spec.parameters]
+        if isinstance(self.parameters, dict):
+            self.parameters = {**{par.name: par.default for par in spec.parameters
+                                  if par.default is not None}, **self.parameters}
         if not isinstance(self.parameters, dict) or set(self.parameters) != set(names):
             got = sorted(self.parameters) if isinstance(self.parameters, dict) else self.parameters
             raise EffectError(f"effect {self.effect!r}: parameters must be {sorted(names)}, got {got}")

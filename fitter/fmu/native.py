@@ -59,7 +59,7 @@ from xml.etree import ElementTree as ET
 import numpy as np
 
 import fmu_src.native
-from fitter.core.effects import REGISTRY, ParameterSpec
+from fitter.core.effects import REGISTRY, SWITCHING_NODES, SWITCHING_NODES_Z, SWITCHING_POPULATIONS, ParameterSpec
 from fitter.core.files import atomic_file, scratch_directory
 from fitter.core.rates import TabulatedRate
 from fitter.fmu.model_description import (FMI_VERSIONS, U_REF, Y_REF, model_description_xml,
@@ -156,7 +156,8 @@ def _c_string(text: str) -> str:
 
 
 def _effect_macros(model, real_index: dict) -> list[str]:
-    """DUHEM_EFFECT_STATES and the DUHEM_EFFECTS(X) list of duhem_model.h, from `REGISTRY`.
+    """DUHEM_EFFECT_STATES and the DUHEM_EFFECTS(X) list of duhem_model.h, from `REGISTRY`, and the
+    `switching` effect's populations and threshold nodes (`SWITCHING_NODES_Z`).
 
     Every native effect appears, in chain order, as X(name, stage, present,
     index of its first parameter, offset of its state); the C reads an
@@ -177,7 +178,10 @@ def _effect_macros(model, real_index: dict) -> list[str]:
                        f"{offset if name in present else 0})")
         offset += len(spec.state) if name in present else 0
     return [f"#define DUHEM_EFFECT_STATES {offset}",
-            "#define DUHEM_EFFECTS(X)" + "".join(f" \\\n{entry}" for entry in entries)]
+            "#define DUHEM_EFFECTS(X)" + "".join(f" \\\n{entry}" for entry in entries),
+            f"#define DUHEM_SWITCHING_POPULATIONS {SWITCHING_POPULATIONS}",
+            f"#define DUHEM_SWITCHING_NODES {SWITCHING_NODES}",
+            "#define DUHEM_SWITCHING_NODES_Z {" + ", ".join(_c_double(z) for z in SWITCHING_NODES_Z) + "}"]
 
 
 def _parameter_spec(name: str) -> ParameterSpec | None:

@@ -422,28 +422,34 @@ static double log_exprel(double d)
 }
 
 /*
- * Step 6, stage output, parameters (S1, u_up1, u_dn1, width1, q1, S2, u_up2, u_dn2, width2, q2), state (s1, s2):
- * y += s1 + s2, ds/dt = k+(u) (S - s) - k-(u) (S + s), k+ = e^{(u - u_up)/width}, k- = e^{(u_dn - u)/width}
- * per population (effects.switching_states): s1 = s_eq + (s0 - s_eq) e^{-(I+ + I-)},
- * s_eq = S tanh((ln I+ - ln I-)/2).
+ * Step 6, stage output, parameters (S, u_up, u_dn, width, q, spread) per population, state (s_ij): population i is
+ * DUHEM_SWITCHING_NODES equal shares j with thresholds u_up + spread z_j, u_dn - spread z_j (z_j: DUHEM_SWITCHING_NODES_Z,
+ * effects.SWITCHING_NODES_Z), y += sum_i mean_j s_ij, ds/dt = k+(u) (S - s) - k-(u) (S + s), k+ = e^{(u - up)/width},
+ * k- = e^{(dn - u)/width} per share (effects.switching_states): s1 = s_eq + (s0 - s_eq) e^{-(I+ + I-)},
+ * s_eq = S tanh((ln I+ - ln I-)/2), I+ + I- capped at 40 (effects._MAX_DECAY).
  */
 static void effect_switching(const double *p, const double *s0, double *s1, Chain *c)
 {
-    int i;
-    for (i = 0; i < 2; i++) {
-        const double *q = p + 5 * i;
-        double s = s0 ? s0[i] : q[4] * q[0];
-        c->y[0] = c->y[0] + s;
-        if (c->n == 2) {
-            double d = (c->u[1] - c->u[0]) / q[3], log_h = log(c->h);
-            double lp = log_h + (c->u[0] - q[1]) / q[3] + log_exprel(d);
-            double lm = log_h + (q[2] - c->u[0]) / q[3] + log_exprel(-d);
-            double big = fmax(lp, lm), total = exp(fmin(big, 700.0)) * (1.0 + exp(fmin(lp, lm) - big));
-            double target = q[0] * tanh((lp - lm) / 2);
-            s = exp(-total) * s + -expm1(-total) * target;
-            c->y[1] = c->y[1] + s;
+    static const double z[DUHEM_SWITCHING_NODES] = DUHEM_SWITCHING_NODES_Z;
+    int i, j;
+    for (i = 0; i < DUHEM_SWITCHING_POPULATIONS; i++) {
+        const double *q = p + 6 * i;
+        for (j = 0; j < DUHEM_SWITCHING_NODES; j++) {
+            int k = i * DUHEM_SWITCHING_NODES + j;
+            double up = q[1] + q[5] * z[j], dn = q[2] - q[5] * z[j];
+            double s = s0 ? s0[k] : q[4] * q[0];
+            c->y[0] = c->y[0] + s / DUHEM_SWITCHING_NODES;
+            if (c->n == 2) {
+                double d = (c->u[1] - c->u[0]) / q[3], log_h = log(c->h);
+                double lp = log_h + (c->u[0] - up) / q[3] + log_exprel(d);
+                double lm = log_h + (dn - c->u[0]) / q[3] + log_exprel(-d);
+                double big = fmax(lp, lm), total = fmin(exp(fmin(big, 700.0)) * (1.0 + exp(fmin(lp, lm) - big)), 40.0);
+                double target = q[0] * tanh((lp - lm) / 2);
+                s = exp(-total) * s + -expm1(-total) * target;
+                c->y[1] = c->y[1] + s / DUHEM_SWITCHING_NODES;
+            }
+            s1[k] = s;
         }
-        s1[i] = s;
     }
 }
 
