@@ -119,7 +119,8 @@ from fitter.data.cycles import find_reversals
 from fitter.data.metrics import compare
 from fitter.data.recordings import Recording
 from fitter.identification.fit_data import prepare_for_fit
-from fitter.identification.output_error import Options, fitted_initial_state, refine
+from fitter.identification.exported import own_start
+from fitter.identification.output_error import Options, refine
 from fitter.identification.parametrisation import Parametrisation
 
 __all__ = ["BaselineError", "Baseline", "Preisach", "PrandtlIshlinskii", "BoucWen", "BASELINES", "MIN_SAMPLES",
@@ -1229,8 +1230,10 @@ def compare_baselines(recordings: Sequence[Recording], *, per_recording: bool = 
 
 def duhem_nrmse(model, rec: Recording) -> float:
     """NRMSE of a Duhem model on `rec` under the baselines' initial-state policy: x0 fitted to this
-    recording over all its samples (`fitted_initial_state`), every sample scored."""
-    return compare(rec, fitted_initial_state(model, rec.t, rec.u, rec.y)[1])["nrmse"]
+    recording over all its samples (and the effects settled on it where the fit settled them,
+    `fitter.identification.exported.own_start`), every sample scored; NaN when the simulation overflows."""
+    start = own_start(model, rec)
+    return float("nan") if start is None else compare(rec, start[1])["nrmse"]
 
 
 def comparison(model, recordings: Sequence[Recording]) -> dict:

@@ -52,7 +52,7 @@ from fitter.fmu.host import check_fmu_file, simulate_fmu
 from fitter.fmu.model_description import start_state_values
 from fitter.fmu.native import find_c_compiler
 from fitter.fmu.pair import check_fmu_pair, recorded_fmu_digest, with_fmu_record
-from fitter.identification.exported import minor_loop_warning, own_start, range_warnings
+from fitter.identification.exported import minor_loop_warning, own_start, range_warnings, started
 from fitter.identification.fit import fit_recordings
 from fitter.paper.report import command as reproduce_paper
 from fitter.progress import stderr_progress
@@ -391,7 +391,8 @@ def _validation_row(rec, y_fmu: np.ndarray, model, threshold: float, x0_rule: st
 
 def _validation_start(model, rec, x0_rule: str):
     """The model as the FMU starts for `rec`: its stored x0, or (``"fitted"``) the state fitted to `rec`
-    (`fitter.identification.exported.own_start`), which the FMU gets through its x0 parameters.
+    (`fitter.identification.exported.own_start`), which the FMU gets through its x0 parameters (and, for
+    effects fitted with a settled start, its ``<effect>.start.<state>`` parameters).
     CliError naming the recording when that fit overflows (no silent fall-back to the stored x0)."""
     if x0_rule == "stored":
         return model
@@ -399,7 +400,7 @@ def _validation_start(model, rec, x0_rule: str):
     if start is None:
         raise CliError(f"{rec.source}: no start state could be fitted to this recording (the simulation "
                        "overflowed); validate it from the stored x0 (--x0 stored)")
-    return model.replace(x0=start[0])
+    return started(model, start)
 
 
 def _judged(row: dict) -> float:
@@ -439,7 +440,7 @@ def validate(fmu, recordings, threshold, plot, x0_rule, time_col, input_col, out
         for rec in recs:
             say(f"simulating {rec.name} in the FMU ({len(rec)} samples)", None)
             started = _validation_start(model, rec, x0_rule)
-            start = None if x0_rule == "stored" else start_state_values(model, started.x0)
+            start = None if x0_rule == "stored" else start_state_values(started)
             outputs.append(simulate_fmu(fmu, rec.t, rec.u, start=start))
             rows.append(_validation_row(rec, outputs[-1], started, threshold, x0_rule))
         if plot:

@@ -246,12 +246,42 @@ def test_json_round_trip_and_no_effects_key(tmp_path):
     ([{"effect": "viscous", "parameters": {"c": "x"}}], "c is not a number"),
     ([{"effect": "viscous", "parameters": {"c": 1}}] * 2, "listed more than once"),
     ("creep", "key 'effects': expected a list of effects, got str"),
+    ([{"effect": "creep", "parameters": {"k": 1.0, "tau": 1.0}, "start": {"x": 0.0}}],
+     "start must give the state ['c']"),
+    ([{"effect": "creep", "parameters": {"k": 1.0, "tau": 1.0}, "start": {"c": float("nan")}}],
+     "start c = nan must be finite"),
+    ([{"effect": "creep", "parameters": {"k": 1.0, "tau": 1.0}, "start": {"c": 0.1}},
+      {"effect": "backlash", "parameters": {"b": 0.1}}], "start is given for some effects"),
 ])
 def test_bad_effects(effects, message):
     d = ri().to_dict()
     d["effects"] = effects
     with pytest.raises(ModelFileError, match=message.replace("[", r"\[").replace("]", r"\]")):
         model_from_dict(json.loads(json.dumps(d)))
+
+
+@pytest.mark.parametrize("make", [ri, rd])
+def test_stored_start_is_the_chain_state_at_the_first_sample(make, tmp_path):
+    """`Effect.start` (saved and loaded) starts the chain as the explicit state does; `settled_state` is
+    `SETTLE_RUNS` runs from afresh, whatever the model's stored start, and differs from afresh."""
+    from fitter.core.effects import SETTLE_RUNS, run_with_effects, settled_state, stored_start, with_start
+    from fitter.core.kernel import flows
+
+    model, (t, u) = make(ALL.items()), signal()
+    fl = flows(model)
+    state = settled_state(model, t, u, model.x0, fl)
+    ends = [None]
+    for _ in range(SETTLE_RUNS):
+        ends.append(run_with_effects(model, t, u, model.x0, fl, ends[-1])[2])
+    assert state == ends[-1] and len(state) == sum(len(REGISTRY[e].state) for e in ALL)
+    started = with_start(model, state)
+    assert stored_start(started) == state and stored_start(model) is None
+    save_model(started, tmp_path / "m.json")
+    back = load_model(tmp_path / "m.json")
+    np.testing.assert_array_equal(simulate(back, t, u).y, simulate(model, t, u, effect_state=state).y)
+    assert np.abs(simulate(back, t, u).y - simulate(model, t, u).y).max() > 1e-3
+    assert settled_state(back, t, u, model.x0, fl) == state
+    assert stored_start(with_start(back, None)) is None
 
 
 def test_timed_effect_needs_increasing_time():

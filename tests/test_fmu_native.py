@@ -902,3 +902,30 @@ def test_every_single_byte_flip_of_a_serialized_state_is_refused(unzipped):
     assert inst.sample(1.1) == y
     fmu.freeFMUstate(good)
     inst.free()
+
+
+def _started(model, t, u, reverse: bool = False):
+    """`model` with its effects' stored start settled on (t, u) (or on the reversed input)."""
+    from fitter.core.effects import settled_state, with_start
+    from fitter.core.kernel import flows
+
+    return with_start(model, settled_state(model, t, -u if reverse else u, model.x0, flows(model)))
+
+
+@pytest.mark.parametrize("make", [ri_model, rd_model])
+def test_stored_effect_start_and_its_parameters_run_as_in_python(make, tmp_path):
+    """A model whose effects store their start (a fit on single cycles) starts there in the native FMU, and
+    the ``<effect>.start.<state>`` parameters move it, as `duhem validate --x0 fitted` sets them."""
+    from fitter.fmu.model_description import start_state_values
+
+    t, u = sampled_input(200)
+    model = _started(make(ALL_EFFECTS), t, u)
+    path = build_native_fmu(model, tmp_path / "started.fmu")
+    ref = simulate(model, t, u).y
+    scale = max(1.0, np.abs(ref).max())
+    assert np.abs(simulate_fmu(path, t, u) - ref).max() <= 1e-10 * scale
+    assert np.abs(ref - simulate(make(ALL_EFFECTS), t, u).y).max() > 1e-3
+    other = _started(make(ALL_EFFECTS), t, u, reverse=True).replace(x0=np.asarray(model.x0) + 0.05)
+    moved = simulate(other, t, u).y
+    assert np.abs(moved - ref).max() > 1e-3
+    assert np.abs(simulate_fmu(path, t, u, start=start_state_values(other)) - moved).max() <= 1e-10 * scale

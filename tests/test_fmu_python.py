@@ -244,3 +244,23 @@ def test_bad_steps_and_steps_after_terminate_are_refused_and_change_nothing(unzi
         inst.fmu.doStep(currentCommunicationPoint=inst.t, communicationStepSize=0.1)
     assert exc.value.status == 2 and "called after fmi2Terminate" in inst.log[-1]
     inst.fmu.freeInstance()
+
+
+def test_stored_effect_start_and_its_parameters_run_as_in_process(tmp_path):
+    """The Python FMU of a model whose effects store their start runs from it, and its
+    ``<effect>.start.<state>`` parameters move it (`duhem validate --x0 fitted`)."""
+    from fitter.core.effects import settled_state, with_start
+    from fitter.core.kernel import flows
+    from fitter.fmu.model_description import start_state_values
+
+    t, u = periodic_input(cycles=2)
+    fresh = example1_with_effects()
+    model = with_start(fresh, settled_state(fresh, t, u, fresh.x0, flows(fresh)))
+    path = build_fmu.build_fmu(model, tmp_path / "started.fmu", backend="python")
+    ref = simulate(model, t, u).y
+    assert np.abs(simulate_fmu(path, t, u) - ref).max() < 1e-9
+    assert np.abs(ref - simulate(fresh, t, u).y).max() > 1e-3
+    other = with_start(fresh, settled_state(fresh, t, -u, fresh.x0, flows(fresh)))
+    moved = simulate(other, t, u).y
+    assert np.abs(moved - ref).max() > 1e-3
+    assert np.abs(simulate_fmu(path, t, u, start=start_state_values(other)) - moved).max() < 1e-9

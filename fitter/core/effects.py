@@ -66,7 +66,10 @@ The chain, always applied in this order whatever the order of the list:
    takes one time unit, as a coercive field is quoted at a time scale; a
    separate time constant would only shift both thresholds by width ln tau).
    spread_i = 0 (the default of a model saved without it) gives one threshold
-   pair per population.  s_ij,0 = q_i S_i (the switched fraction the
+   pair per population.  Population 1 with spread 0 is the effect's basic
+   form, which `duhem diagnose` tests; population 2 and the spreads are its
+   refinements (`ParameterSpec.refinement`; population 2's defaults S_2 = 0
+   switch nothing).  s_ij,0 = q_i S_i (the switched fraction the
    experiment starts from).  Unlike the Duhem base, whose state moves only
    while u moves, s moves at a held input (the output keeps rising after the
    input has turned at a tip) and the switched amount depends on the time
@@ -88,7 +91,9 @@ The chain, always applied in this order whatever the order of the list:
 10. ``sensor_lag`` {tau >= 0}: the measured output m obeys dm/dt = (y - m)/tau
    with y (the output of steps 3-9) taken linear between samples, m_0 = y_0:
    m_{k+1} = a m_k + dy_k (1 - q) + (1 - a) y_k with a, q as in 4 (tau = 0:
-   m = y).
+   m = y).  Its state at a sample is (m, y), y the value the next interval
+   starts its line from (an output effect such as viscous makes y_k depend
+   on the interval); a run of one sample leaves it unchanged.
 11. ``measurement_drift`` {rate}: y += d, d_k = rate (t_k - t_0), a drift of the
    measured output linear in time (an offset current integrated by a charge
    amplifier, a sensor zero that wanders); d_0 = 0.  Exact.
@@ -101,10 +106,19 @@ Each step acts in one stage of the chain (`EffectSpec.stage`): ``input``
 (the base model's input w, step 1), ``rate`` (the coefficients r, S of (K),
 step 2) or ``output`` (the output y, steps 4-11).  The chain's state at a
 sample, `EffectState`, is the tuple of the present effects' state variables
-(`EffectSpec.state`) in chain order: backlash (w, the play output), creep (c), relaxation (c1..c4), switching (s1, s2),
-thermal_drift (W, the travel), sensor_lag (m, the measured output, and y, the
-output before the lag), measurement_drift (d, the drift).  This module needs only numpy: it is shipped inside
-the FMUs.
+(`EffectSpec.state`) in chain order: backlash (w, the play output), creep (c), relaxation (c1..c4), switching
+(s1_1..s2_16), thermal_drift (W, the travel), sensor_lag (m, the measured output, and y, the
+output before the lag), measurement_drift (d, the drift).
+
+Start of the chain.  A simulation from the first sample starts each effect
+afresh (the starts listed with each step) unless the model's effects carry a
+stored start (`Effect.start`, the state at the first sample of the recording
+the model was fitted on, like the base's x0; all of a model's effects or
+none).  `settled_state` is the state a recording of one repeated cycle
+starts from: the end state after running its input `SETTLE_RUNS` times
+(each run from the previous run's end), which a fit uses when every
+recording is one cycle of a periodic experiment.  This module needs only
+numpy: it is shipped inside the FMUs.
 """
 from __future__ import annotations
 
@@ -121,7 +135,7 @@ from .flow import check_increasing, integrate, interval_coefficients, linear_rec
 __all__ = ["play_operator", "REGISTRY", "STAGES", "ORIGINS", "EffectSpec", "ParameterSpec", "EffectContext", "Chain",
            "EffectError", "Effect", "EffectState", "effects_from_list", "run_with_effects", "relaxation_taus",
            "switching_states", "SWITCHING_POPULATIONS", "SWITCHING_NODES",
-           "SWITCHING_NODES_Z"]
+           "SWITCHING_NODES_Z", "stored_start", "settled_state", "with_start", "SETTLE_RUNS"]
 
 EffectState = tuple
 """State of the effect chain at one sample: a tuple of floats (module docstring)."""
@@ -143,6 +157,9 @@ class ParameterSpec:
     relative to the sample period and the duration, see `EffectSpec.bounds`).
     `default`: the value a model file that omits the parameter gets (a parameter added to an effect after
     models were saved; its default gives the effect as it was); None: the parameter is required.
+    `refinement`: a parameter that refines the effect's basic form (which it has at `default`).  `duhem
+    diagnose` tests the basic form, holding it at `default`; a fit that names the effect (`duhem fit
+    --effects`) fits it too (`fitter.identification.parametrisation.WithEffects`).
     """
 
     name: str
@@ -151,6 +168,7 @@ class ParameterSpec:
     strict: bool = False
     log: bool = False
     default: float | None = None
+    refinement: bool = False
 
     def allows(self, value: float) -> bool:
         """Whether `value` is finite and in the allowed range."""
@@ -520,6 +538,19 @@ SWITCHING_NODES_Z = tuple(NormalDist().inv_cdf((j + 0.5) / SWITCHING_NODES) for 
 """Their threshold offsets in units of the spread: the normal quantiles Phi^-1((j + 1/2) / N), j = 0..N-1."""
 
 
+def _population_parameters(i: int) -> tuple[ParameterSpec, ...]:
+    """Population i's parameters of `switching`: S, u_up, u_dn, width, q, required for population 1 and
+    refinements for the others (their defaults switch nothing: S = 0); every spread a refinement (default 0)."""
+    more = i > 1
+
+    def spec(name: str, lower: float, upper: float, default: float, **kw) -> ParameterSpec:
+        return ParameterSpec(f"{name}{i}", lower, upper, default=default if more else None, refinement=more, **kw)
+
+    return (spec("S", 0.0, _INF, 0.0), spec("u_up", -_INF, _INF, 0.0), spec("u_dn", -_INF, _INF, 0.0),
+            spec("width", 0.0, _INF, 1.0, strict=True, log=True), spec("q", -1.0, 1.0, 0.0),
+            ParameterSpec(f"spread{i}", 0.0, _INF, log=True, default=0.0, refinement=True))
+
+
 class Switching(EffectSpec):
     """Step 6 of the chain: y += sum_i mean_j s_ij, two populations of `SWITCHING_NODES` shares
     ds_ij/dt = k+_ij(u) (S_i - s_ij) - k-_ij(u) (S_i + s_ij), thresholds spread by spread_i z_j."""
@@ -530,12 +561,9 @@ class Switching(EffectSpec):
                    "on after the input turns and a slower loop switches more")
     stage = "output"
     timed = True
-    parameters = tuple(par for i in range(1, SWITCHING_POPULATIONS + 1) for par in (
-        ParameterSpec(f"S{i}", 0.0, _INF), ParameterSpec(f"u_up{i}", -_INF, _INF),
-        ParameterSpec(f"u_dn{i}", -_INF, _INF), ParameterSpec(f"width{i}", 0.0, _INF, strict=True, log=True),
-        ParameterSpec(f"q{i}", -1.0, 1.0), ParameterSpec(f"spread{i}", 0.0, _INF, log=True, default=0.0)))
+    parameters = tuple(par for i in range(1, SWITCHING_POPULATIONS + 1) for par in _population_parameters(i))
     state = tuple(f"s{i}_{j}" for i in range(1, SWITCHING_POPULATIONS + 1) for j in range(1, SWITCHING_NODES + 1))
-    example = {"S1": 0.3, "u_up1": 0.5, "u_dn1": -0.5, "width1": 0.1, "q1": -1.0, "spread1": 0.1,
+    example = {"S1": 0.3, "u_up1": 0.5, "u_dn1": -0.5, "width1": 0.1, "q1": -1.0, "spread1": 0.0,
                "S2": 0.0, "u_up2": 0.8, "u_dn2": -0.8, "width2": 0.05, "q2": -1.0, "spread2": 0.0}
     strength = "S1"
     searched = False
@@ -548,9 +576,13 @@ class Switching(EffectSpec):
         for i in range(1, SWITCHING_POPULATIONS + 1):
             S, shift = p[f"S{i}"], p[f"spread{i}"] * np.array(SWITCHING_NODES_Z)
             nodes = slice((i - 1) * SWITCHING_NODES, i * SWITCHING_NODES)
-            start = p[f"q{i}"] * S if s0 is None else np.array(s0[nodes])
-            s = switching_states(chain.u, chain.h, S, p[f"u_up{i}"] + shift, p[f"u_dn{i}"] - shift, p[f"width{i}"],
-                                 start)
+            start = np.full(SWITCHING_NODES, p[f"q{i}"] * S) if s0 is None else np.array(s0[nodes])
+            if not shift.any() and np.all(start == start[0]):
+                s = np.repeat(switching_states(chain.u, chain.h, S, p[f"u_up{i}"], p[f"u_dn{i}"], p[f"width{i}"],
+                                               start[:1]), SWITCHING_NODES, axis=1)
+            else:
+                s = switching_states(chain.u, chain.h, S, p[f"u_up{i}"] + shift, p[f"u_dn{i}"] - shift,
+                                     p[f"width{i}"], start)
             for j in range(SWITCHING_NODES):
                 chain.y = chain.y + s[:, j] / SWITCHING_NODES
             ends += s[-1].tolist()
@@ -665,7 +697,7 @@ class SensorLag(EffectSpec):
 
     def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
         target, tau = chain.y, p["tau"]
-        y_last = float(target[-1])
+        y_last = float(target[-1]) if s0 is None or len(target) > 1 else s0[1]
         if tau > 0:
             if s0 is not None:
                 target = target.copy()
@@ -707,10 +739,12 @@ REGISTRY: dict[str, EffectSpec] = {spec.name: spec for spec in (
 
 @dataclass
 class Effect:
-    """One effect of a model: its name (a key of `REGISTRY`) and its parameters."""
+    """One effect of a model: its name (a key of `REGISTRY`), its parameters and, optionally, its state at the
+    first sample (`start`: state name -> value, the names of `EffectSpec.state`; None: afresh)."""
 
     effect: str
     parameters: dict = field(default_factory=dict)
+    start: dict | None = None
 
     def __post_init__(self):
         spec = REGISTRY.get(self.effect)
@@ -733,13 +767,34 @@ class Effect:
                 raise EffectError(f"effect {self.effect!r}: parameter {par.name} = {value} must be {par.rule()}")
             clean[par.name] = value
         self.parameters = clean
+        if self.start is not None:
+            self.start = self._clean_start(spec)
+
+    def _clean_start(self, spec: EffectSpec) -> dict[str, float]:
+        """`start` checked: a dict of exactly the effect's state names to finite numbers."""
+        if not isinstance(self.start, dict) or set(self.start) != set(spec.state):
+            got = sorted(self.start) if isinstance(self.start, dict) else self.start
+            raise EffectError(f"effect {self.effect!r}: start must give the state {list(spec.state)}, got {got}")
+        clean = {}
+        for name in spec.state:
+            try:
+                value = float(self.start[name])
+            except (TypeError, ValueError):
+                raise EffectError(f"effect {self.effect!r}: start {name} is not a number") from None
+            if not math.isfinite(value):
+                raise EffectError(f"effect {self.effect!r}: start {name} = {value} must be finite")
+            clean[name] = value
+        return clean
 
     @property
     def spec(self) -> EffectSpec:
         return REGISTRY[self.effect]
 
     def to_dict(self) -> dict:
-        return {"effect": self.effect, "parameters": dict(self.parameters)}
+        out = {"effect": self.effect, "parameters": dict(self.parameters)}
+        if self.start is not None:
+            out["start"] = dict(self.start)
+        return out
 
 
 def effects_from_list(items) -> list[Effect]:
@@ -751,15 +806,19 @@ def effects_from_list(items) -> list[Effect]:
     out = []
     for item in items:
         if isinstance(item, Effect):
-            out.append(Effect(item.effect, dict(item.parameters)))
-        elif isinstance(item, dict) and set(item) == {"effect", "parameters"}:
-            out.append(Effect(item["effect"], item["parameters"]))
+            out.append(Effect(item.effect, dict(item.parameters), None if item.start is None else dict(item.start)))
+        elif isinstance(item, dict) and {"effect", "parameters"} <= set(item) <= {"effect", "parameters", "start"}:
+            out.append(Effect(item["effect"], item["parameters"], item.get("start")))
         else:
-            raise EffectError(f"each effect must be {{'effect': name, 'parameters': {{...}}}}, got {item!r}")
+            raise EffectError(f"each effect must be {{'effect': name, 'parameters': {{...}}}} (and optionally "
+                              f"'start': {{...}}), got {item!r}")
     names = [e.effect for e in out]
     dup = [n for n in set(names) if names.count(n) > 1]
     if dup:
         raise EffectError(f"effect {dup[0]!r} is listed more than once")
+    started = [e.start is not None for e in out if e.spec.state]
+    if any(started) and not all(started):
+        raise EffectError("a start is given for some effects with a state but not for all (all or none)")
     return out
 
 
@@ -767,6 +826,38 @@ def _present(model) -> list[tuple[EffectSpec, dict]]:
     """The model's effects as (spec, parameters), in chain order."""
     given = {e.effect: e.parameters for e in model.effects}
     return [(spec, given[name]) for name, spec in REGISTRY.items() if name in given]
+
+
+def stored_start(model) -> EffectState | None:
+    """The chain state at the first sample stored with the model's effects (`Effect.start`), None when they
+    start afresh."""
+    starts = {e.effect: e.start for e in model.effects}
+    if all(starts[spec.name] is None for spec, _ in _present(model) if spec.state):
+        return None
+    return tuple(starts[spec.name][name] for spec, _ in _present(model) for name in spec.state)
+
+
+def with_start(model, state: EffectState | None):
+    """`model` with its effects' stored start set to the chain state `state` (None: afresh)."""
+    parts = _split_state(_present(model), state) if state is not None else {}
+    return model.replace(effects=[
+        Effect(e.effect, dict(e.parameters),
+               dict(zip(e.spec.state, parts[e.effect])) if state is not None else None) for e in model.effects])
+
+
+SETTLE_RUNS = 2
+"""Runs of a recording's own input that settle the chain state it starts from (`settled_state`)."""
+
+
+def settled_state(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: dict) -> EffectState:
+    """The chain state at the end of `SETTLE_RUNS` runs of the samples (t, u) (u as the model acts on it,
+    `model_input`), each from the previous run's end, the first afresh (whatever the model's stored start),
+    the base from `x0` each time (module docstring): the state a recording of one repeated cycle starts from.  The chain's states are driven by
+    the input and time alone, except sensor_lag's, which follows the output of the base from `x0`."""
+    fresh, state, w = with_start(model, None), None, model.model_input(u)
+    for _ in range(SETTLE_RUNS):
+        state = run_with_effects(fresh, t, w, x0, fl, state)[2]
+    return state
 
 
 def _split_state(present: list, state0: EffectState | None) -> dict[str, tuple | None]:
@@ -798,8 +889,8 @@ def run_with_effects(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: di
     t, u : finite sample arrays (t strictly increasing where a timed effect is present)
     x0 : base state at the first sample
     fl : the model's flows (`flow.flows`)
-    state0 : effect state at the first sample (as returned in `end`); None starts the chain
-        afresh (w_0 = u_0, c_0 = k u_0, W_0 = 0, m_0 = y_0).
+    state0 : effect state at the first sample (as returned in `end`); None: the model's stored start
+        (`stored_start`), else afresh (w_0 = u_0, c_0 = k u_0, W_0 = 0, m_0 = y_0).
 
     Returns
     -------
@@ -808,7 +899,7 @@ def run_with_effects(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: di
     present = _present(model)
     if any(spec.timed for spec, _ in present):
         check_increasing(t)
-    starts = _split_state(present, state0)
+    starts = _split_state(present, stored_start(model) if state0 is None else state0)
     chain = Chain(t=t, u=u, h=np.diff(t), w=u)
     ends: dict[str, tuple] = {}
     _run_stage("input", present, chain, starts, ends)

@@ -88,7 +88,8 @@ input range in u), not to a discretisation error.
 The first sample
 ----------------
 Like `simulate`, the plant's state at the first sample is ``x0`` (default
-the model's) and the effect chain starts afresh there.  A first call of
+the model's) and the effect chain starts there at the effects' stored start,
+else afresh.  A first call of
 `Compensator.step` at t == t0 solves the output at that sample for u (only
 the feedthrough D u and output effects such as creep depend on it; with
 D = 0 and no such effect the output there is C x0 whatever u, and the

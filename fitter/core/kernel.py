@@ -36,14 +36,16 @@ class Simulation:
     y: np.ndarray
 
 
-def simulate(model, t, u, x0=None, flow_cache: dict | None = None) -> Simulation:
+def simulate(model, t, u, x0=None, flow_cache: dict | None = None, effect_state=None) -> Simulation:
     """Simulate a semilinear Duhem model for the sampled input (t_k, u_k).
 
     The input is piecewise linear between samples; the state is exact at every
     sample (no time stepping).  The rate-independent result does not depend
     on t (None: t_k = k).  `x0` defaults to the model's x0; y_k = C x_k + D u_k.
     A model with a non-empty ``effects`` list runs the effect chain of
-    `fitter.core.effects` (then y is the chain's measured output).  A model
+    `fitter.core.effects` (then y is the chain's measured output), from the
+    chain state `effect_state` at the first sample (default: the effects'
+    stored start, else afresh; `effects.run_with_effects`).  A model
     with an ``input_range`` acts on u held at its edges (`model.model_input`,
     the extrapolation rule of `fitter.core.models`); the returned u is the
     input as given.
@@ -64,7 +66,7 @@ def simulate(model, t, u, x0=None, flow_cache: dict | None = None) -> Simulation
     fl = flow_cache if flow_cache is not None else flows(model)
     w = model.model_input(u)
     if getattr(model, "effects", None):
-        X, y, _ = run_with_effects(model, t, w, x0, fl)
+        X, y, _ = run_with_effects(model, t, w, x0, fl, effect_state)
         return Simulation(t=t, u=u, x=X, y=y)
     branch, p, r, S = interval_coefficients(model, t, w)
     X = integrate(fl, x0, branch, p, r, S)

@@ -20,7 +20,7 @@ Semantics (the FMUs implement exactly this; the README documents it):
 * A model with effects (`fitter.core.effects`) also carries the effect chain's
   state at the anchor, s_a (an `effects.EffectState`, the present effects'
   state values in chain order; None until the first step: the chain starts
-  afresh at the anchor input); the current point is the one-interval run of
+  at the effects' stored start, else afresh at the anchor input); the current point is the one-interval run of
   `effects.run_with_effects` from (t_a, u_a, x_a, s_a), so stepping equals
   `simulate`; `get_state` is then (t_a, u_a, x_a, t, u, s_a, du).
 * Input interpolation (FMI ``fmi2SetRealInputDerivatives``, order 1):

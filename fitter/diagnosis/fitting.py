@@ -9,8 +9,10 @@ the mask as 0/1 weights, residuals normalised by the output range and the
 tolerances of `OPTIONS` (`problem`).  The parametrisation (`family`) is
 `WithEffects(StateSpace(template), effects, ctx)`: the template's free
 matrices and x0, then the candidate effects' parameters (registry order; a
-``log`` parameter such as a time constant enters as its logarithm); the
-template's own effects (those already found) are kept fixed.
+``log`` parameter such as a time constant enters as its logarithm; a
+``refinement`` parameter such as the switching thresholds' spread is held at its
+default: the diagnosis tests each effect's basic form); the template's own
+effects (those already found) are kept fixed.
 
 Base model (`fit_base`): a first-order rate-independent model, eqs (1)-(2)
 with C = 1, D = 0 (D is redundant at order 1): a grid over A+ = -A- < 0 (both
@@ -107,7 +109,7 @@ def _base_bounds(template, ex: JoinedExperiment) -> tuple[np.ndarray | None, np.
 
 def family(template, effects: Sequence[str], ex: JoinedExperiment, ctx: EffectContext | None) -> WithEffects:
     """The parametrisation of `template` extended by `effects` (module docstring)."""
-    return WithEffects(StateSpace(template, *_base_bounds(template, ex)), effects, ctx)
+    return WithEffects(StateSpace(template, *_base_bounds(template, ex)), effects, ctx, refinements=False)
 
 
 def free_base(fam: WithEffects) -> np.ndarray | None:

@@ -25,7 +25,9 @@ Interface
   built once from the parameters when initialization ends, and a hysteresis
   model whose matrices jump mid-simulation has no meaning for the fitted data.
 * The parameters of the model's effect extensions (`fitter.core.effects`) as
-  ``<effect>.<parameter>``, e.g. ``creep.tau``, also fixed.
+  ``<effect>.<parameter>``, e.g. ``creep.tau``, also fixed; when the effects
+  carry a stored start (`Effect.start`), their states at the start time as
+  ``<effect>.start.<state>``, fixed, the effects' counterpart of x0.
 
 Input semantics (the `Stepper` of `fitter.core`, written into the
 modelDescription's ``description``): y = C x + D u depends directly on u; the
@@ -150,7 +152,9 @@ def model_variables(model) -> list[FmiVariable]:
 
     u = 0, y = 1, order = 2, kind = 3, then the real parameters in the order of
     `model.PARAMS` (row-major for matrices) and, for a rate-dependent model,
-    ``g_v[k]`` and ``g_g[k]``.  A rate-dependent model's g must be a
+    ``g_v[k]`` and ``g_g[k]``, then the effects' parameters (in the model's
+    order) and their stored start (in chain order, the layout of
+    `EffectState`).  A rate-dependent model's g must be a
     `TabulatedRate` (a callable g has no parameters to export).
     """
     if model.kind == "rd" and not isinstance(model.g, TabulatedRate):
@@ -186,13 +190,29 @@ def model_variables(model) -> list[FmiVariable]:
                                         ("effects", i, "parameters", name), value,
                                         f"effect '{effect.effect}': parameter {name} "
                                         "(fitter.core.effects)"))
+    chain = list(REGISTRY)
+    for i, effect in sorted(enumerate(_effects(model)), key=lambda item: chain.index(item[1].effect)):
+        for name, value in (effect.start or {}).items():
+            variables.append(_parameter(f"{effect.effect}.start.{name}", len(variables),
+                                        ("effects", i, "start", name), value,
+                                        f"effect '{effect.effect}': its state {name} at the start time "
+                                        "(the stored start, fitter.core.effects)"))
     return variables
 
 
-def start_state_values(model, x0) -> dict[str, float]:
-    """The FMU's start-state parameters set to `x0`: {name of the variable of x0[i]: x0[i]} (`model_variables`)."""
-    x0 = np.ravel(np.asarray(x0, dtype=float))
-    return {v.name: float(x0[v.path[2]]) for v in model_variables(model) if v.path[:2] == ("parameters", "x0")}
+def start_state_values(model) -> dict[str, float]:
+    """The FMU's start-state parameters at `model`'s start: {variable name: value} of its x0 and of its effects'
+    stored start (`model_variables`), for an FMU of a model that differs from `model` only there."""
+    return {v.name: float(_at(model, v.path)) for v in model_variables(model)
+            if v.path[:2] == ("parameters", "x0") or v.path[2:3] == ("start",)}
+
+
+def _at(model, path: tuple):
+    """The value of `model` at a variable's path."""
+    if path[0] == "parameters":
+        return np.asarray(getattr(model, path[1]), dtype=float)[path[2:]]
+    effect = model.effects[path[1]]
+    return getattr(effect, path[2])[path[3]]
 
 
 def reference_start(model) -> float:

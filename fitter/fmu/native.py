@@ -156,8 +156,9 @@ def _c_string(text: str) -> str:
 
 
 def _effect_macros(model, real_index: dict) -> list[str]:
-    """DUHEM_EFFECT_STATES and the DUHEM_EFFECTS(X) list of duhem_model.h, from `REGISTRY`, and the
-    `switching` effect's populations and threshold nodes (`SWITCHING_NODES_Z`).
+    """DUHEM_EFFECT_STATES, DUHEM_EFFECT_START (the effects' stored start, `Effect.start`) and the
+    DUHEM_EFFECTS(X) list of duhem_model.h, from `REGISTRY`, and the `switching` effect's populations and
+    threshold nodes (`SWITCHING_NODES_Z`).
 
     Every native effect appears, in chain order, as X(name, stage, present,
     index of its first parameter, offset of its state); the C reads an
@@ -177,7 +178,11 @@ def _effect_macros(model, real_index: dict) -> list[str]:
         entries.append(f"    X({name}, STAGE_{spec.stage.upper()}, {int(name in present)}, {index}, "
                        f"{offset if name in present else 0})")
         offset += len(spec.state) if name in present else 0
+    starts = [i for name, i in real_index.items() if ".start." in name]
+    if starts and (starts != list(range(starts[0], starts[0] + offset))):
+        raise RuntimeError("the effects' stored start is not one block in the chain state's layout")
     return [f"#define DUHEM_EFFECT_STATES {offset}",
+            f"#define DUHEM_EFFECT_START {starts[0] if starts else -1}",
             "#define DUHEM_EFFECTS(X)" + "".join(f" \\\n{entry}" for entry in entries),
             f"#define DUHEM_SWITCHING_POPULATIONS {SWITCHING_POPULATIONS}",
             f"#define DUHEM_SWITCHING_NODES {SWITCHING_NODES}",

@@ -59,6 +59,7 @@ from typing import Sequence
 
 import numpy as np
 
+from fitter.core.effects import settled_state, stored_start, with_start
 from fitter.core.errors import DuhemError, KernelError
 from fitter.core.models import INPUT_MARGIN, Experiment, Signals
 from fitter.core.kernel import flows, simulate
@@ -69,7 +70,7 @@ from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording
 from fitter.identification.output_error import fitted_initial_state
 
-__all__ = ["X0_POLICIES", "NRMSE_CONVENTION", "initial_state", "own_start", "score", "raw_input_rho", "fitted_range",
+__all__ = ["X0_POLICIES", "NRMSE_CONVENTION", "initial_state", "own_start", "started", "score", "raw_input_rho", "fitted_range",
            "minor_loop_excursion", "minor_loop_warning", "MINOR_LOOP_WARNING", "input_range", "range_warnings",
            "described"]
 
@@ -128,15 +129,26 @@ def score(model, recordings: Sequence[Recording]) -> list[dict]:
     return out
 
 
-def own_start(model, rec: Recording) -> tuple[np.ndarray, np.ndarray] | None:
-    """(x0, output from it): the state fitted to `rec` by least squares over all its samples
-    (`fitted_initial_state`); None when that simulation overflows or gives a non-finite state or output."""
+def own_start(model, rec: Recording) -> tuple[np.ndarray, np.ndarray, tuple | None] | None:
+    """(x0, output from it, effect chain state at the first sample): the state fitted to `rec` by least
+    squares over all its samples (`fitted_initial_state`), the effects' state settled on `rec` when the model
+    stores one (a fit on single cycles, `fitter.core.effects.settled_state`), else None (the chain starts as
+    stored: afresh); None when that simulation overflows or gives a non-finite state or output."""
     with np.errstate(all="ignore"):
         try:
-            x0, y_hat = fitted_initial_state(model, rec.t, rec.u, rec.y)
+            state = None
+            if getattr(model, "effects", None) and stored_start(model) is not None:
+                state = settled_state(model, rec.t, rec.u, model.x0, flows(model))
+            x0, y_hat = fitted_initial_state(model, rec.t, rec.u, rec.y, effect_state=state)
         except (KernelError, np.linalg.LinAlgError):
             return None
-    return (x0, y_hat) if np.all(np.isfinite(y_hat)) and np.all(np.isfinite(x0)) else None
+    return (x0, y_hat, state) if np.all(np.isfinite(y_hat)) and np.all(np.isfinite(x0)) else None
+
+
+def started(model, start: tuple) -> object:
+    """`model` from an `own_start`: its x0 and, when the start has one, its effects' stored start."""
+    model = model.replace(x0=start[0])
+    return model if start[2] is None else with_start(model, start[2])
 
 
 def _own_start(model, rec: Recording) -> dict:

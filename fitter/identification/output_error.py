@@ -34,6 +34,11 @@ The simulated state is affine in its initial value, x_k = Phi_k x_0 + c_k
   rho >= 1 the model's x0 is used and ``RefineResult.rho`` says so.  Cycles
   come from `fitter.data.preparation` unless given.
 
+A model's effect chain (`fitter.core.effects`) starts from the effects' stored
+start, else afresh; with ``Recordings.settle`` from its state settled on each
+recording (`fitter.core.effects.settled_state`), the effects' counterpart of
+``"periodic"`` for recordings of one cycle each.
+
 Variable projection (``Options.eliminate``)
 -------------------------------------------
 For a fixed A (and g), the states are linear in the forcing vectors B, E and
@@ -91,6 +96,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
+from fitter.core.effects import settled_state
 from fitter.core.errors import DuhemError, KernelError
 from fitter.core.kernel import flows, simulate, state_response
 from fitter.core.periodic import affine_blocks, fixed_point
@@ -187,14 +193,16 @@ def effective_samples(residual: np.ndarray) -> float:
 
 
 # ----------------------------------------------------------------------------- initial states
-def fitted_initial_state(model, t, u, y, cache: dict | None = None):
+def fitted_initial_state(model, t, u, y, cache: dict | None = None, effect_state=None):
     """Initial state x_0 = argmin ||y - yhat(0) - G x_0|| over all samples, and the output from it
     (module docstring, ``"fit"``): yhat is affine in x_0, G its columns.  A model with effects
     is simulated once per unit initial state (its output is y = C x + D w after its input
-    stage, not D u).  Raises `KernelError` when the simulation overflows."""
+    stage, not D u), its chain from `effect_state` (default: `simulate`'s).  Raises `KernelError`
+    when the simulation overflows."""
     n = model.order
     if getattr(model, "effects", None):
-        ys = [simulate(model, t, u, x0=x, flow_cache=cache).y for x in np.hstack([np.zeros((n, 1)), np.eye(n)]).T]
+        ys = [simulate(model, t, u, x0=x, flow_cache=cache, effect_state=effect_state).y
+              for x in np.hstack([np.zeros((n, 1)), np.eye(n)]).T]
         base, G = ys[0], np.column_stack(ys[1:]) - ys[0][:, None]
     else:
         base, G = _affine_output(model, t, u, cache)
@@ -292,16 +300,19 @@ def response_columns(model, lin: dict[int, tuple[str, int]], t, u, mode: str, cy
     return start, base, Psi, (Y[:, m - n:] if mode == "fit" else None), (x0_base, X0_L), rho
 
 
-def simulate_from(model, t, u, y, mode: str, cycle: tuple[int, int] | None):
-    """Simulate one recording under an initial-state mode (module docstring).
+def simulate_from(model, t, u, y, mode: str, cycle: tuple[int, int] | None, settle: bool = False):
+    """Simulate one recording under an initial-state mode (module docstring); with `settle`, a model's
+    effect chain starts from its state settled on the recording (``Recordings.settle``).
 
     Returns (start, x0, yhat, rho): yhat covers samples start..end.
     """
     cache = flows(model)
+    state = settled_state(model, t, u, model.x0, cache) if settle and getattr(model, "effects", None) else None
     if mode == "model":
-        return 0, np.array(model.x0, dtype=float), simulate(model, t, u, flow_cache=cache).y, np.nan
+        yhat = simulate(model, t, u, flow_cache=cache, effect_state=state).y
+        return 0, np.array(model.x0, dtype=float), yhat, np.nan
     if mode == "fit":
-        x0, yhat = fitted_initial_state(model, t, u, y, cache)
+        x0, yhat = fitted_initial_state(model, t, u, y, cache, state)
         return 0, x0, yhat, np.nan
     if mode != "periodic":
         raise ValueError(f"x0 must be one of {X0_MODES}, not {mode!r}")
@@ -341,12 +352,16 @@ class Recordings:
     weights: per-recording scalars or per-sample arrays (default 1; 0 = masked).
     cycles: for x0 = "periodic", the (s0, s1) sample indices of each recording's first settled cycle; by default
     `fitter.data.preparation.prepare(rec).first_cycle()` for "periodic".
+    settle: a model's effect chain starts each recording from its state settled on that recording
+    (`fitter.core.effects.settled_state`: the recording taken as one cycle of a periodic experiment, as
+    ``"periodic"`` takes the base); default False: from the effects' stored start, else afresh.
     """
 
     recordings: Sequence[Recording]
     x0: str = "periodic"
     weights: Sequence | None = None
     cycles: Sequence[tuple[int, int] | None] | None = None
+    settle: bool = False
 
     def __post_init__(self):
         if self.x0 not in X0_MODES:
@@ -369,7 +384,7 @@ class Recordings:
                 for r, k in zip(self.recordings, keeps)]
         cycles = [None if c is None else tuple(int(i) for i in np.searchsorted(k, c))
                   for c, k in zip(self.cycles, keeps)]
-        return Recordings(recs, self.x0, [w[k] for w, k in zip(self._w, keeps)], cycles)
+        return Recordings(recs, self.x0, [w[k] for w, k in zip(self._w, keeps)], cycles, self.settle)
 
     def residuals(self, param: Parametrisation, theta: np.ndarray):
         """Stacked weighted residuals sqrt(w) (y - yhat) of the unmasked samples, and per
@@ -441,7 +456,7 @@ class Recordings:
             if model is None:
                 raise KernelError("model could not be built")
             with np.errstate(all="ignore"):
-                s, x0, yhat, rho = simulate_from(model, rec.t, rec.u, rec.y, self.x0, cyc)
+                s, x0, yhat, rho = simulate_from(model, rec.t, rec.u, rec.y, self.x0, cyc, self.settle)
             r = rec.y[s:] - yhat
             if not np.all(np.abs(r) < fail * 1e3):
                 raise KernelError("simulation diverged")

@@ -366,14 +366,23 @@ class WithEffects(Parametrisation):
 
     Effect parameters declared ``log`` in their `ParameterSpec` enter theta as
     log(value).  Bounds: the registry's ``bounds(ctx)`` (in theta's coordinates).
+    With ``refinements=False`` the parameters declared ``refinement`` are not in
+    theta: they are held at their ``default`` (the effects' basic forms, as
+    `duhem diagnose` tests them).
     """
 
-    def __init__(self, base: Parametrisation, effects: Sequence[str], ctx: EffectContext):
+    def __init__(self, base: Parametrisation, effects: Sequence[str], ctx: EffectContext,
+                 refinements: bool = True):
         self.base, self.effects, self.ctx = base, list(effects), ctx
         self.specs = [REGISTRY[e] for e in self.effects]
-        self.keys = [(s.name, p) for s in self.specs for p in s.parameters]
+        self.refinements = refinements
+        self.keys = [(s.name, p) for s in self.specs for p in self._fitted(s)]
         self.n_base = base.size
         self.size = base.size + len(self.keys)
+
+    def _fitted(self, spec) -> list:
+        """`spec`'s parameters that are in theta (class docstring)."""
+        return [p for p in spec.parameters if self.refinements or not p.refinement]
 
     def names(self) -> list[str]:
         return self.base.names() + [f"{e}.{p.name}" for e, p in self.keys]
@@ -383,7 +392,7 @@ class WithEffects(Parametrisation):
         elo, ehi = [], []
         for spec in self.specs:
             b = spec.bounds(self.ctx)
-            for p in spec.parameters:
+            for p in self._fitted(spec):
                 a, z = b[p.name]
                 elo.append(math.log(a) if p.log else a)
                 ehi.append(math.log(z) if p.log else z)
@@ -402,14 +411,14 @@ class WithEffects(Parametrisation):
     def encode(self, values: Sequence[dict]) -> np.ndarray:
         """theta-coordinates of one parameter dict per effect (physical units)."""
         return np.array([math.log(v[p.name]) if p.log else float(v[p.name])
-                         for spec, v in zip(self.specs, values) for p in spec.parameters])
+                         for spec, v in zip(self.specs, values) for p in self._fitted(spec)])
 
     def effect_list(self, theta: np.ndarray) -> list[Effect]:
         vals = iter(theta[self.n_base:])
         out = []
         for spec in self.specs:
-            params = {}
-            for p in spec.parameters:
+            params = {p.name: p.default for p in spec.parameters}
+            for p in self._fitted(spec):
                 v = float(next(vals))
                 params[p.name] = math.exp(v) if p.log else v
             out.append(Effect(spec.name, params))

@@ -486,7 +486,8 @@ static void effect_saturation(const double *p, const double *s0, double *s1, Cha
 /* Step 10, stage output, parameters (tau), state (m, y): first-order lag of y, linear between samples. */
 static void effect_sensor_lag(const double *p, const double *s0, double *s1, Chain *c)
 {
-    double tau = p[0], target0 = s0 ? s0[1] : c->y[0], y_last = c->y[c->n - 1];
+    double tau = p[0], target0 = s0 ? s0[1] : c->y[0];
+    double y_last = (s0 && c->n == 1) ? s0[1] : c->y[c->n - 1];
     if (tau > 0) {
         c->y[0] = s0 ? s0[0] : target0;
         if (c->n == 2) c->y[1] = first_order(c->y[0], target0, y_last, c->h, tau);
@@ -628,6 +629,10 @@ void model_defaults(ModelData *m, double t0)
     memset(m, 0, sizeof *m);
     memcpy(m->par, duhem_parameters, sizeof m->par);
     memcpy(m->x_a, m->par + P_X0, sizeof m->x_a);
+#if DUHEM_EFFECT_START >= 0
+    memcpy(m->s_a, m->par + DUHEM_EFFECT_START, DUHEM_EFFECT_STATES * sizeof(double));
+    m->has_s_a = 1;
+#endif
     m->u = m->u_a = DUHEM_INPUT_START;
     m->t = m->t_a = t0;
 #if DUHEM_KIND == DUHEM_RATE_DEPENDENT
@@ -736,6 +741,10 @@ void model_set_real(ModelData *m, unsigned int vr, double value, ModelPhase phas
     } else {
         m->par[var->index] = value;
         if (var->index >= P_X0 && var->index < P_X0 + N) m->x_a[var->index - P_X0] = value;
+#if DUHEM_EFFECT_START >= 0
+        if (var->index >= DUHEM_EFFECT_START && var->index < DUHEM_EFFECT_START + DUHEM_EFFECT_STATES)
+            m->s_a[var->index - DUHEM_EFFECT_START] = value;
+#endif
 #if DUHEM_KIND == DUHEM_RATE_DEPENDENT
         if (var->index >= P_GV && var->index < P_GG + K) m->rate_dirty = 1;
 #endif

@@ -15,6 +15,10 @@
  *     absent); duhem_model.c calls effect_<name> for each present one,
  *   DUHEM_EFFECT_STATES: the size of the chain state (sum of the present
  *     effects' EffectSpec.state),
+ *   DUHEM_EFFECT_START: the index in duhem_parameters of the effects' stored
+ *     start (fitter.core.effects.Effect.start: the chain state at the start
+ *     time, DUHEM_EFFECT_STATES parameters in the chain state's layout), or
+ *     -1 when the chain starts afresh,
  *   DUHEM_INPUT_START, duhem_variables[] (value reference -> variable, with
  *     the allowed range of each parameter, from EffectSpec.parameters; the
  *     last is the independent variable time, which only FMI 3.0 declares) and
