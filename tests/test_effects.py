@@ -273,7 +273,18 @@ def test_stored_start_is_the_chain_state_at_the_first_sample(make, tmp_path):
     ends = [None]
     for _ in range(SETTLE_RUNS):
         ends.append(run_with_effects(model, t, u, model.x0, fl, ends[-1])[2])
-    assert state == ends[-1] and len(state) == sum(len(REGISTRY[e].state) for e in ALL)
+    first = run_with_effects(model, t[:1], u[:1], model.x0, fl)[2]
+    steady = [REGISTRY[e].steady for e in ALL for _ in REGISTRY[e].state]
+    assert len(state) == len(steady) == sum(len(REGISTRY[e].state) for e in ALL) and not all(steady)
+    assert state == tuple(a if keep else b for a, b, keep in zip(ends[-1], first, steady))
+    without_lag = make([(k, v) for k, v in ALL.items() if not REGISTRY[k].follows_output])
+    ends = [None]
+    for _ in range(SETTLE_RUNS):
+        ends.append(run_with_effects(without_lag, t, u, without_lag.x0, fl, ends[-1])[2])
+    first = run_with_effects(without_lag, t[:1], u[:1], without_lag.x0, fl)[2]
+    steady = [REGISTRY[e].steady for e in ALL if not REGISTRY[e].follows_output for _ in REGISTRY[e].state]
+    np.testing.assert_allclose(settled_state(without_lag, t, u, without_lag.x0, fl),
+                               [a if keep else b for a, b, keep in zip(ends[-1], first, steady)], rtol=1e-13)
     started = with_start(model, state)
     assert stored_start(started) == state and stored_start(model) is None
     save_model(started, tmp_path / "m.json")
@@ -282,6 +293,21 @@ def test_stored_start_is_the_chain_state_at_the_first_sample(make, tmp_path):
     assert np.abs(simulate(back, t, u).y - simulate(model, t, u).y).max() > 1e-3
     assert settled_state(back, t, u, model.x0, fl) == state
     assert stored_start(with_start(back, None)) is None
+
+
+@pytest.mark.parametrize("name", [name for name, spec in REGISTRY.items() if spec.additive])
+@pytest.mark.parametrize("make", [ri, rd])
+def test_additive_effects_keep_the_output_affine_in_x0_with_the_base_coefficients(name, make):
+    """`EffectSpec.additive`: y(x0) - y(0) with the effect equals it without (what `fitted_initial_state`
+    relies on), while the effect itself changes y."""
+    t, u = signal()
+    with_effect, bare = make([(name, ALL[name])]), make()
+    x0 = np.full(bare.order, 0.7)
+    shift = simulate(with_effect, t, u, x0=x0).y - simulate(with_effect, t, u, x0=0 * x0).y
+    np.testing.assert_allclose(shift, simulate(bare, t, u, x0=x0).y - simulate(bare, t, u, x0=0 * x0).y,
+                               atol=1e-12)
+    assert np.abs(simulate(with_effect, t, u).y - simulate(bare, t, u).y).max() > 1e-3
+    assert REGISTRY[name].stage == "output"
 
 
 def test_timed_effect_needs_increasing_time():

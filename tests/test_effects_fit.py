@@ -90,3 +90,46 @@ def test_cli_fit_effects_bad_options(tmp_path, args, message):
     res = CliRunner().invoke(main, ["fit", str(path), "-o", str(out), *args])
     assert res.exit_code != 0 and message in res.output
     assert not out.exists()
+
+
+SLOW = dict(SWITCHING, width1=0.15, u_up1=0.8, u_dn1=-0.8)
+"""Thresholds near the tips: the faster loop switches part of the way, so the two loops start from different
+switched states (about -0.21 and -0.59 at u = 0), which no single afresh start q S gives."""
+
+
+def _closed_loops(seed: int = 5) -> list[Recording]:
+    """Steady loops of the truth with `SLOW` switching: each rate run for three periods from u = 0, its last
+    period kept (it starts and ends at u = 0 rising, on the loop it repeats), 0.2 % noise."""
+    truth = _truth().replace(effects=[{"effect": "switching", "parameters": SLOW}])
+    rng, out = np.random.default_rng(seed), []
+    for period in (2.0, 20.0):
+        t = np.linspace(0.0, 3 * period, 601)
+        u = np.interp((t / period) % 1.0, [0.0, 0.25, 0.75, 1.0], [0.0, 1.0, -1.0, 0.0])
+        y = simulate(truth, t, u).y
+        last = slice(400, 601)
+        out.append(Recording(t[last] - t[400], u[last],
+                             y[last] + rng.normal(0.0, 0.002 * np.ptp(y[last]), 201), name=f"L{period:g}"))
+    return out
+
+
+def test_closed_loops_start_settled_and_the_model_runs_from_where_the_fit_started(tmp_path):
+    """On steady loops (each recording a closed loop) the effect starts settled on each recording: the fit
+    reaches the noise on both rates, the model stores the first recording's settled start, and the saved
+    model and its FMU, run from the stored state, give the fit's own figure on that recording."""
+    from fitter.core.effects import stored_start
+    from fitter.data.cycles import closed_loop
+    from fitter.fmu.build import build_fmu
+    from fitter.fmu.host import simulate_fmu
+
+    recs = _closed_loops()
+    assert all(closed_loop(r) for r in recs) and not any(closed_loop(r) for r in _recordings())
+    fit = fit_recordings(recs, kind="ri", order=1, effects=["switching"])
+    rows = fit.summary["recordings"]
+    assert max(r["nrmse_x0_fitted"] for r in rows) < 0.0025, rows
+    assert stored_start(fit.model) is not None
+    assert abs(rows[0]["nrmse"] - rows[0]["nrmse_x0_fitted"]) < 1e-9
+    fmu = build_fmu(fit.model, tmp_path / "m.fmu", backend="native")
+    y = simulate_fmu(fmu, recs[0].t, recs[0].u)
+    assert abs(compare(recs[0], y)["nrmse"] - rows[0]["nrmse"]) < 1e-9
+    fresh = fit.model.replace(effects=[{"effect": "switching", "parameters": fit.model.effects[0].parameters}])
+    assert compare(recs[0], simulate(fresh, recs[0].t, recs[0].u).y)["nrmse"] > 2 * rows[0]["nrmse"]

@@ -116,8 +116,9 @@ stored start (`Effect.start`, the state at the first sample of the recording
 the model was fitted on, like the base's x0; all of a model's effects or
 none).  `settled_state` is the state a recording of one repeated cycle
 starts from: the end state after running its input `SETTLE_RUNS` times
-(each run from the previous run's end), which a fit uses when every
-recording is one cycle of a periodic experiment.  This module needs only
+(each run from the previous run's end) for the effects whose state settles
+(`EffectSpec.steady`), the afresh start for a drift; a fit uses it for a
+recording that is a closed loop.  This module needs only
 numpy: it is shipped inside the FMUs.
 """
 from __future__ import annotations
@@ -135,7 +136,7 @@ from .flow import check_increasing, integrate, interval_coefficients, linear_rec
 __all__ = ["play_operator", "REGISTRY", "STAGES", "ORIGINS", "EffectSpec", "ParameterSpec", "EffectContext", "Chain",
            "EffectError", "Effect", "EffectState", "effects_from_list", "run_with_effects", "relaxation_taus",
            "switching_states", "SWITCHING_POPULATIONS", "SWITCHING_NODES",
-           "SWITCHING_NODES_Z", "stored_start", "settled_state", "with_start", "SETTLE_RUNS"]
+           "SWITCHING_NODES_Z", "stored_start", "settled_state", "fresh_state", "with_start", "SETTLE_RUNS"]
 
 EffectState = tuple
 """State of the effect chain at one sample: a tuple of floats (module docstring)."""
@@ -257,6 +258,11 @@ class EffectSpec(ABC):
         conceal it at these values with `strength` scaled)
     strength : the parameter that sets the effect's size (default: the first one)
     origin : "material" (the device's physics) or "measurement" (the measuring chain), one of `ORIGINS`
+    steady : its state settles on a repeated input (a steady cycle, `settled_state`); False for a state that
+        accumulates (a drift in time or in travel), which a settled start leaves afresh
+    follows_output : its state depends on the output y before it (not on the input and time alone)
+    additive : an output effect that adds a term driven by the input and time alone (not by y), so the output
+        stays affine in the base's x0 with the base's own coefficients (`fitted_initial_state` uses it)
     searched : `duhem diagnose` tests it by default (`fitter.diagnosis.procedure.CANDIDATES`); an effect that
         can stand in for other physics is tested only when named (``--candidates``) or fitted when named
         (``duhem fit --effects``)
@@ -272,6 +278,9 @@ class EffectSpec(ABC):
     example: dict[str, float]
     strength: str | None = None
     origin: str = "material"
+    additive: bool = False
+    steady: bool = True
+    follows_output: bool = False
     searched: bool = True
 
     @property
@@ -408,6 +417,7 @@ class Creep(EffectSpec):
     name = "creep"
     description = "creep of the material: a slow first-order approach of the output after input changes"
     stage = "output"
+    additive = True
     timed = True
     parameters = (ParameterSpec("k", -_INF, _INF), ParameterSpec("tau", 0.0, _INF, strict=True, log=True))
     state = ("c",)
@@ -445,6 +455,7 @@ class Relaxation(EffectSpec):
     description = ("a relaxation spectrum of the material: the output follows input changes through several time "
                    "constants (dielectric or viscoelastic relaxation; the longest also takes a leakage current)")
     stage = "output"
+    additive = True
     timed = True
     parameters = (ParameterSpec("k", -_INF, _INF),) + tuple(
         ParameterSpec(f"w{i}", 0.0, _INF) for i in range(2, RELAXATION_TERMS + 1)) + (
@@ -560,6 +571,7 @@ class Switching(EffectSpec):
                    "rate growing exponentially with the input (a ferroelectric's domains, Merz's law), so it goes "
                    "on after the input turns and a slower loop switches more")
     stage = "output"
+    additive = True
     timed = True
     parameters = tuple(par for i in range(1, SWITCHING_POPULATIONS + 1) for par in _population_parameters(i))
     state = tuple(f"s{i}_{j}" for i in range(1, SWITCHING_POPULATIONS + 1) for j in range(1, SWITCHING_NODES + 1))
@@ -629,6 +641,7 @@ class Viscous(EffectSpec):
     name = "viscous"
     description = "viscous damping: an output offset proportional to the input rate"
     stage = "output"
+    additive = True
     timed = True
     parameters = (ParameterSpec("c", -_INF, _INF),)
     example = {"c": 0.02}
@@ -644,6 +657,7 @@ class ThermalDrift(EffectSpec):
     name = "thermal_drift"
     description = "thermal drift: the gain changes in proportion to the input travel (self-heating)"
     stage = "output"
+    steady = False
     timed = False
     parameters = (ParameterSpec("kappa", -_INF, _INF),)
     state = ("W",)
@@ -690,6 +704,7 @@ class SensorLag(EffectSpec):
     description = "sensor lag: the measurement follows the output as a first-order low-pass"
     origin = "measurement"
     stage = "output"
+    follows_output = True
     timed = True
     parameters = (ParameterSpec("tau", 0.0, _INF, log=True),)
     state = ("m", "y")
@@ -720,6 +735,8 @@ class MeasurementDrift(EffectSpec):
                    "charge amplifier, a wandering sensor zero): a property of the measurement, not of the material")
     origin = "measurement"
     stage = "output"
+    steady = False
+    additive = True
     timed = True
     parameters = (ParameterSpec("rate", -_INF, _INF),)
     state = ("d",)
@@ -845,19 +862,55 @@ def with_start(model, state: EffectState | None):
                dict(zip(e.spec.state, parts[e.effect])) if state is not None else None) for e in model.effects])
 
 
+def fresh_state(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: dict) -> EffectState:
+    """The chain state at the first sample when the chain starts afresh there (the base at `x0`): the
+    afresh start as numbers, which a model can store (`with_start`)."""
+    return run_with_effects(with_start(model, None), t[:1], model.model_input(u[:1]), x0, fl)[2]
+
+
 SETTLE_RUNS = 2
 """Runs of a recording's own input that settle the chain state it starts from (`settled_state`)."""
 
 
 def settled_state(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: dict) -> EffectState:
-    """The chain state at the end of `SETTLE_RUNS` runs of the samples (t, u) (u as the model acts on it,
-    `model_input`), each from the previous run's end, the first afresh (whatever the model's stored start),
-    the base from `x0` each time (module docstring): the state a recording of one repeated cycle starts from.  The chain's states are driven by
-    the input and time alone, except sensor_lag's, which follows the output of the base from `x0`."""
-    fresh, state, w = with_start(model, None), None, model.model_input(u)
+    """The chain state a recording of one repeated cycle starts from (module docstring): the state at the
+    end of `SETTLE_RUNS` runs of the samples (t, u) (u as the model acts on it, `model_input`), each from the
+    previous run's end, the first afresh (whatever the model's stored start), for every `steady` effect; the
+    afresh start for the others (a drift starts at its origin).  The base runs from `x0` each time when an
+    effect `follows_output`; otherwise the states are driven by the input and time alone and the base is not
+    integrated."""
+    fresh, w = with_start(model, None), model.model_input(u)
+    present = _present(fresh)
+    run = run_with_effects if any(spec.follows_output for spec, _ in present) else _chain_only
+    state = None
     for _ in range(SETTLE_RUNS):
-        state = run_with_effects(fresh, t, w, x0, fl, state)[2]
-    return state
+        state = run(fresh, t, w, x0, fl, state)[2]
+    if all(spec.steady for spec, _ in present):
+        return state
+    first = fresh_state(fresh, t, u, x0, fl)
+    out, i = [], 0
+    for spec, _ in present:
+        k = len(spec.state)
+        out += list((state if spec.steady else first)[i:i + k])
+        i += k
+    return tuple(out)
+
+
+def _chain_only(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: dict, state0: EffectState | None):
+    """`run_with_effects`'s end state for a model none of whose effects follows the output: the stages run
+    on a zero output, the base not integrated (X and y are None)."""
+    present = _present(model)
+    if any(spec.timed for spec, _ in present):
+        check_increasing(t)
+    starts = _split_state(present, stored_start(model) if state0 is None else state0)
+    chain = Chain(t=t, u=u, h=np.diff(t), w=u)
+    ends: dict[str, tuple] = {}
+    _run_stage("input", present, chain, starts, ends)
+    _, _, chain.r, chain.S = interval_coefficients(model, t, chain.w)
+    _run_stage("rate", present, chain, starts, ends)
+    chain.y = np.zeros(len(t))
+    _run_stage("output", present, chain, starts, ends)
+    return None, None, tuple(value for spec, _ in present for value in ends[spec.name])
 
 
 def _split_state(present: list, state0: EffectState | None) -> dict[str, tuple | None]:

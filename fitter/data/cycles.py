@@ -31,6 +31,10 @@ Cycles
 * A record is one **closing period** (`closing_period`) when it has at least
   two reversals, ends within 10% of the input range of its first input and
   moves in the same direction at both ends.
+* A record is a **closed loop** (`closed_loop`) when it is one closing
+  period whose output also ends within 10% of the output range of its first
+  output: its first sample lies on the loop it repeats, a steady cycle (an
+  experiment that starts from rest or from a virgin state does not close).
 """
 from __future__ import annotations
 
@@ -42,7 +46,7 @@ from fitter.data.recordings import Recording
 
 __all__ = ["PreparationError", "REVERSAL_FRACTION", "REVERSAL_NOISE_FACTOR", "reversal_threshold",
            "find_reversals", "count_reversals", "cycle_reversals", "period_cycle", "closing_period",
-           "single_loop", "split_cycles", "last_full_cycle", "closed_last_cycle"]
+           "single_loop", "split_cycles", "last_full_cycle", "closed_last_cycle", "closed_loop"]
 
 REVERSAL_FRACTION = 0.05
 REVERSAL_NOISE_FACTOR = 6.0
@@ -165,6 +169,15 @@ def closing_period(u, reversals: np.ndarray) -> slice | None:
             and np.sign(u[1] - u[0]) == np.sign(u[-1] - u[-2]):
         return slice(0, u.size)
     return single_loop(u, reversals)
+
+
+def closed_loop(rec: Recording) -> bool:
+    """Whether `rec` is a closed loop (module docstring): one `closing_period` of its input, and
+    ``|y[-1] - y[0]| < 0.1 * range(y)``."""
+    u, y = _as_u(rec), np.asarray(rec.y, dtype=float)
+    if u.size < 3 or closing_period(u, find_reversals(u)) is None:
+        return False
+    return bool(abs(y[-1] - y[0]) < LOOSE_CLOSURE * np.ptp(y))
 
 
 def single_loop(u, reversals: np.ndarray) -> slice | None:

@@ -202,7 +202,8 @@ def model_variables(model) -> list[FmiVariable]:
 
 def start_state_values(model) -> dict[str, float]:
     """The FMU's start-state parameters at `model`'s start: {variable name: value} of its x0 and of its effects'
-    stored start (`model_variables`), for an FMU of a model that differs from `model` only there."""
+    stored start (`model_variables`), for an FMU of a model that differs from `model` only there (and stores
+    an effect start when `model` does)."""
     return {v.name: float(_at(model, v.path)) for v in model_variables(model)
             if v.path[:2] == ("parameters", "x0") or v.path[2:3] == ("start",)}
 

@@ -13,10 +13,11 @@ Method: the base model (physical units, from the order and kind search of
 from `EffectSpec.bounds` / `EffectSpec.starts` of the recordings'
 `EffectContext`).  Output error on every sample of every recording, each from
 its own initial state fitted by linear least squares (``x0="fit"``; the
-effect chain starts afresh at each recording's first sample or, with
-``settle`` (every recording one cycle of a periodic experiment, as `duhem
-fit` judges from the preparation), from its state settled on that recording,
-`fitter.core.effects.settled_state`), residuals divided by the output range:
+effect chain of a recording that is a closed loop, `fitter.data.cycles.closed_loop`,
+starts from its state settled on it, `fitter.core.effects.settled_state`; that
+of any other recording, one that starts from rest or in a transient, starts
+afresh at its first sample), residuals divided by the recording's
+own output range (`_balanced`: the NRMSE each recording is judged by):
 
 1. screening: every combination of the effects' starts, with the effects and
    the base's B and E free (its A matrices held: the base was fitted with
@@ -30,9 +31,9 @@ fit` judges from the preparation), from its state settled on that recording,
    is kept.
 
 The model is the base with the effects appended (its own effects, such as a
-dead band found in preparation, kept and held), its x0 and, with ``settle``,
-its effects' stored start (`Effect.start`) those of the first recording, so
-that it runs from where the fit started it there.
+dead band found in preparation, kept and held), its x0 and its effects'
+stored start (`Effect.start`, settled or afresh as numbers) those of the
+first recording, so that it runs from where the fit started it there.
 """
 from __future__ import annotations
 
@@ -41,9 +42,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from fitter.core.effects import REGISTRY, EffectContext, settled_state, with_start
+from fitter.core.effects import REGISTRY, EffectContext, fresh_state, settled_state, with_start
 from fitter.core.errors import DuhemError
 from fitter.core.kernel import flows, simulate
+from fitter.data.cycles import closed_loop
 from fitter.data.recordings import Recording
 from fitter.identification.output_error import Options, Recordings, RefineResult, refine
 from fitter.identification.parametrisation import StateSpace, WithEffects
@@ -73,20 +75,28 @@ def _context(model, recordings: Sequence[Recording]) -> EffectContext:
     return EffectContext.of([(r.t, r.u, r.y) for r in recordings], y_mean)
 
 
+def _balanced(recordings: Sequence[Recording]) -> list[float]:
+    """Per-recording weights (range of all outputs / the recording's output range)^2: each recording's residuals
+    count relative to its own output range, the NRMSE it is judged by (a small loop weighs as much as a large
+    one)."""
+    total = float(np.ptp(np.concatenate([r.y for r in recordings])))
+    return [(total / max(float(np.ptp(r.y)), 1e-300)) ** 2 for r in recordings]
+
+
 def fit_effects(model, recordings: Sequence[Recording], effects: Sequence[str],
                 penalty: Callable[[object], np.ndarray] | None = None,
-                progress: Progress = silent, settle: bool = False) -> tuple[object, RefineResult, WithEffects]:
+                progress: Progress = silent) -> tuple[object, RefineResult, WithEffects]:
     """`model` and `effects` refined jointly on `recordings` (module docstring).
 
-    `penalty` maps a candidate model to barrier residuals (zero where it is acceptable); `settle`: each
-    recording's effect chain starts settled on it (module docstring).
+    `penalty` maps a candidate model to barrier residuals (zero where it is acceptable).
     Returns the extended model (x0 fitted to the first recording), the refinement's result (its ``rss``
     in output units squared, summed over all samples) and the parametrisation (theta -> model).
     """
     names = [e for e in check_effects(effects) if e not in {x.effect for x in model.effects}]
     template = model.replace(fit_info={})
     fam = WithEffects(StateSpace(template), names, _context(template, recordings))
-    problem = Recordings(list(recordings), x0="fit", settle=settle)
+    settle = [closed_loop(r) for r in recordings]
+    problem = Recordings(list(recordings), x0="fit", settle=settle, weights=_balanced(recordings))
     kinds = [n.split("[")[0] for n in fam.base.names()] + [""] * (fam.size - fam.n_base)
     free = np.array([k != "x0" for k in kinds])
     screen_free = free & np.array([not k.startswith("A") for k in kinds])
@@ -108,8 +118,7 @@ def fit_effects(model, recordings: Sequence[Recording], effects: Sequence[str],
         res = refine(fam, res.theta, problem, OPTIONS, free=free, penalty=pen, progress=progress)
         if best is None or objective(res) < objective(best):
             best = res
-    fitted = fam.build(best.theta)
-    if settle:
-        first = recordings[0]
-        fitted = with_start(fitted, settled_state(fitted, first.t, first.u, fitted.x0, flows(fitted)))
-    return fitted.replace(x0=best.x0s[0]), best, fam
+    fitted, first = fam.build(best.theta), recordings[0]
+    start = (settled_state(fitted, first.t, first.u, fitted.x0, flows(fitted)) if settle[0]
+             else fresh_state(fitted, first.t, first.u, best.x0s[0], flows(fitted)))
+    return with_start(fitted, start).replace(x0=best.x0s[0]), best, fam

@@ -59,12 +59,12 @@ from typing import Sequence
 
 import numpy as np
 
-from fitter.core.effects import settled_state, stored_start, with_start
+from fitter.core.effects import fresh_state, settled_state, stored_start, with_start
 from fitter.core.errors import DuhemError, KernelError
 from fitter.core.models import INPUT_MARGIN, Experiment, Signals
 from fitter.core.kernel import flows, simulate
 from fitter.core.periodic import fixed_point, minor_loop_input, minor_loop_outputs, period_map
-from fitter.data.cycles import closed_last_cycle
+from fitter.data.cycles import closed_last_cycle, closed_loop
 from fitter.data.metrics import compare
 from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording
@@ -131,15 +131,24 @@ def score(model, recordings: Sequence[Recording]) -> list[dict]:
 
 def own_start(model, rec: Recording) -> tuple[np.ndarray, np.ndarray, tuple | None] | None:
     """(x0, output from it, effect chain state at the first sample): the state fitted to `rec` by least
-    squares over all its samples (`fitted_initial_state`), the effects' state settled on `rec` when the model
-    stores one (a fit on single cycles, `fitter.core.effects.settled_state`), else None (the chain starts as
-    stored: afresh); None when that simulation overflows or gives a non-finite state or output."""
+    squares over all its samples (`fitted_initial_state`); None when that simulation overflows or gives a
+    non-finite state or output.
+
+    The effect chain: a model that stores its effects' start (`Effect.start`, fitted by `duhem fit
+    --effects`) starts it as that fit did, settled on `rec` when `rec` is a closed loop
+    (`fitter.data.cycles.closed_loop`, `fitter.core.effects.settled_state`), else afresh (the state given
+    as numbers, `fresh_state`, so that an FMU can be set to it); any other model starts it afresh (state
+    None)."""
+    stored = bool(getattr(model, "effects", None)) and stored_start(model) is not None
     with np.errstate(all="ignore"):
         try:
+            fresh = with_start(model, None) if stored else model
             state = None
-            if getattr(model, "effects", None) and stored_start(model) is not None:
-                state = settled_state(model, rec.t, rec.u, model.x0, flows(model))
-            x0, y_hat = fitted_initial_state(model, rec.t, rec.u, rec.y, effect_state=state)
+            if stored and closed_loop(rec):
+                state = settled_state(fresh, rec.t, rec.u, model.x0, flows(model))
+            x0, y_hat = fitted_initial_state(fresh, rec.t, rec.u, rec.y, effect_state=state)
+            if stored and state is None:
+                state = fresh_state(fresh, rec.t, rec.u, x0, flows(model))
         except (KernelError, np.linalg.LinAlgError):
             return None
     return (x0, y_hat, state) if np.all(np.isfinite(y_hat)) and np.all(np.isfinite(x0)) else None

@@ -46,9 +46,9 @@ Pipeline of `fit_recordings`
    the barrier) are each refined jointly with the named effects of the
    catalogue on the raw recordings; the lower BIC on every sample (the
    effects' parameters counted) is kept, and the summary's ``effects`` lists
-   both.  When every recording holds a single cycle (``x0="periodic"`` of
-   the preparation), each recording's effect chain starts settled on it, and
-   the model stores the first recording's (`fitter.core.effects.settled_state`).
+   both.  The effect chain of a recording that is a closed loop starts
+   settled on it, and the model stores the first recording's
+   (`fitter.identification.effects_fit`).
 """
 from __future__ import annotations
 
@@ -364,8 +364,7 @@ def _with_effects(eligible: Sequence[_Candidate], data: FitData, recordings, eff
         cand = min(of_kind, key=lambda c: c.bic)
         progress(f"{kind}{cand.param.n} with {', '.join(effects)}", None)
         model, res, fam = fit_effects(_base_model(cand, data, recordings), recordings, effects,
-                                      _physical_barrier(cand.param, recordings), progress,
-                                      settle=data.x0_mode == "periodic")
+                                      _physical_barrier(cand.param, recordings), progress)
         n = int(sum(len(r) for r in res.residuals))
         bic = float(n * np.log(res.rss / n) + (cand.param.size + fam.size - fam.n_base) * np.log(n))
         tried.append({"base": f"{kind}{cand.param.n}", "bic": bic, "rss": res.rss, "samples": n})

@@ -197,10 +197,14 @@ def fitted_initial_state(model, t, u, y, cache: dict | None = None, effect_state
     """Initial state x_0 = argmin ||y - yhat(0) - G x_0|| over all samples, and the output from it
     (module docstring, ``"fit"``): yhat is affine in x_0, G its columns.  A model with effects
     is simulated once per unit initial state (its output is y = C x + D w after its input
-    stage, not D u), its chain from `effect_state` (default: `simulate`'s).  Raises `KernelError`
+    stage, not D u), its chain from `effect_state` (default: `simulate`'s); once, with G the
+    base's, when every effect is `additive`.  Raises `KernelError`
     when the simulation overflows."""
     n = model.order
-    if getattr(model, "effects", None):
+    if getattr(model, "effects", None) and all(e.spec.additive for e in model.effects):
+        base = simulate(model, t, u, x0=np.zeros(n), flow_cache=cache, effect_state=effect_state).y
+        G = _affine_output(model.replace(effects=[]), t, u, cache)[1]
+    elif getattr(model, "effects", None):
         ys = [simulate(model, t, u, x0=x, flow_cache=cache, effect_state=effect_state).y
               for x in np.hstack([np.zeros((n, 1)), np.eye(n)]).T]
         base, G = ys[0], np.column_stack(ys[1:]) - ys[0][:, None]
@@ -352,16 +356,16 @@ class Recordings:
     weights: per-recording scalars or per-sample arrays (default 1; 0 = masked).
     cycles: for x0 = "periodic", the (s0, s1) sample indices of each recording's first settled cycle; by default
     `fitter.data.preparation.prepare(rec).first_cycle()` for "periodic".
-    settle: a model's effect chain starts each recording from its state settled on that recording
+    settle: per recording, whether a model's effect chain starts it from its state settled on it
     (`fitter.core.effects.settled_state`: the recording taken as one cycle of a periodic experiment, as
-    ``"periodic"`` takes the base); default False: from the effects' stored start, else afresh.
+    ``"periodic"`` takes the base); default None (none): from the effects' stored start, else afresh.
     """
 
     recordings: Sequence[Recording]
     x0: str = "periodic"
     weights: Sequence | None = None
     cycles: Sequence[tuple[int, int] | None] | None = None
-    settle: bool = False
+    settle: Sequence[bool] | None = None
 
     def __post_init__(self):
         if self.x0 not in X0_MODES:
@@ -374,6 +378,7 @@ class Recordings:
         self._w = [np.broadcast_to(1.0 if wi is None else np.asarray(wi, dtype=float), r.u.shape)
                    for r, wi in zip(self.recordings, w)]
         self.scale = max(float(np.ptp(np.concatenate([r.y for r in self.recordings]))), 1e-300)
+        self._settle = [False] * len(self.recordings) if self.settle is None else [bool(s) for s in self.settle]
 
     def decimated(self, max_samples: int | None) -> "Recordings":
         """The problem on the kept samples of `_keep_indices` (self when nothing is dropped)."""
@@ -384,7 +389,9 @@ class Recordings:
                 for r, k in zip(self.recordings, keeps)]
         cycles = [None if c is None else tuple(int(i) for i in np.searchsorted(k, c))
                   for c, k in zip(self.cycles, keeps)]
-        return Recordings(recs, self.x0, [w[k] for w, k in zip(self._w, keeps)], cycles, self.settle)
+        if any(self._settle):
+            raise DuhemError("settled effect starts need every sample of a recording (no decimation)")
+        return Recordings(recs, self.x0, [w[k] for w, k in zip(self._w, keeps)], cycles)
 
     def residuals(self, param: Parametrisation, theta: np.ndarray):
         """Stacked weighted residuals sqrt(w) (y - yhat) of the unmasked samples, and per
@@ -394,8 +401,8 @@ class Recordings:
         except (ValueError, np.linalg.LinAlgError, FloatingPointError):
             model = None
         parts, info = [], []
-        for rec, w, cyc in zip(self.recordings, self._w, self.cycles):
-            s, x0, r, rho = self._one(model, rec, cyc)
+        for rec, w, cyc, settle in zip(self.recordings, self._w, self.cycles, self._settle):
+            s, x0, r, rho = self._one(model, rec, cyc, settle)
             parts.append(_weighted(r, w[s:]))
             info.append((s, x0, r, rho))
         return (parts[0] if len(parts) == 1 else np.concatenate(parts)), model, info
@@ -449,14 +456,14 @@ class Recordings:
             raise KernelError("simulation overflowed")
         return _lstsq_scaled(M, b)
 
-    def _one(self, model, rec: Recording, cyc):
+    def _one(self, model, rec: Recording, cyc, settle: bool = False):
         start = cyc[0] if (self.x0 == "periodic" and cyc is not None) else 0
         fail = FAIL * max(float(np.ptp(rec.y)), 1e-300)
         try:
             if model is None:
                 raise KernelError("model could not be built")
             with np.errstate(all="ignore"):
-                s, x0, yhat, rho = simulate_from(model, rec.t, rec.u, rec.y, self.x0, cyc, self.settle)
+                s, x0, yhat, rho = simulate_from(model, rec.t, rec.u, rec.y, self.x0, cyc, settle)
             r = rec.y[s:] - yhat
             if not np.all(np.abs(r) < fail * 1e3):
                 raise KernelError("simulation diverged")
