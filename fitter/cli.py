@@ -258,9 +258,14 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithf
                + (f", FMU {fmu} ({backend} backend)" if fmu else "") + (f", report in {report}" if report else ""))
     if summary.get("why"):
         click.echo(f"chosen: {summary['why']}")
-    for e in (summary.get("effects") or {}).get("fitted", []):
+    effects = summary.get("effects") or {}
+    for e in effects.get("fitted", []):
         click.echo(f"effect {e['effect']} fitted with the base: "
                    + ", ".join(f"{k} = {_fmt(v)}" for k, v in e["parameters"].items()))
+    if effects:
+        settled = effects.get("settled") or []
+        click.echo("effects started settled on the closed loops " + ", ".join(settled) if settled else
+                   "effects started afresh (no recording is a closed loop)")
     if conv:
         click.echo(f"convergence condition: {'satisfied' if conv.get('satisfied') else 'VIOLATED'} "
                    f"({conv.get('quantity')} = {_fmt(conv.get('value'))}, margin {_fmt(conv.get('margin'))}; "

@@ -98,3 +98,20 @@ def test_compare_judges_the_last_full_cycle():
     assert c["last_cycle"] == [390, 591]
     assert c["max_error_last_cycle"] == pytest.approx(0.01)
     assert c["max_error"] == pytest.approx(1.0)
+
+
+def test_closed_loop_needs_input_and_output_back_where_they_started():
+    """One period from u = 0 rising back to u = 0 rising, its output back too: a closed loop; the same input
+    with an output that drifts away by 20 % of its range, half a period more, or a monotone ramp: not."""
+    from fitter.data.cycles import closed_loop
+    from fitter.data.recordings import Recording
+
+    t = np.linspace(0.0, 1.0, 401)
+    u = np.interp(t, [0.0, 0.25, 0.75, 1.0], [0.0, 1.0, -1.0, 0.0])
+    loop = np.tanh(3 * u) + 0.3 * np.sin(2 * np.pi * t)
+    assert closed_loop(Recording(t, u, loop))
+    assert not closed_loop(Recording(t, u, loop + 0.2 * np.ptp(loop) * t))
+    longer = np.linspace(0.0, 1.5, 601)
+    u_long = np.interp(longer % 1.0, [0.0, 0.25, 0.75, 1.0], [0.0, 1.0, -1.0, 0.0])
+    assert not closed_loop(Recording(longer, u_long, np.tanh(3 * u_long)))
+    assert not closed_loop(Recording(t, t, t))

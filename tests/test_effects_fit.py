@@ -71,6 +71,7 @@ def test_cli_fit_with_effects_writes_the_extended_model(tmp_path):
                                     "-o", str(out)])
     assert res.exit_code == 0, res.output
     assert "effect switching fitted with the base: S1 = " in res.output
+    assert "effects started afresh (no recording is a closed loop)" in res.output
     model = load_model(out)
     assert [e.effect for e in model.effects] == ["switching"]
     y = simulate(model, recs[0].t, recs[0].u).y
@@ -125,6 +126,7 @@ def test_closed_loops_start_settled_and_the_model_runs_from_where_the_fit_starte
     assert all(closed_loop(r) for r in recs) and not any(closed_loop(r) for r in _recordings())
     fit = fit_recordings(recs, kind="ri", order=1, effects=["switching"])
     rows = fit.summary["recordings"]
+    assert fit.summary["effects"]["settled"] == [r.name for r in recs]
     assert max(r["nrmse_x0_fitted"] for r in rows) < 0.0025, rows
     assert stored_start(fit.model) is not None
     assert abs(rows[0]["nrmse"] - rows[0]["nrmse_x0_fitted"]) < 1e-9

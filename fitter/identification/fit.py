@@ -59,6 +59,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from fitter.core.effects import Effect
+from fitter.data.cycles import closed_loop
 from fitter.core.errors import KernelError
 from fitter.core.files import jsonable
 from fitter.core.kernel import simulate
@@ -484,7 +485,7 @@ def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels:
         "preparation": [dict(p.to_dict(), notes=n) for p, n in zip(data.preps, data.notes)],
     }
     if extended is not None:
-        summary["effects"] = _effects_summary(extended)
+        summary["effects"] = _effects_summary(extended, recordings)
         names = ", ".join(e["effect"] for e in summary["effects"]["fitted"])
         summary["why"] += (f"; extended by {names} on the {summary['effects']['base']} base (the lower BIC with "
                            f"the effects, {summary['effects']['bic']:.1f})")
@@ -499,19 +500,22 @@ def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels:
     return FitResult(model=model, summary=jsonable(summary), theta=res.theta, cov=res.covariance(), param=physical)
 
 
-def _effects_summary(extended: _Extended) -> dict:
-    """The summary's ``effects``: what was fitted with the base, on which base, and every base tried."""
+def _effects_summary(extended: _Extended, recordings) -> dict:
+    """The summary's ``effects``: what was fitted with the base, on which base, every base tried, and the
+    recordings whose effects started settled (closed loops)."""
     base = f"{extended.candidate.param.kind}{extended.candidate.param.n}"
     chosen = next(t for t in extended.tried if t["base"] == base)
     res, fam = extended.res, extended.param
     return {"fitted": [e.to_dict() for e in fam.effect_list(res.theta)], "base": base, "bic": chosen["bic"],
-            "tried": extended.tried,
+            "tried": extended.tried, "settled": [r.name for r in recordings if closed_loop(r)],
             "parameters": {k: {"value": v, "stderr": e}
                            for k, v, e in zip(fam.names(), res.theta.tolist(), res.stderr().tolist())},
             "optimiser": {"success": res.success, "nfev": res.nfev, "message": res.message},
             "method": "the best rate-independent and rate-dependent candidates each refined jointly with the "
-                      "effects by output error on every raw sample (x0 fitted per recording, each effect "
-                      "starting afresh; rss in output units squared); lowest BIC kept; 'parameters' are the saved "
+                      "effects by output error on every raw sample (x0 fitted per recording; the effects of a "
+                      "recording that is a closed loop ('settled') start settled on it, of any other afresh; each "
+                      "recording's residuals divided by its own output range; rss weighted so); lowest BIC kept; "
+                      "the model stores the first recording's effect start; 'parameters' are the saved "
                       "model's (physical units; the summary's parameters_normalised and optimiser are the base's "
                       "before the joint refinement)"}
 
