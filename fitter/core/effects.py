@@ -881,10 +881,10 @@ def settled_state(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: dict)
     integrated."""
     fresh, w = with_start(model, None), model.model_input(u)
     present = _present(fresh)
-    run = run_with_effects if any(spec.follows_output for spec, _ in present) else _chain_only
+    base = any(spec.follows_output for spec, _ in present)
     state = None
     for _ in range(SETTLE_RUNS):
-        state = run(fresh, t, w, x0, fl, state)[2]
+        state = run_with_effects(fresh, t, w, x0, fl, state, base=base)[2]
     if all(spec.steady for spec, _ in present):
         return state
     first = fresh_state(fresh, t, u, x0, fl)
@@ -894,23 +894,6 @@ def settled_state(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: dict)
         out += list((state if spec.steady else first)[i:i + k])
         i += k
     return tuple(out)
-
-
-def _chain_only(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: dict, state0: EffectState | None):
-    """`run_with_effects`'s end state for a model none of whose effects follows the output: the stages run
-    on a zero output, the base not integrated (X and y are None)."""
-    present = _present(model)
-    if any(spec.timed for spec, _ in present):
-        check_increasing(t)
-    starts = _split_state(present, stored_start(model) if state0 is None else state0)
-    chain = Chain(t=t, u=u, h=np.diff(t), w=u)
-    ends: dict[str, tuple] = {}
-    _run_stage("input", present, chain, starts, ends)
-    _, _, chain.r, chain.S = interval_coefficients(model, t, chain.w)
-    _run_stage("rate", present, chain, starts, ends)
-    chain.y = np.zeros(len(t))
-    _run_stage("output", present, chain, starts, ends)
-    return None, None, tuple(value for spec, _ in present for value in ends[spec.name])
 
 
 def _split_state(present: list, state0: EffectState | None) -> dict[str, tuple | None]:
@@ -928,7 +911,7 @@ def _split_state(present: list, state0: EffectState | None) -> dict[str, tuple |
 
 
 def run_with_effects(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: dict,
-                     state0: EffectState | None = None):
+                     state0: EffectState | None = None, base: bool = True):
     """Simulate `model` with its effects over the samples (t, u).
 
     The stages run in the order of `STAGES`, the effects of each stage in
@@ -944,6 +927,8 @@ def run_with_effects(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: di
     fl : the model's flows (`flow.flows`)
     state0 : effect state at the first sample (as returned in `end`); None: the model's stored start
         (`stored_start`), else afresh (w_0 = u_0, c_0 = k u_0, W_0 = 0, m_0 = y_0).
+    base : False: the base is not integrated (the output stage starts from y = 0; X is None), for the end
+        state of effects none of which `follows_output`.
 
     Returns
     -------
@@ -958,8 +943,8 @@ def run_with_effects(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: di
     _run_stage("input", present, chain, starts, ends)
     branch, p, chain.r, chain.S = interval_coefficients(model, t, chain.w)
     _run_stage("rate", present, chain, starts, ends)
-    X = integrate(fl, x0, branch, p, chain.r, chain.S)
-    chain.y = X @ model.C + model.D * chain.w
+    X = integrate(fl, x0, branch, p, chain.r, chain.S) if base else None
+    chain.y = X @ model.C + model.D * chain.w if base else np.zeros(len(t))
     _run_stage("output", present, chain, starts, ends)
     end = tuple(value for spec, _ in present for value in ends[spec.name])
     return X, chain.y, end
