@@ -70,9 +70,9 @@ from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording
 from fitter.identification.output_error import fitted_initial_state
 
-__all__ = ["X0_POLICIES", "NRMSE_CONVENTION", "initial_state", "own_start", "started", "score", "raw_input_rho", "fitted_range",
-           "minor_loop_excursion", "minor_loop_warning", "MINOR_LOOP_WARNING", "input_range", "range_warnings",
-           "described"]
+__all__ = ["X0_POLICIES", "NRMSE_CONVENTION", "initial_state", "own_start", "started", "score", "raw_input_rho",
+           "fitted_range", "minor_loop_excursion", "minor_loop_warning", "MINOR_LOOP_WARNING", "input_range",
+           "range_warnings", "described"]
 
 X0_POLICIES = ("fitted", "periodic")
 NRMSE_CONVENTION = ("nrmse: RMS error / output range over all samples of the raw recording, the saved model "
@@ -142,13 +142,12 @@ def own_start(model, rec: Recording) -> tuple[np.ndarray, np.ndarray, tuple | No
     stored = bool(getattr(model, "effects", None)) and stored_start(model) is not None
     with np.errstate(all="ignore"):
         try:
-            fresh = with_start(model, None) if stored else model
-            state = None
+            fresh, fl, state = (with_start(model, None) if stored else model), flows(model), None
             if stored and closed_loop(rec):
-                state = settled_state(fresh, rec.t, rec.u, model.x0, flows(model))
-            x0, y_hat = fitted_initial_state(fresh, rec.t, rec.u, rec.y, effect_state=state)
+                state = settled_state(fresh, rec.t, rec.u, model.x0, fl)
+            x0, y_hat = fitted_initial_state(fresh, rec.t, rec.u, rec.y, fl, state)
             if stored and state is None:
-                state = fresh_state(fresh, rec.t, rec.u, x0, flows(model))
+                state = fresh_state(fresh, rec.t, rec.u, x0, fl)
         except (KernelError, np.linalg.LinAlgError):
             return None
     return (x0, y_hat, state) if np.all(np.isfinite(y_hat)) and np.all(np.isfinite(x0)) else None
