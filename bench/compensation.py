@@ -142,7 +142,7 @@ def joint_part(recs: dict[str, Recording], effects: tuple[str, ...] = ()) -> dic
     tag = "+".join([f"{fit.model.kind}{fit.model.order}", *(e.effect for e in fit.model.effects)])
     out = {"model": tag, "fit_seconds": seconds, "records": {}}
     for label, rec in recs.items():
-        x0, y_fit = fitted_initial_state(fit.model, rec.t, rec.u, rec.y)
+        x0, y_fit, _ = fitted_initial_state(fit.model, rec.t, rec.u, rec.y)
         y0, gain = linear_gain(rec.u, rec.y)
         out["records"][label] = {"fit_nrmse": compare(rec, y_fit)["nrmse"], "pi_nrmse": pi.score(rec)["nrmse"],
                                  **_rows(fit.model.replace(x0=x0), rec, pi, y0, gain)}

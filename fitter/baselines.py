@@ -1125,10 +1125,10 @@ class _BWProblem:
 
     def residuals(self, param, theta: np.ndarray):
         """The output-error engine's interface (`fitter.identification.output_error.refine`): the stacked
-        residual, theta as the 'model', and per recording (start, x0, residual, rho)."""
+        residual, theta as the 'model', and per recording (start, x0, residual, rho, effect state)."""
         r = self.residual(theta)
         parts = np.split(r, np.cumsum([len(d.u) for d in self.data])[:-1])
-        return r, theta, [(0, z0, part, math.nan) for z0, part in zip(theta[3:], parts)]
+        return r, theta, [(0, z0, part, math.nan, None) for z0, part in zip(theta[3:], parts)]
 
     def states(self, theta: np.ndarray) -> list[np.ndarray]:
         key = np.asarray(theta, dtype=float).tobytes()

@@ -53,6 +53,7 @@ from fitter.fmu.model_description import start_state_values
 from fitter.fmu.native import find_c_compiler
 from fitter.fmu.pair import check_fmu_pair, recorded_fmu_digest, with_fmu_record
 from fitter.identification.exported import minor_loop_warning, own_start, range_warnings, started
+from fitter.identification.effects_fit import check_effects, check_held
 from fitter.identification.fit import fit_recordings
 from fitter.paper.report import command as reproduce_paper
 from fitter.progress import stderr_progress
@@ -206,18 +207,22 @@ main.add_command(reproduce_paper)
 @click.option("--effects", "effects", callback=lambda ctx, param, value: _effect_names(value), metavar="NAMES",
               help="effects of the catalogue (comma-separated, e.g. switching) fitted jointly with the base model: "
                    f"physics you know the device has ({', '.join(REGISTRY)})")
+@click.option("--hold", "held", callback=lambda ctx, param, value: _held_values(value), metavar="EFFECT.PARAM=VALUE",
+              help="with --effects, effect parameters held at a value you know instead of fitted (comma-separated, "
+                   "e.g. measurement_drift.rate=0: each recording's output has its own reference, no drift)")
 @_allow_unstable_option
 @_column_options
 @click.option("--compare", is_flag=True,
               help="also fit the classical models (Preisach, Prandtl-Ishlinskii, Bouc-Wen) to the same recordings "
                    "and show their NRMSE beside the Duhem model's (summary key 'comparison', and in the report)")
 @click.option("--json", "as_json", is_flag=True, help="print the fit summary as JSON")
-def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithful, effects, allow_unstable,
+def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithful, effects, held, allow_unstable,
         time_col, input_col, output_col, compare, as_json):
     """Fit a model to one or more recordings (one CSV file per experiment, e.g. per rate)."""
     if effects and (x0_policy != "fitted" or faithful):
         raise click.UsageError("--effects needs --x0 fitted and no --faithful-minor-loops (each effect's "
                                "initial state is fitted per recording; the minor-loop barrier is the base's alone)")
+    held = check_held(held, check_effects(effects))
     _check_fmu_name(fmu)
     if fmu:
         _check_backend(backend)
@@ -230,7 +235,7 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithf
         report_tmp = outputs.enter_context(atomic_directory(report)) if report else None
         say(f"fitting {len(recs)} recording(s)", None)
         result = fit_recordings(recs, kind=kind, order=order, q=q, x0=x0_policy, faithful_minor_loops=faithful,
-                                effects=effects, progress=say)
+                                effects=effects, held=held, progress=say)
         if compare:
             say("fitting the classical models (Preisach, Prandtl-Ishlinskii, Bouc-Wen)", None)
             result.summary["comparison"] = jsonable(comparison(result.model, recs))
@@ -262,6 +267,8 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithf
     for e in effects.get("fitted", []):
         click.echo(f"effect {e['effect']} fitted with the base: "
                    + ", ".join(f"{k} = {_fmt(v)}" for k, v in e["parameters"].items()))
+    if effects.get("held"):
+        click.echo("held, not fitted: " + ", ".join(f"{k} = {_fmt(v)}" for k, v in effects["held"].items()))
     if effects:
         settled = effects.get("settled") or []
         click.echo("effects started settled on the closed loops " + ", ".join(settled) if settled else
@@ -290,8 +297,9 @@ def _own_start_note(recs: list[dict]) -> None:
              and r["nrmse"] > 1.5 * r["nrmse_x0_fitted"] + 1e-3]
     if worse:
         click.echo(f"note: {', '.join(worse)} started from another state than the stored x0 (fitted to the first "
-                   "recording): each recording's own start is in the summary (recordings[].x0_fitted); "
-                   "`duhem validate --x0 fitted` sets the FMU's x0 parameters to it")
+                   "recording): each recording's own start is in the summary (recordings[].x0_fitted, "
+                   "recordings[].effect_start_fitted); `duhem validate --x0 fitted` sets the FMU's start "
+                   "parameters to it")
 
 
 def _effect_names(value: str | None) -> tuple[str, ...]:
@@ -301,6 +309,18 @@ def _effect_names(value: str | None) -> tuple[str, ...]:
     if unknown:
         raise click.BadParameter(f"unknown effect {unknown[0]!r} (known: {', '.join(REGISTRY)})")
     return names
+
+
+def _held_values(value: str | None) -> dict[str, float]:
+    """``--hold``: comma-separated EFFECT.PARAM=VALUE pairs (checked against ``--effects`` by `check_held`)."""
+    out = {}
+    for item in (n.strip() for n in (value or "").split(",") if n.strip()):
+        key, _, number = item.partition("=")
+        try:
+            out[key.strip()] = float(number)
+        except ValueError:
+            raise click.BadParameter(f"{item!r} is not EFFECT.PARAM=VALUE with VALUE a number") from None
+    return out
 
 
 def _minor_loop_lines(minor: dict | None) -> None:

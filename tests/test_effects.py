@@ -310,6 +310,30 @@ def test_additive_effects_keep_the_output_affine_in_x0_with_the_base_coefficient
     assert REGISTRY[name].stage == "output"
 
 
+@pytest.mark.parametrize("name", [name for name, spec in REGISTRY.items() if spec.offset])
+@pytest.mark.parametrize("make", [ri, rd])
+def test_reference_state_raises_every_sample_and_is_fitted_with_x0(name, make):
+    """`EffectSpec.offset`: raising that state's start by 2.5 raises the output by 2.5 at every sample, with
+    a memory effect and a sensor lag ahead of it in the chain; `fitted_initial_state` recovers x0 and the
+    reference from exact data (a column of ones beside the base's x0 columns)."""
+    from fitter.core.effects import fresh_state, offset_position, shifted
+    from fitter.core.kernel import flows
+    from fitter.identification.output_error import fitted_initial_state
+
+    t, u = signal()
+    model = make([(n, ALL[n]) for n in ("creep", "sensor_lag", name)])
+    x0 = np.full(model.order, 0.3)
+    start = fresh_state(model, t, u, x0, flows(model))
+    raised = shifted(start, offset_position(model), 2.5)
+    y = simulate(model, t, u, x0=x0, effect_state=raised).y
+    np.testing.assert_allclose(y - simulate(model, t, u, x0=x0, effect_state=start).y, 2.5, atol=1e-12)
+    fitted_x0, y_hat, state = fitted_initial_state(model, t, u, y)
+    np.testing.assert_allclose(fitted_x0, x0, atol=1e-8)
+    np.testing.assert_allclose(state, raised, atol=1e-8)
+    np.testing.assert_allclose(y_hat, y, atol=1e-8)
+    assert offset_position(make([(n, ALL[n]) for n in ("creep", "sensor_lag")])) is None
+
+
 def test_timed_effect_needs_increasing_time():
     with pytest.raises(KernelError, match="time must increase"):
         simulate(ri([("viscous", {"c": 1.0})]), np.array([0.0, 1.0, 1.0]), np.array([0.0, 1.0, 2.0]))

@@ -79,6 +79,9 @@ def test_cli_fit_with_effects_writes_the_extended_model(tmp_path):
 
 
 @pytest.mark.parametrize("args,message", [
+    (["--effects", "switching", "--hold", "measurement_drift.rate=0"], "not one of the fitted effects"),
+    (["--effects", "measurement_drift", "--hold", "measurement_drift.speed=0"], "has no parameter 'speed'"),
+    (["--effects", "measurement_drift", "--hold", "measurement_drift.rate"], "not EFFECT.PARAM=VALUE"),
     (["--effects", "switchin"], "unknown effect 'switchin'"),
     (["--effects", "switching", "--x0", "periodic"], "--effects needs --x0 fitted"),
     (["--effects", "creep", "--faithful-minor-loops"], "--effects needs --x0 fitted"),
@@ -135,3 +138,63 @@ def test_closed_loops_start_settled_and_the_model_runs_from_where_the_fit_starte
     assert abs(compare(recs[0], y)["nrmse"] - rows[0]["nrmse"]) < 1e-9
     fresh = fit.model.replace(effects=[{"effect": "switching", "parameters": fit.model.effects[0].parameters}])
     assert compare(recs[0], simulate(fresh, recs[0].t, recs[0].u).y)["nrmse"] > 2 * rows[0]["nrmse"]
+
+
+def _referenced(seed: int = 6) -> list[Recording]:
+    """The truth's base alone at two rates (1.5 cycles from u = 0), each output on its own reference (+0.4 and
+    -0.3, a fifth of the range: an instrument that zeroes each record, a charge integrator's constant), 0.2 %
+    noise."""
+    truth, rng, out = _truth().replace(effects=[]), np.random.default_rng(seed), []
+    for period, reference in ((2.0, 0.4), (20.0, -0.3)):
+        t = np.linspace(0.0, 1.5 * period, 301)
+        u = np.interp((t / period + 0.25) % 1.0, [0.0, 0.5, 1.0], [-1.0, 1.0, -1.0])
+        y = simulate(truth, t, u).y + reference
+        out.append(Recording(t, u, y + rng.normal(0.0, 0.002 * np.ptp(y), len(y)), name=f"R{period:g}"))
+    return out
+
+
+def test_each_recordings_reference_is_fitted_with_its_initial_state(tmp_path):
+    """With `measurement_drift` named, each recording's reference (the drift's start d_0) is fitted with its x0:
+    the fit reaches the noise on both records (without the effect, above 5 %), the fitted references differ
+    by the truth's 0.7, the rate stays near 0, and the native FMU set to the second record's start (x0 and
+    d_0 as parameters, as `duhem validate --x0 fitted` sets them) gives the fit's figure there."""
+    from fitter.fmu.build import build_fmu
+    from fitter.fmu.host import simulate_fmu
+    from fitter.fmu.model_description import start_state_values
+    from fitter.identification.exported import own_start, started
+
+    recs = _referenced()
+    plain = fit_recordings(recs, kind="ri", order=1)
+    assert min(r["nrmse_x0_fitted"] for r in plain.summary["recordings"]) > 0.05
+    fit = fit_recordings(recs, kind="ri", order=1, effects=["measurement_drift"])
+    rows = fit.summary["recordings"]
+    assert max(r["nrmse_x0_fitted"] for r in rows) < 0.0025, rows
+    starts = [own_start(fit.model, rec) for rec in recs]
+    assert abs(starts[0][2][0] - starts[1][2][0] - 0.7) < 0.02, starts
+    assert abs(fit.model.effects[0].parameters["rate"]) < 1e-3
+    fmu = build_fmu(fit.model, tmp_path / "m.fmu", backend="native")
+    y = simulate_fmu(fmu, recs[1].t, recs[1].u, start=start_state_values(started(fit.model, starts[1])))
+    assert abs(compare(recs[1], y)["nrmse"] - rows[1]["nrmse_x0_fitted"]) < 1e-9
+
+
+def test_cli_fit_holds_a_known_parameter(tmp_path):
+    """``--hold measurement_drift.rate=0``: the references alone (the rate not fitted, exactly 0 in the model),
+    the fit at the noise, the held value in the summary and printed."""
+    import json
+
+    paths = []
+    for rec in _referenced():
+        paths.append(str(tmp_path / f"{rec.name}.csv"))
+        np.savetxt(paths[-1], np.column_stack([rec.t, rec.u, rec.y]), delimiter=",", header="time,u,y", comments="")
+    out = tmp_path / "m.json"
+    res = CliRunner().invoke(main, ["fit", *paths, "--kind", "ri", "--order", "1", "--effects", "measurement_drift",
+                                    "--hold", "measurement_drift.rate=0", "-o", str(out), "--json"])
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.output)["summary"]
+    assert summary["effects"]["held"] == {"measurement_drift.rate": 0.0}
+    assert load_model(out).effects[0].parameters == {"rate": 0.0}
+    assert max(r["nrmse_x0_fitted"] for r in summary["recordings"]) < 0.0025
+    assert all(len(r["effect_start_fitted"]) == 1 for r in summary["recordings"])
+    text = CliRunner().invoke(main, ["fit", *paths, "--kind", "ri", "--order", "1", "--effects",
+                                     "measurement_drift", "--hold", "measurement_drift.rate=0", "-o", str(out)])
+    assert "held, not fitted: measurement_drift.rate = 0" in text.output

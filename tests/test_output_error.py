@@ -140,6 +140,23 @@ def test_with_effects_log_parameters_and_null_model():
     np.testing.assert_allclose(param.theta(m), theta, atol=1e-12)
 
 
+def test_with_effects_holds_named_parameters_and_refinements():
+    """`held` parameters leave theta and are built at their value; ``refinements=False`` holds the
+    refinements at their defaults, a held value beside it still wins."""
+    base = StateSpace(_Five().build(TRUE))
+    ctx = EffectContext(dt_min=0.01, duration=10.0, u_span=2.0, y_min=-1.0, y_max=1.0, y_mean=0.0, v95=1.0)
+    free = WithEffects(base, ["creep", "measurement_drift"], ctx)
+    held = WithEffects(base, ["creep", "measurement_drift"], ctx, held={"creep.tau": 0.25,
+                                                                       "measurement_drift.rate": 0.0})
+    assert free.size - held.size == 2 and held.names()[-1] == "creep.k"
+    m = held.build(np.r_[base.theta(base.template), 0.2])
+    assert [e.parameters for e in m.effects] == [{"k": 0.2, "tau": 0.25}, {"rate": 0.0}]
+    basic = WithEffects(base, ["switching"], ctx, refinements=False, held={"switching.S2": 0.1})
+    assert [n.split(".")[1] for n in basic.names()[base.size:]] == ["S1", "u_up1", "u_dn1", "width1", "q1"]
+    built = basic.effect_list(np.zeros(basic.size))[0].parameters
+    assert built["S2"] == 0.1 and built["spread1"] == 0.0
+
+
 @pytest.mark.parametrize("mode", ["fit", "periodic"])
 def test_variable_projection_finds_the_linear_parameters_and_matches_the_plain_residuals(mode):
     """Options.eliminate: only A+- move; B+-, E+-, D (and x0) come from linear least squares, so a

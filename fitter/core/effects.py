@@ -94,9 +94,12 @@ The chain, always applied in this order whatever the order of the list:
    m = y).  Its state at a sample is (m, y), y the value the next interval
    starts its line from (an output effect such as viscous makes y_k depend
    on the interval); a run of one sample leaves it unchanged.
-11. ``measurement_drift`` {rate}: y += d, d_k = rate (t_k - t_0), a drift of the
-   measured output linear in time (an offset current integrated by a charge
-   amplifier, a sensor zero that wanders); d_0 = 0.  Exact.
+11. ``measurement_drift`` {rate}: y += d, d_k = d_0 + rate (t_k - t_0), a drift
+   of the measured output linear in time (an offset current integrated by a
+   charge amplifier, a sensor zero that wanders); d_0 = 0 afresh.  Exact.  d_0
+   is the reading's reference (the amplifier's integration constant, the zero
+   an instrument gives each record): an initial state fitted to a recording
+   (``x0="fit"``) fits d_0 with the base's x_0 (`EffectSpec.offset`).
 
 Each effect says where it comes from (`EffectSpec.origin`): ``material`` (the
 physics of the device: steps 1-9) or ``measurement`` (the measuring chain:
@@ -136,7 +139,8 @@ from .flow import check_increasing, integrate, interval_coefficients, linear_rec
 __all__ = ["play_operator", "REGISTRY", "STAGES", "ORIGINS", "EffectSpec", "ParameterSpec", "EffectContext", "Chain",
            "EffectError", "Effect", "EffectState", "effects_from_list", "run_with_effects", "relaxation_taus",
            "switching_states", "SWITCHING_POPULATIONS", "SWITCHING_NODES",
-           "SWITCHING_NODES_Z", "stored_start", "settled_state", "fresh_state", "with_start", "SETTLE_RUNS"]
+           "SWITCHING_NODES_Z", "stored_start", "settled_state", "fresh_state", "with_start", "SETTLE_RUNS",
+           "offset_position", "shifted"]
 
 EffectState = tuple
 """State of the effect chain at one sample: a tuple of floats (module docstring)."""
@@ -263,6 +267,9 @@ class EffectSpec(ABC):
     follows_output : its state depends on the output y before it (not on the input and time alone)
     additive : an output effect that adds a term driven by the input and time alone (not by y), so the output
         stays affine in the base's x0 with the base's own coefficients (`fitted_initial_state` uses it)
+    offset : the name of a state whose start is added to the output at every sample and does nothing else
+        (a reference, `offset_position`): an initial state fitted to a recording fits it with the base's x0
+        (`fitter.identification.output_error.fitted_initial_state`); None for every other effect
     searched : `duhem diagnose` tests it by default (`fitter.diagnosis.procedure.CANDIDATES`); an effect that
         can stand in for other physics is tested only when named (``--candidates``) or fitted when named
         (``duhem fit --effects``)
@@ -281,6 +288,7 @@ class EffectSpec(ABC):
     additive: bool = False
     steady: bool = True
     follows_output: bool = False
+    offset: str | None = None
     searched: bool = True
 
     @property
@@ -737,6 +745,7 @@ class MeasurementDrift(EffectSpec):
     stage = "output"
     steady = False
     additive = True
+    offset = "d"
     timed = True
     parameters = (ParameterSpec("rate", -_INF, _INF),)
     state = ("d",)
@@ -860,6 +869,22 @@ def with_start(model, state: EffectState | None):
     return model.replace(effects=[
         Effect(e.effect, dict(e.parameters),
                dict(zip(e.spec.state, parts[e.effect])) if state is not None else None) for e in model.effects])
+
+
+def offset_position(model) -> int | None:
+    """Position in the chain state (`EffectState`) of the state whose start is added to the output at every
+    sample (`EffectSpec.offset`); None when no effect of `model` has one."""
+    i = 0
+    for spec, _ in _present(model):
+        if spec.offset is not None:
+            return i + spec.state.index(spec.offset)
+        i += len(spec.state)
+    return None
+
+
+def shifted(state: EffectState, position: int, by: float) -> EffectState:
+    """The chain state `state` with its value at `position` raised by `by`."""
+    return tuple(float(v) + (by if i == position else 0.0) for i, v in enumerate(state))
 
 
 def fresh_state(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: dict) -> EffectState:

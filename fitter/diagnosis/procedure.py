@@ -356,7 +356,7 @@ def _test_round(ex: JoinedExperiment, current: Fit, names: Sequence[str], mask: 
     for name in names:
         tick(f"testing {name}")
         fit = fit_family(current.model, [name], base, ex, mask, ex.y - current.residual)
-        rep = effect_report(fit, current.rss, effective_samples(fit.residual), len(REGISTRY[name].parameters))
+        rep = effect_report(fit, current.rss, effective_samples(fit.residual), _freedoms(name, ex))
         rep["effect"] = name
         rep["origin"] = REGISTRY[name].origin
         rep["significant"] = is_significant(rep, alpha, n_candidates)
@@ -364,8 +364,15 @@ def _test_round(ex: JoinedExperiment, current: Fit, names: Sequence[str], mask: 
             rep["response"] = memory_response_report(fit, ex, name, rep["n_eff"], alpha, n_candidates)
             rep["significant"] = rep["response"]["follows_input"]
         results.append((rep, fit))
-    results.sort(key=lambda rf: _bic(rf[1], len(REGISTRY[rf[0]["effect"]].parameters)))
+    results.sort(key=lambda rf: _bic(rf[1], _freedoms(rf[0]["effect"], ex)))
     return results
+
+
+def _freedoms(name: str, ex: JoinedExperiment) -> int:
+    """The number of values an effect adds to the fit: its parameters and, for separate recordings (each
+    with its initial state fitted), the reference of each (`EffectSpec.offset`)."""
+    spec = REGISTRY[name]
+    return len(spec.parameters) + (len(ex.recordings) if ex.separate and spec.offset else 0)
 
 
 def _consistency(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, alpha: float) -> dict | None:

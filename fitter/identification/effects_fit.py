@@ -32,7 +32,8 @@ own output range (`_balanced`: the NRMSE each recording is judged by):
 
 The model is the base with the effects appended (its own effects, such as a
 dead band found in preparation, kept and held), its x0 and its effects'
-stored start (`Effect.start`, settled or afresh as numbers) those of the
+stored start (`Effect.start`, settled or afresh as numbers, with the output's
+reference fitted where an effect has one, `EffectSpec.offset`) those of the
 first recording, so that it runs from where the fit started it there.
 """
 from __future__ import annotations
@@ -42,7 +43,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from fitter.core.effects import REGISTRY, EffectContext, fresh_state, settled_state, with_start
+from fitter.core.effects import REGISTRY, EffectContext, fresh_state, with_start
 from fitter.core.errors import DuhemError
 from fitter.core.kernel import flows, simulate
 from fitter.data.cycles import closed_loop
@@ -51,7 +52,7 @@ from fitter.identification.output_error import Options, Recordings, RefineResult
 from fitter.identification.parametrisation import StateSpace, WithEffects
 from fitter.progress import Progress, silent
 
-__all__ = ["fit_effects", "check_effects", "SCREEN_NFEV", "MAX_NFEV", "REFINED"]
+__all__ = ["fit_effects", "check_effects", "check_held", "SCREEN_NFEV", "MAX_NFEV", "REFINED"]
 
 SCREEN_NFEV = 100
 MAX_NFEV = 400
@@ -70,6 +71,29 @@ def check_effects(effects: Sequence[str]) -> list[str]:
     return [name for name in REGISTRY if name in out]
 
 
+def check_held(held: dict[str, float] | None, effects: Sequence[str]) -> dict[str, float]:
+    """Parameters held at a known value, ``{"effect.parameter": value}``: each of an effect in `effects` and of
+    the registry, the value a number in the parameter's allowed range; a `DuhemError` naming the bad one."""
+    out = {}
+    for key, value in (held or {}).items():
+        name, _, par = str(key).partition(".")
+        if name not in effects:
+            raise DuhemError(f"held parameter {key!r}: {name!r} is not one of the fitted effects "
+                             f"({', '.join(effects) or 'none'})")
+        spec = {p.name: p for p in REGISTRY[name].parameters}.get(par)
+        if spec is None:
+            raise DuhemError(f"held parameter {key!r}: {name} has no parameter {par!r} "
+                             f"(its parameters: {', '.join(p.name for p in REGISTRY[name].parameters)})")
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            raise DuhemError(f"held parameter {key!r}: {value!r} is not a number") from None
+        if not spec.allows(number):
+            raise DuhemError(f"held parameter {key!r} = {number:g} must be {spec.rule()}")
+        out[f"{name}.{par}"] = number
+    return out
+
+
 def _context(model, recordings: Sequence[Recording]) -> EffectContext:
     y_mean = float(np.mean(np.concatenate([simulate(model, r.t, r.u).y for r in recordings])))
     return EffectContext.of([(r.t, r.u, r.y) for r in recordings], y_mean)
@@ -85,16 +109,18 @@ def _balanced(recordings: Sequence[Recording]) -> list[float]:
 
 def fit_effects(model, recordings: Sequence[Recording], effects: Sequence[str],
                 penalty: Callable[[object], np.ndarray] | None = None,
-                progress: Progress = silent) -> tuple[object, RefineResult, WithEffects]:
+                progress: Progress = silent, held: dict[str, float] | None = None
+                ) -> tuple[object, RefineResult, WithEffects]:
     """`model` and `effects` refined jointly on `recordings` (module docstring).
 
-    `penalty` maps a candidate model to barrier residuals (zero where it is acceptable).
+    `penalty` maps a candidate model to barrier residuals (zero where it is acceptable); `held`, effect
+    parameters held at known values (`check_held`).
     Returns the extended model (x0 fitted to the first recording), the refinement's result (its ``rss``
     in output units squared, summed over all samples) and the parametrisation (theta -> model).
     """
     names = [e for e in check_effects(effects) if e not in {x.effect for x in model.effects}]
     template = model.replace(fit_info={})
-    fam = WithEffects(StateSpace(template), names, _context(template, recordings))
+    fam = WithEffects(StateSpace(template), names, _context(template, recordings), held=check_held(held, names))
     settle = [closed_loop(r) for r in recordings]
     problem = Recordings(list(recordings), x0="fit", settle=settle, weights=_balanced(recordings))
     kinds = [n.split("[")[0] for n in fam.base.names()] + [""] * (fam.size - fam.n_base)
@@ -119,6 +145,6 @@ def fit_effects(model, recordings: Sequence[Recording], effects: Sequence[str],
         if best is None or objective(res) < objective(best):
             best = res
     fitted, first = fam.build(best.theta), recordings[0]
-    start = (settled_state(fitted, first.t, first.u, fitted.x0, flows(fitted)) if settle[0]
-             else fresh_state(fitted, first.t, first.u, best.x0s[0], flows(fitted)))
+    start = best.states[0] if best.states[0] is not None else \
+        fresh_state(fitted, first.t, first.u, best.x0s[0], flows(fitted))
     return with_start(fitted, start).replace(x0=best.x0s[0]), best, fam

@@ -20,7 +20,8 @@ stored initial state.  This module makes the two the same:
   its stored x0 on the raw samples, and compared over all samples
   (``nrmse`` = RMS error / output range, the figure `duhem validate` reports),
   with the last full input cycle beside it (``nrmse_last_cycle``).  Beside it, each recording's own start
-  state (``x0_fitted``: the "fitted" rule above applied to that recording) and the NRMSE from it
+  state (``x0_fitted``: the "fitted" rule above applied to that recording; ``effect_start_fitted``: its
+  effect chain's start, `own_start`, None where the chain starts afresh) and the NRMSE from it
   (``nrmse_x0_fitted``): one model for several recordings made after different histories starts each
   from a different state, and `duhem validate --x0 fitted` sets the FMU's x0 parameters to it.
 
@@ -109,7 +110,8 @@ def initial_state(model, rec: Recording, policy: str = "fitted") -> np.ndarray:
 
 def score(model, recordings: Sequence[Recording]) -> list[dict]:
     """`fitter.data.metrics.compare` of the saved model on each raw recording, from its stored x0, with the
-    recording's own fitted start beside it (``x0_fitted``, ``nrmse_x0_fitted``; module docstring).
+    recording's own fitted start beside it (``x0_fitted``, ``effect_start_fitted``, ``nrmse_x0_fitted``; module
+    docstring).
 
     A simulation that overflows scores None (and ``"diverged": True``).
     """
@@ -138,14 +140,15 @@ def own_start(model, rec: Recording) -> tuple[np.ndarray, np.ndarray, tuple | No
     --effects`) starts it as that fit did, settled on `rec` when `rec` is a closed loop
     (`fitter.data.cycles.closed_loop`, `fitter.core.effects.settled_state`), else afresh (the state given
     as numbers, `fresh_state`, so that an FMU can be set to it); any other model starts it afresh (state
-    None)."""
+    None).  An effect with a reference state (`EffectSpec.offset`) has it fitted with x0 (the state is then
+    numbers for any model)."""
     stored = bool(getattr(model, "effects", None)) and stored_start(model) is not None
     with np.errstate(all="ignore"):
         try:
             fresh, fl, state = (with_start(model, None) if stored else model), flows(model), None
             if stored and closed_loop(rec):
                 state = settled_state(fresh, rec.t, rec.u, model.x0, fl)
-            x0, y_hat = fitted_initial_state(fresh, rec.t, rec.u, rec.y, fl, state)
+            x0, y_hat, state = fitted_initial_state(fresh, rec.t, rec.u, rec.y, fl, state)
             if stored and state is None:
                 state = fresh_state(fresh, rec.t, rec.u, x0, fl)
         except (KernelError, np.linalg.LinAlgError):
@@ -160,12 +163,13 @@ def started(model, start: tuple) -> object:
 
 
 def _own_start(model, rec: Recording) -> dict:
-    """``x0_fitted`` (`own_start`) and ``nrmse_x0_fitted`` (the model's NRMSE from it); None for both when it
-    has none."""
+    """``x0_fitted`` and ``effect_start_fitted`` (`own_start`) and ``nrmse_x0_fitted`` (the model's NRMSE from
+    them); None for all when it has none."""
     start = own_start(model, rec)
     if start is None:
-        return {"x0_fitted": None, "nrmse_x0_fitted": None}
-    return {"x0_fitted": start[0].tolist(), "nrmse_x0_fitted": compare(rec, start[1])["nrmse"]}
+        return {"x0_fitted": None, "effect_start_fitted": None, "nrmse_x0_fitted": None}
+    return {"x0_fitted": start[0].tolist(), "effect_start_fitted": None if start[2] is None else list(start[2]),
+            "nrmse_x0_fitted": compare(rec, start[1])["nrmse"]}
 
 
 def raw_input_rho(model, recordings: Sequence[Recording]) -> list[float | None]:

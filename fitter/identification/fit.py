@@ -69,7 +69,7 @@ from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording, check_scale
 from fitter.identification.fit_data import (FitData, FitError, RateLevels, averaged_loop, monotone_input,
                                             prepare_for_fit, rate_levels)
-from fitter.identification.effects_fit import check_effects, fit_effects
+from fitter.identification.effects_fit import check_effects, check_held, fit_effects
 from fitter.identification.exported import (MINOR_LOOP_WARNING, NRMSE_CONVENTION, X0_POLICIES, described,
                                             fitted_range, initial_state, minor_loop_excursion, raw_input_rho, score)
 from fitter.identification.output_error import Options, Recordings, RefineResult, jacobian, refine
@@ -288,7 +288,8 @@ class FitResult:
 
 def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order: int | None = None,
                    q: float | None = None, x0: str = "fitted", faithful_minor_loops: bool = False,
-                   effects: Sequence[str] = (), progress: Progress = silent) -> FitResult:
+                   effects: Sequence[str] = (), held: dict[str, float] | None = None,
+                   progress: Progress = silent) -> FitResult:
     """Fit a semilinear Duhem model to one or more recordings (see the module docstring).
 
     Parameters
@@ -306,6 +307,8 @@ def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order
         switch sharply (piezo triangles, measured in the README); rate-dependent candidates are unchanged.
     effects : names of catalogue effects (`fitter.core.effects.REGISTRY`) fitted jointly with the base (module
         docstring, item 6); needs x0 "fitted" and no faithful minor loops (their barrier is the base's alone).
+    held : effect parameters held at known values, ``{"effect.parameter": value}``
+        (`fitter.identification.effects_fit.check_held`), not fitted and not counted.
     progress : `fitter.progress.Progress` callback, called with one-line status messages.
 
     Returns
@@ -319,6 +322,7 @@ def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order
     if x0 not in X0_POLICIES:
         raise ValueError(f"x0 must be one of {X0_POLICIES}, not {x0!r}")
     effects = check_effects(effects)
+    held = check_held(held, effects)
     if effects and (x0 != "fitted" or faithful_minor_loops):
         raise ValueError("effects are fitted with x0 'fitted' and without faithful minor loops (their initial "
                          "state is fitted per recording; the minor-loop barrier is the base model's alone)")
@@ -330,7 +334,7 @@ def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order
         cands = _search(data, kind, orders, q, levels, progress, faithful_minor_loops)
         eligible = [c for c in cands if _meets_barrier(c, data, recordings)] or cands
         best = min(eligible, key=lambda c: c.bic)
-        extended = _with_effects(eligible, data, recordings, effects, progress) if effects else None
+        extended = _with_effects(eligible, data, recordings, effects, held, progress) if effects else None
         return _result(best, cands, data, recordings, kind, q, levels, x0, extended)
 
 
@@ -354,7 +358,7 @@ def _base_model(cand: _Candidate, data: FitData, recordings):
 
 
 def _with_effects(eligible: Sequence[_Candidate], data: FitData, recordings, effects: Sequence[str],
-                  progress: Progress) -> _Extended:
+                  held: dict[str, float], progress: Progress) -> _Extended:
     """Module docstring, item 6: the best candidate of each kind extended by `effects`; the lowest BIC
     N ln(RSS/N) + p ln N on every raw sample (p: the base's and the effects' parameters) is kept."""
     best, tried = None, []
@@ -365,7 +369,7 @@ def _with_effects(eligible: Sequence[_Candidate], data: FitData, recordings, eff
         cand = min(of_kind, key=lambda c: c.bic)
         progress(f"{kind}{cand.param.n} with {', '.join(effects)}", None)
         model, res, fam = fit_effects(_base_model(cand, data, recordings), recordings, effects,
-                                      _physical_barrier(cand.param, recordings), progress)
+                                      _physical_barrier(cand.param, recordings), progress, held)
         n = int(sum(len(r) for r in res.residuals))
         bic = float(n * np.log(res.rss / n) + (cand.param.size + fam.size - fam.n_base) * np.log(n))
         tried.append({"base": f"{kind}{cand.param.n}", "bic": bic, "rss": res.rss, "samples": n})
@@ -508,6 +512,7 @@ def _effects_summary(extended: _Extended, recordings) -> dict:
     res, fam = extended.res, extended.param
     return {"fitted": [e.to_dict() for e in fam.effect_list(res.theta)], "base": base, "bic": chosen["bic"],
             "tried": extended.tried, "settled": [r.name for r in recordings if closed_loop(r)],
+            "held": dict(fam.held),
             "parameters": {k: {"value": v, "stderr": e}
                            for k, v, e in zip(fam.names(), res.theta.tolist(), res.stderr().tolist())},
             "optimiser": {"success": res.success, "nfev": res.nfev, "message": res.message},

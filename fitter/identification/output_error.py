@@ -96,7 +96,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
-from fitter.core.effects import settled_state
+from fitter.core.effects import fresh_state, offset_position, settled_state, shifted, stored_start
 from fitter.core.errors import DuhemError, KernelError
 from fitter.core.kernel import flows, simulate, state_response
 from fitter.core.periodic import affine_blocks, fixed_point
@@ -138,7 +138,8 @@ class RefineResult:
 
     theta: optimum; model: param.build(theta); residuals: per part, y - yhat on
     the fitted samples (from `starts[i]` on; all samples, masked ones included);
-    starts, x0s, rho: per recording (see `Recordings`); cost: 0.5 sum w r^2 on
+    starts, x0s, rho: per recording (see `Recordings`); states: per recording, the effect chain state it
+    started from where that is not the model's own start (`simulate_from`), else None; cost: 0.5 sum w r^2 on
     all samples; jac: Jacobian of the weighted residuals (output units);
     info_scale: N_all / N_kept (decimation).
     """
@@ -154,6 +155,7 @@ class RefineResult:
     starts: list[int] = field(default_factory=list)
     x0s: list = field(default_factory=list)
     rho: list[float] = field(default_factory=list)
+    states: list = field(default_factory=list)
     info_scale: float = 1.0
 
     @property
@@ -194,12 +196,14 @@ def effective_samples(residual: np.ndarray) -> float:
 
 # ----------------------------------------------------------------------------- initial states
 def fitted_initial_state(model, t, u, y, cache: dict | None = None, effect_state=None):
-    """Initial state x_0 = argmin ||y - yhat(0) - G x_0|| over all samples, and the output from it
-    (module docstring, ``"fit"``): yhat is affine in x_0, G its columns.  A model with effects
-    is simulated once per unit initial state (its output is y = C x + D w after its input
-    stage, not D u), its chain from `effect_state` (default: `simulate`'s); once, with G the
-    base's, when every effect is `additive`.  Raises `KernelError`
-    when the simulation overflows."""
+    """Initial state x_0 = argmin ||y - yhat(0) - G x_0|| over all samples, the output from it and the
+    effect chain state it starts from (module docstring, ``"fit"``): yhat is affine in x_0, G its columns.
+    A model with effects is simulated once per unit initial state (its output is y = C x + D w after its
+    input stage, not D u), its chain from `effect_state` (default: `simulate`'s); once, with G the
+    base's, when every effect is `additive`.  An effect state that is the output's reference
+    (`fitter.core.effects.offset_position`: it adds its start to every sample) is fitted with x_0, a
+    column of ones in G; the state returned then has it (numbers; else `effect_state` as given).
+    Raises `KernelError` when the simulation overflows."""
     n = model.order
     if getattr(model, "effects", None) and all(e.spec.additive for e in model.effects):
         base = simulate(model, t, u, x0=np.zeros(n), flow_cache=cache, effect_state=effect_state).y
@@ -210,10 +214,18 @@ def fitted_initial_state(model, t, u, y, cache: dict | None = None, effect_state
         base, G = ys[0], np.column_stack(ys[1:]) - ys[0][:, None]
     else:
         base, G = _affine_output(model, t, u, cache)
+    position = offset_position(model) if getattr(model, "effects", None) else None
+    if position is not None:
+        G = np.column_stack([G, np.ones(len(base))])
     if not (np.all(np.isfinite(G)) and np.all(np.isfinite(base))):
         raise KernelError("simulation overflowed")
-    x0 = _lstsq_scaled(G, y - base)
-    return x0, base + G @ x0
+    z = _lstsq_scaled(G, y - base)
+    if position is None:
+        return z, base + G @ z, effect_state
+    x0 = z[:n]
+    start = effect_state if effect_state is not None else stored_start(model)
+    start = fresh_state(model, t, u, x0, flows(model) if cache is None else cache) if start is None else start
+    return x0, base + G @ z, shifted(start, position, float(z[n]))
 
 
 def _affine_output(model, t, u, cache: dict | None) -> tuple[np.ndarray, np.ndarray]:
@@ -308,22 +320,24 @@ def simulate_from(model, t, u, y, mode: str, cycle: tuple[int, int] | None, sett
     """Simulate one recording under an initial-state mode (module docstring); with `settle`, a model's
     effect chain starts from its state settled on the recording (``Recordings.settle``).
 
-    Returns (start, x0, yhat, rho): yhat covers samples start..end.
+    Returns (start, x0, yhat, rho, effect state): yhat covers samples start..end; the effect chain's state at
+    the first sample where it is not the model's own start (settled, or with a fitted reference,
+    `fitted_initial_state`), else None.
     """
     cache = flows(model)
     state = settled_state(model, t, u, model.x0, cache) if settle and getattr(model, "effects", None) else None
     if mode == "model":
         yhat = simulate(model, t, u, flow_cache=cache, effect_state=state).y
-        return 0, np.array(model.x0, dtype=float), yhat, np.nan
+        return 0, np.array(model.x0, dtype=float), yhat, np.nan, state
     if mode == "fit":
-        x0, yhat = fitted_initial_state(model, t, u, y, cache, state)
-        return 0, x0, yhat, np.nan
+        x0, yhat, state = fitted_initial_state(model, t, u, y, cache, state)
+        return 0, x0, yhat, np.nan, state
     if mode != "periodic":
         raise ValueError(f"x0 must be one of {X0_MODES}, not {mode!r}")
     s0, s1 = cycle
     x0, rho = fixed_point(model, t[s0:s1 + 1], u[s0:s1 + 1], cache)
     x0 = np.array(model.x0, dtype=float) if x0 is None else x0
-    return s0, x0, simulate(model, t[s0:], u[s0:], x0=x0, flow_cache=cache).y, rho
+    return s0, x0, simulate(model, t[s0:], u[s0:], x0=x0, flow_cache=cache).y, rho, None
 
 
 # ----------------------------------------------------------------------------- the recordings problem
@@ -395,16 +409,16 @@ class Recordings:
 
     def residuals(self, param: Parametrisation, theta: np.ndarray):
         """Stacked weighted residuals sqrt(w) (y - yhat) of the unmasked samples, and per
-        recording (start, x0, y - yhat from start, rho)."""
+        recording (start, x0, y - yhat from start, rho, effect state: `simulate_from`)."""
         try:
             model = param.build(theta)
         except (ValueError, np.linalg.LinAlgError, FloatingPointError):
             model = None
         parts, info = [], []
         for rec, w, cyc, settle in zip(self.recordings, self._w, self.cycles, self._settle):
-            s, x0, r, rho = self._one(model, rec, cyc, settle)
-            parts.append(_weighted(r, w[s:]))
-            info.append((s, x0, r, rho))
+            one = self._one(model, rec, cyc, settle)
+            parts.append(_weighted(one[2], w[one[0]:]))
+            info.append(one)
         return (parts[0] if len(parts) == 1 else np.concatenate(parts)), model, info
 
     def projected(self, param: Parametrisation, theta: np.ndarray):
@@ -422,7 +436,7 @@ class Recordings:
             solution = self._solve(parts, len(lin), model.order)
         except (DuhemError, ValueError, np.linalg.LinAlgError, FloatingPointError):
             info = [self._one(None, rec, cyc) for rec, cyc in zip(self.recordings, self.cycles)]
-            weighted = np.concatenate([_weighted(r, w[s:]) for (s, _, r, _), w in zip(info, self._w)])
+            weighted = np.concatenate([_weighted(i[2], w[i[0]:]) for i, w in zip(info, self._w)])
             return weighted, np.asarray(theta, dtype=float), None, info
         theta = np.array(theta, dtype=float)
         theta[list(lin)] = solution[:len(lin)]
@@ -435,7 +449,7 @@ class Recordings:
                 yhat = yhat + G @ x0
             r = rec.y[start:] - yhat
             weighted.append(_weighted(r, w[start:]))
-            info.append((start, x0, r, rho))
+            info.append((start, x0, r, rho, None))
         return np.concatenate(weighted), theta, param.build(theta), info
 
     def _solve(self, parts, n_lin: int, n: int) -> np.ndarray:
@@ -463,13 +477,13 @@ class Recordings:
             if model is None:
                 raise KernelError("model could not be built")
             with np.errstate(all="ignore"):
-                s, x0, yhat, rho = simulate_from(model, rec.t, rec.u, rec.y, self.x0, cyc, settle)
+                s, x0, yhat, rho, state = simulate_from(model, rec.t, rec.u, rec.y, self.x0, cyc, settle)
             r = rec.y[s:] - yhat
             if not np.all(np.abs(r) < fail * 1e3):
                 raise KernelError("simulation diverged")
-            return s, x0, r, rho
+            return s, x0, r, rho, state
         except (KernelError, ValueError, np.linalg.LinAlgError):
-            return start, None, np.full(len(rec.y) - start, fail), np.nan
+            return start, None, np.full(len(rec.y) - start, fail), np.nan, None
 
 
 def _weighted(r: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -503,7 +517,8 @@ def refine(param: Parametrisation, theta0: np.ndarray, problem, options: Options
     ----------
     param : the theta -> model map (its bounds are the optimisation's bounds).
     theta0 : start (moved inside the bounds by 1e-9 (1 + |theta|) where needed).
-    problem : `Recordings` or any object with ``residuals(param, theta) -> (r, model, info)``,
+    problem : `Recordings` or any object with ``residuals(param, theta) -> (r, model, info)`` (info: per
+        recording (start, x0, residual, rho, effect state), as `Recordings.residuals`),
         ``decimated(max_samples)`` and ``scale`` (output range).
     options : tolerances, budget, decimation, normalisation.
     penalty : optional theta -> extra residuals (e.g. a convergence barrier), of the theta whose residuals they
@@ -541,7 +556,7 @@ def refine(param: Parametrisation, theta0: np.ndarray, problem, options: Options
     return RefineResult(theta=theta, model=model, residuals=[i[2] for i in info], weighted=weighted, jac=J,
                         nfev=int(sol.nfev), success=bool(sol.success), message=str(sol.message),
                         starts=[i[0] for i in info], x0s=[i[1] for i in info],
-                        rho=[float(i[3]) for i in info], info_scale=len(weighted) / len(J))
+                        rho=[float(i[3]) for i in info], states=[i[4] for i in info], info_scale=len(weighted) / len(J))
 
 
 class _Objective:

@@ -366,23 +366,25 @@ class WithEffects(Parametrisation):
 
     Effect parameters declared ``log`` in their `ParameterSpec` enter theta as
     log(value).  Bounds: the registry's ``bounds(ctx)`` (in theta's coordinates).
-    With ``refinements=False`` the parameters declared ``refinement`` are not in
-    theta: they are held at their ``default`` (the effects' basic forms, as
-    `duhem diagnose` tests them).
+    `held` ({"effect.parameter": value}) parameters are not in theta: they are held at
+    their value (what the user knows, `fitter.identification.effects_fit.check_held`);
+    with ``refinements=False``, so are the parameters declared ``refinement``, at their
+    ``default`` (the effects' basic forms, as `duhem diagnose` tests them).
     """
 
     def __init__(self, base: Parametrisation, effects: Sequence[str], ctx: EffectContext,
-                 refinements: bool = True):
+                 refinements: bool = True, held: dict[str, float] | None = None):
         self.base, self.effects, self.ctx = base, list(effects), ctx
         self.specs = [REGISTRY[e] for e in self.effects]
-        self.refinements = refinements
+        self.held = {**{f"{s.name}.{p.name}": p.default for s in self.specs for p in s.parameters
+                        if p.refinement and not refinements}, **(held or {})}
         self.keys = [(s.name, p) for s in self.specs for p in self._fitted(s)]
         self.n_base = base.size
         self.size = base.size + len(self.keys)
 
     def _fitted(self, spec) -> list:
         """`spec`'s parameters that are in theta (class docstring)."""
-        return [p for p in spec.parameters if self.refinements or not p.refinement]
+        return [p for p in spec.parameters if f"{spec.name}.{p.name}" not in self.held]
 
     def names(self) -> list[str]:
         return self.base.names() + [f"{e}.{p.name}" for e, p in self.keys]
@@ -417,7 +419,7 @@ class WithEffects(Parametrisation):
         vals = iter(theta[self.n_base:])
         out = []
         for spec in self.specs:
-            params = {p.name: p.default for p in spec.parameters}
+            params = {p.name: self.held.get(f"{spec.name}.{p.name}", p.default) for p in spec.parameters}
             for p in self._fitted(spec):
                 v = float(next(vals))
                 params[p.name] = math.exp(v) if p.log else v

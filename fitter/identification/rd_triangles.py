@@ -592,7 +592,7 @@ class _WaveRecords:
                 parts.append(rec.y - periodic_triangle_output(model, rec.wave, rec.t))
             except (ConvergenceError, KernelError, np.linalg.LinAlgError):
                 parts.append(np.full(len(rec.y), FAIL * max(float(np.ptp(rec.y)), 1e-300)))
-        return np.concatenate(parts), models, [(0, None, r, np.nan) for r in parts]
+        return np.concatenate(parts), models, [(0, None, r, np.nan, None) for r in parts]
 
     def best_beta(self, param: _WaveParameters, alpha, gp, gm) -> np.ndarray:
         """Variable projection: the periodic response is linear in B for fixed A and g."""
