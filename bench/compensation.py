@@ -10,8 +10,8 @@ polarization_uC_per_cm2), as ``bench/real_data.py`` (a) fits them: a rate-indepe
 record alone (`fit_recordings(kind="ri")`, order by BIC), the same fit at orders 1-3, and the BIC fit with
 faithful minor loops (`faithful_minor_loops=True`: its small-loop centres near the data).  Then one model for
 the three rates, as `duhem fit` gives it on the three files (`fit_recordings`, kind and order by BIC; a
-rate-dependent model), and as `duhem fit --effects switching` gives it (`JOINT_EFFECTS`: the piezo.best of
-``bench/real_data.py``), each beside one Prandtl-Ishlinskii model fitted to the three; each record's plant starts
+rate-dependent model), and as `duhem fit --effects switching` gives it (`JOINT_EFFECTS`: the material
+effect of the piezo.best of ``bench/real_data.py``), each beside one Prandtl-Ishlinskii model fitted to the three; each record's plant starts
 from the state fitted to that record.
 
 The plant is the fitted Duhem model, started as the record starts (its stored x0 at the record's first voltage).
@@ -57,7 +57,8 @@ FITS = ((None, False), (1, False), (2, False), (3, False), (None, True))
 """Duhem fits per record, (order, faithful minor loops): order None = chosen by BIC (as bench/real_data.py),
 then fixed orders, then the BIC order with `fit_recordings(faithful_minor_loops=True)`."""
 JOINT_EFFECTS = ("switching",)
-"""The physics named for the second one-for-all model (`bench/real_data.py`'s ``PIEZO_EFFECTS``: its piezo.best)."""
+"""The material physics named for the second one-for-all model (of `bench/real_data.py`'s ``PIEZO_EFFECTS``,
+its piezo.best, the material's; its measurement effect, the output's reference, is not the plant's)."""
 RULES = {(True, False): "BIC", (False, False): "fix", (True, True): "BIC+f"}
 """Short names of the fits in the table (order by BIC?, faithful?); +f: faithful minor loops."""
 
