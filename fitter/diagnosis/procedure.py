@@ -49,7 +49,9 @@ Procedure (`diagnose`)
    change in time, a drift, not a memory of the material; one that fits only
    its start is not significant.
 4. The significant candidates are ranked by BIC, N ln(RSS / N) + p ln N over
-   the fitted samples, p the effect's parameters (lowest first: between two
+   the fitted samples, p the effect's parameters, and for separate recordings
+   the reference each fits with its x0 (`EffectSpec.offset`; the likelihood
+   ratio counts them too) (lowest first: between two
    effects that leave nearly the same residual, the one with fewer parameters;
    a flexible effect such as `relaxation`, six parameters, must remove more
    than its extra parameters' worth); the winner is added, and the remaining
