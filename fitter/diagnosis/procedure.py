@@ -50,8 +50,8 @@ Procedure (`diagnose`)
    its start is not significant.
 4. The significant candidates are ranked by BIC, N ln(RSS / N) + p ln N over
    the fitted samples, p the effect's parameters, and for separate recordings
-   the reference each fits with its x0 (`EffectSpec.offset`; the likelihood
-   ratio counts them too) (lowest first: between two
+   the reference each but the first fits with its x0 (`EffectSpec.offset`;
+   the likelihood ratio counts them too) (lowest first: between two
    effects that leave nearly the same residual, the one with fewer parameters;
    a flexible effect such as `relaxation`, six parameters, must remove more
    than its extra parameters' worth); the winner is added, and the remaining
@@ -372,9 +372,10 @@ def _test_round(ex: JoinedExperiment, current: Fit, names: Sequence[str], mask: 
 
 def _freedoms(name: str, ex: JoinedExperiment) -> int:
     """The number of values an effect adds to the fit: its parameters and, for separate recordings (each
-    with its initial state fitted), the reference of each (`EffectSpec.offset`)."""
+    with its initial state fitted), the reference of each but the first (`EffectSpec.offset`; the first's is
+    the base's, `fitter.identification.output_error.Recordings`)."""
     spec = REGISTRY[name]
-    return len(spec.parameters) + (len(ex.recordings) if ex.separate and spec.offset else 0)
+    return len(spec.parameters) + (len(ex.recordings) - 1 if ex.separate and spec.offset else 0)
 
 
 def _consistency(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, alpha: float) -> dict | None:

@@ -32,9 +32,11 @@ own output range (`_balanced`: the NRMSE each recording is judged by):
 
 The model is the base with the effects appended (its own effects, such as a
 dead band found in preparation, kept and held), its x0 and its effects'
-stored start (`Effect.start`, settled or afresh as numbers, with the output's
-reference fitted where an effect has one, `EffectSpec.offset`) those of the
-first recording, so that it runs from where the fit started it there.
+stored start (`Effect.start`, settled or afresh as numbers) those of the first
+recording, so that it runs from where the fit started it there.  Where an
+effect carries the output's reference (`EffectSpec.offset`), the first
+recording's is the base's own (stored as the afresh value) and each other
+recording's is fitted with its x0, relative to it (`Recordings`).
 """
 from __future__ import annotations
 

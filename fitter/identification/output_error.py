@@ -195,14 +195,15 @@ def effective_samples(residual: np.ndarray) -> float:
 
 
 # ----------------------------------------------------------------------------- initial states
-def fitted_initial_state(model, t, u, y, cache: dict | None = None, effect_state=None):
+def fitted_initial_state(model, t, u, y, cache: dict | None = None, effect_state=None, reference: bool = True):
     """Initial state x_0 = argmin ||y - yhat(0) - G x_0|| over all samples, the output from it and the
     effect chain state it starts from (module docstring, ``"fit"``): yhat is affine in x_0, G its columns.
     A model with effects is simulated once per unit initial state (its output is y = C x + D w after its
     input stage, not D u), its chain from `effect_state` (default: `simulate`'s); once, with G the
     base's, when every effect is `additive`.  An effect state that is the output's reference
-    (`fitter.core.effects.offset_position`: it adds its start to every sample) is fitted with x_0, a
-    column of ones in G; the state returned then has it (numbers; else `effect_state` as given).
+    (`fitter.core.effects.offset_position`: it adds its start to every sample) is fitted with x_0 when
+    `reference`, a column of ones in G; the state returned then has it (numbers; else `effect_state` as
+    given).
     Raises `KernelError` when the simulation overflows."""
     n = model.order
     if getattr(model, "effects", None) and all(e.spec.additive for e in model.effects):
@@ -214,7 +215,7 @@ def fitted_initial_state(model, t, u, y, cache: dict | None = None, effect_state
         base, G = ys[0], np.column_stack(ys[1:]) - ys[0][:, None]
     else:
         base, G = _affine_output(model, t, u, cache)
-    position = offset_position(model) if getattr(model, "effects", None) else None
+    position = offset_position(model) if reference and getattr(model, "effects", None) else None
     if position is not None:
         G = np.column_stack([G, np.ones(len(base))])
     if not (np.all(np.isfinite(G)) and np.all(np.isfinite(base))):
@@ -316,9 +317,11 @@ def response_columns(model, lin: dict[int, tuple[str, int]], t, u, mode: str, cy
     return start, base, Psi, (Y[:, m - n:] if mode == "fit" else None), (x0_base, X0_L), rho
 
 
-def simulate_from(model, t, u, y, mode: str, cycle: tuple[int, int] | None, settle: bool = False):
+def simulate_from(model, t, u, y, mode: str, cycle: tuple[int, int] | None, settle: bool = False,
+                  reference: bool = True):
     """Simulate one recording under an initial-state mode (module docstring); with `settle`, a model's
-    effect chain starts from its state settled on the recording (``Recordings.settle``).
+    effect chain starts from its state settled on the recording (``Recordings.settle``); with `reference`
+    (``"fit"`` only), the output's reference is fitted with x0 (`fitted_initial_state`).
 
     Returns (start, x0, yhat, rho, effect state): yhat covers samples start..end; the effect chain's state at
     the first sample where it is not the model's own start (settled, or with a fitted reference,
@@ -330,7 +333,7 @@ def simulate_from(model, t, u, y, mode: str, cycle: tuple[int, int] | None, sett
         yhat = simulate(model, t, u, flow_cache=cache, effect_state=state).y
         return 0, np.array(model.x0, dtype=float), yhat, np.nan, state
     if mode == "fit":
-        x0, yhat, state = fitted_initial_state(model, t, u, y, cache, state)
+        x0, yhat, state = fitted_initial_state(model, t, u, y, cache, state, reference)
         return 0, x0, yhat, np.nan, state
     if mode != "periodic":
         raise ValueError(f"x0 must be one of {X0_MODES}, not {mode!r}")
@@ -373,6 +376,12 @@ class Recordings:
     settle: per recording, whether a model's effect chain starts it from its state settled on it
     (`fitter.core.effects.settled_state`: the recording taken as one cycle of a periodic experiment, as
     ``"periodic"`` takes the base); default None (none): from the effects' stored start, else afresh.
+
+    With ``"fit"``, the output's reference of an effect that has one (`fitted_initial_state`) is fitted for
+    every recording but the first, whose reference is the model's own: the base carries a constant output
+    offset exactly (x -> x + delta with E -> E - A delta, for each branch's A and E), so a reference fitted on
+    every recording would trade against the base's forcing along a flat direction of the fit; the others'
+    are fitted relative to the first.
     """
 
     recordings: Sequence[Recording]
@@ -415,8 +424,8 @@ class Recordings:
         except (ValueError, np.linalg.LinAlgError, FloatingPointError):
             model = None
         parts, info = [], []
-        for rec, w, cyc, settle in zip(self.recordings, self._w, self.cycles, self._settle):
-            one = self._one(model, rec, cyc, settle)
+        for i, (rec, w, cyc, settle) in enumerate(zip(self.recordings, self._w, self.cycles, self._settle)):
+            one = self._one(model, rec, cyc, settle, reference=i > 0)
             parts.append(_weighted(one[2], w[one[0]:]))
             info.append(one)
         return (parts[0] if len(parts) == 1 else np.concatenate(parts)), model, info
@@ -470,14 +479,15 @@ class Recordings:
             raise KernelError("simulation overflowed")
         return _lstsq_scaled(M, b)
 
-    def _one(self, model, rec: Recording, cyc, settle: bool = False):
+    def _one(self, model, rec: Recording, cyc, settle: bool = False, reference: bool = True):
         start = cyc[0] if (self.x0 == "periodic" and cyc is not None) else 0
         fail = FAIL * max(float(np.ptp(rec.y)), 1e-300)
         try:
             if model is None:
                 raise KernelError("model could not be built")
             with np.errstate(all="ignore"):
-                s, x0, yhat, rho, state = simulate_from(model, rec.t, rec.u, rec.y, self.x0, cyc, settle)
+                s, x0, yhat, rho, state = simulate_from(model, rec.t, rec.u, rec.y, self.x0, cyc, settle,
+                                                        reference)
             r = rec.y[s:] - yhat
             if not np.all(np.abs(r) < fail * 1e3):
                 raise KernelError("simulation diverged")
