@@ -912,13 +912,8 @@ def settled_state(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: dict)
         state = run_with_effects(fresh, t, w, x0, fl, state, base=base)[2]
     if all(spec.steady for spec, _ in present):
         return state
-    first = fresh_state(fresh, t, u, x0, fl)
-    out, i = [], 0
-    for spec, _ in present:
-        k = len(spec.state)
-        out += list((state if spec.steady else first)[i:i + k])
-        i += k
-    return tuple(out)
+    settled, first = _split_state(present, state), _split_state(present, fresh_state(fresh, t, u, x0, fl))
+    return tuple(v for spec, _ in present for v in (settled if spec.steady else first)[spec.name])
 
 
 def _split_state(present: list, state0: EffectState | None) -> dict[str, tuple | None]:
