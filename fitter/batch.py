@@ -272,8 +272,6 @@ class BatchOptions:
         unknown = [e for e in self.effects if e not in REGISTRY]
         if unknown:
             raise BatchError(f"unknown effect {unknown[0]!r} (known: {', '.join(REGISTRY)})")
-        if self.effects and self.faithful_minor_loops:
-            raise BatchError("effects are fitted without faithful minor loops (as duhem fit --effects)")
         if self.kind not in ("auto", "ri", "rd"):
             raise BatchError(f"kind must be 'auto', 'ri' or 'rd', not {self.kind!r}")
         if self.backend not in ("native", "python"):

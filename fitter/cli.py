@@ -219,9 +219,8 @@ main.add_command(reproduce_paper)
 def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithful, effects, held, allow_unstable,
         time_col, input_col, output_col, compare, as_json):
     """Fit a model to one or more recordings (one CSV file per experiment, e.g. per rate)."""
-    if effects and (x0_policy != "fitted" or faithful):
-        raise click.UsageError("--effects needs --x0 fitted and no --faithful-minor-loops (each effect's "
-                               "initial state is fitted per recording; the minor-loop barrier is the base's alone)")
+    if effects and x0_policy != "fitted":
+        raise click.UsageError("--effects needs --x0 fitted (each effect's initial state is fitted per recording)")
     held = check_held(held, check_effects(effects))
     _check_fmu_name(fmu)
     if fmu:
@@ -711,8 +710,6 @@ def batch(manifest, outdir, with_diagnosis, scheduler, workers, backend, kind, o
     """
     if scheduler and workers is not None:
         raise CliError("--workers applies to the local cluster only (not with --scheduler)")
-    if effects and faithful:
-        raise click.UsageError("--effects needs no --faithful-minor-loops (each effect's barrier is the base's)")
     options = BatchOptions(kind=kind, order=order, backend=backend, diagnose=with_diagnosis, threshold=threshold,
                            faithful_minor_loops=faithful, effects=effects)
     _check_backend(backend)

@@ -165,12 +165,9 @@ def test_device_task_fits_the_named_effects_with_the_base(tmp_path):
     assert input_hash(d, data, options) != input_hash(d, data, BatchOptions(kind="ri", order=1, backend="python"))
 
 
-@pytest.mark.parametrize("options, needle", [({"effects": ("nope",)}, "unknown effect 'nope'"),
-                                             ({"effects": ("creep",), "faithful_minor_loops": True},
-                                              "without faithful minor loops")])
-def test_batch_options_refuse_bad_effects(options, needle):
-    with pytest.raises(BatchError, match=needle):
-        BatchOptions(**options)
+def test_batch_options_refuse_bad_effects():
+    with pytest.raises(BatchError, match="unknown effect 'nope'"):
+        BatchOptions(effects=("nope",))
 
 
 def test_batch_cli_names_an_unknown_effect(tmp_path):

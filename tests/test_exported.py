@@ -300,6 +300,30 @@ def test_settled_minor_loops_are_the_limit_of_repeated_cycles():
             row += 1
 
 
+def test_minor_loop_extent_is_measured_on_the_fits_normalised_scale():
+    """The faithful-minor-loops barrier of a physical model (as the effects fit evaluates it) equals that of
+    the normalised model it maps from: `minor_loop_extent` with the output scale (y_c, y_s) over the physical
+    input span, its effects left out.  In raw units the piezo's 40 uC/cm2 half-range would read as an
+    extent 40 times too large."""
+    from fitter.core.models import RateIndependentModel
+    from fitter.identification.parametrisation import RICanonical
+    from fitter.identification.scaling import Normalisation
+    normalised = RateIndependentModel(A_plus=[[-2.0, 0.5], [0.3, -1.0]], A_minus=[[1.5, -0.4], [0.2, 2.5]],
+                                      B_plus=[1.0, 0.5], B_minus=[-0.5, 1.0], C=[1.0, -0.7], E_plus=[0.2, 0.0],
+                                      E_minus=[0.0, -0.1], D=0.3)
+    scale = Normalisation(u_c=50.0, u_s=20.0, y_c=-3.0, y_s=40.0)
+    physical = scale.to_physical(normalised).replace(
+        effects=[{"effect": "switching", "parameters": {"S1": 30.0, "u_up1": 60.0, "u_dn1": 40.0, "width1": 2.0,
+                                                        "q1": -1.0}}])
+    expected = RICanonical.minor_loop_extent(normalised, -1.0, 1.0)
+    assert 0.3 < expected < 10.0
+    assert RICanonical.minor_loop_extent(physical, 30.0, 70.0, (-3.0, 40.0)) == pytest.approx(expected, rel=1e-9)
+    assert RICanonical.minor_loop_extent(physical, 30.0, 70.0) > 20 * expected
+    faithful = RICanonical(2, faithful_minor_loops=True)
+    assert faithful.excesses(physical, 30.0, 70.0, (-3.0, 40.0))[2] == pytest.approx(
+        expected / RICanonical.EXTENT_BOUND - 1.0, rel=1e-9)
+
+
 def test_faithful_minor_loops_keep_the_demo_fit_near_its_data():
     """With `faithful_minor_loops` the demo's fit keeps every settled minor loop near the recorded range, as
     the model that generated it does (excursion 0.04), at a fit error still below 0.2 %."""

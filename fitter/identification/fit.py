@@ -136,12 +136,13 @@ def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.nd
     return pen
 
 
-def _barrier_residuals(param: RICanonical | RDCanonical, model, lo: float, hi: float) -> np.ndarray:
-    """1e3 max(0, excess + `BARRIER_INSIDE`) of `param.excesses(model, lo, hi)`; 1e3 where an excess cannot be
-    evaluated (or `model` is None)."""
+def _barrier_residuals(param: RICanonical | RDCanonical, model, lo: float, hi: float,
+                       output: tuple[float, float] = (0.0, 1.0)) -> np.ndarray:
+    """1e3 max(0, excess + `BARRIER_INSIDE`) of `param.excesses(model, lo, hi, output)`; 1e3 where an excess
+    cannot be evaluated (or `model` is None)."""
     try:
         with np.errstate(all="ignore"):
-            vals = [np.inf] * param.barriers if model is None else param.excesses(model, lo, hi)
+            vals = [np.inf] * param.barriers if model is None else param.excesses(model, lo, hi, output)
     except (ValueError, np.linalg.LinAlgError):
         vals = [np.inf] * param.barriers
     return np.array([1e3 * max(0.0, v + BARRIER_INSIDE) if np.isfinite(v) else 1e3 for v in vals])
@@ -305,8 +306,10 @@ def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order
         data on loops smaller than the recorded ones (the summary's ``minor_loops``; a semilinear model's
         small loops settle on a centre line affine in u).  It costs accuracy on the recorded loops where they
         switch sharply (piezo triangles, measured in the README); rate-dependent candidates are unchanged.
+        With `effects` the barrier stays on during their joint refinement, on the base's minor loops (effects
+        left out; a bounded additive effect such as switching can then carry the sharp switching).
     effects : names of catalogue effects (`fitter.core.effects.REGISTRY`) fitted jointly with the base (module
-        docstring, item 6); needs x0 "fitted" and no faithful minor loops (their barrier is the base's alone).
+        docstring, item 6); needs x0 "fitted".
     held : effect parameters held at known values, ``{"effect.parameter": value}``
         (`fitter.identification.effects_fit.check_held`), not fitted and not counted.
     progress : `fitter.progress.Progress` callback, called with one-line status messages.
@@ -323,9 +326,8 @@ def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order
         raise ValueError(f"x0 must be one of {X0_POLICIES}, not {x0!r}")
     effects = check_effects(effects)
     held = check_held(held, effects)
-    if effects and (x0 != "fitted" or faithful_minor_loops):
-        raise ValueError("effects are fitted with x0 'fitted' and without faithful minor loops (their initial "
-                         "state is fitted per recording; the minor-loop barrier is the base model's alone)")
+    if effects and x0 != "fitted":
+        raise ValueError("effects are fitted with x0 'fitted' (their initial state is fitted per recording)")
     check_scale(recordings)
     with threadpool_limits(limits=1, user_api="blas"):    # small matrices: one thread, the same rounding every run
         data = prepare_for_fit(recordings)
@@ -369,7 +371,7 @@ def _with_effects(eligible: Sequence[_Candidate], data: FitData, recordings, eff
         cand = min(of_kind, key=lambda c: c.bic)
         progress(f"{kind}{cand.param.n} with {', '.join(effects)}", None)
         model, res, fam = fit_effects(_base_model(cand, data, recordings), recordings, effects,
-                                      _physical_barrier(cand.param, recordings), progress, held)
+                                      _physical_barrier(cand.param, data, recordings), progress, held)
         n = int(sum(len(r) for r in res.residuals))
         bic = float(n * np.log(res.rss / n) + (cand.param.size + fam.size - fam.n_base) * np.log(n))
         tried.append({"base": f"{kind}{cand.param.n}", "bic": bic, "rss": res.rss, "samples": n})
@@ -383,11 +385,24 @@ def _raw_range(recordings) -> tuple[float, float]:
     return min(float(np.min(r.u)) for r in recordings), max(float(np.max(r.u)) for r in recordings)
 
 
-def _physical_barrier(param: RICanonical | RDCanonical, recordings) -> Callable[[object], np.ndarray]:
+def _physical_barrier(param: RICanonical | RDCanonical, data: FitData,
+                      recordings) -> Callable[[object], np.ndarray]:
     """`_barrier`'s residuals for a model in physical units over the recordings' input range (condition (5),
-    the branch amplification and the damping are invariant under the normalisation of `scaling`)."""
+    the branch amplification and the damping are invariant under the normalisation of `scaling`; the settled
+    minor loops of faithful minor loops are put on its output scale).  They depend on the base alone (its
+    effects left out), so they are computed once per base: the effects' columns of a finite-difference
+    Jacobian reuse them."""
     lo, hi = _raw_range(recordings)
-    return lambda model: _barrier_residuals(param, model, lo, hi)
+    output = (data.scaling.y_c, data.scaling.y_s)
+    cache: dict[bytes, np.ndarray] = {}
+
+    def pen(model) -> np.ndarray:
+        key = b"".join(np.asarray(getattr(model, k), dtype=float).tobytes() for k in model.PARAMS if k != "x0")
+        if key not in cache:
+            cache.clear()
+            cache[key] = _barrier_residuals(param, model, lo, hi, output)
+        return cache[key]
+    return pen
 
 
 def _meets_barrier(cand: _Candidate, data: FitData, recordings) -> bool:

@@ -228,27 +228,31 @@ class RICanonical(Parametrisation):
         return float(np.log(max(top, 1.0))) if np.isfinite(top) else np.inf
 
     @staticmethod
-    def minor_loop_extent(model, u_min: float, u_max: float) -> float:
-        """Largest |output| at the turning points of the settled minor loops of the stored input range (the
-        fitted span widened by `INPUT_MARGIN`; `fitter.core.periodic.minor_loop_outputs`), inf when one has no
-        fixed point.  Condition (5) on every minor loop makes such loops settle; this says where."""
+    def minor_loop_extent(model, u_min: float, u_max: float, output: tuple[float, float] = (0.0, 1.0)) -> float:
+        """Largest |(y - y_c) / y_s| at the turning points of the settled minor loops of the stored input range
+        (the fitted span widened by `INPUT_MARGIN`; `fitter.core.periodic.minor_loop_outputs`) of the base
+        model (its effects left out), inf when one has no fixed point; `output` = (y_c, y_s) puts a model in
+        physical units on the fit's normalised scale.  Condition (5) on every minor loop makes such loops
+        settle; this says where.  Left out, an additive output effect bounded by its strength (switching)
+        moves them by at most that strength, and an input-stage effect (backlash) keeps the base's input
+        inside the range."""
         pad = INPUT_MARGIN * (u_max - u_min)
         with np.errstate(all="ignore"):
             try:
-                y = minor_loop_outputs(model, u_min - pad, u_max + pad)
+                y = minor_loop_outputs(model.replace(effects=[]), u_min - pad, u_max + pad)
             except (ValueError, np.linalg.LinAlgError, KernelError):
                 return np.inf
-        top = float(np.max(np.abs(y)))
+        top = float(np.max(np.abs((y - output[0]) / output[1])))
         return top if np.isfinite(top) else np.inf
 
-    def excesses(self, model, u_min: float, u_max: float) -> list[float]:
+    def excesses(self, model, u_min: float, u_max: float, output: tuple[float, float] = (0.0, 1.0)) -> list[float]:
         """The fit's barrier quantities (each <= 0 when met): condition (5) beyond `LIMIT`, the branch
         amplification beyond `AMPLIFICATION` (relative, in logs) and, with `faithful_minor_loops`, the
-        `minor_loop_extent` beyond `EXTENT_BOUND` (relative; normalised units)."""
+        `minor_loop_extent` (on the normalised scale `output`) beyond `EXTENT_BOUND` (relative)."""
         out = [self.convergence(model, u_min, u_max) - self.LIMIT,
                self.amplification(model, u_min, u_max) / math.log(self.AMPLIFICATION) - 1.0]
         if self.faithful_minor_loops:
-            out.append(self.minor_loop_extent(model, u_min, u_max) / self.EXTENT_BOUND - 1.0)
+            out.append(self.minor_loop_extent(model, u_min, u_max, output) / self.EXTENT_BOUND - 1.0)
         return out
 
 
@@ -311,9 +315,9 @@ class RDCanonical(Parametrisation):
     """Smallest damping ratio -Re(lambda)/|lambda| a fitted mode of A may have."""
 
     @classmethod
-    def excesses(cls, model, u_min: float, u_max: float) -> list[float]:
+    def excesses(cls, model, u_min: float, u_max: float, output: tuple[float, float] = (0.0, 1.0)) -> list[float]:
         """The fit's barrier quantities (each <= 0 when met): max Re eig(A) beyond `LIMIT`, and
-        `damping_excess`."""
+        `damping_excess` (`output`, the normalised scale, does not enter)."""
         return [cls.convergence(model, u_min, u_max) - cls.LIMIT, cls.damping_excess(model)]
 
     @classmethod
