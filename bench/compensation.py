@@ -10,9 +10,11 @@ polarization_uC_per_cm2), as ``bench/real_data.py`` (a) fits them: a rate-indepe
 record alone (`fit_recordings(kind="ri")`, order by BIC), the same fit at orders 1-3, and the BIC fit with
 faithful minor loops (`faithful_minor_loops=True`: its small-loop centres near the data).  Then one model for
 the three rates, as `duhem fit` gives it on the three files (`fit_recordings`, kind and order by BIC; a
-rate-dependent model), and as `duhem fit --effects switching` gives it (`JOINT_EFFECTS`: the material
-effect of the piezo.best of ``bench/real_data.py``), each beside one Prandtl-Ishlinskii model fitted to the three; each record's plant starts
-from the state fitted to that record.
+rate-dependent model), as `duhem fit --effects switching` gives it (`JOINT_EFFECTS`: the material
+effect of the piezo.best of ``bench/real_data.py``), and that piezo.best itself (`JOINTS`: `duhem fit --effects
+switching,measurement_drift --hold measurement_drift.rate=0`, compensated with ``measurement="invert"``), each
+beside one Prandtl-Ishlinskii model fitted to the three; each record's plant starts from the state fitted to
+that record (`own_start`).
 
 The plant is the fitted Duhem model, started as the record starts (its stored x0 at the record's first voltage).
 The reference: that first output, then a triangle in the output between 10 % and 90 % of the measured range
@@ -43,24 +45,34 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from real_data import DATA, excursion_text, piezo_recordings, stack  # noqa: E402
+from real_data import DATA, PIEZO_EFFECTS, PIEZO_HELD, excursion_text, piezo_recordings, stack  # noqa: E402
 
 from fitter.baselines import PrandtlIshlinskii  # noqa: E402
 from fitter.core import compensate, simulate  # noqa: E402
 from fitter.core.inverse import linear_gain  # noqa: E402
 from fitter.data.metrics import compare  # noqa: E402
 from fitter.data.recordings import Recording  # noqa: E402
+from fitter.identification.exported import own_start, started  # noqa: E402
 from fitter.identification.fit import fit_recordings  # noqa: E402
-from fitter.identification.output_error import fitted_initial_state  # noqa: E402
 
-FITS = ((None, False), (1, False), (2, False), (3, False), (None, True))
-"""Duhem fits per record, (order, faithful minor loops): order None = chosen by BIC (as bench/real_data.py),
-then fixed orders, then the BIC order with `fit_recordings(faithful_minor_loops=True)`."""
 JOINT_EFFECTS = ("switching",)
 """The material physics named for the second one-for-all model (of `bench/real_data.py`'s ``PIEZO_EFFECTS``,
-its piezo.best, the material's; its measurement effect, the output's reference, is not the plant's)."""
+its piezo.best, the material's)."""
+JOINTS = (("one_for_all", (), {}, "refuse"), ("one_for_all_effects", JOINT_EFFECTS, {}, "refuse"),
+          ("one_for_all_best", PIEZO_EFFECTS, PIEZO_HELD, "invert"))
+"""The one-for-all models: (key, effects, held effect parameters, the compensator's ``measurement`` choice).
+The last is `bench/real_data.py`'s piezo.best (ri3 + switching + measurement_drift, rate held at 0): its
+measurement effect is each record's output reference, so the compensator inverts it (``measurement="invert"``:
+the measured output, in the record's own zero, follows y_ref)."""
+FITS = ((None, False, ()), (1, False, ()), (2, False, ()), (3, False, ()), (None, True, ()),
+        (None, True, JOINT_EFFECTS))
+"""Duhem fits per record, (order, faithful minor loops, effects): order None = chosen by BIC (as
+bench/real_data.py), then fixed orders, then the BIC order with `fit_recordings(faithful_minor_loops=True)`,
+and that with the material effect (`duhem fit --faithful-minor-loops --effects switching`: the barrier on the
+base's minor loops, the switching carrying the sharp switching)."""
 RULES = {(True, False): "BIC", (False, False): "fix", (True, True): "BIC+f"}
-"""Short names of the fits in the table (order by BIC?, faithful?); +f: faithful minor loops."""
+"""Short names of the fits in the table (order by BIC?, faithful?); +f: faithful minor loops (the model's name
+carries its effects)."""
 
 
 def _log(msg: str) -> None:
@@ -88,13 +100,15 @@ def _pi_output(pi: PrandtlIshlinskii, t: np.ndarray, u: np.ndarray) -> np.ndarra
     return pi.predict(Recording(t, u, np.full(len(t), np.nan)))
 
 
-def _rows(model, rec: Recording, pi: PrandtlIshlinskii, y0: float, gain: float) -> dict:
+def _rows(model, rec: Recording, pi: PrandtlIshlinskii, y0: float, gain: float, measurement: str = "refuse") -> dict:
     """Tracking of the 10-90 % reference with `model` as the plant (x0 as stored: the record's start), and
-    the input each inverse gives for the measured output."""
+    the input each inverse gives for the measured output; `measurement`: `compensate`'s choice for a model with
+    measurement effects (the tracking is of `simulate`'s output, the measured one, either way here since
+    "invert" is the only choice used with such a model)."""
     u0 = float(rec.u[0])
     t, y_ref = reference(rec, float(simulate(model, rec.t[:1], rec.u[:1]).y[0]))
     t1 = time.perf_counter()
-    comp = compensate(model, t, y_ref, u0=u0)
+    comp = compensate(model, t, y_ref, u0=u0, measurement=measurement)
     comp_seconds = time.perf_counter() - t1
     inputs = {"compensated": comp.u,
               "linear gain": np.r_[u0, np.clip((y_ref[1:] - y0) / gain, rec.u.min(), rec.u.max())],
@@ -102,7 +116,7 @@ def _rows(model, rec: Recording, pi: PrandtlIshlinskii, y0: float, gain: float) 
     duhem = {k: _error(simulate(model, t, u).y, y_ref) for k, u in inputs.items()}
     on_pi = {k: _error(_pi_output(pi, t, u), y_ref) for k, u in inputs.items()}
     # on the record itself: the input each inverse gives for the measured output, against the measured input
-    back = compensate(model, rec.t, rec.y, u0=u0)
+    back = compensate(model, rec.t, rec.y, u0=u0, measurement=measurement)
     recovered = {"compensated": back.u, "linear gain": (rec.y - y0) / gain, "PI inverse": pi.invert(rec.y)}
     on_record = {k: float(np.sqrt(np.mean((u - rec.u) ** 2)) / np.ptp(rec.u)) for k, u in recovered.items()}
     return {"samples": len(t), "clamped": comp.n_clamped, "max_shortfall": comp.max_shortfall,
@@ -116,44 +130,46 @@ def record_part(rec: Recording) -> dict:
     pi = PrandtlIshlinskii(deadband=False, invertible=True).fit(rec)
     y0, gain = linear_gain(rec.u, rec.y)
     out = {"linear_gain": {"y0": y0, "gain": gain}, "pi_nrmse": pi.score(rec)["nrmse"], "models": []}
-    for order, faithful in FITS:
+    for order, faithful, effects in FITS:
         _log(f"{rec.name}: Duhem fit, order {'by BIC' if order is None else order}"
-             + (", faithful minor loops" if faithful else ""))
+             + (", faithful minor loops" if faithful else "") + (f", effects {','.join(effects)}" if effects else ""))
         t0 = time.perf_counter()
-        fit = fit_recordings([rec], kind="ri", order=order, faithful_minor_loops=faithful)
+        fit = fit_recordings([rec], kind="ri", order=order, faithful_minor_loops=faithful, effects=effects)
         out["models"].append({
-            "model": f"ri{fit.model.order}", "order_rule": RULES[order is None, faithful],
+            "model": "+".join([f"ri{fit.model.order}", *(e.effect for e in fit.model.effects)]),
+            "order_rule": RULES[order is None, faithful],
             "minor_loop_excursion": fit.summary["minor_loops"]["excursion"],
             "fit_nrmse": fit.summary["recordings"][0]["nrmse"], "fit_seconds": time.perf_counter() - t0,
             **_rows(fit.model, rec, pi, y0, gain)})
     return out
 
 
-def joint_part(recs: dict[str, Recording], effects: tuple[str, ...] = ()) -> dict:
+def joint_part(recs: dict[str, Recording], effects: tuple[str, ...] = (), held: dict | None = None,
+               measurement: str = "refuse") -> dict:
     """One Duhem model for the three rates (`duhem fit` on all three, kind and order by BIC, with `effects`
-    named as `duhem fit --effects`) and one Prandtl-Ishlinskii model for the three, each record's plant started
-    from the state fitted to that record (`fitted_initial_state`, as `bench/real_data.py` scores it: `duhem
-    validate --x0 fitted`)."""
+    and `held` as `duhem fit --effects --hold`) and one Prandtl-Ishlinskii model for the three, each record's
+    plant started from the state fitted to that record (`own_start`: x0, and the effects' start with the output
+    reference, as `bench/real_data.py` scores it: `duhem validate --x0 fitted`)."""
     _log(f"all rates: Duhem fit (auto{', effects ' + ','.join(effects) if effects else ''}) and "
          "Prandtl-Ishlinskii fit")
     t0 = time.perf_counter()
-    fit = fit_recordings(list(recs.values()), effects=effects)
+    fit = fit_recordings(list(recs.values()), effects=effects, held=held)
     seconds = time.perf_counter() - t0
     pi = PrandtlIshlinskii(deadband=False, invertible=True).fit(list(recs.values()))
     tag = "+".join([f"{fit.model.kind}{fit.model.order}", *(e.effect for e in fit.model.effects)])
     out = {"model": tag, "fit_seconds": seconds, "records": {}}
     for label, rec in recs.items():
-        x0, y_fit, _ = fitted_initial_state(fit.model, rec.t, rec.u, rec.y)
+        start = own_start(fit.model, rec)
         y0, gain = linear_gain(rec.u, rec.y)
-        out["records"][label] = {"fit_nrmse": compare(rec, y_fit)["nrmse"], "pi_nrmse": pi.score(rec)["nrmse"],
-                                 **_rows(fit.model.replace(x0=x0), rec, pi, y0, gain)}
+        out["records"][label] = {"fit_nrmse": compare(rec, start[1])["nrmse"], "pi_nrmse": pi.score(rec)["nrmse"],
+                                 **_rows(started(fit.model, start), rec, pi, y0, gain, measurement)}
     return out
 
 
 def _print(res: dict) -> None:
     print("Tracking a triangle over 10-90 % of the measured output range, two periods: RMS(y - y_ref) / range")
     print("plant = the fitted Duhem model (columns 4-6) or the fitted Prandtl-Ishlinskii model (columns 7-9)\n")
-    head = f"{'record':8s} {'model':12s} {'clamped':>9s} | {'comp.':>9s} {'linear':>8s} {'PI inv.':>8s} | " \
+    head = f"{'record':8s} {'model':24s} {'clamped':>9s} | {'comp.':>9s} {'linear':>8s} {'PI inv.':>8s} | " \
            f"{'comp.':>8s} {'linear':>8s} {'PI inv.':>8s}"
     print(head)
     print("-" * len(head))
@@ -161,20 +177,22 @@ def _print(res: dict) -> None:
         for m in part["models"]:
             d, p = m["plant_duhem"], m["plant_pi"]
             tag = f"{m['model']} ({m['order_rule']})"
-            print(f"{rec:8s} {tag:12s} {m['clamped']:4d}/{m['samples']:<4d} | {d['compensated']:9.2e} "
+            print(f"{rec:8s} {tag:24s} {m['clamped']:4d}/{m['samples']:<4d} | {d['compensated']:9.2e} "
                   f"{d['linear gain']:8.1%} {d['PI inverse']:8.1%} | {p['compensated']:8.1%} "
                   f"{p['linear gain']:8.1%} {p['PI inverse']:8.2e}")
     print("\nOn the record itself (no extrapolation): the input each inverse gives for the measured output, "
           "RMS(u - u_measured) / range(u)")
-    print(f"{'record':8s} {'model':12s} {'clamped':>9s} | {'comp.':>8s} {'linear':>8s} {'PI inv.':>8s}")
+    print(f"{'record':8s} {'model':24s} {'clamped':>9s} | {'comp.':>8s} {'linear':>8s} {'PI inv.':>8s}")
     for rec, part in res["records"].items():
         for m in part["models"]:
             e = m["record_input_error"]
             tag = f"{m['model']} ({m['order_rule']})"
-            print(f"{rec:8s} {tag:12s} {m['record_clamped']:4d}/{m['record_samples']:<4d} | {e['compensated']:8.2%} "
+            print(f"{rec:8s} {tag:24s} {m['record_clamped']:4d}/{m['record_samples']:<4d} | {e['compensated']:8.2%} "
                   f"{e['linear gain']:8.2%} {e['PI inverse']:8.2%}")
-    for key, how in (("one_for_all", "`duhem fit`"), ("one_for_all_effects", "`duhem fit --effects switching`")):
+    for key, effects, held, _ in JOINTS:
         j = res[key]
+        how = "`duhem fit" + (f" --effects {','.join(effects)}" if effects else "") + "".join(
+            f" --hold {k}={v:g}" for k, v in held.items()) + "`"
         print(f"\nOne model for the three rates ({j['model']} by {how}, one Prandtl-Ishlinskii model), each "
               "record's plant from the state fitted to it:")
         print(f"{'record':8s} {'fit':>6s} {'clamped':>9s} | {'comp.':>9s} {'linear':>8s} {'PI inv.':>8s} | "
@@ -202,8 +220,8 @@ def main() -> None:
         return
     t0 = time.perf_counter()
     recs = piezo_recordings(args.data)
-    res = {"records": {label: record_part(rec) for label, rec in recs.items()}, "one_for_all": joint_part(recs),
-           "one_for_all_effects": joint_part(recs, JOINT_EFFECTS)}
+    res = {key: joint_part(recs, effects, held, measurement) for key, effects, held, measurement in JOINTS}
+    res["records"] = {label: record_part(rec) for label, rec in recs.items()}
     res["total_seconds"] = time.perf_counter() - t0
     res["stack"] = stack()
     if args.json:

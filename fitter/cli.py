@@ -263,11 +263,12 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithf
     if summary.get("why"):
         click.echo(f"chosen: {summary['why']}")
     effects = summary.get("effects") or {}
+    held = effects.get("held") or {}
     for e in effects.get("fitted", []):
-        click.echo(f"effect {e['effect']} fitted with the base: "
-                   + ", ".join(f"{k} = {_fmt(v)}" for k, v in e["parameters"].items()))
-    if effects.get("held"):
-        click.echo("held, not fitted: " + ", ".join(f"{k} = {_fmt(v)}" for k, v in effects["held"].items()))
+        free = [f"{k} = {_fmt(v)}" for k, v in e["parameters"].items() if f"{e['effect']}.{k}" not in held]
+        click.echo(f"effect {e['effect']} fitted with the base: " + (", ".join(free) or "none of its parameters"))
+    if held:
+        click.echo("held, not fitted: " + ", ".join(f"{k} = {_fmt(v)}" for k, v in held.items()))
     if effects:
         settled = effects.get("settled") or []
         click.echo("effects started settled on the closed loops " + ", ".join(settled) if settled else

@@ -221,3 +221,4 @@ def test_cli_fit_holds_a_known_parameter(tmp_path):
     text = CliRunner().invoke(main, ["fit", *paths, "--kind", "ri", "--order", "1", "--effects",
                                      "measurement_drift", "--hold", "measurement_drift.rate=0", "-o", str(out)])
     assert "held, not fitted: measurement_drift.rate = 0" in text.output
+    assert "effect measurement_drift fitted with the base: none of its parameters" in text.output
