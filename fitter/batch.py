@@ -32,7 +32,7 @@ summary says why.
 
 Per device (a task on a Dask worker, `process_device`)
 ------------------------------------------------------
-fit (`fit_recordings`, ``kind``/``order``/``faithful_minor_loops``/``effects`` as ``duhem fit``) -> ``model.json``
+fit (`fit_recordings`, ``kind``/``order``/``faithful_minor_loops``/``effects``/``held`` as ``duhem fit``) -> ``model.json``
 and ``fit.json`` (the fit summary); the FMU ``model.fmu`` (``backend``,
 native by default); validation of the FMU against every recording with fmpy,
 as ``duhem validate`` does (``validation.json``, ``validation.png``; NRMSE
@@ -48,7 +48,7 @@ beside ``OUTDIR/<device>`` renamed into place (`atomic_directory`), the last
 file being ``done.json`` (status, the row of the summary, every output
 file with its size, and the input hash).  The input hash is the SHA-256 of
 the package version, `BATCH_FORMAT`, the options that change the outputs
-(kind, order, backend, diagnose, threshold, faithful minor loops, effects), the device's column and unit
+(kind, order, backend, diagnose, threshold, faithful minor loops, effects, held parameters), the device's column and unit
 choices, and each recording's name as written in the manifest and its bytes
 (the recording's location on disk does not enter: a copied tree stays
 current).  A re-run skips a device whose ``done.json`` has the same hash and
@@ -132,6 +132,7 @@ from fitter.data.recordings import Recording, load_recordings
 from fitter.diagnosis import diagnose
 from fitter.fmu.build import build_fmu
 from fitter.fmu.host import simulate_fmu
+from fitter.identification.effects_fit import check_held
 from fitter.fmu.model_description import package_version
 from fitter.identification.exported import range_warnings
 from fitter.identification.fit import fit_recordings
@@ -266,12 +267,19 @@ class BatchOptions:
     threshold: float = 0.05
     faithful_minor_loops: bool = False
     effects: tuple[str, ...] = ()
+    held: tuple[tuple[str, float], ...] = ()
+    """Effect parameters held at known values, ("effect.parameter", value) pairs (``duhem fit --hold``)."""
 
     def __post_init__(self):
         object.__setattr__(self, "effects", tuple(self.effects))
         unknown = [e for e in self.effects if e not in REGISTRY]
         if unknown:
             raise BatchError(f"unknown effect {unknown[0]!r} (known: {', '.join(REGISTRY)})")
+        try:
+            held = check_held(dict(self.held), self.effects)
+        except DuhemError as exc:
+            raise BatchError(str(exc)) from None
+        object.__setattr__(self, "held", tuple(sorted(held.items())))
         if self.kind not in ("auto", "ri", "rd"):
             raise BatchError(f"kind must be 'auto', 'ri' or 'rd', not {self.kind!r}")
         if self.backend not in ("native", "python"):
@@ -400,7 +408,8 @@ def process_device(task: DeviceTask) -> dict:
         try:
             recs = _load(task, scratch)
             result = fit_recordings(recs, kind=opts.kind, order=opts.order,
-                                    faithful_minor_loops=opts.faithful_minor_loops, effects=opts.effects)
+                                    faithful_minor_loops=opts.faithful_minor_loops, effects=opts.effects,
+                                    held=dict(opts.held))
             lap("fit")
             model = result.model
             save_model(model, out / "model.json")

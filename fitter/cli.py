@@ -692,13 +692,15 @@ def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order,
 @click.option("--effects", metavar="NAMES", callback=lambda ctx, param, value: _effect_names(value),
               help="catalogue effects (comma-separated) fitted jointly with every device's base, as "
                    "'duhem fit --effects'")
+@click.option("--hold", "held", callback=lambda ctx, param, value: _held_values(value), metavar="EFFECT.PARAM=VALUE",
+              help="with --effects, effect parameters held at a known value in every fit, as 'duhem fit --hold'")
 @click.option("--threshold", type=float, default=DEFAULT_THRESHOLD, show_default=True,
               help="validation: a device whose FMU has an NRMSE above this on a recording is 'invalid'")
 @click.option("--retry-failed", is_flag=True,
               help="run again the devices that failed on unchanged inputs (by default they are skipped)")
 @click.option("--json", "as_json", is_flag=True, help="print what the batch did as JSON")
-def batch(manifest, outdir, with_diagnosis, scheduler, workers, backend, kind, order, faithful, effects, threshold,
-          retry_failed, as_json):
+def batch(manifest, outdir, with_diagnosis, scheduler, workers, backend, kind, order, faithful, effects, held,
+          threshold, retry_failed, as_json):
     """Fit, export, validate, report (and diagnose) every device of a manifest, on Dask.
 
     MANIFEST is a CSV file: columns device, recordings (files separated by
@@ -712,7 +714,7 @@ def batch(manifest, outdir, with_diagnosis, scheduler, workers, backend, kind, o
     if scheduler and workers is not None:
         raise CliError("--workers applies to the local cluster only (not with --scheduler)")
     options = BatchOptions(kind=kind, order=order, backend=backend, diagnose=with_diagnosis, threshold=threshold,
-                           faithful_minor_loops=faithful, effects=effects)
+                           faithful_minor_loops=faithful, effects=effects, held=tuple(held.items()))
     _check_backend(backend)
     report = run_batch(manifest, outdir, options=options, workers=workers, scheduler=scheduler,
                        retry_failed=retry_failed, say=lambda line: click.echo(line, err=True))

@@ -156,18 +156,34 @@ def test_device_task_fits_the_named_effects_with_the_base(tmp_path):
     manifest = make_batch(tmp_path, rates=(3.0,), bad=False)
     (d,) = read_manifest(manifest)
     data = [Path(p).read_bytes() for p in d.paths]
-    options = BatchOptions(kind="ri", order=1, backend="python", effects=("creep",))
+    options = BatchOptions(kind="ri", order=1, backend="python", effects=("creep",), held=(("creep.tau", 7.5),))
     result = process_device(DeviceTask(d, data, options, input_hash(d, data, options)))
     assert result["status"] == "ok", result["reason"]
-    assert [e["effect"] for e in json.loads(result["files"]["model.json"])["effects"]] == ["creep"]
+    (creep,) = json.loads(result["files"]["model.json"])["effects"]
+    assert creep["effect"] == "creep" and creep["parameters"]["tau"] == 7.5
     fit = json.loads(result["files"]["fit.json"])
     assert [e["effect"] for e in fit["effects"]["fitted"]] == ["creep"]
+    assert fit["effects"]["held"] == {"creep.tau": 7.5}
     assert input_hash(d, data, options) != input_hash(d, data, BatchOptions(kind="ri", order=1, backend="python"))
+    assert input_hash(d, data, options) != input_hash(d, data, BatchOptions(kind="ri", order=1, backend="python",
+                                                                            effects=("creep",)))
 
 
-def test_batch_options_refuse_bad_effects():
-    with pytest.raises(BatchError, match="unknown effect 'nope'"):
-        BatchOptions(effects=("nope",))
+@pytest.mark.parametrize("options, needle", [({"effects": ("nope",)}, "unknown effect 'nope'"),
+                                             ({"effects": ("creep",), "held": (("creep.tau", -1.0),)},
+                                              "held parameter 'creep.tau' = -1"),
+                                             ({"held": (("creep.tau", 1.0),)}, "not one of the fitted effects")])
+def test_batch_options_refuse_bad_effects(options, needle):
+    with pytest.raises(BatchError, match=needle):
+        BatchOptions(**options)
+
+
+def test_batch_cli_names_a_bad_held_parameter(tmp_path):
+    manifest = make_batch(tmp_path, rates=(3.0,), bad=False)
+    result = CliRunner().invoke(main, ["batch", str(manifest), "-o", str(tmp_path / "out"), "--effects", "creep",
+                                       "--hold", "creep.tau=-1"])
+    assert result.exit_code != 0 and "held parameter 'creep.tau' = -1 must be" in result.output
+    assert not (tmp_path / "out").exists()
 
 
 def test_batch_cli_names_an_unknown_effect(tmp_path):
