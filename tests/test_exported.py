@@ -280,14 +280,16 @@ def test_minor_loop_excursion_counts_where_slow_loops_settle():
     assert long <= excursion <= 1.1 * long
 
 
-def test_settled_minor_loops_are_the_limit_of_repeated_cycles():
-    """`minor_loop_outputs` (the fixed point of each loop's period map) against brute force: 300 cycles of
-    each loop simulated from x0 = 0, the last turning points, for a coupled second-order model."""
+@pytest.mark.parametrize("held", [None, (-0.8, 0.9)])
+def test_settled_minor_loops_are_the_limit_of_repeated_cycles(held):
+    """`minor_loop_outputs` (the fixed point of each loop's exact branch maps) against brute force: 300 cycles
+    of each loop simulated by the kernel from x0 = 0, the last turning points, for a coupled second-order
+    model; also with an input range that the loops cross, where the kernel holds u at its edges."""
     from fitter.core.models import RateIndependentModel
     from fitter.core.periodic import minor_loop_outputs
     model = RateIndependentModel(A_plus=[[-2.0, 0.5], [0.3, -1.0]], A_minus=[[1.5, -0.4], [0.2, 2.5]],
                                  B_plus=[1.0, 0.5], B_minus=[-0.5, 1.0], C=[1.0, -0.7], E_plus=[0.2, 0.0],
-                                 E_minus=[0.0, -0.1], D=0.3)
+                                 E_minus=[0.0, -0.1], D=0.3, input_range=held)
     fixed = minor_loop_outputs(model, -1.0, 1.0, spans=4, centres=3)
     assert fixed.shape == (3 * 3 + 1, 2)
     row = 0

@@ -56,13 +56,17 @@ def fixed_point(model, t, u, cache: dict | None = None) -> tuple[np.ndarray | No
     (rho = inf).  The samples are taken as they are: when u[-1] != u[0] the
     fixed point is the state the recorded cycle would return to.
     """
-    Phi, c = period_map(model, t, u, cache)
+    return _settled(*period_map(model, t, u, cache))
+
+
+def _settled(Phi: np.ndarray, c: np.ndarray) -> tuple[np.ndarray | None, float]:
+    """(x*, rho) of the affine map x -> Phi x + c, as `fixed_point` returns them."""
     if not (np.all(np.isfinite(Phi)) and np.all(np.isfinite(c))):
         return None, np.inf
     rho = float(np.max(np.abs(np.linalg.eigvals(Phi))))
     if not rho < 1:
         return None, rho
-    return np.linalg.solve(np.eye(model.order) - Phi, c), rho
+    return np.linalg.solve(np.eye(len(c)) - Phi, c), rho
 
 
 @dataclass
@@ -170,19 +174,45 @@ def minor_loop_outputs(model, u_min: float, u_max: float, spans: int = MINOR_SPA
     u_lo evenly placed on [u_min, u_max - b] (`centres` places; one for the full span), repeated, settles
     on the periodic state x* = (I - Phi)^{-1} c of its cycle u_lo -> u_lo + b -> u_lo (`fixed_point`,
     exact: the kernel's affine period map); the outputs at u_lo (from x*) and at u_lo + b (after the
-    rising branch) are the loop's turning points.  inf where a loop has no fixed point (its period map has
-    radius >= 1) or overflows.  Rate-independent models (the time of a sample does not matter)."""
-    out = []
+    rising branch) are the loop's turning points, y = C x + D u (a model without effects: effects are not run).
+    inf where a loop has no fixed point (its period map has radius >= 1) or overflows.  Rate-independent models
+    (the time of a sample does not matter).  Each branch of a loop is the exact map of eqs (1)-(2) over its
+    input travel (`_branch_map`), with the kernel's hold of u at the edges of the model's ``input_range``."""
+    if model.kind != "ri":
+        raise KernelError("minor loops settle on a rate-independent model's own map")
+    ends = []
     for k in range(1, spans + 1):
         b = (u_max - u_min) * k / spans
-        for lo in np.linspace(u_min, u_max - b, centres if k < spans else 1):
-            u = np.array([lo, lo + b, lo])
-            with np.errstate(all="ignore"):
-                x, _ = fixed_point(model, np.arange(3.0), u)
-                y = (np.full(2, np.inf) if x is None
-                     else simulate(model, np.arange(2.0), u[:2], x0=x).y)
-            out.append(np.where(np.isfinite(y), y, np.inf))
-    return np.array(out)
+        ends += [(lo, lo + b) for lo in np.linspace(u_min, u_max - b, centres if k < spans else 1)]
+    u = model.model_input(np.array(ends, dtype=float))
+    n, eye = model.order, np.eye(model.order)
+    with np.errstate(all="ignore"):
+        R, gr, hr = _branch_maps(model.A_plus, model.B_plus, model.E_plus, u[:, 1] - u[:, 0])
+        F, gf, hf = _branch_maps(model.A_minus, model.B_minus, model.E_minus, u[:, 0] - u[:, 1])
+        top = gr * u[:, :1] + hr
+        Phi = F @ R
+        c = (F @ top[..., None])[..., 0] + gf * u[:, 1:] + hf
+        finite = np.all(np.isfinite(Phi), axis=(1, 2)) & np.all(np.isfinite(c), axis=1)
+        rho = np.full(len(u), np.inf)
+        rho[finite] = np.max(np.abs(np.linalg.eigvals(Phi[finite])), axis=1)
+        ok = rho < 1
+        x = np.full((len(u), n), np.inf)
+        x[ok] = np.linalg.solve(eye - Phi[ok], c[ok][..., None])[..., 0]
+        x1 = (R @ x[..., None])[..., 0] + top
+        y = np.stack([x @ model.C, x1 @ model.C], axis=1) + model.D * u
+    y[~ok] = np.inf
+    return np.where(np.isfinite(y), y, np.inf)
+
+
+def _branch_maps(A: np.ndarray, B: np.ndarray, E: np.ndarray, du: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(Phi, g, h), stacked over the travels `du`, with x(u + du) = Phi x(u) + g u + h along one branch
+    dx/du = A x + B u + E (eq. 1 with the branch's matrices), exact: the exponential of
+    du [[A, B, E], [0, 0, 1], [0, 0, 0]] acting on (x, u, 1)."""
+    n = len(B)
+    M = np.zeros((n + 2, n + 2))
+    M[:n, :n], M[:n, n], M[:n, n + 1], M[n, n + 1] = A, B, E, 1.0
+    F = expm(du[:, None, None] * M)
+    return F[:, :n, :n], F[:, :n, n], F[:, :n, n + 1]
 
 
 def minor_loop_input(u_min: float, u_max: float, cycles: int = 40, points: int = 20,

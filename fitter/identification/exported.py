@@ -270,7 +270,8 @@ def minor_loop_warning(model) -> str | None:
             "the recorded loops, not necessarily smaller ones (a semilinear model's small loops settle on a "
             "centre line affine in u); its compensator inverts the model exactly but may ask for inputs far from "
             "the recorded path; check it on a recording with minor loops before using it there, or fit with "
-            "--faithful-minor-loops")
+            "--faithful-minor-loops (and --effects for physics such as switching that the faithful base then "
+            "cannot follow)")
 
 
 def input_range(recordings: Sequence[Recording]) -> tuple[float, float]:
