@@ -61,13 +61,18 @@ def test_switching_fitted_with_the_base_reaches_the_noise(fits):
     assert [e.effect for e in extended.model.effects] == ["switching"]
 
 
-def test_cli_fit_with_effects_writes_the_extended_model(tmp_path):
-    recs = _recordings()
+def _csv_files(recs: list[Recording], folder) -> list[str]:
+    """Each recording as folder/<name>.csv (columns time, u, y); their paths."""
     paths = []
     for rec in recs:
-        path = tmp_path / f"{rec.name}.csv"
-        np.savetxt(path, np.c_[rec.t, rec.u, rec.y], delimiter=",", header="time,u,y", comments="")
-        paths.append(str(path))
+        paths.append(str(folder / f"{rec.name}.csv"))
+        np.savetxt(paths[-1], np.c_[rec.t, rec.u, rec.y], delimiter=",", header="time,u,y", comments="")
+    return paths
+
+
+def test_cli_fit_with_effects_writes_the_extended_model(tmp_path):
+    recs = _recordings()
+    paths = _csv_files(recs, tmp_path)
     out = tmp_path / "m.json"
     res = CliRunner().invoke(main, ["fit", *paths, "--kind", "ri", "--order", "1", "--effects", "switching",
                                     "-o", str(out)])
@@ -85,11 +90,7 @@ def test_cli_fit_effects_with_faithful_minor_loops(tmp_path):
     says the fit was constrained and its minor loops stay near the data) and the switching still takes the
     loop to the noise (0.2 %)."""
     recs = _recordings()
-    paths = []
-    for rec in recs:
-        path = tmp_path / f"{rec.name}.csv"
-        np.savetxt(path, np.c_[rec.t, rec.u, rec.y], delimiter=",", header="time,u,y", comments="")
-        paths.append(str(path))
+    paths = _csv_files(recs, tmp_path)
     out = tmp_path / "m.json"
     res = CliRunner().invoke(main, ["fit", *paths, "--kind", "ri", "--order", "1", "--effects", "switching",
                                     "--faithful-minor-loops", "-o", str(out), "--json"])
@@ -205,10 +206,7 @@ def test_cli_fit_holds_a_known_parameter(tmp_path):
     the fit at the noise, the held value in the summary and printed."""
     import json
 
-    paths = []
-    for rec in _referenced():
-        paths.append(str(tmp_path / f"{rec.name}.csv"))
-        np.savetxt(paths[-1], np.column_stack([rec.t, rec.u, rec.y]), delimiter=",", header="time,u,y", comments="")
+    paths = _csv_files(_referenced(), tmp_path)
     out = tmp_path / "m.json"
     res = CliRunner().invoke(main, ["fit", *paths, "--kind", "ri", "--order", "1", "--effects", "measurement_drift",
                                     "--hold", "measurement_drift.rate=0", "-o", str(out), "--json"])
