@@ -32,8 +32,8 @@ summary says why.
 
 Per device (a task on a Dask worker, `process_device`)
 ------------------------------------------------------
-fit (`fit_recordings`, ``kind``/``order``/``faithful_minor_loops``/``effects``/``held`` as ``duhem fit``) -> ``model.json``
-and ``fit.json`` (the fit summary); the FMU ``model.fmu`` (``backend``,
+fit (`fit_recordings`, ``kind``/``order``/``faithful_minor_loops``/``effects``/``held`` as ``duhem fit``)
+-> ``model.json`` and ``fit.json`` (the fit summary); the FMU ``model.fmu`` (``backend``,
 native by default); validation of the FMU against every recording with fmpy,
 as ``duhem validate`` does (``validation.json``, ``validation.png``; NRMSE
 over all samples against ``threshold``); the fit report ``report/``; with
@@ -48,8 +48,8 @@ beside ``OUTDIR/<device>`` renamed into place (`atomic_directory`), the last
 file being ``done.json`` (status, the row of the summary, every output
 file with its size, and the input hash).  The input hash is the SHA-256 of
 the package version, `BATCH_FORMAT`, the options that change the outputs
-(kind, order, backend, diagnose, threshold, faithful minor loops, effects, held parameters), the device's column and unit
-choices, and each recording's name as written in the manifest and its bytes
+(kind, order, backend, diagnose, threshold, faithful minor loops, effects, held parameters), the device's
+column and unit choices, and each recording's name as written in the manifest and its bytes
 (the recording's location on disk does not enter: a copied tree stays
 current).  A re-run skips a device whose ``done.json`` has the same hash and
 whose files are all present with their recorded sizes ("skipped: current").
@@ -132,8 +132,8 @@ from fitter.data.recordings import Recording, load_recordings
 from fitter.diagnosis import diagnose
 from fitter.fmu.build import build_fmu
 from fitter.fmu.host import simulate_fmu
-from fitter.identification.effects_fit import check_held
 from fitter.fmu.model_description import package_version
+from fitter.identification.effects_fit import check_held
 from fitter.identification.exported import range_warnings
 from fitter.identification.fit import fit_recordings
 from fitter.reports.diagnosis_report import fill_diagnosis_report

@@ -172,12 +172,13 @@ def minor_loop_outputs(model, u_min: float, u_max: float, spans: int = MINOR_SPA
 
     A loop of span b = beta k / spans (k = 1..spans, beta = u_max - u_min) between u_lo and u_lo + b, with
     u_lo evenly placed on [u_min, u_max - b] (`centres` places; one for the full span), repeated, settles
-    on the periodic state x* = (I - Phi)^{-1} c of its cycle u_lo -> u_lo + b -> u_lo (`fixed_point`,
-    exact: the kernel's affine period map); the outputs at u_lo (from x*) and at u_lo + b (after the
-    rising branch) are the loop's turning points, y = C x + D u (a model without effects: effects are not run).
-    inf where a loop has no fixed point (its period map has radius >= 1) or overflows.  Rate-independent models
-    (the time of a sample does not matter).  Each branch of a loop is the exact map of eqs (1)-(2) over its
-    input travel (`_branch_map`), with the kernel's hold of u at the edges of the model's ``input_range``."""
+    on the periodic state x* = (I - Phi)^{-1} c of its cycle u_lo -> u_lo + b -> u_lo (Phi, c: the affine
+    period map, the falling branch's map after the rising one's); the outputs at u_lo (from x*) and at
+    u_lo + b (after the rising branch) are the loop's turning points, y = C x + D u (a model without
+    effects: effects are not run).  inf where a loop has no fixed point (its period map has radius >= 1)
+    or overflows.  Rate-independent models (the time of a sample does not matter).  Each branch of a loop
+    is the exact map of eqs (1)-(2) over its input travel (`_branch_maps`, all loops in one stacked
+    exponential), with the kernel's hold of u at the edges of the model's ``input_range``."""
     if model.kind != "ri":
         raise KernelError("minor loops settle on a rate-independent model's own map")
     ends = []
