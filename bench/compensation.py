@@ -7,8 +7,9 @@ linear gain and a Prandtl-Ishlinskii inverse.
 
 Per record (``piezo-pnzt/slow_T06/T01/T02``: 1400 V triangles at 1, 0.1, 0.01 Hz; voltage_V ->
 polarization_uC_per_cm2), as ``bench/real_data.py`` (a) fits them: a rate-independent Duhem model fitted to that
-record alone (`fit_recordings(kind="ri")`, order by BIC), the same fit at orders 1-3, and the BIC fit with
-faithful minor loops (`faithful_minor_loops=True`: its small-loop centres near the data).  Then one model for
+record alone (`fit_recordings(kind="ri")`, order by BIC), the same fit at orders 1-3, the BIC fit with
+faithful minor loops (`faithful_minor_loops=True`: its settled small loops near the data), and that fit with the
+switching effect (`FITS`: `duhem fit --faithful-minor-loops --effects switching`).  Then one model for
 the three rates, as `duhem fit` gives it on the three files (`fit_recordings`, kind and order by BIC; a
 rate-dependent model), as `duhem fit --effects switching` gives it (`JOINT_EFFECTS`: the material
 effect of the piezo.best of ``bench/real_data.py``), and that piezo.best itself (`JOINTS`: `duhem fit --effects
