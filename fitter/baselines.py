@@ -391,14 +391,42 @@ class _Normal:
         return g
 
 
+_MIN_RANK = 2
+"""Fewest independent element columns (beyond 1 and u) a fit accepts: `_check_rank`."""
+_RANK_TOL = 1e-9
+"""Eigenvalues below this fraction of the largest count as zero in `_check_rank`."""
+
+
+def _check_rank(g: np.ndarray) -> None:
+    """Raise LinAlgError when the elements carry fewer than `_MIN_RANK` directions beyond [1, u].
+
+    The element block's Gram with 1 and u eliminated (Schur complement) is
+    tested for its numerical rank: eigenvalues above `_RANK_TOL` times the
+    largest.  An input outlier leaves every element a combination of one
+    spike and one step (rank <= 1, the rest at rounding, ~1e-15); a recording
+    that drives the elements has a rank of tens (a 100-sample sine: 23 of 23
+    plays, 47 relays), so the decision does not rest on a solver's last digits.
+    """
+    head, basis = slice(0, 2), slice(2, -1)
+    g_hh = g[head, head]
+    if np.linalg.matrix_rank(g_hh) < 2:
+        raise np.linalg.LinAlgError("the input is constant")
+    h = g[basis, basis] - g[head, basis].T @ np.linalg.solve(g_hh, g[head, basis])
+    eig = np.linalg.eigvalsh(h)
+    top = max(float(eig[-1]), 0.0)
+    if top == 0.0 or int(np.sum(eig > _RANK_TOL * top)) < _MIN_RANK:
+        raise np.linalg.LinAlgError("the elements carry fewer than two directions")
+
+
 def _solve_normal(g: np.ndarray, nonnegative: bool, n_free: int = 2) -> tuple[np.ndarray, np.ndarray, float]:
     """Minimise ||D [f; w] - y||^2, f free, w >= 0 (or free), from the Gram of [D, y] (module docstring).
 
     The free f is eliminated (Schur complement), the reduced problem
     w^T H w - 2 g^T w + c is solved by NNLS on its Cholesky factor (H + a
     1e-10 relative ridge, so that it is positive definite), then f.
-    Returns (w, f, rss).
+    Returns (w, f, rss); LinAlgError when `_check_rank` finds the problem singular.
     """
+    _check_rank(g)
     free, basis = slice(0, n_free), slice(n_free, -1)
     g_ff, g_fp, g_fy = g[free, free], g[free, basis], g[free, -1]
     elim = np.linalg.solve(g_ff, np.column_stack([g_fp, g_fy]))

@@ -198,6 +198,18 @@ def test_a_recording_that_cannot_be_fitted_is_named_in_a_duhem_error(cls, rec, w
         cls().fit([rec])
 
 
+@pytest.mark.parametrize("cls", [Preisach, PrandtlIshlinskii])
+def test_an_input_outlier_is_refused_as_singular_by_rank_not_by_rounding(cls):
+    """One sample at 1e90 leaves every element a spike and a step (rank <= 1): refused; the same
+    recording without it is fitted (the rank test's margin is ~1e6 either side of its tolerance)."""
+    t, u = sine_input(1.0, 2, 100)
+    y = noisy_recording(classical_loop_model(), t, u, noise=0.0, seed=0).y
+    spike = np.where(np.arange(len(u)) == 50, 1e90, u)
+    with pytest.raises(BaselineError, match="spike: .*least-squares problem is singular"):
+        cls().fit([Recording(t, spike, y, name="spike")])
+    assert cls().fit([Recording(t, u, y, name="clean")]).parameters > 0
+
+
 def test_a_recording_the_duhem_preparation_refuses_is_refused_by_name():
     t = np.linspace(0, 1, 60)
     half_loop = Recording(t, np.r_[np.linspace(0, 1, 30), np.linspace(1, 0.5, 30)], t ** 2, name="half loop")
