@@ -1,17 +1,19 @@
 # Two entry points: `make demo` (fit, export, validate, diagnose a shipped recording)
-# and `make test`. Each creates .venv and installs the project into it.
+# and `make test`. Each creates .venv and installs the project into it through
+# constraints.txt (the exact versions the suite last passed with).
+# `make test-newest` runs the suite on the newest versions inside pyproject.toml's ranges.
 PYTHON ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
 OUT := out
 
-$(BIN)/duhem: pyproject.toml
+$(BIN)/duhem: pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q ".[test]"
+	$(BIN)/pip install -q -c constraints.txt ".[test]"
 	touch $(BIN)/duhem
 
-.PHONY: install demo test bench
+.PHONY: install demo test test-newest bench
 install: $(BIN)/duhem
 
 demo: install
@@ -22,6 +24,14 @@ demo: install
 
 test: install
 	$(BIN)/python -m pytest -q
+
+test-newest:
+	rm -rf .venv-newest
+	$(PYTHON) -m venv .venv-newest
+	.venv-newest/bin/pip install -q --upgrade pip
+	.venv-newest/bin/pip install -q --upgrade ".[test]"
+	.venv-newest/bin/pip freeze --exclude semilinear-duhem | grep -iE "^(numpy|scipy|cvxpy|fmpy|pythonfmu)=="
+	.venv-newest/bin/python -m pytest -q
 
 bench: install
 	$(BIN)/python bench/reproduce_paper.py
