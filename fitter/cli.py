@@ -617,9 +617,10 @@ def _axis_name(signal) -> str:
               help="without --model: order of the rate-independent base model (auto: the order 'duhem fit' "
                    "chooses by BIC, so the base is adequate before effects are tested; 1: fitted here, fast; "
                    "2-4: fitted by 'duhem fit --kind ri --order N' first; its A matrices are then held)")
-@click.option("--separate", is_flag=True,
-              help="the recordings are separate runs, each on its own clock (e.g. every file from t = 0): each is "
-                   "simulated alone from the initial state fitted to it, as 'duhem fit' scores")
+@click.option("--separate/--one-clock", "separate", default=None,
+              help="force the reading of the files: separate runs, each simulated alone from the initial state "
+                   "fitted to it, as 'duhem fit' scores; or one clock running on from file to file (default: "
+                   "separate runs when a file starts at or before its predecessor ends, e.g. every file from t = 0)")
 @click.option("--candidates", callback=lambda ctx, param, value: _effect_names(value), metavar="NAMES",
               help="the effects to test (comma-separated; default every effect searched for by default: "
                    f"{', '.join(CANDIDATES)})")
@@ -629,8 +630,9 @@ def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order,
     """Locate the model-data mismatch of one experiment, name the physics left out, model it.
 
     The recordings are one experiment in time order on one clock (e.g.
-    several rates and a repeat of the first run), or with --separate
-    separate runs, each on its own clock.
+    several rates and a repeat of the first run), or separate runs, each
+    on its own clock (recognised when a file starts at or before its
+    predecessor ends; --separate / --one-clock force a reading).
     """
     _check_fmu_name(fmu)
     if model_path and base_order != "auto":

@@ -359,16 +359,20 @@ def test_diagnose_unexplained_and_base_order(clean_run, monkeypatch):
     bad = invoke("diagnose", *clean_run["files"], "--base-order", "5")
     assert bad.exit_code == 2 and "'5' is not one of" in bad.output
     ok(invoke("diagnose", *clean_run["files"], "--separate"))
-    assert calls[3]["separate"] is True and calls[2]["separate"] is False
+    ok(invoke("diagnose", *clean_run["files"], "--one-clock"))
+    assert [c["separate"] for c in calls] == [None, None, None, True, False]     # None: read from the clocks
 
 
-def test_diagnose_files_on_their_own_clocks_need_separate(tmp_path):
-    """Two files that each start at t = 0: refused on one clock, naming the option that reads them."""
+def test_diagnose_reads_files_on_their_own_clocks_as_separate_runs(tmp_path):
+    """Two files that each start at t = 0: separate runs without an option; forcing one clock is refused,
+    naming the overlap and the option."""
     recs, _ = synthetic_experiment(None, seed=1, samples=300)
     files = [write_csv(tmp_path / f"{r.name}.csv", r.t - r.t[0], r.u, r.y) for r in recs[:2]]
-    assert_clean_failure(invoke("diagnose", *files), tmp_path, listing(tmp_path), "before", "--separate")
-    data = json.loads(ok(invoke("diagnose", *files, "--separate", "--base-order", "1", "--json", "-")).stdout)
+    assert_clean_failure(invoke("diagnose", *files, "--one-clock"), tmp_path, listing(tmp_path),
+                         "starts at t = 0.0 before", "--one-clock")
+    data = json.loads(ok(invoke("diagnose", *files, "--base-order", "1", "--json", "-")).stdout)
     assert data["separate"] is True and data["verdict"] == "nothing_missing"
+    assert data["summary"].startswith("The files are read as separate runs")
 
 
 # --------------------------------------------------------------------------- errors

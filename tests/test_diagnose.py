@@ -451,14 +451,15 @@ def _separate_runs(effect: Effect, seed: int) -> list[Recording]:
 
 def test_separate_runs_each_from_its_own_start():
     """Files that each start at t = 0 and from their own state, with a drift that restarts per file (an
-    integrating charge amplifier zeroed per measurement): one clock is refused with a pointer to --separate;
-    as separate runs the drift is found with its rate, the extended model reaches the noise, and the
-    diagnosis' per-recording NRMSE is the model's under the fit's policy (x0 fitted per recording)."""
+    integrating charge amplifier zeroed per measurement): they are read as separate runs without being told
+    (forcing one clock is refused, naming the overlap); the drift is found with its rate, the extended model
+    reaches the noise, and the diagnosis' per-recording NRMSE is the model's under the fit's policy (x0
+    fitted per recording)."""
     from fitter.baselines import duhem_nrmse
     recs = _separate_runs(Effect("measurement_drift", {"rate": -0.004}), seed=3)
-    with pytest.raises(DiagnoseError, match="--separate"):
-        diagnose(recs, base_order=1)
-    d = diagnose(recs, base_order=1, separate=True, candidates=("creep", "measurement_drift", "viscous"))
+    with pytest.raises(DiagnoseError, match=f"{recs[1].source}: starts at t = 0.0 before .*--one-clock"):
+        diagnose(recs, base_order=1, separate=False)
+    d = diagnose(recs, base_order=1, candidates=("creep", "measurement_drift", "viscous"))
     assert [f["effect"] for f in d.findings] == ["measurement_drift"] and d.verdict == "effects_found"
     f = d.findings[0]
     assert abs(f["parameters"]["rate"] + 0.004) < 3 * f["stderr"]["rate"] + 2e-4

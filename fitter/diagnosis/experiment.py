@@ -8,7 +8,9 @@ next), so model states, creep and the input travel of a thermal drift carry
 over from file to file.
 
 Or (``separate``) a list of separate runs, each on its own clock (every file
-may start at t = 0, as a tester that writes one file per measurement does):
+may start at t = 0, as a tester that writes one file per measurement does;
+recognised by default when a file starts at or before its predecessor ends,
+`own_clocks`):
 each recording is simulated alone, from the initial state that fits it best
 (least squares over all its samples, the fit's and the baselines' policy,
 `fitter.identification.output_error.fitted_initial_state`), and every effect
@@ -27,7 +29,7 @@ from fitter.core.errors import DuhemError
 from fitter.data.cycles import count_reversals
 from fitter.data.recordings import Recording, check_scale
 
-__all__ = ["DiagnoseError", "JoinedExperiment", "MIN_SAMPLES", "join_recordings", "chain_recordings"]
+__all__ = ["DiagnoseError", "JoinedExperiment", "MIN_SAMPLES", "join_recordings", "chain_recordings", "own_clocks"]
 
 MIN_SAMPLES = 200
 
@@ -69,15 +71,26 @@ class JoinedExperiment:
         return EffectContext.of([(self.t[s], self.u[s], self.y[s]) for s in self.runs()], y_mean, self.min_dt())
 
 
-def join_recordings(recordings: Sequence[Recording], separate: bool = False) -> JoinedExperiment:
+def own_clocks(recordings: Sequence[Recording]) -> tuple[Recording, Recording] | None:
+    """The first pair (a, b) of consecutive recordings where b starts at or before a ends (b.t[0] <= a.t[-1]):
+    files each on their own clock, as a tester writes one file per measurement (every file from t = 0);
+    None when time runs on from file to file (one clock)."""
+    recs = list(recordings)
+    return next(((a, b) for a, b in zip(recs[:-1], recs[1:]) if b.t[0] <= a.t[-1]), None)
+
+
+def join_recordings(recordings: Sequence[Recording], separate: bool | None = None) -> JoinedExperiment:
     """Check the recordings of one experiment and join them on its clock (`separate`: as separate runs,
     module docstring).
+
+    `separate` None (default) reads the files as they were written: separate runs when a file starts
+    at or before its predecessor ends (`own_clocks`), else one clock; True or False forces a reading.
 
     Raises
     ------
     DiagnoseError : no recordings, different columns, a non-finite output, time not running on from
-        file to file (unless `separate`), fewer than `MIN_SAMPLES` samples, an input reversing fewer than
-        twice.
+        file to file with `separate` False, fewer than `MIN_SAMPLES` samples, an input reversing fewer
+        than twice.
     """
     recs = list(recordings)
     if not recs:
@@ -86,12 +99,15 @@ def join_recordings(recordings: Sequence[Recording], separate: bool = False) -> 
     for r in recs:
         _check_output(r)
     check_scale(recs)
-    for a, b in zip(recs[:-1], recs[1:]):
-        if b.t[0] <= a.t[-1] and not separate:
-            raise DiagnoseError(f"{b.source}: starts at t = {b.t[0]} before {a.source} ends (t = {a.t[-1]}); "
-                                "the recordings of one experiment must share one clock that runs on from "
-                                "file to file (shift the time of later files, or diagnose them as separate runs: "
-                                "--separate)")
+    overlap = own_clocks(recs)
+    if separate is None:
+        separate = overlap is not None
+    if overlap is not None and not separate:
+        a, b = overlap
+        raise DiagnoseError(f"{b.source}: starts at t = {b.t[0]} before {a.source} ends (t = {a.t[-1]}); "
+                            "the recordings of one experiment on one clock must run on from file to file "
+                            "(shift the time of later files, or leave out --one-clock: files each on their own "
+                            "clock are diagnosed as separate runs)")
     n = sum(len(r.t) for r in recs)
     if n < MIN_SAMPLES:
         raise DiagnoseError(f"{n} samples in all ({', '.join(r.source for r in recs)}): too short to "

@@ -129,12 +129,12 @@ _FINDING_KEYS = ("effect", "origin", "p_value", "parameters", "stderr", "explain
 
 def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress = silent,
              candidates: Sequence[str] = CANDIDATES, alpha: float = ALPHA, max_findings: int = 2,
-             base_order: int | None = None, separate: bool = False) -> Diagnosis:
+             base_order: int | None = None, separate: bool | None = None) -> Diagnosis:
     """Diagnose one experiment; see the module docstring for the procedure.
 
     Parameters
     ----------
-    recordings : the experiment's recordings, in time order, on one clock.
+    recordings : the experiment's recordings, in time order: on one clock, or each on its own.
     model : optional base model (`RateIndependentModel` or `RateDependentModel`); its A, B, E, x0 are
         refined on the experiment.
     base_order : without `model`: None (default) takes the base from
@@ -150,6 +150,8 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
     max_findings : most effects added to the model.
     separate : the recordings are separate runs, each on its own clock (`join_recordings`): each is
         simulated alone from the initial state fitted to it, as `duhem fit` and the baselines score.
+        None (default): separate runs when a file starts at or before its predecessor ends
+        (`fitter.diagnosis.experiment.own_clocks`), else one clock; True or False forces a reading.
 
     Raises
     ------
@@ -202,7 +204,7 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
                      validation=validation, comparison=comparison, paragraph="",
                      base_model=described(base.model, ex.recordings),
                      extended_model=ext_model, baseline_output=ex.y - base.residual,
-                     extended_output=ex.y - current.residual, separate=separate)
+                     extended_output=ex.y - current.residual, separate=ex.separate)
     diag.paragraph = summary_paragraph(diag)
     return diag
 

@@ -12,7 +12,9 @@ def summary_paragraph(d: Diagnosis) -> str:
     """The diagnosis in one paragraph: the base residual against the noise, where it lies, what was found."""
     b, e = d.baseline, d.extended
     m = d.mismatch
-    text = (f"The base model leaves a residual of {b['residual_rms']:.3g} RMS against a noise level of "
+    text = ("The files are read as separate runs, each on its own clock and each simulated from its own "
+            "initial state. " if d.separate and len(d.mismatch.get("per_recording", [])) > 1 else "")
+    text += (f"The base model leaves a residual of {b['residual_rms']:.3g} RMS against a noise level of "
             f"{d.noise_rms:.3g} estimated from the data ({_times(b['residual_rms'], d.noise_rms)}); "
             f"the largest mismatch is in {m['worst_recording']}.")
     g = m["growth"]
