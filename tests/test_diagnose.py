@@ -9,6 +9,7 @@ likelihood-ratio report, the AR(1) effective sample size, the effect context.
 """
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -143,7 +144,7 @@ def test_bad_input_is_a_clear_error():
     with pytest.raises(DiagnoseError, match=r"b.csv: columns \(u, force\) differ from a.csv: \(u, y\)"):
         diagnose([a, b])
     with pytest.raises(DiagnoseError, match="b.csv: starts at t = 0.0 before a.csv ends"):
-        diagnose([a, _rec(t, np.sin(t), np.sin(t), "b")])
+        diagnose([a, _rec(t, np.sin(t), np.sin(t), "b")], separate=False)
     with pytest.raises(DiagnoseError, match="unknown candidate effect 'friction'"):
         diagnose([a], candidates=["friction"])
 
@@ -552,3 +553,46 @@ def test_a_branch_of_a_few_samples_is_not_where_the_residual_lives():
     ex = join_recordings([_rec(t, u, u)])
     where = locate_mismatch(ex, np.r_[10.0, np.zeros(699)], 1.0)
     assert where["per_branch"]["held"] is None and where["per_branch"]["rising"] > 0
+
+
+def test_noise_floor_counts_the_input_noise_the_true_model_carries_to_its_output():
+    """A first-order loop recorded with white noise on its input (0.02 of a range of 2) and output (0.004):
+    the floor (output noise, and input noise through the first-order base) is well above the output's noise
+    and never above the residual the true model itself leaves on the recorded input (which also ratchets on
+    the input's jitter); a noise-free input leaves the floor at the output's noise, the true model's residual."""
+    from fitter.data.metrics import rms
+    from fitter.diagnosis.noise_floor import noise_floor
+    from fitter.diagnosis.fitting import fit_base
+    recs, _ = synthetic_experiment(None, seed=2, samples=SAMPLES)
+    truth = first_order_ri(**TRUTH_BASE)
+    rng = np.random.default_rng(7)
+    noisy, clean = [], []
+    for r in recs:
+        y = simulate(truth, r.t, r.u).y + 0.004 * rng.standard_normal(len(r.t))
+        noisy.append(Recording(r.t, r.u + 0.02 * rng.standard_normal(len(r.t)), y, name=r.name))
+        clean.append(Recording(r.t, r.u, y, name=r.name))
+    floors = {}
+    for label, recordings in (("noisy", noisy), ("clean", clean)):
+        ex = join_recordings(recordings)
+        floors[label] = noise_floor(ex, fit_base(ex, None, np.ones(len(ex.t), bool)).model)
+        floors[label]["own"] = rms(ex.y - simulate(truth, ex.t, ex.u).y)
+    noisy, clean = floors["noisy"], floors["clean"]
+    assert noisy["through_input"] > 2 * noisy["output"] and noisy["rms"] <= noisy["own"]
+    assert clean["through_input"] < 1e-3 * clean["output"]
+    assert clean["rms"] == pytest.approx(clean["own"], rel=0.1)
+
+
+def test_the_shipped_effect_free_demo_claims_nothing():
+    """examples/demo.csv (an order-2 model, no effect, noise on input and output): nothing is missing.  The
+    floor is the residual its true model leaves (within 5 %), not the output's noise alone, and the base
+    is a settled order that reaches it."""
+    from fitter.data.recordings import load_recording
+    from fitter.data.metrics import rms
+    examples = Path(__file__).resolve().parent.parent / "examples"
+    rec = load_recording(examples / "demo.csv", "time_s", "u_V", "y_um", name="demo")
+    d = diagnose([rec])
+    truth = load_model(examples / "demo_truth.json")
+    assert d.verdict == "nothing_missing" and d.findings == []
+    assert d.noise_rms == pytest.approx(rms(rec.y - simulate(truth, rec.t, rec.u).y), rel=0.05)
+    assert d.noise["through_input"] > 0.5 * d.noise["output"]
+    assert d.baseline["residual_rms"] <= 1.2 * d.noise_rms and d.base_model.order >= 2

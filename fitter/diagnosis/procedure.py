@@ -28,13 +28,19 @@ Procedure (`diagnose`)
    noise with a loop still far from settled when the experiment ends
    (`_unsettled_rms` beyond `NOISE_MARGIN` times the noise: a
    rate-independent base fits a drift of the output with a loop that keeps
-   moving) counts as one that leaves a misfit; and the first-order base with
+   moving) counts as one that leaves a misfit, unless a lower order 2 ..
+   n - 1 reaches the noise settled (`_settled_lower_order`: the unsettled
+   loop is then a mode the data do not determine, not a drift, and that
+   order is the base); and the first-order base with
    its best effect is not preferred when it leaves a structured residual
    and the higher order a white one.  Or
    a fixed order, or a given model.  The base's A, B, E (per branch) and
    x0 are refined (`fitter.diagnosis.fitting.fit_base`).
-2. Noise level sigma: `fitter.data.metrics.noise_rms` of each recording's output,
-   pooled (median).  Locating (`fitter.diagnosis.locate.locate_mismatch`):
+2. Noise level sigma: the residual the true model would leave
+   (`fitter.diagnosis.noise_floor.noise_floor`): the output's white noise
+   (`fitter.data.metrics.noise_rms`, median over the recordings) and the
+   input's, carried to the output by the first-order base (errors in
+   variables; ``noise`` in the JSON says how it was estimated).  Locating (`fitter.diagnosis.locate.locate_mismatch`):
    residual RMS per recording, per branch, per input-range bin, its
    correlation across recordings with log rate, start time and amplitude, and
    a model-free comparison of a repeated run with its original.
@@ -105,11 +111,12 @@ from fitter.core.errors import DuhemError, KernelError
 from fitter.core.kernel import simulate
 from fitter.core.periodic import fixed_point
 from fitter.data.cycles import closed_last_cycle
-from fitter.data.metrics import noise_rms, nrmse, rms
+from fitter.data.metrics import nrmse, rms
 from fitter.data.recordings import Recording
 from fitter.diagnosis.experiment import DiagnoseError, JoinedExperiment, join_recordings
 from fitter.diagnosis.fitting import Fit, fit_base, fit_family, fit_per_recording
 from fitter.diagnosis.locate import locate_mismatch, where_differs
+from fitter.diagnosis.noise_floor import noise_floor
 from fitter.diagnosis.result import Diagnosis
 from fitter.diagnosis.statistics import (ALPHA, NOISE_MARGIN, consistency_report, memory_response_report,
                                          effect_report, is_significant, remainder_report)
@@ -164,7 +171,9 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
     ex = join_recordings(recordings, separate)
     mask = np.ones(len(ex.t), bool)
     progress("fitting the base model", 0.0)
-    noise = float(np.median([noise_rms(r.y) for r in ex.recordings if len(r.y) >= 14]))
+    first = fit_base(ex, None, mask)
+    floor = noise_floor(ex, first.model)
+    noise = floor["rms"]
     n_steps = len(candidates) * (3 if model is None and base_order is None else 2) + 4
     done = [1]
 
@@ -174,11 +183,11 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
 
     alternative = None
     if model is None and base_order is None:
-        base, first_round, alternative = _adequate_base(ex, mask, noise, candidates, alpha, tick)
+        base, first_round, alternative = _adequate_base(ex, first, mask, noise, candidates, alpha, tick)
     else:
         if model is None and base_order != 1:
             model = fit_recordings(ex.recordings, kind="ri", order=base_order).model
-        base, first_round = fit_base(ex, model, mask), None
+        base, first_round = (first if model is None else fit_base(ex, model, mask)), None
     account = _search(ex, base, first_round, candidates, mask, noise, alpha, max_findings, tick)
     if alternative is not None:
         base, account = _higher_order_account(ex, base, account, alternative, candidates, mask, noise, alpha,
@@ -199,7 +208,8 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
                        for origin in ORIGINS}, remainder=remainder)
     baseline = _summary(ex, base, noise)
     progress("done", 1.0)
-    diag = Diagnosis(noise_rms=noise, verdict=_verdict(findings, baseline, remainder, noise), baseline=baseline,
+    diag = Diagnosis(noise_rms=noise, noise=floor, verdict=_verdict(findings, baseline, remainder, noise),
+                     baseline=baseline,
                      mismatch=mismatch, candidates=tested, findings=findings, extended=extended,
                      validation=validation, comparison=comparison, paragraph="",
                      base_model=described(base.model, ex.recordings),
@@ -275,7 +285,7 @@ def _bic(fit: Fit, n_parameters: int) -> float:
     return float(N * np.log(max(fit.rss, 1e-300) / N) + n_parameters * np.log(N))
 
 
-def _adequate_base(ex: JoinedExperiment, mask: np.ndarray, noise: float, candidates: Sequence[str],
+def _adequate_base(ex: JoinedExperiment, first: Fit, mask: np.ndarray, noise: float, candidates: Sequence[str],
                    alpha: float, tick: Callable[[str], None]) -> tuple[Fit, list | None, tuple | None]:
     """The base of step 1 (module docstring) and, when it is the first-order base, its first round of
     candidate tests (reused by the search).
@@ -288,7 +298,6 @@ def _adequate_base(ex: JoinedExperiment, mask: np.ndarray, noise: float, candida
     generalise to another rate or amplitude).  With a single recording the lower BIC wins (parameters:
     7 for the first-order base plus the effect's; for the order-n base its canonical parameters
     (`fit_recordings`) plus its n initial states)."""
-    first = fit_base(ex, None, mask)
     if rms(first.residual) <= NOISE_MARGIN * noise:
         return first, None, None
     tick("choosing the base order (BIC)")
@@ -298,8 +307,9 @@ def _adequate_base(ex: JoinedExperiment, mask: np.ndarray, noise: float, candida
         return first, None, None
     high = fit_base(ex, higher.model, mask)
     k_high = next(c["parameters"] for c in higher.summary["candidates"] if c["order"] == order) + order
-    if rms(high.residual) > NOISE_MARGIN * noise or _unsettled_rms(high, ex) > NOISE_MARGIN * noise:
-        return first, None, (high, k_high)
+    if not _settled_at_noise(high, ex, noise):
+        lower = _settled_lower_order(ex, mask, noise, order)
+        return (lower, None, None) if lower is not None else (first, None, (high, k_high))
     results = _test_round(ex, first, candidates, mask, alpha, len(candidates), tick)
     best = next((f for r, f in results if r["significant"]), None)
     if best is None or rms(best.residual) > NOISE_MARGIN * noise or \
@@ -310,6 +320,24 @@ def _adequate_base(ex: JoinedExperiment, mask: np.ndarray, noise: float, candida
     else:
         better = _bic(best, best.family.size) < _bic(high, k_high)
     return (first, results, None) if better else (high, None, None)
+
+
+def _settled_at_noise(fit: Fit, ex: JoinedExperiment, noise: float) -> bool:
+    """Whether a base leaves a residual within `NOISE_MARGIN` of the noise with a loop settled when the
+    experiment ends (`_unsettled_rms` within the same margin): an adequate base (module docstring, step 1)."""
+    return bool(rms(fit.residual) <= NOISE_MARGIN * noise and _unsettled_rms(fit, ex) <= NOISE_MARGIN * noise)
+
+
+def _settled_lower_order(ex: JoinedExperiment, mask: np.ndarray, noise: float, order: int) -> Fit | None:
+    """The lowest order 2 .. `order` - 1 whose base (`fit_recordings` at that order, as ``duhem fit --order``)
+    is adequate (`_settled_at_noise`), or None: when the order BIC picks reaches the noise only with a loop
+    that is not settled (a mode the data do not determine), a lower order that reaches it settled is the
+    base, and the misfit is not handed to the effects."""
+    for k in range(2, order):
+        fit = fit_base(ex, fit_recordings(ex.recordings, kind="ri", order=k).model, mask)
+        if _settled_at_noise(fit, ex, noise):
+            return fit
+    return None
 
 
 def _structured(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, alpha: float) -> bool:

@@ -8,6 +8,15 @@ from fitter.diagnosis.statistics import NOISE_MARGIN
 __all__ = ["comparison_text", "summary_paragraph"]
 
 
+def _noise_parts(noise: dict | None) -> str:
+    """", the output's x and the input's noise carried through the model y" when the input's part counts
+    (over 10 % of the output's), else ""."""
+    if not noise or noise["through_input"] <= 0.1 * noise["output"]:
+        return ""
+    return (f" (the output's noise {noise['output']:.3g} and the input's noise carried through the model "
+            f"{noise['through_input']:.3g})")
+
+
 def summary_paragraph(d: Diagnosis) -> str:
     """The diagnosis in one paragraph: the base residual against the noise, where it lies, what was found."""
     b, e = d.baseline, d.extended
@@ -15,7 +24,8 @@ def summary_paragraph(d: Diagnosis) -> str:
     text = ("The files are read as separate runs, each on its own clock and each simulated from its own "
             "initial state. " if d.separate and len(d.mismatch.get("per_recording", [])) > 1 else "")
     text += (f"The base model leaves a residual of {b['residual_rms']:.3g} RMS against a noise level of "
-            f"{d.noise_rms:.3g} estimated from the data ({_times(b['residual_rms'], d.noise_rms)}); "
+            f"{d.noise_rms:.3g} estimated from the data{_noise_parts(d.noise)} "
+            f"({_times(b['residual_rms'], d.noise_rms)}); "
             f"the largest mismatch is in {m['worst_recording']}.")
     g = m["growth"]
     trends = [f"{'increases' if v > 0 else 'decreases'} with {k.split('_')[1]} (r = {v:.2f})"
