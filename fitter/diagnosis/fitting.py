@@ -6,7 +6,10 @@ theta) or, for separate runs (`JoinedExperiment.separate`), on each recording
 alone with its initial state fitted to it (x0 = "fit"; theta's x0 is then
 held, and a fit's model carries the first recording's initial state), with
 the mask as 0/1 weights, residuals normalised by the output range and the
-tolerances of `OPTIONS` (`problem`).  The parametrisation (`family`) is
+tolerances of `OPTIONS` (`problem`).  Separate runs each carry their
+instrument's zero: every recording but the first has its output reference
+fitted with its initial state (``Recordings.references``; the first's is the
+base's own, its E), a property of the measurement, not of the material.  The parametrisation (`family`) is
 `WithEffects(StateSpace(template), effects, ctx)`: the template's free
 matrices and x0, then the candidate effects' parameters (registry order; a
 ``log`` parameter such as a time constant enters as its logarithm; a
@@ -53,7 +56,7 @@ from fitter.identification.output_error import Options, Recordings, RefineResult
 from fitter.identification.parametrisation import StateSpace, WithEffects
 
 __all__ = ["Fit", "family", "fit_base", "fit_family", "fit_per_recording", "first_order_ri", "free_base", "problem",
-           "OPTIONS"]
+           "output_references", "refit", "OPTIONS"]
 
 OPTIONS = Options(xtol=1e-7, ftol=1e-7, gtol=1e-8, max_samples=None, normalise=True)
 """Tolerances of every diagnosis fit; the budget is 30 (free parameters + 1) evaluations."""
@@ -131,8 +134,8 @@ def problem(ex: JoinedExperiment, mask: np.ndarray) -> Recordings:
     """The output-error problem of every diagnosis fit (module docstring): the experiment as one recording
     (x0 = "model"), or its separate runs (x0 = "fit"), `mask` as 0/1 weights."""
     if ex.separate:
-        return Recordings(list(ex.recordings), x0="fit",
-                          weights=[mask[s].astype(float) for s in ex.runs()])
+        return Recordings(list(ex.recordings), x0="fit", weights=[mask[s].astype(float) for s in ex.runs()],
+                          references=len(ex.recordings) > 1)
     return Recordings([Recording(ex.t, ex.u, ex.y, "experiment")], x0="model", weights=[mask.astype(float)])
 
 
@@ -199,6 +202,27 @@ def _grid_basis(ex: JoinedExperiment, a: float) -> np.ndarray:
         for j in range(5):
             basis[s, j if j < 4 else 4 + r] = simulate(first_order_ri(a, -a, *np.eye(5)[j]), ex.t[s], ex.u[s]).y
     return basis
+
+
+def refit(fit: Fit, ex: JoinedExperiment, mask: np.ndarray) -> Fit:
+    """`fit`'s family refined on the samples of `mask`, from `fit`'s values, with the same free entries
+    (`free_base`): the fit as it would have ended on that part of the data."""
+    return _refine(fit.family, fit.theta, ex, mask, free_base(fit.family))
+
+
+def output_references(fit: Fit, ex: JoinedExperiment) -> dict[str, float] | None:
+    """Each separate run's output reference (its instrument's zero, `problem`) relative to the first's, by
+    recording name: the mean of the fitted output minus the model's output from the run's fitted x0 (the
+    first's is 0, the base's own); None for one clock or a single recording."""
+    if not ex.separate or len(ex.recordings) < 2:
+        return None
+    model, fitted = fit.result.model, ex.y - fit.residual
+    out = {}
+    for k, (rec, x0) in enumerate(zip(ex.recordings, fit.result.x0s)):
+        if x0 is None:
+            return None
+        out[rec.name] = float(np.mean(fitted[ex.part(k)] - simulate(model, rec.t, rec.u, x0=x0).y)) if k else 0.0
+    return out
 
 
 def fit_per_recording(fit: Fit, ex: JoinedExperiment, mask: np.ndarray) -> list[Fit]:

@@ -49,7 +49,11 @@ Procedure (`diagnose`)
    ``least_squares``, several starts for its nonlinear parameters) and tested
    against the model without it (`fitter.diagnosis.statistics`: likelihood
    ratio with an AR(1) effective sample size, Bonferroni over the candidates,
-   at least `MIN_EXPLAINED` of the residual energy removed).  A creep or a
+   at least `MIN_EXPLAINED` of the residual energy removed), or, when that
+   test cannot establish it (a few long loops: an effective sample size of a
+   dozen), confirmed on held-out data: with two or more recordings, each
+   predicted better by the model with the effect fitted without it
+   (`fitter.diagnosis.held_out.confirmed`; ``confirmed_held_out``).  A creep or a
    relaxation spectrum must also follow the input
    (`statistics.memory_response_report`): its start transient alone is a
    change in time, a drift, not a memory of the material; one that fits only
@@ -114,12 +118,13 @@ from fitter.data.cycles import closed_last_cycle
 from fitter.data.metrics import nrmse, rms
 from fitter.data.recordings import Recording
 from fitter.diagnosis.experiment import DiagnoseError, JoinedExperiment, join_recordings
-from fitter.diagnosis.fitting import Fit, fit_base, fit_family, fit_per_recording
+from fitter.diagnosis.fitting import Fit, fit_base, fit_family, fit_per_recording, output_references
 from fitter.diagnosis.locate import locate_mismatch, where_differs
 from fitter.diagnosis.noise_floor import noise_floor
 from fitter.diagnosis.result import Diagnosis
-from fitter.diagnosis.statistics import (ALPHA, NOISE_MARGIN, consistency_report, memory_response_report,
-                                         effect_report, is_significant, remainder_report)
+from fitter.diagnosis.held_out import confirmed, held_out_nrmse, held_out_rss
+from fitter.diagnosis.statistics import (ALPHA, MIN_EXPLAINED, NOISE_MARGIN, consistency_report,
+                                         memory_response_report, effect_report, is_significant, remainder_report)
 from fitter.diagnosis.text import comparison_text, summary_paragraph
 from fitter.identification.exported import described, fitted_range
 from fitter.identification.fit import fit_recordings
@@ -131,7 +136,7 @@ __all__ = ["CANDIDATES", "diagnose"]
 CANDIDATES = tuple(name for name, spec in REGISTRY.items() if spec.searched)
 """The effects tested by default (`EffectSpec.searched`)."""
 _FINDING_KEYS = ("effect", "origin", "p_value", "parameters", "stderr", "explained_fraction", "residual_rms", "lr",
-                 "df", "n_eff")
+                 "df", "n_eff", "confirmed_held_out", "held_out_rss", "held_out_rss_without")
 
 
 def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress = silent,
@@ -204,6 +209,7 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
         "x0": {"stored": np.ravel(current.model.x0).tolist(), "recording": ex.recordings[0].name,
                "u0": float(ex.u[0])}, "fitted_range": fitted_range(ex.recordings)})
     extended = dict(_summary(ex, current, noise), effects=[e.to_dict() for e in ext_model.effects],
+                    heldout_nrmse_per_recording=held_out_nrmse(ex, current, mask),
                     **{f"{origin}_effects": [f["effect"] for f in findings if f["origin"] == origin]
                        for origin in ORIGINS}, remainder=remainder)
     baseline = _summary(ex, base, noise)
@@ -384,7 +390,7 @@ def _test_round(ex: JoinedExperiment, current: Fit, names: Sequence[str], mask: 
     """Fit and test each candidate on top of `current` (base + the effects found); sorted by BIC (`_bic`, the
     effect's parameters counted: module docstring, step 4)."""
     base = current.theta[:current.family.n_base]
-    results = []
+    results, null_held_out = [], []
     for name in names:
         tick(f"testing {name}")
         fit = fit_family(current.model, [name], base, ex, mask, ex.y - current.residual)
@@ -392,6 +398,13 @@ def _test_round(ex: JoinedExperiment, current: Fit, names: Sequence[str], mask: 
         rep["effect"] = name
         rep["origin"] = REGISTRY[name].origin
         rep["significant"] = is_significant(rep, alpha, n_candidates)
+        if not rep["significant"] and rep["explained_fraction"] >= MIN_EXPLAINED and len(ex.recordings) > 1:
+            if not null_held_out:
+                null_held_out.append(held_out_rss(ex, current, mask))
+            rep["held_out_rss"] = held_out_rss(ex, fit, mask).tolist()
+            rep["held_out_rss_without"] = null_held_out[0].tolist()
+            rep["significant"] = rep["confirmed_held_out"] = confirmed(np.array(rep["held_out_rss"]),
+                                                                       null_held_out[0])
         if rep["significant"] and REGISTRY[name].memory_taus(rep["parameters"]) is not None:
             rep["response"] = memory_response_report(fit, ex, name, rep["n_eff"], alpha, n_candidates)
             rep["significant"] = rep["response"]["follows_input"]
@@ -477,6 +490,7 @@ def _validate(ex: JoinedExperiment, base: Fit, findings: list, tested: list, fit
 def _summary(ex: JoinedExperiment, model_fit: Fit, noise: float) -> dict:
     yhat = ex.y - model_fit.residual
     return {"nrmse": nrmse(ex.y, yhat), "residual_rms": rms(model_fit.residual),
+            "references": output_references(model_fit, ex),
             "noise_ratio": rms(model_fit.residual) / noise if noise else None,
             "nrmse_per_recording": {r.name: nrmse(ex.y[ex.part(i)], yhat[ex.part(i)])
                                     for i, r in enumerate(ex.recordings)}}

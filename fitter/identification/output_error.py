@@ -195,7 +195,8 @@ def effective_samples(residual: np.ndarray) -> float:
 
 
 # ----------------------------------------------------------------------------- initial states
-def fitted_initial_state(model, t, u, y, cache: dict | None = None, effect_state=None, reference: bool = True):
+def fitted_initial_state(model, t, u, y, cache: dict | None = None, effect_state=None, reference: bool = True,
+                         constant: bool = False):
     """Initial state x_0 = argmin ||y - yhat(0) - G x_0|| over all samples, the output from it and the
     effect chain state it starts from (module docstring, ``"fit"``): yhat is affine in x_0, G its columns.
     A model with effects is simulated once per unit initial state (its output is y = C x + D w after its
@@ -203,7 +204,9 @@ def fitted_initial_state(model, t, u, y, cache: dict | None = None, effect_state
     base's, when every effect is `additive`.  An effect state that is the output's reference
     (`fitter.core.effects.offset_position`: it adds its start to every sample) is fitted with x_0 when
     `reference`, a column of ones in G; the state returned then has it (numbers; else `effect_state` as
-    given).
+    given).  With `constant` (and `reference`), a model whose effects carry no reference gets one too: the
+    column of ones is fitted and its value is part of yhat only (the instrument's zero of this recording,
+    not a state of the model).
     Raises `KernelError` when the simulation overflows."""
     n = model.order
     if getattr(model, "effects", None) and all(e.spec.additive for e in model.effects):
@@ -216,11 +219,14 @@ def fitted_initial_state(model, t, u, y, cache: dict | None = None, effect_state
     else:
         base, G = _affine_output(model, t, u, cache)
     position = offset_position(model) if reference and getattr(model, "effects", None) else None
-    if position is not None:
+    alone = reference and constant and position is None
+    if position is not None or alone:
         G = np.column_stack([G, np.ones(len(base))])
     if not (np.all(np.isfinite(G)) and np.all(np.isfinite(base))):
         raise KernelError("simulation overflowed")
     z = _lstsq_scaled(G, y - base)
+    if alone:
+        return z[:n], base + G @ z, effect_state
     if position is None:
         return z, base + G @ z, effect_state
     x0 = z[:n]
@@ -318,10 +324,11 @@ def response_columns(model, lin: dict[int, tuple[str, int]], t, u, mode: str, cy
 
 
 def simulate_from(model, t, u, y, mode: str, cycle: tuple[int, int] | None, settle: bool = False,
-                  reference: bool = True):
+                  reference: bool = True, constant: bool = False):
     """Simulate one recording under an initial-state mode (module docstring); with `settle`, a model's
     effect chain starts from its state settled on the recording (``Recordings.settle``); with `reference`
-    (``"fit"`` only), the output's reference is fitted with x0 (`fitted_initial_state`).
+    (``"fit"`` only), the output's reference is fitted with x0 (`fitted_initial_state`; with `constant`
+    also for a model whose effects carry none).
 
     Returns (start, x0, yhat, rho, effect state): yhat covers samples start..end; the effect chain's state at
     the first sample where it is not the model's own start (settled, or with a fitted reference,
@@ -333,7 +340,7 @@ def simulate_from(model, t, u, y, mode: str, cycle: tuple[int, int] | None, sett
         yhat = simulate(model, t, u, flow_cache=cache, effect_state=state).y
         return 0, np.array(model.x0, dtype=float), yhat, np.nan, state
     if mode == "fit":
-        x0, yhat, state = fitted_initial_state(model, t, u, y, cache, state, reference)
+        x0, yhat, state = fitted_initial_state(model, t, u, y, cache, state, reference, constant)
         return 0, x0, yhat, np.nan, state
     if mode != "periodic":
         raise ValueError(f"x0 must be one of {X0_MODES}, not {mode!r}")
@@ -376,6 +383,9 @@ class Recordings:
     settle: per recording, whether a model's effect chain starts it from its state settled on it
     (`fitter.core.effects.settled_state`: the recording taken as one cycle of a periodic experiment, as
     ``"periodic"`` takes the base); default None (none): from the effects' stored start, else afresh.
+    references: with ``"fit"``, every recording but the first has its own output reference (the zero of the
+    instrument that wrote it, a constant added to its output) fitted with its x0 even when no effect of
+    the model carries one (`fitted_initial_state`'s ``constant``); default False.
 
     With ``"fit"``, the output's reference of an effect that has one (`fitted_initial_state`) is fitted for
     every recording but the first, whose reference is the model's own: the base carries a constant output
@@ -389,6 +399,7 @@ class Recordings:
     weights: Sequence | None = None
     cycles: Sequence[tuple[int, int] | None] | None = None
     settle: Sequence[bool] | None = None
+    references: bool = False
 
     def __post_init__(self):
         if self.x0 not in X0_MODES:
@@ -414,7 +425,7 @@ class Recordings:
                   for c, k in zip(self.cycles, keeps)]
         if any(self._settle):
             raise DuhemError("settled effect starts need every sample of a recording (no decimation)")
-        return Recordings(recs, self.x0, [w[k] for w, k in zip(self._w, keeps)], cycles)
+        return Recordings(recs, self.x0, [w[k] for w, k in zip(self._w, keeps)], cycles, references=self.references)
 
     def residuals(self, param: Parametrisation, theta: np.ndarray):
         """Stacked weighted residuals sqrt(w) (y - yhat) of the unmasked samples, and per
@@ -434,6 +445,8 @@ class Recordings:
         """Variable projection (module docstring): like `residuals`, with the linear entries of
         theta (and x0 for ``"fit"``) at their weighted least-squares values; returns
         (weighted residuals, theta with those values, model, info)."""
+        if self.references:
+            raise ValueError("variable projection does not fit per-recording references: refine without eliminate")
         lin = param.linear_entries()
         try:
             model = param.build(theta)
@@ -487,7 +500,7 @@ class Recordings:
                 raise KernelError("model could not be built")
             with np.errstate(all="ignore"):
                 s, x0, yhat, rho, state = simulate_from(model, rec.t, rec.u, rec.y, self.x0, cyc, settle,
-                                                        reference)
+                                                        reference, self.references)
             r = rec.y[s:] - yhat
             if not np.all(np.abs(r) < fail * 1e3):
                 raise KernelError("simulation diverged")

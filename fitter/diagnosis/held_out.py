@@ -1,0 +1,73 @@
+"""Held-out prediction: each recording predicted by the model fitted without it (leave one recording out).
+
+A diagnosis chooses structure by how a model predicts data it was not
+fitted to, not by its in-sample fit alone (scikit-learn's model selection).
+For an experiment of K >= 2 recordings, recording k is predicted by the
+family refitted on the other K - 1 (`fitter.diagnosis.fitting.refit`, from
+the joint values, with the same free parameters); the prediction runs as
+every score of the project does: the held-out recording's initial state
+(and, for separate runs, its output reference) fitted to it, nothing else.
+
+`held_out_rss` gives the squared prediction error per recording.  An effect
+is *confirmed on held-out data* (`confirmed`) when, added to the model, it
+lowers the prediction error of every recording, and of a typical one (the
+geometric mean of the ratios) by at least `HELD_OUT_GAIN`: an effect that only bends the fit toward noise or
+toward one recording's peculiarity does not predict the others better.
+With a single recording there is nothing to hold out (None).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from fitter.data.metrics import nrmse
+from fitter.diagnosis.experiment import JoinedExperiment
+from fitter.diagnosis.fitting import Fit, refit
+
+__all__ = ["HELD_OUT_GAIN", "confirmed", "held_out_nrmse", "held_out_rss"]
+
+HELD_OUT_GAIN = 0.25
+"""Fraction of the held-out squared error of a typical recording that an effect must remove (`confirmed`;
+every recording's own must fall by a fifth of it)."""
+
+
+def _held_out_residuals(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> list[np.ndarray] | None:
+    """Residual y - yhat on each recording's fitted samples, `fit` refitted without that recording."""
+    if len(ex.recordings) < 2:
+        return None
+    out = []
+    for k in range(len(ex.recordings)):
+        part = ex.part(k)
+        train = mask.copy()
+        train[part] = False
+        out.append(refit(fit, ex, train).residual[part][mask[part]])
+    return out
+
+
+def held_out_rss(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> np.ndarray | None:
+    """Squared prediction error of each recording (leave one recording out; None for one recording)."""
+    parts = _held_out_residuals(ex, fit, mask)
+    return None if parts is None else np.array([float(np.sum(r ** 2)) for r in parts])
+
+
+def held_out_nrmse(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> dict[str, float] | None:
+    """NRMSE of each recording predicted by `fit` refitted without it, by recording name (None for one)."""
+    parts = _held_out_residuals(ex, fit, mask)
+    if parts is None:
+        return None
+    out = {}
+    for k, (rec, r) in enumerate(zip(ex.recordings, parts)):
+        y = ex.y[ex.part(k)][mask[ex.part(k)]]
+        out[rec.name] = nrmse(y, y - r)
+    return out
+
+
+def confirmed(with_effect: np.ndarray | None, without: np.ndarray | None) -> bool:
+    """Whether an effect predicts held-out recordings better (module docstring): the ratios q_k of each
+    recording's squared error with the effect to without it all below 1 - `HELD_OUT_GAIN` / 5, and their
+    geometric mean below 1 - `HELD_OUT_GAIN` (ratios, so that one recording the model without the effect
+    predicts badly does not decide for the others)."""
+    if with_effect is None or without is None:
+        return False
+    q = np.asarray(with_effect, dtype=float) / np.maximum(np.asarray(without, dtype=float), 1e-300)
+    return bool(np.all(q < 1.0 - HELD_OUT_GAIN / 5) and np.exp(np.mean(np.log(np.maximum(q, 1e-300))))
+                <= 1.0 - HELD_OUT_GAIN)
