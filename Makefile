@@ -23,7 +23,7 @@ demo: install
 	$(BIN)/duhem diagnose examples/diagnose/*.csv --report $(OUT)/diagnose --json $(OUT)/diagnose.json
 
 test: install
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2
 
 test-newest:
 	rm -rf .venv-newest
@@ -31,7 +31,7 @@ test-newest:
 	.venv-newest/bin/pip install -q --upgrade pip
 	.venv-newest/bin/pip install -q --upgrade ".[test]"
 	.venv-newest/bin/pip freeze --exclude semilinear-duhem | grep -iE "^(numpy|scipy|cvxpy|fmpy|pythonfmu)=="
-	.venv-newest/bin/python -m pytest -q
+	.venv-newest/bin/python -m pytest -q -n 2
 
 bench: install
 	$(BIN)/python bench/reproduce_paper.py
