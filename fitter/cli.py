@@ -662,6 +662,7 @@ def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order,
         _emit_json(data)
         return
     click.echo(result.paragraph)
+    _per_recording_table(data)
     findings = data.get("findings") or []
     if findings:
         _table("findings (most important first)", ["effect", "origin", "p-value", "explained fraction"],
@@ -673,6 +674,16 @@ def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order,
         click.echo("nothing missing: the residual is consistent with the noise level")
     else:
         click.echo("unexplained: the residual is above the noise but no candidate effect explains it")
+
+
+def _per_recording_table(data: dict) -> None:
+    """Per recording: NRMSE of the base and of the extended model, the extended model's held-out NRMSE (fitted
+    without that recording) and, for separate runs, the output reference fitted to it."""
+    base, ext = data["baseline"], data["extended"]
+    held, refs = ext.get("heldout_nrmse_per_recording") or {}, ext.get("references") or {}
+    _table("per recording", ["recording", "base NRMSE", "extended NRMSE", "held out", "reference"],
+           [[name, value, ext["nrmse_per_recording"].get(name), held.get(name), refs.get(name)]
+            for name, value in base["nrmse_per_recording"].items()])
 
 
 @main.command()
