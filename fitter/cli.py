@@ -27,6 +27,7 @@ Conventions shared by every command
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 from pathlib import Path
 from typing import Callable
@@ -132,6 +133,16 @@ def _open_fmu(path: str):
     return check_fmu_file(path)
 
 
+def _refuse_overwrite(inputs, *outputs) -> None:
+    """A one-line error, before anything is written, when an output path is one of the command's inputs
+    (the same file by its real path: a link or another spelling counts)."""
+    known = {os.path.realpath(str(p)): str(p) for p in inputs if p}
+    for out in outputs:
+        if out and out != "-" and os.path.realpath(str(out)) in known:
+            raise CliError(f"{out}: is one of this command's inputs ({known[os.path.realpath(str(out))]}); "
+                           "write the output to another path (the input is left untouched)")
+
+
 def _check_fmu_name(path: str | None) -> None:
     if path and Path(path).suffix.lower() != ".fmu":
         raise CliError(f"{path}: an FMU file name must end in .fmu")
@@ -222,6 +233,7 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithf
     if effects and x0_policy != "fitted":
         raise click.UsageError("--effects needs --x0 fitted (each effect's initial state is fitted per recording)")
     held = check_held(held, check_effects(effects))
+    _refuse_overwrite(recordings, out, fmu, report)
     _check_fmu_name(fmu)
     if fmu:
         _check_backend(backend)
@@ -378,6 +390,7 @@ def export(model, out, backend, fmi_version, allow_unstable, inverse, measuremen
     if measurement != "refuse" and not inverse:
         raise CliError("--measurement applies to the compensator: add --inverse")
     m = _load_model_json(model)
+    _refuse_overwrite([model], out)
     _check_fmu_name(out)
     what = "compensator " if inverse else ""
     with stderr_progress("duhem export") as say, atomic_file(out, suffix=".fmu") as tmp:
@@ -454,6 +467,7 @@ def validate(fmu, recordings, threshold, plot, x0_rule, time_col, input_col, out
     loop-area error, and the largest difference between the FMU and the
     in-process simulation of the model stored in the FMU.
     """
+    _refuse_overwrite([fmu, *recordings], plot)
     if not threshold > 0:
         raise CliError(f"--threshold must be positive, got {threshold}")
     if plot and Path(plot).suffix.lower() != ".png":
@@ -506,6 +520,7 @@ def simulate(model, input_csv, out, time_col, input_col, as_json):
     The input is taken as piecewise linear between samples; the model starts
     from its stored initial state x0.  The output CSV has columns time,u,y.
     """
+    _refuse_overwrite([model, input_csv], out)
     rec = load_recording(input_csv, time_col, input_col, None)
     with stderr_progress("duhem simulate") as say, atomic_file(out, suffix=".csv") as tmp:
         say(f"simulating {len(rec)} samples", None)
@@ -558,6 +573,7 @@ def compensate(model, reference, out, plot, time_col, ref_col, u0, input_range, 
     reported.  The output CSV has columns time,u,y_predicted (the model's
     output for that input, from its stored x0).
     """
+    _refuse_overwrite([model, reference], out, plot)
     if plot and Path(plot).suffix.lower() != ".png":
         raise CliError(f"{plot}: the plot file name must end in .png")
     m = _load_model_json(model)
@@ -634,6 +650,7 @@ def diagnose(recordings, model_path, report, json_out, fmu, backend, base_order,
     on its own clock (recognised when a file starts at or before its
     predecessor ends; --separate / --one-clock force a reading).
     """
+    _refuse_overwrite([*recordings, model_path], report, json_out, fmu)
     _check_fmu_name(fmu)
     if model_path and base_order != "auto":
         raise CliError("--base-order applies only without --model (the given model sets the base)")

@@ -27,6 +27,7 @@ import pytest
 from click.testing import CliRunner
 
 import build_fmu
+from conftest import ri_model, sine_input
 import fitter.cli
 import fitter.identification.exported
 from fitter.cli import main
@@ -567,3 +568,26 @@ def test_fit_warns_when_minor_loops_leave_the_recorded_range(tmp_path):
     (tmp_path / "ref.csv").write_text("time,y_ref\n" + "".join(f"{a},{5 * np.sin(2 * np.pi * a)}\n" for a in t))
     comp = ok(invoke("compensate", tmp_path / "m.json", tmp_path / "ref.csv", "-o", tmp_path / "u.csv"))
     assert "settles up to" in comp.stderr and "--faithful-minor-loops" in comp.stderr
+
+
+@pytest.mark.parametrize("command", [
+    ("fit", "{rec}", "-o", "{rec}"), ("fit", "{rec}", "-o", "{d}/m.json", "--fmu", "{d}/./rec.csv"),
+    ("simulate", "{model}", "{rec}", "-o", "{rec}"), ("export", "{model}", "-o", "{model}"),
+    ("validate", "{fmu}", "{rec}", "--plot", "{rec}"), ("compensate", "{model}", "{ref}", "-o", "{ref}"),
+    ("diagnose", "{rec}", "--json", "{rec}")])
+def test_an_output_that_is_an_input_is_refused_and_the_input_kept(tmp_path, fmu_cache, command):
+    """Every command refuses an output path that is one of its inputs (also spelled differently), in one
+    line naming it, before anything is written: the input's bytes and the directory stay as they were."""
+    model = ri_model(1)
+    t, u = sine_input(1.0, 2, 150)
+    rec = write_csv(tmp_path / "rec.csv", t, u, simulate(model, t, u).y)
+    ref = write_csv(tmp_path / "ref.csv", t, u, simulate(model, t, u).y, header="time,u,y_ref")
+    save_model(model, tmp_path / "model.json")
+    fmu = tmp_path / "model.fmu"
+    fmu.write_bytes(Path(fmu_cache.build(model, "native")).read_bytes())
+    names = {"rec": rec, "ref": ref, "model": tmp_path / "model.json", "fmu": fmu, "d": tmp_path}
+    args = [a.format(**names) for a in command]
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    line = assert_clean_failure(invoke(*args), tmp_path, set(before), "is one of this command's inputs")
+    assert "write the output to another path" in line
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
