@@ -39,6 +39,7 @@ from fitter.baselines import comparison
 from fitter.batch import BatchOptions, run_batch
 from fitter.cli_support import (EXIT_ERROR, CliError, FilePath, GuardedGroup, backend_option,
                                 fmi_version_option)
+from fitter.core.checks import check_agreement, check_model, with_convergence
 from fitter.core.effects import REGISTRY
 from fitter.core.files import atomic_directory, atomic_file, atomic_pair, json_text, jsonable
 from fitter.core.inverse import MEASUREMENT_CHOICES, Compensator, linear_gain
@@ -180,6 +181,24 @@ def _allow_unstable_option(func: Callable) -> Callable:
     return click.option("--allow-unstable", is_flag=True,
                         help="export even when the fit recorded a violated convergence condition "
                              "(the FMU's description then says so)")(func)
+
+
+def _use_unstable_option(func: Callable) -> Callable:
+    return click.option("--allow-unstable", is_flag=True,
+                        help="use the model even when its convergence condition, checked from its parameters, "
+                             "is violated (a warning says so; a non-finite output is still refused)")(func)
+
+
+def _checked(model, source: str, allow_unstable: bool, *inputs):
+    """`fitter.core.checks.check_model` of a model about to be used, on the range of `inputs` (the inputs it is
+    run with, for a model without input_range); under --allow-unstable a violated condition is one warning."""
+    values = [np.ravel(np.asarray(u, dtype=float)) for u in inputs]
+    span = (float(min(v.min() for v in values)), float(max(v.max() for v in values))) if values else None
+    conv = check_model(model, source, span=span, allow_unstable=allow_unstable)
+    if not conv.satisfied:
+        click.echo(f"warning: {source}: the convergence condition is violated ({conv.text()}); used anyway "
+                   "(--allow-unstable)", err=True)
+    return conv
 
 
 # --------------------------------------------------------------------------- commands
@@ -392,6 +411,7 @@ def export(model, out, backend, fmi_version, allow_unstable, inverse, measuremen
     m = _load_model_json(model)
     _refuse_overwrite([model], out)
     _check_fmu_name(out)
+    m = with_convergence(m, _checked(m, model, allow_unstable))
     what = "compensator " if inverse else ""
     with stderr_progress("duhem export") as say, atomic_file(out, suffix=".fmu") as tmp:
         say(f"building the {backend} FMI {fmi_version}.0 {what}FMU", None)
@@ -416,15 +436,27 @@ def _python_host_note(fmu: str | None, backend: str) -> None:
         click.echo(PYTHON_HOST_NEEDS, err=True)
 
 
-def _validation_row(rec, y_fmu: np.ndarray, model, threshold: float, x0_rule: str) -> dict:
-    """`compare` of one recording, with the FMU vs in-process difference (`model` from the FMU's start) and the
-    verdict."""
+def _validation_row(rec, y_fmu: np.ndarray, model, threshold: float, x0_rule: str, fmu: str) -> dict:
+    """`compare` of one recording, with the FMU vs in-process difference (`model` from the FMU's start), which
+    must be within `fitter.core.checks.AGREEMENT` of the output range, and the verdict."""
+    y_model = simulate_model(model, rec.t, rec.u).y
+    _finite_output(y_fmu, rec, f"the output of {fmu}")
+    check_agreement(y_fmu, y_model, float(np.ptp(rec.y)), f"{fmu}: its binary", "its resources/model.json (run "
+                    "by the in-process kernel)", rec.source)
     m = compare(rec, y_fmu)
-    m["fmu_vs_in_process_max_abs"] = float(np.max(np.abs(y_fmu - simulate_model(model, rec.t, rec.u).y)))
+    m["fmu_vs_in_process_max_abs"] = float(np.max(np.abs(y_fmu - y_model)))
     m.update(recording=rec.name, source=rec.source, passed=bool(m["nrmse"] <= threshold), judged_on="all samples",
              x0=x0_rule, x0_value=np.asarray(model.x0, dtype=float).tolist(),
              warnings=range_warnings(model, rec.t, rec.u))
     return m
+
+
+def _finite_output(y: np.ndarray, rec, what: str) -> None:
+    """A one-line error naming the recording's first data row where `y` (`what`) is not finite."""
+    bad = np.flatnonzero(~np.isfinite(y))
+    if bad.size:
+        raise CliError(f"{rec.source}: data row {bad[0] + 1} (t = {rec.t[bad[0]]:.6g}): {what} is {y[bad[0]]} "
+                       "(the model overflows on this input); nothing written")
 
 
 def _validation_start(model, rec, x0_rule: str):
@@ -454,9 +486,10 @@ def _judged(row: dict) -> float:
 @click.option("--x0", "x0_rule", type=click.Choice(["stored", "fitted"]), default="stored", show_default=True,
               help="the FMU's start state: as stored, or fitted to each recording (set through the FMU's x0 "
                    "parameters; the figure `duhem fit` reports as 'NRMSE own x0')")
+@_use_unstable_option
 @_column_options
 @click.option("--json", "as_json", is_flag=True, help="print the comparison as JSON")
-def validate(fmu, recordings, threshold, plot, x0_rule, time_col, input_col, output_col, as_json):
+def validate(fmu, recordings, threshold, plot, x0_rule, allow_unstable, time_col, input_col, output_col, as_json):
     """Drive an FMU with recorded inputs (fmpy) and compare its closed curves with the data.
 
     Per recording: NRMSE (RMS error / output range) over all samples, the
@@ -474,6 +507,7 @@ def validate(fmu, recordings, threshold, plot, x0_rule, time_col, input_col, out
         raise CliError(f"{plot}: the plot file name must end in .png")
     model = _open_fmu(fmu)
     recs = load_recordings(list(recordings), _time_column(time_col), input_col, output_col)
+    _checked(model, f"{fmu} (its resources/model.json)", allow_unstable, *[rec.u for rec in recs])
     rows, outputs = [], []
     with stderr_progress("duhem validate") as say:
         for rec in recs:
@@ -481,7 +515,7 @@ def validate(fmu, recordings, threshold, plot, x0_rule, time_col, input_col, out
             started = _validation_start(model, rec, x0_rule)
             start = None if x0_rule == "stored" else start_state_values(started)
             outputs.append(simulate_fmu(fmu, rec.t, rec.u, start=start))
-            rows.append(_validation_row(rec, outputs[-1], started, threshold, x0_rule))
+            rows.append(_validation_row(rec, outputs[-1], started, threshold, x0_rule, fmu))
         if plot:
             say("plotting", None)
             write_validation_plot(plot, recs, outputs, [_judged(r) for r in rows])
@@ -513,8 +547,9 @@ def validate(fmu, recordings, threshold, plot, x0_rule, time_col, input_col, out
               help="CSV file to write (columns time,u,y)")
 @click.option("--time", "time_col", default="time", show_default=True, metavar="COL", help="time column")
 @click.option("--input", "input_col", default="u", show_default=True, metavar="COL", help="input column")
+@_use_unstable_option
 @click.option("--json", "as_json", is_flag=True, help="print a summary as JSON")
-def simulate(model, input_csv, out, time_col, input_col, as_json):
+def simulate(model, input_csv, out, time_col, input_col, allow_unstable, as_json):
     """Simulate a model JSON (in-process kernel) or an FMU (fmpy) for a recorded input.
 
     The input is taken as piecewise linear between samples; the model starts
@@ -526,16 +561,15 @@ def simulate(model, input_csv, out, time_col, input_col, as_json):
         say(f"simulating {len(rec)} samples", None)
         if _is_zip(model):
             stored = _open_fmu(model)
+            _checked(stored, f"{model} (its resources/model.json)", allow_unstable, rec.u)
             y = simulate_fmu(model, rec.t, rec.u)
             engine = "fmu"
         else:
             stored = _load_model_json(model)
+            _checked(stored, model, allow_unstable, rec.u)
             y = simulate_model(stored, rec.t, rec.u).y
             engine = "in-process"
-        bad = np.flatnonzero(~np.isfinite(y))
-        if bad.size:
-            raise CliError(f"{input_csv}: data row {bad[0] + 1} (t = {rec.t[bad[0]]:.6g}): the simulated output is "
-                           f"{y[bad[0]]} (the model overflows on this input); nothing written")
+        _finite_output(y, rec, "the simulated output")
         warnings = range_warnings(stored, rec.t, rec.u)
         save_columns(tmp, ["time", "u", "y"], [rec.t, rec.u, y])
     info = {"model": model, "input": input_csv, "out": out, "engine": engine, "samples": len(rec),
@@ -563,8 +597,10 @@ def simulate(model, input_csv, out, time_col, input_col, as_json):
 @click.option("--measurement", type=click.Choice(MEASUREMENT_CHOICES), default="refuse", show_default=True,
               help="a model with measurement effects (sensor_lag, measurement_drift): drop them (the device "
                    "output follows y_ref) or invert them (the measured output follows y_ref)")
+@_use_unstable_option
 @click.option("--json", "as_json", is_flag=True, help="print a summary as JSON")
-def compensate(model, reference, out, plot, time_col, ref_col, u0, input_range, measurement, as_json):
+def compensate(model, reference, out, plot, time_col, ref_col, u0, input_range, measurement, allow_unstable,
+               as_json):
     """The input that makes a model's output follow a reference (the inverse model, a feedforward compensator).
 
     Exact wherever some input in the model's input range reaches y_ref (the
@@ -577,6 +613,7 @@ def compensate(model, reference, out, plot, time_col, ref_col, u0, input_range, 
     if plot and Path(plot).suffix.lower() != ".png":
         raise CliError(f"{plot}: the plot file name must end in .png")
     m = _load_model_json(model)
+    _checked(m, model, allow_unstable, *([input_range] if input_range else []))
     rec = load_recording(reference, time_col, ref_col, None)
     comp = Compensator(m, t0=float(rec.t[0]), u0=u0, measurement=measurement, input_range=input_range)
     with stderr_progress("duhem compensate") as say, contextlib.ExitStack() as outputs:

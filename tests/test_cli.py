@@ -527,16 +527,21 @@ def test_fit_compare_puts_the_classical_models_beside_the_duhem_fit(tmp_path):
 
 
 def test_simulate_refuses_a_non_finite_output_and_writes_nothing(bad):
-    """A model that overflows on the input (an unstable branch, no input_range): exit 1, the row named, the
-    existing output untouched."""
+    """A model that overflows on the input (an unstable branch, no input_range), used with --allow-unstable (else
+    the check at use refuses it first): exit 1, the row named, the existing output untouched."""
     from fitter.core import RateIndependentModel
     save_model(RateIndependentModel(A_plus=[[60.0]], A_minus=[[-60.0]], B_plus=[1.0], B_minus=[1.0], C=[1.0]),
                bad / "unstable.json")
     (bad / "out.csv").write_text("old\n")
     before = listing(bad)
-    assert_clean_failure(invoke("simulate", str(bad / "unstable.json"), str(bad / "rec.csv"), "-o",
-                                str(bad / "out.csv")), bad, before, "rec.csv", "data row",
-                         "the simulated output is", "nothing written")
+    result = invoke("simulate", str(bad / "unstable.json"), str(bad / "rec.csv"), "-o", str(bad / "out.csv"),
+                    "--allow-unstable")
+    assert result.exit_code == 1 and isinstance(result.exception, SystemExit)
+    warning, error = result.stderr.splitlines()
+    assert warning.startswith("warning: ") and "convergence condition is violated" in warning
+    assert error.startswith("error: ") and all(w in error for w in ("rec.csv", "data row", "the simulated output is",
+                                                                    "nothing written"))
+    assert listing(bad) == before
     assert (bad / "out.csv").read_text() == "old\n"
 
 

@@ -41,6 +41,7 @@ from fitter.core.effects import REGISTRY, Effect, EffectContext
 from fitter.core.models import INPUT_MARGIN, RateDependentModel, RateIndependentModel
 from fitter.core.flow import expm
 from fitter.core.errors import KernelError
+from fitter.core.checks import spectral_abscissa
 from fitter.core.periodic import minor_loop_outputs, minor_loop_rho
 from fitter.core.rates import TabulatedRate
 
@@ -301,8 +302,9 @@ class RDCanonical(Parametrisation):
 
     @staticmethod
     def convergence(model, u_min: float, u_max: float) -> float:
-        """max Re eig(A): rho(period map) < 1 iff A is Hurwitz, since g >= 0."""
-        return float(np.max(np.linalg.eigvals(model.A).real))
+        """max Re eig(A) (`fitter.core.checks.spectral_abscissa`, the check at use): rho(period map) < 1 iff A is
+        Hurwitz, since g >= 0."""
+        return spectral_abscissa(model.A)
 
     @staticmethod
     def converges(value: float) -> bool:
