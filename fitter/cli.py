@@ -136,12 +136,27 @@ def _open_fmu(path: str):
 
 def _refuse_overwrite(inputs, *outputs) -> None:
     """A one-line error, before anything is written, when an output path is one of the command's inputs
-    (the same file by its real path: a link or another spelling counts)."""
+    (the same file by its real path: a link, a hard link or another spelling counts) or a directory that holds
+    one (a report directory is replaced as a whole)."""
     known = {os.path.realpath(str(p)): str(p) for p in inputs if p}
     for out in outputs:
-        if out and out != "-" and os.path.realpath(str(out)) in known:
-            raise CliError(f"{out}: is one of this command's inputs ({known[os.path.realpath(str(out))]}); "
-                           "write the output to another path (the input is left untouched)")
+        if not out or out == "-":
+            continue
+        real = os.path.realpath(str(out))
+        same = next((p for r, p in known.items() if r == real or _same_file(str(out), p)), None)
+        inside = next((p for r, p in known.items() if r.startswith(real + os.sep)), None)
+        if same is not None or inside is not None:
+            what = f"is one of this command's inputs ({same})" if same is not None else \
+                f"is a directory that holds this command's input {inside} (it would be replaced as a whole)"
+            raise CliError(f"{out}: {what}; write the output to another path (the input is left untouched)")
+
+
+def _same_file(a: str, b: str) -> bool:
+    """Whether two existing paths are one file (`os.path.samefile`: hard links too)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
 
 
 def _check_fmu_name(path: str | None) -> None:

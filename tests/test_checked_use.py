@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import zipfile
 from pathlib import Path
 
@@ -218,3 +219,36 @@ def test_validate_refuses_an_fmu_whose_binary_and_model_disagree(work):
     assert f"disagree on {work / 'rec.csv'}: their outputs differ by up to {diff:.3g} times the output range" in line
     result = json.loads(ok(invoke("validate", work / "model.fmu", work / "rec.csv", "--json")).stdout)
     assert result["recordings"][0]["fmu_vs_in_process_max_abs"] < AGREEMENT * np.ptp(rec.y)
+
+
+# --------------------------------------------------------------------------- never overwrite an input
+
+def test_fit_onto_its_own_recording_is_refused_and_the_recording_kept(work, tmp_path):
+    rec = tmp_path / "REC.csv"
+    rec.write_bytes((work / "rec.csv").read_bytes())
+    before = rec.read_bytes()
+    assert_clean_failure(invoke("fit", rec, "-o", rec), tmp_path, {"REC.csv"},
+                         f"error: {rec}: is one of this command's inputs")
+    assert rec.read_bytes() == before
+
+
+def test_simulate_onto_its_input_is_refused_also_through_links(work, tmp_path):
+    inp = tmp_path / "in.csv"
+    inp.write_bytes((work / "rec.csv").read_bytes())
+    os.link(inp, tmp_path / "hard.csv")
+    os.symlink(inp, tmp_path / "soft.csv")
+    before = {p: (tmp_path / p).read_bytes() for p in listing(tmp_path)}
+    for out in ("in.csv", "hard.csv", "soft.csv", "./in.csv"):
+        assert_clean_failure(invoke("simulate", work / "model.json", inp, "-o", tmp_path / out), tmp_path,
+                             set(before), "is one of this command's inputs (", "write the output to another path")
+    assert {p: (tmp_path / p).read_bytes() for p in listing(tmp_path)} == before
+
+
+def test_a_report_directory_that_holds_an_input_is_refused(work, tmp_path):
+    data = tmp_path / "data"
+    data.mkdir()
+    (data / "rec.csv").write_bytes((work / "rec.csv").read_bytes())
+    before = listing(tmp_path)
+    assert_clean_failure(invoke("fit", data / "rec.csv", "-o", tmp_path / "m.json", "--report", data), tmp_path,
+                         before, f"error: {data}: is a directory that holds this command's input {data / 'rec.csv'}")
+    assert (data / "rec.csv").read_bytes() == (work / "rec.csv").read_bytes()
