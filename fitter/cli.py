@@ -56,6 +56,7 @@ from fitter.fmu.native import find_c_compiler
 from fitter.fmu.pair import check_fmu_pair, recorded_fmu_digest, with_fmu_record
 from fitter.identification.exported import minor_loop_warning, own_start, range_warnings, started
 from fitter.identification.effects_fit import check_effects, check_held
+from fitter.identification.explained import check_explained, explained_text, explained_variance
 from fitter.identification.fit import fit_recordings
 from fitter.paper.report import command as reproduce_paper
 from fitter.progress import stderr_progress
@@ -256,13 +257,16 @@ main.add_command(reproduce_paper)
               help="with --effects, effect parameters held at a value you know instead of fitted (comma-separated, "
                    "e.g. measurement_drift.rate=0: each recording's output has its own reference, no drift)")
 @_allow_unstable_option
+@click.option("--allow-noise", is_flag=True,
+              help="save the model even when it explains less than half of a recording's output variance "
+                   "(R^2 < 0.5: the output looks like noise, with no relation to the input)")
 @_column_options
 @click.option("--compare", is_flag=True,
               help="also fit the classical models (Preisach, Prandtl-Ishlinskii, Bouc-Wen) to the same recordings "
                    "and show their NRMSE beside the Duhem model's (summary key 'comparison', and in the report)")
 @click.option("--json", "as_json", is_flag=True, help="print the fit summary as JSON")
 def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithful, effects, held, allow_unstable,
-        time_col, input_col, output_col, compare, as_json):
+        allow_noise, time_col, input_col, output_col, compare, as_json):
     """Fit a model to one or more recordings (one CSV file per experiment, e.g. per rate)."""
     if effects and x0_policy != "fitted":
         raise click.UsageError("--effects needs --x0 fitted (each effect's initial state is fitted per recording)")
@@ -284,6 +288,9 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithf
         if compare:
             say("fitting the classical models (Preisach, Prandtl-Ishlinskii, Bouc-Wen)", None)
             result.summary["comparison"] = jsonable(comparison(result.model, recs))
+        explained = explained_variance(result.model, recs)
+        result.summary["explained"] = jsonable(explained)
+        noise = check_explained(explained, allow_noise=allow_noise)
         model = result.model
         if report_tmp:
             say("writing the fit report", None)
@@ -294,6 +301,8 @@ def fit(recordings, kind, out, fmu, backend, report, order, q, x0_policy, faithf
             model = with_fmu_record(model, fmu, fmu_tmp, out)
         save_model(model, model_tmp)
     _python_host_note(fmu, backend)
+    if noise:
+        click.echo(f"warning: {noise['source']}: {explained_text(noise)}; saved because of --allow-noise", err=True)
     summary = result.summary
     conv = summary.get("convergence") or {}
     if conv and not conv.get("satisfied"):

@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import zipfile
 from pathlib import Path
 
@@ -30,7 +31,9 @@ from test_cli import assert_clean_failure, invoke, listing, ok, write_csv
 from fitter.core import load_model, save_model, simulate
 from fitter.core.checks import (AGREEMENT, MAX_MAGNITUDE, ModelCheckError, check_agreement, check_model,
                                 convergence, too_large, with_convergence)
-from fitter.data.recordings import load_recording
+from fitter.data.recordings import Recording, load_recording
+from fitter.identification.explained import (EXPLAINED_MIN, NothingToModelError, check_explained,
+                                             explained_variance)
 
 REPO = Path(__file__).resolve().parents[1]
 BETA = 2.4
@@ -252,3 +255,63 @@ def test_a_report_directory_that_holds_an_input_is_refused(work, tmp_path):
     assert_clean_failure(invoke("fit", data / "rec.csv", "-o", tmp_path / "m.json", "--report", data), tmp_path,
                          before, f"error: {data}: is a directory that holds this command's input {data / 'rec.csv'}")
     assert (data / "rec.csv").read_bytes() == (work / "rec.csv").read_bytes()
+
+
+# --------------------------------------------------------------------------- nothing to model
+
+def test_explained_variance_of_real_hysteresis_and_of_noise():
+    """The demo's truth model on examples/demo.csv explains R^2 > 0.9999; a model on a seeded white-noise
+    output explains nothing (R^2 = 1 - SSE/SST computed here again)."""
+    demo = load_recording(str(REPO / "examples" / "demo.csv"), "time_s", "u_V", "y_um")
+    (row,) = explained_variance(load_model(REPO / "examples" / "demo_truth.json"), [demo])
+    assert row["r2"] > 0.9999 and check_explained([row]) is None
+    assert row["noise_rms"] < 0.01 * row["output_std"]
+    t, u = sine_input(1.0, 2, 200)
+    rec = Recording(t, u, np.random.default_rng(37).standard_normal(len(t)), name="noise")
+    (row,) = explained_variance(ri_model(1), [rec])
+    assert row["r2"] < 0 and row["threshold"] == EXPLAINED_MIN
+    with pytest.raises(NothingToModelError, match=r"^noise: the fitted model explains R\^2 = "):
+        check_explained([row])
+    assert check_explained([row], allow_noise=True) is row
+
+
+def _noise_csv(path: Path) -> Path:
+    t, u = sine_input(1.0, 3, 150)
+    return write_csv(path, t, u, 0.3 * np.random.default_rng(37).standard_normal(len(t)))
+
+
+def test_fit_of_a_noise_output_is_refused_without_a_model(tmp_path):
+    rec = _noise_csv(tmp_path / "noise.csv")
+    (tmp_path / "m.json").write_text("old model\n")
+    before = listing(tmp_path)
+    line = assert_clean_failure(invoke("fit", rec, "-o", tmp_path / "m.json", "--fmu", tmp_path / "m.fmu",
+                                       "--kind", "ri", "--order", "1"), tmp_path, before,
+                                f"error: {rec}: the fitted model explains R^2 = ", "no model written",
+                                "--allow-noise")
+    r2 = float(re.search(r"R\^2 = (\S+) of", line).group(1))
+    assert -0.1 < r2 < 0.1
+    assert (tmp_path / "m.json").read_text() == "old model\n"
+
+
+def test_allow_noise_saves_the_model_with_the_numbers(tmp_path):
+    rec = _noise_csv(tmp_path / "noise.csv")
+    result = ok(invoke("fit", rec, "-o", tmp_path / "m.json", "--kind", "ri", "--order", "1", "--allow-noise",
+                       "--json"))
+    (row,) = json.loads(result.stdout)["summary"]["explained"]
+    data = load_recording(str(rec), "time", "u", "y")
+    y_hat = simulate(load_model(tmp_path / "m.json"), data.t, data.u).y
+    sst = np.sum((data.y - data.y.mean()) ** 2)
+    assert row["r2"] >= 1 - np.sum((data.y - y_hat) ** 2) / sst - 1e-9 and row["r2"] < EXPLAINED_MIN
+    assert row["output_std"] == pytest.approx(np.std(data.y)) and row["noise_rms"] > 0.5 * row["output_std"]
+    (warning,) = [w for w in result.stderr.splitlines() if "R^2" in w]
+    assert warning.startswith(f"warning: {rec}: the fitted model explains R^2 = {row['r2']:.3g}")
+    assert warning.endswith("saved because of --allow-noise")
+
+
+def test_fit_of_hysteresis_is_not_flagged(tmp_path):
+    t, u = sine_input(1.0, 3, 150)
+    y = simulate(ri_model(1), t, u).y
+    rec = write_csv(tmp_path / "rec.csv", t, u, y + 0.01 * np.ptp(y) * np.random.default_rng(1).standard_normal(len(t)))
+    result = ok(invoke("fit", rec, "-o", tmp_path / "m.json", "--kind", "ri", "--order", "1", "--json"))
+    (row,) = json.loads(result.stdout)["summary"]["explained"]
+    assert row["r2"] > 0.99 and "R^2" not in result.stderr
