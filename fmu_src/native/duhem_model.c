@@ -682,12 +682,27 @@ const char *model_validate(ModelData *m)
     return NULL;
 }
 
+/*
+ * The model is checked where it is used (fitter.core.checks, the magnitude check): every parameter (the
+ * exported ones and those the host set) and the start state finite with |v| <= DUHEM_MAX_MAGNITUDE, whatever
+ * --allow-unstable; a model this large overflows the flow (x0 = 1e308 gives y = inf at the first product).
+ */
+#define DUHEM_MAX_MAGNITUDE 1e100   /* fitter.core.checks.MAX_MAGNITUDE */
+
 const char *model_exit_initialization(ModelData *m)
 {
+    int i;
+    for (i = 0; i < DUHEM_N_PARAMETERS; i++)
+        if (!(fabs(m->par[i]) <= DUHEM_MAX_MAGNITUDE))
+            return "a parameter is not finite or beyond 1e100 in magnitude (a model this large overflows the "
+                   "simulation; fitter.core.checks.MAX_MAGNITUDE): set it to at most 1e100 in magnitude";
+    for (i = 0; i < N; i++)
+        if (!(fabs(m->x_a[i]) <= DUHEM_MAX_MAGNITUDE))
+            return "the start state is not finite or beyond 1e100 in magnitude: set x0 to at most 1e100 in "
+                   "magnitude";
 #if DUHEM_KIND == DUHEM_RATE_DEPENDENT
     if (m->rate_dirty) return build_rate(m);
 #endif
-    (void)m;
     return NULL;
 }
 
