@@ -543,7 +543,7 @@ class DuhemSlave(Fmi2Slave):
             self._dirty = state["dirty"]
             self._phase = state["phase"]
             self._stepper.set_state(tuple(state["stepper"]))
-        except Exception as exc:
+        except Exception as exc:      # noqa: BLE001 - put everything back, whatever failed
             (self._dict, self._model, self._stepper, stepper_state, self._phase, self._t0, self._dirty,
              self._verdict) = saved
             self._stepper.set_state(stepper_state)
