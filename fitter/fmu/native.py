@@ -1,12 +1,22 @@
 """The native backend: an FMI 2.0 or 3.0 Co-Simulation FMU that is a plain C shared library.
 
-`build_native_fmu` compiles the C sources of ``fmu_src/native/`` with the
-system C compiler at export time into ``binaries/<platform>/<id>.so``, which
-depends on libc and libm only, so the FMU runs in hosts without Python
-(fmusim, the FMI Compliance Checker, Simulink, Dymola, ...).  The FMU also
-carries its C sources under ``sources/`` (a source FMU: FMI 2.0 lists them in
-the modelDescription's ``<SourceFiles>``, FMI 3.0 in
-``sources/buildDescription.xml``), so an importer on another platform can
+`build_native_fmu` compiles the C sources of ``fmu_src/native/`` at export
+time into one shared library per platform, with zig's C compiler from the
+``ziglang`` package (`fitter.fmu.toolchain`; no system compiler needed):
+by default Linux, Windows and macOS (x86_64 and arm64), in FMI 2.0's
+``binaries/linux64``, ``win64`` and ``darwin64`` (one universal Mach-O) or
+FMI 3.0's ``binaries/x86_64-linux``, ``x86_64-windows``, ``x86_64-darwin``
+and ``aarch64-darwin``; ``platforms`` chooses (`toolchain.parse_platforms`).
+Each library depends on the C library only (glibc 2.17's libc and libm,
+Windows' universal C runtime, macOS's libSystem), so the FMU runs in hosts
+without Python (fmusim, the FMI Compliance Checker, Simulink, Dymola, ...).
+A system compiler is used only when asked: ``cc=`` (``duhem export --cc``)
+compiles this machine's binary with it, and the sanitizer build
+(``sanitize=True``, tests) is this machine's binary alone, compiled by ``cc``
+or ``$CC`` or the first of cc, gcc, clang on PATH.  The FMU also carries its C
+sources under ``sources/`` (a source FMU: FMI 2.0 lists them in the
+modelDescription's ``<SourceFiles>``, FMI 3.0 in
+``sources/buildDescription.xml``), so an importer on any other platform can
 compile it.
 
 Layout of the C, after the Modelica Reference-FMUs:
@@ -54,6 +64,7 @@ import sys
 import uuid
 import zipfile
 from pathlib import Path
+from typing import Iterable
 from xml.etree import ElementTree as ET
 
 import numpy as np
@@ -65,8 +76,11 @@ from fitter.core.rates import TabulatedRate
 from fitter.fmu.model_description import (FMI_VERSIONS, U_REF, Y_REF, model_description_xml,
                                           model_description_xml3, model_variables,
                                           time_variable)
+from fitter.fmu.toolchain import (PLATFORMS, NativeBuildError, check_zig, compile_libraries, fat_macho,
+                                  host_platform, parse_platforms)
 
-__all__ = ["build_native_fmu", "build_native_compensator", "COMPENSATOR_FILE", "build_gain_fmu", "NativeBuildError", "find_c_compiler",
+__all__ = ["build_native_fmu", "build_native_compensator", "COMPENSATOR_FILE", "build_gain_fmu", "NativeBuildError",
+           "find_c_compiler", "check_toolchain", "PLATFORMS",
            "model_data_header", "SOURCE_DIR", "C_SOURCES", "HEADERS", "c_sources", "headers",
            "MODEL_IDENTIFIER", "LOG_CATEGORIES", "NATIVE_EFFECTS"]
 
@@ -106,22 +120,53 @@ _GUID_NAMESPACE = uuid.UUID("0f8a3c52-6f7e-4d0b-8e61-0c1f3b9d2a74")
 _COMPILERS = ("cc", "gcc", "clang")
 
 
-class NativeBuildError(OSError):
-    """The native FMU could not be compiled (no C compiler, or the compiler failed)."""
-
-
 def find_c_compiler(cc: str | None = None) -> str:
-    """Path of the C compiler: `cc`, else ``$CC``, else the first of cc, gcc, clang on PATH."""
+    """Path of the system C compiler (``cc=`` and sanitizer builds only; the others use zig): `cc`, else
+    ``$CC``, else the first of cc, gcc, clang on PATH."""
     candidates = [cc] if cc else ([os.environ["CC"]] if os.environ.get("CC") else list(_COMPILERS))
     for name in candidates:
         found = shutil.which(name)
         if found:
             return found
     raise NativeBuildError(
-        f"no C compiler found (looked for {', '.join(candidates)}): the native FMU backend "
-        "compiles C at export time. Install one (e.g. 'apt install gcc') or set CC, or export "
-        "with '--backend python' (no compiler needed, but the simulator must then provide "
+        f"no C compiler found (looked for {', '.join(candidates)}): the compiler asked for must be "
+        "installed (without --cc the native backend compiles with zig, from the package 'ziglang'), or "
+        "export with '--backend python' (no compiler needed, but the simulator must then provide "
         "Python with numpy)")
+
+
+def check_toolchain(cc: str | None = None, sanitize: bool = False) -> None:
+    """Raise `NativeBuildError` (its message names ``--backend python``) unless the native backend can
+    compile: zig (package ``ziglang``), and the system compiler when `cc` or `sanitize` asks for it."""
+    if cc or sanitize:
+        find_c_compiler(cc)
+    else:
+        check_zig()
+
+
+def _selection(platforms, fmi_version: int, cc: str | None, sanitize: bool) -> tuple[tuple[str, ...], bool]:
+    """(the platforms zig compiles, whether this machine's binary is compiled by the system compiler);
+    checks the platforms and that the compilers are there."""
+    host = host_platform()
+    if sanitize:
+        if platforms is not None and parse_platforms(platforms) != (host,):
+            raise ValueError("a sanitizer build is this machine's binary alone (platforms='host')")
+        find_c_compiler(cc)
+        _platform(fmi_version)
+        return (), True
+    chosen = parse_platforms(platforms)
+    if cc:
+        if host is not None and host not in chosen:
+            raise ValueError(f"cc compiles this machine's binary ({host}), which is not among the platforms "
+                             f"{', '.join(chosen)}")
+        find_c_compiler(cc)
+        _platform(fmi_version)
+        if chosen == (host,):
+            return (), True
+        check_zig()
+        return tuple(name for name in chosen if name != host), True
+    check_zig()
+    return chosen, False
 
 
 _ARCHITECTURES = {"x86_64": "x86_64", "amd64": "x86_64", "aarch64": "aarch64", "arm64": "aarch64",
@@ -129,15 +174,16 @@ _ARCHITECTURES = {"x86_64": "x86_64", "amd64": "x86_64", "aarch64": "aarch64", "
 
 
 def _platform(fmi_version: int = 2) -> tuple[str, str]:
-    """Binaries folder (FMI 2.0 ``linux64``, FMI 3.0 ``x86_64-linux``) and library suffix."""
+    """Binaries folder (FMI 2.0 ``linux64``, FMI 3.0 ``x86_64-linux``) and library suffix of this machine's
+    binary compiled by the system compiler."""
     if sys.platform.startswith("linux"):
         system, suffix = "linux", ".so"
     elif sys.platform == "darwin":
         system, suffix = "darwin", ".dylib"
     else:
-        raise NativeBuildError(f"the native backend builds with a Unix C compiler; {sys.platform} is "
-                               "not supported: export with '--backend python', or compile the "
-                               "FMU's sources/ with the platform's compiler")
+        raise NativeBuildError(f"a build with the system C compiler (cc, sanitize) needs a Unix C "
+                               f"compiler; {sys.platform} is not supported: export without it (zig "
+                               "compiles every platform's binary), or with '--backend python'")
     if fmi_version == 2:
         return f"{system}{'64' if struct.calcsize('P') == 8 else '32'}", suffix
     machine = platform.machine().lower()
@@ -330,10 +376,10 @@ def _compile(cc: str, sources: Path, c_files: tuple[str, ...], target: Path,
 
 def _package(out_path: str | os.PathLike, xml: str, files: dict[str, str], c_files: tuple[str, ...],
              model_identifier: str, cc: str | None, sanitize: bool,
-             resources: dict[str, str] | None = None, fmi_version: int = 2) -> str:
-    """Compile `c_files` (of SOURCE_DIR, plus the generated `files`) and zip the FMU atomically."""
-    compiler = find_c_compiler(cc)
-    binaries, suffix = _platform(fmi_version)
+             resources: dict[str, str] | None = None, fmi_version: int = 2, platforms=None) -> str:
+    """Compile `c_files` (of SOURCE_DIR, plus the generated `files`) for `platforms` and zip the FMU
+    atomically."""
+    zig_platforms, system = _selection(platforms, fmi_version, cc, sanitize)
     if fmi_version == 3:
         files = {**files, "buildDescription.xml": build_description_xml(model_identifier, c_files)}
     out = Path(out_path).resolve()
@@ -344,11 +390,31 @@ def _package(out_path: str | os.PathLike, xml: str, files: dict[str, str], c_fil
             shutil.copyfile(SOURCE_DIR / name, sources / name)
         for name, text in files.items():
             (sources / name).write_text(text, encoding="utf-8")
-        library = Path(tmp) / f"{model_identifier}{suffix}"
-        _compile(compiler, sources, c_files, library, sanitize)
+        built = compile_libraries(zig_platforms, OPTIMIZE, sources, [sources / name for name in c_files],
+                                  Path(tmp) / "zig", model_identifier)
+        folders: dict[str, list[Path]] = {}
+        for name, library in built.items():
+            folders.setdefault(name if fmi_version == 3 else PLATFORMS[name].fmi2, []).append(library)
+        if system:
+            folder, suffix = _platform(fmi_version)
+            (Path(tmp) / "system").mkdir()
+            library = Path(tmp) / "system" / f"{model_identifier}{suffix}"
+            _compile(find_c_compiler(cc), sources, c_files, library, sanitize)
+            folders.setdefault(folder, []).insert(0, library)
+        order = [name if fmi_version == 3 else spec.fmi2 for name, spec in PLATFORMS.items()]
+        binaries = {}
+        for folder, libraries in sorted(folders.items(), key=lambda item: (
+                order.index(item[0]) if item[0] in order else -1)):
+            if len(libraries) > 1:     # FMI 2.0 darwin64: one universal Mach-O
+                universal = Path(tmp) / folder / libraries[0].name
+                universal.parent.mkdir()
+                universal.write_bytes(fat_macho([library.read_bytes() for library in libraries]))
+                libraries = [universal]
+            binaries[f"binaries/{folder}/{libraries[0].name}"] = libraries[0]
         with atomic_file(out) as staging, zipfile.ZipFile(staging, "w", zipfile.ZIP_DEFLATED) as zf:
             zf.writestr("modelDescription.xml", xml)
-            zf.write(library, f"binaries/{binaries}/{library.name}")
+            for name, library in binaries.items():
+                zf.write(library, name)
             for path in sorted(sources.iterdir()):
                 zf.write(path, f"sources/{path.name}")
             for name, text in (resources or {}).items():
@@ -358,7 +424,8 @@ def _package(out_path: str | os.PathLike, xml: str, files: dict[str, str], c_fil
 
 def build_native_fmu(model, out_path: str | os.PathLike, *, sanitize: bool = False,
                      cc: str | None = None, model_identifier: str = MODEL_IDENTIFIER,
-                     fmi_version: int = 2, **description) -> str:
+                     fmi_version: int = 2, platforms: str | Iterable[str] | None = None,
+                     **description) -> str:
     """Compile `model` into a native FMI 2.0 or 3.0 Co-Simulation FMU at `out_path`; return its path.
 
     Parameters
@@ -369,15 +436,23 @@ def build_native_fmu(model, out_path: str | os.PathLike, *, sanitize: bool = Fal
     out_path : path
         The FMU to write; written under a temporary name and renamed.
     sanitize : bool
-        Build with ``-fsanitize=address,undefined`` (for tests; the library
-        then needs the sanitizer runtimes loaded first).
+        Build this machine's binary alone with ``-fsanitize=address,undefined``
+        and the system compiler (for tests; the library then needs the
+        sanitizer runtimes loaded first).
     cc : str, optional
-        The C compiler (default: ``$CC``, else cc, gcc or clang on PATH).
+        A system C compiler for this machine's binary (the other platforms'
+        are still compiled by zig); default: zig compiles every binary.
+        With `sanitize`: default ``$CC``, else cc, gcc or clang on PATH.
     model_identifier : str
         Name of the shared library.
     fmi_version : {2, 3}
         FMI 2.0 (``fmi2_framework.c``) or FMI 3.0 (``fmi3_framework.c``); the
         model file, the generated model data and the numbers are the same.
+    platforms : str or list of str, optional
+        The binaries' platforms (`fitter.fmu.toolchain.parse_platforms`: a
+        comma list of ``x86_64-linux``, ``x86_64-windows``, ``x86_64-darwin``,
+        ``aarch64-darwin``, or ``linux``, ``windows``, ``darwin``, ``host``,
+        ``all``); default all.
     **description
         ``model_name``, ``description``, ``version``, ``author`` for the
         modelDescription (`fitter.fmu.model_description.model_description_xml`).
@@ -385,16 +460,16 @@ def build_native_fmu(model, out_path: str | os.PathLike, *, sanitize: bool = Fal
     Raises
     ------
     NativeBuildError
-        No C compiler was found (the message names ``--backend python``), or it failed.
+        No compiler (zig's package ``ziglang``, or the system compiler asked for) was found
+        (the message names ``--backend python``), or it failed.
     TypeError
         A rate-dependent model whose g is a callable, not a `TabulatedRate`.
     ValueError
-        An effect that the C model does not implement (not in `NATIVE_EFFECTS`), or an
-        `fmi_version` other than 2 and 3.
+        An effect that the C model does not implement (not in `NATIVE_EFFECTS`), an
+        `fmi_version` other than 2 and 3, or an unknown platform.
     """
     _check_fmi_version(fmi_version)
-    find_c_compiler(cc)
-    _platform(fmi_version)
+    _selection(platforms, fmi_version, cc, sanitize)
     _check_supported(model)
     guid = _guid(model, model_identifier, fmi_version)
     header = model_data_header(model, guid)
@@ -408,7 +483,7 @@ def build_native_fmu(model, out_path: str | os.PathLike, *, sanitize: bool = Fal
                                      **description)
     model_json = json.dumps(model.to_dict(), indent=2)
     return _package(out_path, xml, {"model_data.h": header}, c_sources(fmi_version),
-                    model_identifier, cc, sanitize, {"model.json": model_json}, fmi_version)
+                    model_identifier, cc, sanitize, {"model.json": model_json}, fmi_version, platforms)
 
 
 COMPENSATOR_FILE = "inverse_model.c"
@@ -416,7 +491,8 @@ COMPENSATOR_FILE = "inverse_model.c"
 
 def build_native_compensator(model, out_path: str | os.PathLike, *, sanitize: bool = False,
                              cc: str | None = None, model_identifier: str = "duhem_compensator",
-                             fmi_version: int = 2, **description) -> str:
+                             fmi_version: int = 2, platforms: str | Iterable[str] | None = None,
+                             **description) -> str:
     """Compile the feedforward compensator of `model` (the plant; it needs a finite ``input_range``) into a
     native FMI 2.0 or 3.0 Co-Simulation FMU: input y_ref, output u (``inverse_model.c``); arguments as
     `build_native_fmu`.  The numbers are those of `fitter.core.inverse.Compensator` with
@@ -424,8 +500,7 @@ def build_native_compensator(model, out_path: str | os.PathLike, *, sanitize: bo
     from fitter.fmu.model_description import reference_start
 
     _check_fmi_version(fmi_version)
-    find_c_compiler(cc)
-    _platform(fmi_version)
+    _selection(platforms, fmi_version, cc, sanitize)
     _check_supported(model)
     lo, hi = model.input_range if model.input_range is not None else (math.nan, math.nan)
     if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
@@ -448,7 +523,7 @@ def build_native_compensator(model, out_path: str | os.PathLike, *, sanitize: bo
     plant_source = (SOURCE_DIR / "duhem_model.c").read_text(encoding="utf-8")
     return _package(out_path, xml, {"model_data.h": header, "duhem_model.c": plant_source}, c_files,
                     model_identifier, cc, sanitize, {"model.json": json.dumps(model.to_dict(), indent=2)},
-                    fmi_version)
+                    fmi_version, platforms)
 
 
 def _check_fmi_version(fmi_version: int) -> None:
@@ -507,8 +582,10 @@ _GAIN_DESCRIPTION_FMI3 = """<?xml version="1.0" encoding="UTF-8"?>
 """
 
 
-def build_gain_fmu(out_path: str | os.PathLike, *, cc: str | None = None, fmi_version: int = 2) -> str:
-    """The trivial y = k u FMU on the same framework, compiled the same way (for benchmarks).
+def build_gain_fmu(out_path: str | os.PathLike, *, cc: str | None = None, fmi_version: int = 2,
+                   platforms: str | Iterable[str] | None = "host") -> str:
+    """The trivial y = k u FMU on the same framework, compiled the same way (for benchmarks; by default
+    for this machine only).
 
     Its fixed three-variable modelDescription is not a model export: it only
     gives `bench/fmu_throughput.py` the per-step floor of a native FMU of
@@ -517,4 +594,4 @@ def build_gain_fmu(out_path: str | os.PathLike, *, cc: str | None = None, fmi_ve
     _check_fmi_version(fmi_version)
     xml = _GAIN_DESCRIPTION if fmi_version == 2 else _GAIN_DESCRIPTION_FMI3
     return _package(out_path, xml, {}, c_sources(fmi_version, "gain_model.c"), GAIN_IDENTIFIER, cc,
-                    False, fmi_version=fmi_version)
+                    False, fmi_version=fmi_version, platforms=platforms)
