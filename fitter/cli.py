@@ -52,8 +52,9 @@ from fitter.diagnosis.procedure import CANDIDATES
 from fitter.fmu.build import PYTHON_HOST_NEEDS, build_fmu
 from fitter.fmu.host import check_fmu_file, simulate_fmu
 from fitter.fmu.model_description import start_state_values
-from fitter.fmu.native import find_c_compiler
+from fitter.fmu.native import check_toolchain
 from fitter.fmu.pair import check_fmu_pair, recorded_fmu_digest, with_fmu_record
+from fitter.fmu.toolchain import PLATFORMS, parse_platforms
 from fitter.identification.exported import minor_loop_warning, own_start, range_warnings, started
 from fitter.identification.effects_fit import check_effects, check_held
 from fitter.identification.explained import check_explained, explained_text, explained_variance
@@ -166,9 +167,16 @@ def _check_fmu_name(path: str | None) -> None:
 
 
 def _check_backend(backend: str) -> None:
-    """Fail before any long work when the native backend has no C compiler (message names --backend python)."""
+    """Fail before any long work when the native backend has no compiler (zig; message names --backend python)."""
     if backend == "native":
-        find_c_compiler()
+        check_toolchain()
+
+
+def _platforms(ctx: click.Context, param: click.Parameter, value: str | None) -> tuple[str, ...] | None:
+    try:
+        return None if value is None else parse_platforms(value)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc)) from None
 
 
 # --------------------------------------------------------------------------- shared options
@@ -418,8 +426,14 @@ def _comparison_tables(comp: dict) -> None:
 @click.option("--measurement", type=click.Choice(MEASUREMENT_CHOICES), default="refuse", show_default=True,
               help="with --inverse, a model with measurement effects (sensor_lag, measurement_drift): drop them "
                    "(the device output follows y_ref) or invert them (the measured output follows y_ref)")
+@click.option("--platforms", default=None, metavar="LIST", callback=_platforms,
+              help=f"native backend: the binaries, a comma list of {', '.join(PLATFORMS)} (or linux, windows, "
+                   "darwin, host); default all, compiled with zig (package ziglang), no system compiler needed")
+@click.option("--cc", default=None, metavar="COMPILER",
+              help="native backend: compile this machine's binary with this system C compiler instead of zig "
+                   "(the other platforms' still with zig)")
 @click.option("--json", "as_json", is_flag=True, help="print the result as JSON")
-def export(model, out, backend, fmi_version, allow_unstable, inverse, measurement, as_json):
+def export(model, out, backend, fmi_version, allow_unstable, inverse, measurement, platforms, cc, as_json):
     """Export a model JSON as an FMI 2.0 (or, --fmi-version 3, FMI 3.0) Co-Simulation FMU.
 
     With --inverse the FMU is the model's compensator: at each communication
@@ -432,6 +446,9 @@ def export(model, out, backend, fmi_version, allow_unstable, inverse, measuremen
         raise CliError("FMI 3.0 export needs --backend native")
     if measurement != "refuse" and not inverse:
         raise CliError("--measurement applies to the compensator: add --inverse")
+    if backend != "native" and (platforms or cc):
+        raise CliError("--platforms and --cc apply to the native backend (a python-backend FMU runs where "
+                       "its host's Python does)")
     m = _load_model_json(model)
     _refuse_overwrite([model], out)
     _check_fmu_name(out)
@@ -439,11 +456,13 @@ def export(model, out, backend, fmi_version, allow_unstable, inverse, measuremen
     what = "compensator " if inverse else ""
     with stderr_progress("duhem export") as say, atomic_file(out, suffix=".fmu") as tmp:
         say(f"building the {backend} FMI {fmi_version}.0 {what}FMU", None)
+        native = {"platforms": platforms, "cc": cc} if backend == "native" else {}
         build_fmu(m, tmp, backend=backend, allow_unstable=allow_unstable, fmi_version=fmi_version,
-                  inverse=inverse, measurement=measurement)
+                  inverse=inverse, measurement=measurement, **native)
     if as_json:
         _emit_json({"model": model, "fmu": out, "backend": backend, "fmi_version": f"{fmi_version}.0",
-                    "kind": m.kind, "order": m.order, "inverse": inverse})
+                    "kind": m.kind, "order": m.order, "inverse": inverse,
+                    "platforms": list(platforms or PLATFORMS) if backend == "native" else None})
     else:
         click.echo(f"{m.kind} model of order {m.order} exported to {out} ({backend} backend, "
                    f"FMI {fmi_version}.0)" if not inverse else

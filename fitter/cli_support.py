@@ -109,8 +109,9 @@ def backend_option(func: Callable) -> Callable:
     """``--backend [native|python]`` (default native): the FMU backend."""
     return click.option("--backend", type=click.Choice(["native", "python"]), default="native",
                         show_default=True,
-                        help="native: C library, the simulator needs no Python (needs a C compiler "
-                             "now); python: pythonfmu, the simulator needs Python with numpy")(func)
+                        help="native: C library for Linux, Windows and macOS, the simulator needs no Python "
+                             "(compiled with zig, package ziglang); python: pythonfmu, the simulator needs "
+                             "Python with numpy")(func)
 
 
 def fmi_version_option(func: Callable) -> Callable:
