@@ -447,25 +447,33 @@ def test_error_is_one_clear_line(bad, case):
     assert_clean_failure(invoke(*[a.format(d=bad) for a in args]), bad, before, *needles)
 
 
+def test_missing_system_compiler_names_the_python_backend(bad):
+    before = listing(bad)
+    line = assert_clean_failure(invoke("export", bad / "model.json", "-o", bad / "out.fmu", "--cc", NO_CC["CC"]),
+                                bad, before, "no C compiler found", "--backend python")
+    assert NO_CC["CC"] in line
+
+
 @pytest.mark.parametrize("args", [
     ["export", "{d}/model.json", "-o", "{d}/out.fmu"],
     ["fit", "{d}/rec.csv", "-o", "{d}/out.json", "--fmu", "{d}/out.fmu"],
     ["diagnose", "{d}/rec.csv", "--json", "{d}/out.json", "--fmu", "{d}/out.fmu"],
 ], ids=["export", "fit", "diagnose"])
-def test_no_c_compiler_names_the_python_backend(bad, args):
+def test_no_zig_names_the_python_backend(bad, args, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ziglang", None)  # find_spec('ziglang') is then None: not installed
     before = listing(bad)
-    line = assert_clean_failure(invoke(*[a.format(d=bad) for a in args], env=NO_CC), bad, before,
-                                "no C compiler found", "--backend python")
-    assert NO_CC["CC"] in line
+    assert_clean_failure(invoke(*[a.format(d=bad) for a in args]), bad, before,
+                         "the native FMU backend compiles its C with zig", "'ziglang'", "--backend python")
 
 
-def test_build_fmu_script_defaults_to_native(bad, monkeypatch, capsys):
+def test_build_fmu_script_defaults_to_native_without_a_system_compiler(bad, monkeypatch):
     monkeypatch.setenv("CC", NO_CC["CC"])
-    before = listing(bad)
-    assert build_fmu.main([str(bad / "model.json"), "-o", str(bad / "out.fmu")]) == 1
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("error: no C compiler found") and "--backend python" in err[0]
-    assert listing(bad) == before
+    assert build_fmu.main([str(bad / "model.json"), "-o", str(bad / "out.fmu")]) == 0
+    with zipfile.ZipFile(bad / "out.fmu") as fmu:
+        names = set(fmu.namelist())
+    assert {"binaries/linux64/semilinear_duhem.so", "binaries/win64/semilinear_duhem.dll",
+            "binaries/darwin64/semilinear_duhem.dylib"} <= names
+    assert not any(name.endswith(".py") for name in names)
 
 
 # --------------------------------------------------------------------------- one toolkit for every command line
