@@ -97,8 +97,9 @@ Progress: a rich progress bar on stderr when it is a terminal, and the
 dashboard link when there is one.  Devices that are current are never
 submitted; when every device is current no cluster is started.  At the end,
 leftover temporary entries in OUTDIR (``.tmp-*``, ``.old-*``: from a client
-that was killed) are removed; one batch at a time may write into an OUTDIR
-(a lock file, ``OUTDIR/.batch.lock``).
+that was killed) are removed; one writer at a time may write into an OUTDIR
+(`fitter.core.files.output_lock` of OUTDIR: a second batch, or a report
+written there, waits a bounded time, then fails naming the first).
 """
 from __future__ import annotations
 
@@ -124,7 +125,7 @@ import numpy as np
 
 from fitter.core.effects import REGISTRY
 from fitter.core.errors import DuhemError
-from fitter.core.files import atomic_directory, atomic_file, json_text, jsonable
+from fitter.core.files import atomic_directory, atomic_file, json_text, jsonable, output_lock
 from fitter.core.kernel import simulate as simulate_model
 from fitter.core.models import Signal, save_model
 from fitter.data.metrics import compare
@@ -498,19 +499,6 @@ def _clean_leftovers(outdir: Path) -> list[str]:
     return removed
 
 
-@contextlib.contextmanager
-def _lock(outdir: Path) -> Iterator[None]:
-    """One batch at a time writes into `outdir` (an exclusive lock on ``OUTDIR/.batch.lock``)."""
-    import fcntl
-
-    with open(outdir / ".batch.lock", "a") as fh:
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise BatchError(f"{outdir}: another duhem batch is writing into this directory") from None
-        yield
-
-
 # --------------------------------------------------------------------------- outliers
 
 def _robust_z(values: np.ndarray) -> np.ndarray | None:
@@ -792,7 +780,7 @@ def run_batch(manifest: str | os.PathLike, outdir: str | os.PathLike, *, options
     hashes = {d.name: input_hash(d, contents[d.name], options) for d in devices}
     outdir.mkdir(exist_ok=True)
     report = BatchReport(outdir, [d.name for d in devices], {}, {})
-    with _lock(outdir):
+    with output_lock(outdir):
         _clean_leftovers(outdir)
         todo = []
         for d in devices:

@@ -18,7 +18,9 @@ Conventions shared by every command
   renamed into place when the whole command succeeds, so a failure never
   leaves a partial file; it gets the usual mode (0o666 & ~umask).  A report
   directory is written in full beside its target and then replaces it
-  (`fitter.core.files`).
+  (`fitter.core.files`).  One writer per output: a second command writing
+  the same path waits (``DUHEM_LOCK_WAIT`` s, default 10), then fails
+  naming the first (`fitter.core.files.output_lock`).
 * FMUs are built with the ``native`` backend by default (a C library: the
   simulator needs no Python); ``--backend python`` builds a pythonfmu FMU
   (no C compiler needed at export, but the simulator must provide Python

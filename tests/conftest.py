@@ -7,9 +7,14 @@ dx/dt = g(du/dt) (A x + B u + E); both with y = C x + D u.
 
 Test modules import the plain functions (``from conftest import ri_model``;
 pytest puts tests/ on sys.path) and request the session fixture `fmu_cache`,
-which builds each (model, backend) FMU once per session.
+which builds each (model, backend) FMU once per session, and `holder`, another process holding an
+output's lock (`fitter.core.files.output_lock`).
 """
 from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -109,3 +114,27 @@ def noisy_recording(model, t, u, *, noise: float, seed, relative: bool = True,
 def fmu_cache(tmp_path_factory) -> FmuCache:
     """Every FMU the session needs, built once per (backend, model)."""
     return FmuCache(tmp_path_factory.mktemp("fmus"))
+
+
+_HOLD = """import sys
+from fitter.core.files import output_lock
+with output_lock(sys.argv[1]):
+    print("held", flush=True)
+    sys.stdin.read()
+"""
+
+
+@pytest.fixture
+def holder():
+    """hold(path) -> pid: another process holds `output_lock(path)` until the test ends."""
+    procs = []
+
+    def hold(path: Path) -> int:
+        proc = subprocess.Popen([sys.executable, "-c", _HOLD, str(path)], stdin=subprocess.PIPE,
+                                stdout=subprocess.PIPE, text=True)
+        procs.append(proc)
+        assert proc.stdout.readline() == "held\n"
+        return proc.pid
+    yield hold
+    for proc in procs:
+        proc.communicate("")

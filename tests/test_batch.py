@@ -193,6 +193,19 @@ def test_batch_cli_names_an_unknown_effect(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_second_batch_into_the_same_outdir_fails_naming_the_first(tmp_path, holder):
+    """The batch holds `output_lock(OUTDIR)`, the one lock of every output: a second writer gives one line naming
+    OUTDIR and the holder's pid, exit 1, and writes nothing."""
+    manifest = make_batch(tmp_path, rates=(3.0,), bad=False)
+    out = tmp_path / "out"
+    out.mkdir()
+    pid = holder(out)
+    result = CliRunner().invoke(main, ["batch", str(manifest), "-o", str(out)], env={"DUHEM_LOCK_WAIT": "0"})
+    assert result.exit_code == 1 and result.stderr.startswith(f"error: {out}: another process is writing it "
+                                                               f"(pid {pid}: ")
+    assert len(result.stderr.splitlines()) == 1 and os.listdir(out) == []
+
+
 # --------------------------------------------------------------------------- (e) outliers
 
 def test_outlier_flagged(first_run):
@@ -343,4 +356,4 @@ def test_worker_killed_during_batch(tmp_path, client):
         done = json.loads((out / d / "done.json").read_text())
         assert all((out / d / rel).stat().st_size == size for rel, size in done["files"].items())
     assert no_temporaries(out)
-    assert set(os.listdir(out)) == {"dev1", "dev2", "summary.csv", "summary.json", "index.html", ".batch.lock"}
+    assert set(os.listdir(out)) == {"dev1", "dev2", "summary.csv", "summary.json", "index.html"}

@@ -29,6 +29,7 @@ from click.testing import CliRunner
 import build_fmu
 from conftest import ri_model, sine_input
 import fitter.cli
+import fitter.core.files
 import fitter.identification.exported
 from fitter.cli import main
 from fitter.core import RateIndependentModel, load_model, model_from_dict, save_model, simulate
@@ -474,6 +475,51 @@ def test_build_fmu_script_defaults_to_native_without_a_system_compiler(bad, monk
     assert {"binaries/linux64/semilinear_duhem.so", "binaries/win64/semilinear_duhem.dll",
             "binaries/darwin64/semilinear_duhem.dylib"} <= names
     assert not any(name.endswith(".py") for name in names)
+
+
+# --------------------------------------------------------------------------- one writer per output
+
+LOCKED = {
+    "fit -o": (["fit", "{d}/rec.csv", "-o", "{d}/out.json"], "out.json"),
+    "fit --fmu": (["fit", "{d}/rec.csv", "-o", "{d}/m2.json", "--fmu", "{d}/out.fmu", "--backend", "python"],
+                  "out.fmu"),
+    "export -o": (["export", "{d}/model.json", "-o", "{d}/out.fmu", "--backend", "python"], "out.fmu"),
+    "simulate -o": (["simulate", "{d}/model.json", "{d}/rec.csv", "-o", "{d}/out.csv"], "out.csv"),
+    "compensate -o": (["compensate", "{d}/model.json", "{d}/ref.csv", "-o", "{d}/out.csv", "--input-range", "-1",
+                       "3"], "out.csv"),
+    "diagnose --json": (["diagnose", "{d}/rec.csv", "--json", "{d}/out.json"], "out.json"),
+    "diagnose --fmu": (["diagnose", "{d}/rec.csv", "--fmu", "{d}/out.fmu", "--backend", "python"], "out.fmu"),
+}
+
+
+@pytest.mark.parametrize("case", list(LOCKED))
+def test_a_second_writer_of_an_output_fails_naming_the_first(bad, holder, case):
+    """Another process holds the output's lock: exit 1, one line naming the output and the holder's pid; the
+    existing output and the inputs untouched, nothing left behind."""
+    args, name = LOCKED[case]
+    write_csv(bad / "ref.csv", np.arange(5.0), np.linspace(0.0, 1.0, 5), np.zeros(5), header="time,y_ref,z")
+    (bad / name).write_text("old output")
+    pid = holder(bad / name)
+    before, inputs = listing(bad), {p: p.read_bytes() for p in bad.iterdir() if p.is_file()}
+    result = invoke(*[a.format(d=bad) for a in args], env={"DUHEM_LOCK_WAIT": "0"})
+    assert_clean_failure(result, bad, before, f"error: {bad / name}: another process is writing it (pid {pid}: ",
+                         "waited 0 s", "run again when it has finished, or write to another path")
+    assert {p: p.read_bytes() for p in bad.iterdir() if p.is_file()} == inputs
+
+
+def test_no_build_leftover_doubles_tmp_and_the_next_run_sweeps_them(bad, monkeypatch):
+    """What a killed build leaves (here: made up, of a process that is gone) is removed by the next write into
+    the directory; while an FMU is built, its only temporary is the command's own (no '.tmp-.tmp-')."""
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True).stdout.strip()
+    left = bad / f".tmp-.tmp-out.fmu.{dead}.abcd1234.fmu.{dead}.efgh5678.fmu"
+    left.write_bytes(b"PK half")
+    seen = []
+    monkeypatch.setattr(fitter.core.files, "PUBLISH_HOOK", lambda target: seen.append(listing(bad)))
+    ok(invoke("export", bad / "model.json", "-o", bad / "out.fmu", "--backend", "python"))
+    assert not left.exists() and not any(name.startswith(".tmp-") for name in listing(bad))
+    temporaries = [name for name in seen[0] if name.startswith(".tmp-")]
+    assert len(temporaries) == 1 and temporaries[0].startswith(".tmp-out.fmu."), seen
 
 
 # --------------------------------------------------------------------------- one toolkit for every command line

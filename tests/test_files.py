@@ -120,18 +120,69 @@ def _dead_pid() -> int:
 
 
 def test_leftovers_of_killed_writers_are_removed_by_the_next_write(tmp_path):
+    """Any target's leftovers in the directory, a nested build leftover (.tmp-.tmp-) too; a running writer's stay,
+    also when a number in the target's name is a running pid."""
     dead, target = _dead_pid(), tmp_path / "out.csv"
-    left = [tmp_path / f".tmp-out.csv.{dead}.abc.csv", tmp_path / f".old-out.csv.{dead}.ff"]
-    left[0].write_text("half")
+    left = [tmp_path / f".tmp-out.csv.{dead}.abc.csv", tmp_path / f".old-out.csv.{dead}.ff",
+            tmp_path / f".tmp-other.csv.{dead}.abc.csv",                          # another target's
+            tmp_path / f".tmp-.tmp-m.fmu.{dead}.a1b2c3d4.fmu.{dead}.e5f6g7h8.fmu"]  # a killed FMU build's
+    for path in left:
+        path.write_text("half")
+    left[1].unlink()
     left[1].mkdir()
     alive = tmp_path / f".tmp-out.csv.{os.getppid()}.xyz.csv"      # a running writer's temporary stays
-    other = tmp_path / f".tmp-other.csv.{dead}.abc.csv"             # another target's leftover stays
+    ambiguous = tmp_path / f".tmp-run.{os.getppid()}.csv.{dead}.abc.csv"
     alive.write_text("busy")
-    other.write_text("other")
+    ambiguous.write_text("busy?")
     with atomic_file(target) as tmp:
         tmp.write_text("new")
-    assert names(tmp_path) == sorted([alive.name, other.name, "out.csv"])
-    assert sweep_leftovers(tmp_path / "other.csv") == [other]
+    assert names(tmp_path) == sorted([alive.name, ambiguous.name, "out.csv"])
+    left[0].write_text("half")
+    assert sweep_leftovers(tmp_path / "other.csv") == [left[0]]
+
+
+def test_a_temporary_is_written_in_place_never_given_its_own(tmp_path):
+    """An FMU build writing into the command's temporary: no name doubles '.tmp-.tmp-'."""
+    seen = []
+    with atomic_file(tmp_path / "m.fmu") as tmp:
+        with atomic_file(tmp) as inner:
+            inner.write_text("fmu")
+            seen = names(tmp_path)
+        assert inner == tmp and tmp.read_text() == "fmu"
+    assert [n for n in seen if n.startswith(".tmp-")] == [tmp.name]
+    assert not any(n.startswith(".tmp-.tmp-") for n in seen)
+    assert names(tmp_path) == ["m.fmu"] and (tmp_path / "m.fmu").read_text() == "fmu"
+
+
+def test_a_second_writer_fails_naming_the_output_and_the_first(tmp_path, holder, monkeypatch):
+    target = tmp_path / "out.csv"
+    target.write_text("old")
+    pid = holder(target)
+    monkeypatch.setenv("DUHEM_LOCK_WAIT", "0")
+    with pytest.raises(files.OutputBusyError) as exc, atomic_file(target) as tmp:
+        tmp.write_text("new")
+    assert str(exc.value).startswith(f"{target}: another process is writing it (pid {pid}: ")
+    assert "waited 0 s" in str(exc.value) and "write to another path" in str(exc.value)
+    with pytest.raises(files.OutputBusyError), atomic_pair(tmp_path / "m.json", target, _digest_in):
+        pass
+    assert target.read_text() == "old" and names(tmp_path) == [".lock-out.csv", "out.csv"]
+
+
+def test_the_lock_is_reentrant_and_leaves_no_file(tmp_path, holder, monkeypatch):
+    target = tmp_path / "out"
+    with files.output_lock(target), atomic_directory(target) as tmp:
+        (tmp / "a").write_text("a")
+        assert names(tmp_path) == [".lock-out", tmp.name]
+    assert names(tmp_path) == ["out"]
+    monkeypatch.setenv("DUHEM_LOCK_WAIT", "0")
+    holder(target)
+    with pytest.raises(files.OutputBusyError, match="another process is writing it"), atomic_directory(target):
+        pass
+    assert names(tmp_path) == [".lock-out", "out"] and names(target) == ["a"]
+    monkeypatch.setenv("DUHEM_LOCK_WAIT", "soon")
+    with pytest.raises(files.OutputBusyError, match="DUHEM_LOCK_WAIT=soon: not a number of seconds"), \
+            atomic_file(tmp_path / "x"):
+        pass
 
 
 def _digest_in(record: Path) -> str | None:

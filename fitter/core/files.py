@@ -9,10 +9,22 @@ therefore sees the old content or the new one, never half of it.
 
 Temporaries are named after their target and the writing process,
 ``.tmp-<name>.<pid>.<random>``; a process killed before it could clean up
-leaves them behind, and the next write of the same target removes those of
-processes that no longer run (`sweep_leftovers`).  Working directories
-(FMU builds) are `scratch_directory`: named after the process too, and
-swept the same way.
+leaves them behind, and the next write into the same directory removes those
+of processes that no longer run (`sweep_leftovers`).  A temporary is never
+itself given a temporary: `atomic_file` of a live temporary of this process
+(an FMU build writing into the command's temporary) writes it in place, so
+no name doubles ``.tmp-.tmp-``.  Working directories (FMU builds) are
+`scratch_directory`: named after the process too, and swept the same way.
+
+One writer per output: `atomic_file`, `atomic_directory` and `atomic_pair`
+hold an exclusive advisory lock (``fcntl.flock``) on the sibling file
+``.lock-<name>`` from before their temporary is made until the output is in
+place (`output_lock`; held again by the same process it is not waited for).
+A second writer of the same path waits up to `LOCK_WAIT` seconds (the
+environment variable ``DUHEM_LOCK_WAIT`` overrides it), then fails with
+`OutputBusyError` naming the path and the holder (its pid and command line,
+which the holder writes into the lock file).  The lock file is removed when
+released; one a killed writer left is taken over (its lock died with it).
 
 Two outputs of one command that belong together (a model JSON and the FMU
 built from it) are published by `atomic_pair`: the companion (FMU) is
@@ -43,17 +55,33 @@ import hashlib
 import json
 import math
 import os
+import re
 import shutil
+import sys
 import tempfile
+import time
 import uuid
 from pathlib import Path, PurePath
 from typing import Any, Callable, Iterator
 
 __all__ = ["atomic_file", "atomic_directory", "atomic_pair", "recover_pair", "file_digest", "sweep_leftovers",
-           "scratch_directory", "write_json", "json_text", "jsonable", "usual_mode", "PUBLISH_HOOK"]
+           "scratch_directory", "write_json", "json_text", "jsonable", "usual_mode", "output_lock", "OutputBusyError",
+           "LOCK_WAIT", "PUBLISH_HOOK"]
 
 PUBLISH_HOOK: Callable[[Path], None] | None = None
 """Called with the target just before an output is renamed into place (tests interrupt a run there)."""
+
+LOCK_WAIT = 10.0
+"""Seconds a writer waits for another writer of the same output (`output_lock`; ``DUHEM_LOCK_WAIT`` overrides)."""
+
+_HELD: dict[str, int] = {}
+"""Output locks this process holds: real path of the output -> depth (`output_lock` is re-entrant)."""
+_LIVE: set[str] = set()
+"""Real paths of this process's live temporaries (`atomic_file` writes one in place)."""
+
+
+class OutputBusyError(RuntimeError):
+    """Another process holds the lock of an output; the message names the output and that process."""
 
 
 def _umask() -> int:
@@ -94,21 +122,27 @@ def atomic_file(path: str | os.PathLike, *, suffix: str | None = None) -> Iterat
         The directory of `path` does not exist (before the block runs).
     """
     target = Path(path)
+    if os.path.realpath(target) in _LIVE:       # a temporary of ours: already private, written in place
+        yield target
+        return
     ending = target.suffix if suffix is None else suffix
     parent = _parent(target)
-    sweep_leftovers(target)
-    with _creating(target):
-        fd, name = tempfile.mkstemp(prefix=_own_prefix(".tmp-", target), suffix=ending, dir=parent)
-    os.close(fd)
-    tmp = Path(name)
-    try:
-        yield tmp
-        os.chmod(tmp, usual_mode())
-        _publishing(target)
-        os.replace(tmp, target)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with output_lock(target):
+        sweep_leftovers(target)
+        with _creating(target):
+            fd, name = tempfile.mkstemp(prefix=_own_prefix(".tmp-", target), suffix=ending, dir=parent)
+        os.close(fd)
+        tmp = Path(name)
+        _LIVE.add(os.path.realpath(tmp))
+        try:
+            yield tmp
+            os.chmod(tmp, usual_mode())
+            _publishing(target)
+            os.replace(tmp, target)
+        finally:
+            _LIVE.discard(os.path.realpath(tmp))
+            if tmp.exists():
+                tmp.unlink()
 
 
 @contextlib.contextmanager
@@ -121,7 +155,7 @@ def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
     allows: it is renamed aside, the new one renamed in, then the old one
     removed; if the second rename fails the old directory is put back.  On
     any exception in the block the temporary directory is removed and `path`
-    is untouched.
+    is untouched.  The block runs under `output_lock` of `path`.
 
     Raises
     ------
@@ -134,16 +168,17 @@ def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
     parent = _parent(target)
     if target.exists() and not target.is_dir():
         raise NotADirectoryError(f"{path}: exists and is not a directory")
-    sweep_leftovers(target)
-    with _creating(target):
-        tmp = Path(tempfile.mkdtemp(prefix=_own_prefix(".tmp-", target), dir=parent))
-    try:
-        yield tmp
-        os.chmod(tmp, usual_mode(directory=True))
-        _publishing(target)
-        _swap_in(tmp, target)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+    with output_lock(target):
+        sweep_leftovers(target)
+        with _creating(target):
+            tmp = Path(tempfile.mkdtemp(prefix=_own_prefix(".tmp-", target), dir=parent))
+        try:
+            yield tmp
+            os.chmod(tmp, usual_mode(directory=True))
+            _publishing(target)
+            _swap_in(tmp, target)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 @contextlib.contextmanager
@@ -194,7 +229,8 @@ def _running(pid: int) -> bool:
 
 
 def _stale(target: Path, kinds: tuple[str, ...]) -> Iterator[Path]:
-    """Entries beside `target` named ``<kind><name>.<pid>.*`` (or ``...<pid>``) whose process is gone."""
+    """Entries beside `target` named ``<kind><name>.<pid>.*`` (or ``...<pid>``) whose process is gone (kept
+    companions of `recover_pair`, scratch directories)."""
     for entry in target.parent.iterdir() if target.parent.is_dir() else ():
         for kind in kinds:
             head = f"{kind}{target.name}."
@@ -203,20 +239,107 @@ def _stale(target: Path, kinds: tuple[str, ...]) -> Iterator[Path]:
                 yield entry
 
 
-def sweep_leftovers(path: str | os.PathLike) -> list[Path]:
-    """Remove the temporaries (``.tmp-``, ``.old-``) that killed writers of `path` left beside it.
+def _abandoned(name: str) -> bool:
+    """Whether a ``.tmp-`` or ``.old-`` entry's writer is gone: every number in its name that could be the
+    writer's pid (``.<digits>`` then ``.`` or the end: a target's name may hold one too) is neither this
+    process nor a running one."""
+    if not name.startswith((".tmp-", ".old-")):
+        return False
+    pids = [int(p) for p in re.findall(r"\.(\d+)(?=\.|$)", name[5:])]
+    return bool(pids) and not any(p == os.getpid() or _running(p) for p in pids)
 
-    Only entries of processes that no longer run are removed (a concurrent
-    writer's temporaries stay).  Returns the removed paths.
+
+def sweep_leftovers(path: str | os.PathLike) -> list[Path]:
+    """Remove the temporaries (``.tmp-``, ``.old-``) that killed writers left in the directory of `path`.
+
+    Any target's, nested ones (``.tmp-.tmp-...``, from before a temporary was written in place)
+    included; only entries of processes that no longer run are removed (a concurrent writer's
+    temporaries stay).  Returns the removed paths.
     """
+    parent = Path(path).parent
     removed = []
-    for entry in list(_stale(Path(path), (".tmp-", ".old-"))):
+    for entry in [e for e in parent.iterdir() if _abandoned(e.name)] if parent.is_dir() else []:
         if entry.is_dir() and not entry.is_symlink():
             shutil.rmtree(entry, ignore_errors=True)
         else:
             entry.unlink(missing_ok=True)
         removed.append(entry)
     return removed
+
+
+@contextlib.contextmanager
+def output_lock(path: str | os.PathLike, *, wait: float | None = None) -> Iterator[None]:
+    """Hold the exclusive advisory lock of the output `path` for the block (module docstring).
+
+    `wait`: seconds to wait for another holder (default ``DUHEM_LOCK_WAIT``, else `LOCK_WAIT`).
+    Re-entrant within a process.  Raises `OutputBusyError` when the lock is still held after `wait`.
+    """
+    target = Path(path)
+    key = os.path.realpath(target)
+    if key in _HELD:
+        _HELD[key] += 1
+        try:
+            yield
+        finally:
+            _HELD[key] -= 1
+        return
+    lock = _parent(target) / f".lock-{target.name}"
+    fd = _acquire(lock, target, _lock_wait() if wait is None else wait)
+    _HELD[key] = 1
+    try:
+        yield
+    finally:
+        del _HELD[key]
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(lock)         # under the lock: a waiter on this file sees it gone and opens a new one
+        os.close(fd)
+
+
+def _lock_wait() -> float:
+    text = os.environ.get("DUHEM_LOCK_WAIT", "")
+    try:
+        value = float(text) if text else LOCK_WAIT
+    except ValueError:
+        value = -1.0
+    if not value >= 0:
+        raise OutputBusyError(f"DUHEM_LOCK_WAIT={text}: not a number of seconds >= 0 (e.g. DUHEM_LOCK_WAIT=10)")
+    return value
+
+
+def _acquire(lock: Path, target: Path, wait: float) -> int:
+    """An open descriptor of `lock`, exclusively locked, naming this process; `OutputBusyError` after `wait` s."""
+    import fcntl  # POSIX only: imported here, as this module is also shipped inside the FMUs
+
+    deadline = time.monotonic() + wait
+    while True:
+        with _creating(target):
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _holder(fd)
+            os.close(fd)
+            if time.monotonic() >= deadline:
+                raise OutputBusyError(f"{target}: another process is writing it ({holder}); waited {wait:g} s: "
+                                      "run again when it has finished, or write to another path") from None
+            time.sleep(min(0.05, max(deadline - time.monotonic(), 0.0)))
+            continue
+        try:
+            same = os.path.samestat(os.fstat(fd), os.stat(lock))
+        except FileNotFoundError:
+            same = False
+        if same:        # not removed by the holder we waited for
+            command = " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]) if sys.argv and sys.argv[0] else "python"
+            os.ftruncate(fd, 0)
+            os.write(fd, f"pid {os.getpid()}: {command[:300]}".encode("utf-8", "replace"))
+            return fd
+        os.close(fd)
+
+
+def _holder(fd: int) -> str:
+    """What the lock file open as `fd` says about its holder."""
+    text = os.pread(fd, 400, 0).decode("utf-8", "replace").strip()
+    return text or "a process that has not yet written its name"
 
 
 @contextlib.contextmanager
@@ -277,22 +400,24 @@ def atomic_pair(record: str | os.PathLike, companion: str | os.PathLike,
     success the old companion is kept as a hard link, the companion renamed
     into place, then the record (the commit), then the link removed; a
     failure between the renames puts the old companion back.  `recorded`
-    reads the digest a record names (for `recover_pair`, run first).
+    reads the digest a record names (for `recover_pair`, run first).  Both
+    outputs are locked (`output_lock`) from before recovery until published.
     """
     record, companion = Path(record), Path(companion)
-    recover_pair(record, companion, recorded)
-    kept = companion.parent / f".pair-{companion.name}.{os.getpid()}"
-    try:
-        with atomic_file(record) as record_tmp, atomic_file(companion) as companion_tmp:
-            yield record_tmp, companion_tmp
-            if companion.exists():
-                kept.unlink(missing_ok=True)
-                os.link(companion, kept)
-    except BaseException:
-        if kept.exists():
-            _put_back(kept, companion)
-        raise
-    kept.unlink(missing_ok=True)
+    with output_lock(record), output_lock(companion):
+        recover_pair(record, companion, recorded)
+        kept = companion.parent / f".pair-{companion.name}.{os.getpid()}"
+        try:
+            with atomic_file(record) as record_tmp, atomic_file(companion) as companion_tmp:
+                yield record_tmp, companion_tmp
+                if companion.exists():
+                    kept.unlink(missing_ok=True)
+                    os.link(companion, kept)
+        except BaseException:
+            if kept.exists():
+                _put_back(kept, companion)
+            raise
+        kept.unlink(missing_ok=True)
 
 
 def jsonable(obj: Any) -> Any:
