@@ -108,8 +108,8 @@ def _load(model_or_json_path):
 def _code_hash() -> str:
     """Hash of the slave and kernel sources (names the modules shipped in the FMU)."""
     h = hashlib.sha256(_SLAVE_SOURCE.read_bytes())
-    for path in sorted(_CORE_DIR.glob("*.py")):
-        h.update(path.name.encode())
+    for path in sorted(_CORE_DIR.rglob("*.py")):
+        h.update(path.relative_to(_CORE_DIR).as_posix().encode())
         h.update(path.read_bytes())
     return h.hexdigest()[:12]
 
