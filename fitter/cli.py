@@ -9,10 +9,10 @@ Conventions shared by every command
 * An error is one line on stderr, ``error: <file>: <what>``, and exit code 1
   (also a path that is a directory where a file is expected, or the reverse,
   or unreadable: `fitter.cli_support.FilePath`; a broken FMU names its broken
-  part: `fitter.fmu.host.check_fmu_file`); a command-line usage error is exit
-  code 2 (click); a validation whose NRMSE exceeds the threshold is exit
-  code 3.  No traceback is shown (set
-  ``DUHEM_DEBUG=1`` to see one), nor the optimisers' numerical warnings
+  part: `fitter.fmu.host.check_fmu_file`; a command-line usage error, every
+  numeric option range-checked: `fitter.cli_support.usage_line`); a
+  validation whose NRMSE exceeds the threshold is exit code 3.  No
+  traceback is shown (set ``DUHEM_DEBUG=1`` to see one), nor the optimisers' numerical warnings
   (`fitter.cli_support.one_line_errors`).
 * Every output file is written under a temporary name in its directory and
   renamed into place when the whole command succeeds, so a failure never
@@ -39,7 +39,7 @@ import numpy as np
 
 from fitter.baselines import comparison
 from fitter.batch import BatchOptions, run_batch
-from fitter.cli_support import (EXIT_ERROR, CliError, FilePath, GuardedGroup, backend_option,
+from fitter.cli_support import (EXIT_ERROR, CliError, FilePath, GuardedGroup, Number, backend_option,
                                 fmi_version_option)
 from fitter.core.checks import check_agreement, check_model, with_convergence
 from fitter.core.effects import REGISTRY
@@ -60,7 +60,7 @@ from fitter.fmu.toolchain import PLATFORMS, parse_platforms
 from fitter.identification.exported import minor_loop_warning, own_start, range_warnings, started
 from fitter.identification.effects_fit import check_effects, check_held
 from fitter.identification.explained import check_explained, explained_text, explained_variance
-from fitter.identification.fit import fit_recordings
+from fitter.identification.fit import ORDERS, fit_recordings
 from fitter.paper.report import command as reproduce_paper
 from fitter.progress import stderr_progress
 from fitter.reports.compensation_plot import write_compensation_plot
@@ -229,7 +229,7 @@ def _checked(model, source: str, allow_unstable: bool, *inputs):
 
 # --------------------------------------------------------------------------- commands
 
-@click.group(cls=GuardedGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group("duhem", cls=GuardedGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="semilinear-duhem")
 def main() -> None:
     """Identify semilinear Duhem hysteresis models (Oh & Bernstein 2007) and export them as FMUs.
@@ -251,8 +251,8 @@ main.add_command(reproduce_paper)
 @click.option("--fmu", type=FilePath(), help="also export the model as this FMU")
 @backend_option
 @click.option("--report", type=FilePath(directory=True), help="write a fit report (HTML, PNG) here")
-@click.option("--order", type=int, help="state dimension n (default: chosen by BIC)")
-@click.option("--q", type=float, help="bound on sigma_max(A+-) of the Section III least squares")
+@click.option("--order", type=Number(int, low=1, high=max(ORDERS)), help="state dimension n (default: chosen by BIC)")
+@click.option("--q", type=Number(low=0, open_low=True), help="bound on sigma_max(A+-) of the Section III least squares")
 @click.option("--x0", "x0_policy", type=click.Choice(["fitted", "periodic"]), default="fitted", show_default=True,
               help="stored initial state at the first sample of the first recording: fitted to it (least "
                    "squares), or leading onto the periodic response of its first cycle")
@@ -525,7 +525,7 @@ def _judged(row: dict) -> float:
 @main.command()
 @click.argument("fmu", type=FilePath())
 @click.argument("recordings", nargs=-1, required=True, type=FilePath())
-@click.option("--threshold", type=float, default=DEFAULT_THRESHOLD, show_default=True,
+@click.option("--threshold", type=Number(low=0, open_low=True), default=DEFAULT_THRESHOLD, show_default=True,
               help="fail (exit code 3) when the NRMSE over all samples of a recording exceeds this")
 @click.option("--plot", type=FilePath(), help="write a PNG overlay of the loops")
 @click.option("--x0", "x0_rule", type=click.Choice(["stored", "fitted"]), default="stored", show_default=True,
@@ -546,8 +546,6 @@ def validate(fmu, recordings, threshold, plot, x0_rule, allow_unstable, time_col
     in-process simulation of the model stored in the FMU.
     """
     _refuse_overwrite([fmu, *recordings], plot)
-    if not threshold > 0:
-        raise CliError(f"--threshold must be positive, got {threshold}")
     if plot and Path(plot).suffix.lower() != ".png":
         raise CliError(f"{plot}: the plot file name must end in .png")
     model = _open_fmu(fmu)
@@ -636,8 +634,8 @@ def simulate(model, input_csv, out, time_col, input_col, allow_unstable, as_json
               help="write a PNG: y_ref, the plant without compensation (linear gain) and with it")
 @click.option("--time", "time_col", default="time", show_default=True, metavar="COL", help="time column")
 @click.option("--ref", "ref_col", default="y_ref", show_default=True, metavar="COL", help="reference column")
-@click.option("--u0", type=float, help="the plant's input before the first sample (default: mid input range)")
-@click.option("--input-range", "input_range", type=float, nargs=2, metavar="LO HI",
+@click.option("--u0", type=Number(), help="the plant's input before the first sample (default: mid input range)")
+@click.option("--input-range", "input_range", type=Number(), nargs=2, metavar="LO HI",
               help="inputs the compensator may use (default: the model's input_range)")
 @click.option("--measurement", type=click.Choice(MEASUREMENT_CHOICES), default="refuse", show_default=True,
               help="a model with measurement effects (sensor_lag, measurement_drift): drop them (the device "
@@ -793,12 +791,13 @@ def _per_recording_table(data: dict) -> None:
               help="also diagnose every device (its fitted model as the base): diagnosis.json and diagnosis/")
 @click.option("--scheduler", metavar="ADDRESS",
               help="use this running Dask scheduler (e.g. tcp://host:8786) instead of a local cluster")
-@click.option("--workers", type=int, metavar="N",
+@click.option("--workers", type=Number(int, low=1), metavar="N",
               help="worker processes of the local cluster, one thread each (default: one per core)")
 @backend_option
 @click.option("--kind", type=click.Choice(["ri", "rd", "auto"]), default="auto", show_default=True,
               help="model kind of every device's fit, as 'duhem fit --kind'")
-@click.option("--order", type=click.IntRange(1, 4), help="state dimension of every fit (default: chosen by BIC)")
+@click.option("--order", type=Number(int, low=1, high=max(ORDERS)),
+              help="state dimension of every fit (default: chosen by BIC)")
 @click.option("--faithful-minor-loops", "faithful", is_flag=True,
               help="every fit keeps its settled minor loops near the data (as duhem fit --faithful-minor-loops)")
 @click.option("--effects", metavar="NAMES", callback=lambda ctx, param, value: _effect_names(value),
@@ -806,7 +805,7 @@ def _per_recording_table(data: dict) -> None:
                    "'duhem fit --effects'")
 @click.option("--hold", "held", callback=lambda ctx, param, value: _held_values(value), metavar="EFFECT.PARAM=VALUE",
               help="with --effects, effect parameters held at a known value in every fit, as 'duhem fit --hold'")
-@click.option("--threshold", type=float, default=DEFAULT_THRESHOLD, show_default=True,
+@click.option("--threshold", type=Number(low=0, open_low=True), default=DEFAULT_THRESHOLD, show_default=True,
               help="validation: a device whose FMU has an NRMSE above this on a recording is 'invalid'")
 @click.option("--retry-failed", is_flag=True,
               help="run again the devices that failed on unchanged inputs (by default they are skipped)")

@@ -1,11 +1,14 @@
 """Command-line plumbing shared by ``duhem`` (`fitter.cli`), ``build_fmu.py`` and the paper benchmark.
 
 One toolkit, click, and one error contract: an error is the single line
-``error: <message>`` on stderr with exit code 1 (`CliError`); a usage error
-is click's, exit code 2.  `one_line_errors` turns any exception of a
-command into a `CliError`: a `DuhemError` (the package's errors), an
-`OSError` or a `RuntimeError` keeps its message, anything else (a bug) is
-labelled ``internal error``; no traceback unless ``DUHEM_DEBUG`` is set.
+``error: <message>`` on stderr with exit code 1 (`CliError`), a usage error
+too (a bad option value, an unknown option, a missing argument: `usage_line`
+names the command, the option and the value, and points to ``--help``).
+Numeric options are `Number`: finite and range-checked.  `one_line_errors`
+turns any exception of a command into a `CliError`: a `DuhemError` (the
+package's errors), an `OSError` or a `RuntimeError` keeps its message,
+anything else (a bug) is labelled ``internal error``; no traceback unless
+``DUHEM_DEBUG`` is set.
 Numerical RuntimeWarnings (e.g. an overflow in a rejected trial step of an
 optimiser) are hidden too: a command's own result says whether it
 converged.
@@ -14,7 +17,9 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import math
 import os
+import re
 import warnings
 from typing import Callable, Iterator, Sequence
 
@@ -22,10 +27,12 @@ import click
 
 from fitter.core.errors import DuhemError
 
-__all__ = ["CliError", "EXIT_ERROR", "FilePath", "one_line_errors", "guarded", "GuardedGroup", "backend_option",
-           "fmi_version_option", "run_command"]
+__all__ = ["CliError", "EXIT_ERROR", "FilePath", "Number", "one_line_errors", "guarded", "GuardedGroup",
+           "backend_option", "fmi_version_option", "run_command", "usage_line"]
 
 EXIT_ERROR = 1
+_COMMAND_PATH = "fitter.cli_support.command_path"
+"""`click.Context.meta` key: the subcommand `GuardedGroup` runs (for a usage error that has no context)."""
 
 
 class CliError(click.ClickException):
@@ -59,6 +66,45 @@ class FilePath(click.Path):
         return super().convert(value, param, ctx)
 
 
+class Number(click.ParamType):
+    """A finite number option (`kind` int or float) within [`low`, `high`] (`open_low`: above `low`); a refusal
+    names the value and the range (`usage_line` adds the command and the option)."""
+
+    def __init__(self, kind: type = float, *, low: float | None = None, high: float | None = None,
+                 open_low: bool = False) -> None:
+        self.kind, self.low, self.high, self.open_low = kind, low, high, open_low
+        self.name = "integer" if kind is int else "number"
+        bounds = ([f"{'>' if open_low else '>='} {low:g}"] if low is not None else []) \
+            + ([f"<= {high:g}"] if high is not None else [])
+        self.rule = " ".join(["an integer" if kind is int else "a finite number", " and ".join(bounds)]).strip()
+
+    def convert(self, value, param, ctx):
+        try:
+            number = self.kind(value)
+        except (TypeError, ValueError):
+            self.fail(f"{value!r} is not {self.rule}", param, ctx)
+        if not (math.isfinite(number) and (self.low is None or number > self.low or
+                                           (number == self.low and not self.open_low))
+                and (self.high is None or number <= self.high)):
+            self.fail(f"{value} is out of range: give {self.rule}", param, ctx)
+        return number
+
+
+def usage_line(exc: click.UsageError) -> str:
+    """A click usage error in one line: the command, the option and what is wrong with its value (or the
+    unknown option, the missing argument), and where the options are listed."""
+    ctx = exc.ctx or click.get_current_context(silent=True)
+    command = (ctx.meta.get(_COMMAND_PATH) if exc.ctx is None else None) or ctx.command_path if ctx else "duhem"
+    if isinstance(exc, click.BadParameter) and exc.param is not None and not isinstance(exc, click.MissingParameter):
+        name = "/".join(exc.param.opts) if isinstance(exc.param, click.Option) else exc.param.human_readable_name
+        text = f"{name}: {exc.message}"
+    else:
+        text = exc.format_message()
+        text = text[0].lower() + text[1:] if text[:1].isupper() and not text[1:2].isupper() else text
+    text = re.sub(r"\.\s*\(?Did you mean (.*?)\?\)?$", r" (did you mean \1?)", " ".join(text.split()))
+    return f"{command}: {text.rstrip('.')}; see '{command} --help'"
+
+
 def _one_line(exc: BaseException) -> str:
     text = " ".join(str(exc).split())
     if isinstance(exc, OSError) and exc.filename:
@@ -75,6 +121,10 @@ def one_line_errors() -> Iterator[None]:
             if not debug:
                 warnings.simplefilter("ignore", RuntimeWarning)
             yield
+    except click.exceptions.NoArgsIsHelpError:
+        raise
+    except click.UsageError as exc:
+        raise CliError(usage_line(exc)) from None
     except (click.ClickException, click.exceptions.Exit, click.Abort):
         raise
     except KeyboardInterrupt:
@@ -98,7 +148,16 @@ def guarded(func: Callable) -> Callable:
 
 
 class GuardedGroup(click.Group):
-    """A click group whose every subcommand runs under `one_line_errors`."""
+    """A click group whose every subcommand, its options' parsing included, runs under `one_line_errors`."""
+
+    def make_context(self, info_name, args, parent=None, **extra) -> click.Context:
+        with one_line_errors():
+            return super().make_context(info_name, args, parent=parent, **extra)
+
+    def resolve_command(self, ctx: click.Context, args: list[str]):
+        name, command, rest = super().resolve_command(ctx, args)
+        ctx.meta[_COMMAND_PATH] = f"{ctx.command_path} {name}"
+        return name, command, rest
 
     def invoke(self, ctx: click.Context):
         with one_line_errors():
@@ -126,15 +185,15 @@ def run_command(command: click.Command, argv: Sequence[str] | None, prog_name: s
 
     Returns the exit status: 0, the status the command exits with
     (``ctx.exit(n)``), or a `click.ClickException`'s exit code after showing
-    it.  A usage error is shown with the usage line and raises
-    ``SystemExit(2)``, as on the command line.
+    it; a usage error is one line (`usage_line`), exit status 1.
     """
     try:
         status = command.main(args=None if argv is None else list(argv), prog_name=prog_name,
                               standalone_mode=False)
     except click.UsageError as exc:
+        exc = CliError(usage_line(exc))
         exc.show()
-        raise SystemExit(exc.exit_code) from None
+        return exc.exit_code
     except click.ClickException as exc:
         exc.show()
         return exc.exit_code

@@ -16,7 +16,7 @@ from typing import Sequence
 
 import click
 
-from fitter.cli_support import run_command
+from fitter.cli_support import Number, run_command
 from fitter.core.files import json_text
 from fitter.paper import example1, example2, example3
 
@@ -178,17 +178,11 @@ def format_table(result: dict) -> str:
     return "\n".join(lines)
 
 
-def _positive(ctx: click.Context, param: click.Parameter, value: int) -> int:
-    if value < 1:
-        raise click.BadParameter(f"--seeds must be >= 1, got {value}", ctx, param)
-    return value
-
-
 @click.command("reproduce-paper")
 @click.option("--json", "as_json", is_flag=True, help="print the figures as JSON")
 @click.option("--figures", type=click.Path(file_okay=False), metavar="DIR",
               help="save PNG figures like the paper's (Figs. 1, 3-6) here")
-@click.option("--seeds", type=int, default=DEFAULT_SEEDS, show_default=True, callback=_positive,
+@click.option("--seeds", type=Number(int, low=1), default=DEFAULT_SEEDS, show_default=True,
               help="number of noise seeds for Example 2")
 @click.pass_context
 def command(ctx: click.Context, as_json: bool, figures: str | None, seeds: int) -> None:
@@ -200,5 +194,5 @@ def command(ctx: click.Context, as_json: bool, figures: str | None, seeds: int) 
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """`command` on `argv`: 0 when every check passes, else 1; a usage error exits with status 2."""
+    """`command` on `argv`: 0 when every check passes, else 1 (also a usage error: one line)."""
     return run_command(command, argv, "reproduce-paper")
