@@ -122,6 +122,8 @@ def _load_model_json(path: str):
     if _is_zip(path):
         raise CliError(f"{path}: is an FMU or zip archive, not a model JSON file "
                        f"(give the JSON written by 'duhem fit')")
+    if Path(path).suffix.lower() == ".fmu":
+        raise CliError(f"{path}: not an FMU (not a zip archive: damaged or unfinished), nor a model JSON file")
     model = load_model(path)
     note = check_fmu_pair(path, model)
     if note:
@@ -133,8 +135,7 @@ def _open_fmu(path: str):
     """The model in an FMU argument, every part checked (`check_fmu_file`), after the hint that a model JSON
     is exported first."""
     if not _is_zip(path):
-        raise CliError(f"{path}: not an FMU (an FMU is a zip archive; for a model JSON use "
-                       f"'duhem export' first)")
+        raise CliError(f"{path}: not an FMU (not a zip archive); for a model JSON use 'duhem export' first")
     return check_fmu_file(path)
 
 

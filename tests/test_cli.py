@@ -404,6 +404,10 @@ def bad(tmp_path) -> Path:
     (tmp_path / "v99.json").write_text(json.dumps({**true_model().to_dict(), "schema_version": 99}))
     with zipfile.ZipFile(tmp_path / "other.fmu", "w") as z:
         z.writestr("modelDescription.xml", "<fmiModelDescription/>")
+    (tmp_path / "comma.csv").write_text("time;u;y\n0;0,5;1\n1;1,5;2\n2;2,5;3\n")
+    (tmp_path / "noheader.csv").write_text("0,1,2\n1,2,3\n2,3,4\n")
+    (tmp_path / "field.csv").write_text("time,u,y\n0,1,2\n1,\"" + "9" * 140_000 + "\",3\n2,3,4\n")
+    (tmp_path / "notzip.fmu").write_text("not a zip")
     return tmp_path
 
 
@@ -438,6 +442,19 @@ ERRORS = {
                                ["tiny.csv", "column 'y'", "a span of only", "rescale the column"]),
     "base order with a model": (["diagnose", "{d}/rec.csv", "--model", "{d}/model.json", "--base-order", "2"],
                                 ["--base-order", "--model"]),
+    "decimal comma": (["fit", "{d}/comma.csv", "-o", "{d}/out.json"],
+                      ["comma.csv: line 2, column 'u': '0,5' is not a number (a decimal comma? write a decimal "
+                       "point: 0.5)"]),
+    "no header": (["fit", "{d}/noheader.csv", "-o", "{d}/out.json"],
+                  ["noheader.csv: line 1: the first row '0,1,2' is numbers, not a header", "header line naming"]),
+    "field over csv's limit": (["simulate", "{d}/model.json", "{d}/field.csv", "-o", "{d}/out.csv"],
+                               ["field.csv: line 3: a field of more than 131072 characters"]),
+    "non-zip FMU to simulate": (["simulate", "{d}/notzip.fmu", "{d}/rec.csv", "-o", "{d}/out.csv"],
+                                ["notzip.fmu: not an FMU (not a zip archive"]),
+    "non-zip FMU to validate": (["validate", "{d}/notzip.fmu", "{d}/rec.csv"],
+                                ["notzip.fmu: not an FMU (not a zip archive)"]),
+    "non-zip FMU to export": (["export", "{d}/notzip.fmu", "-o", "{d}/out.fmu"],
+                              ["notzip.fmu: not an FMU (not a zip archive", "nor a model JSON file"]),
 }
 
 
@@ -446,6 +463,26 @@ def test_error_is_one_clear_line(bad, case):
     args, needles = ERRORS[case]
     before = listing(bad)
     assert_clean_failure(invoke(*[a.format(d=bad) for a in args]), bad, before, *needles)
+
+
+def test_guid_mismatch_names_both_guids(work, tmp_path):
+    """An FMU whose modelDescription.xml GUID is not its binary's: simulate and validate name both GUIDs."""
+    with zipfile.ZipFile(work["dir"] / "native.fmu") as z:
+        members = {name: z.read(name) for name in z.namelist()}
+    xml = members["modelDescription.xml"].decode()
+    built = re.search(r'guid="(\{[^"]+\})"', xml)[1]
+    edited = "{00000000" + built[9:]
+    members["modelDescription.xml"] = xml.replace(built, edited).encode()
+    with zipfile.ZipFile(tmp_path / "mixed.fmu", "w") as z:
+        for name, data in members.items():
+            z.writestr(name, data)
+    rec = write_csv(tmp_path / "rec.csv", work["t"], work["u"], work["y_true"])
+    before = listing(tmp_path)
+    for args in (["simulate", tmp_path / "mixed.fmu", rec, "-o", tmp_path / "out.csv"],
+                 ["validate", tmp_path / "mixed.fmu", rec]):
+        assert_clean_failure(invoke(*args), tmp_path, before,
+                             f"mixed.fmu: GUID mismatch: modelDescription.xml gives {edited}, the binary was built "
+                             f"for {built}", "export the FMU again")
 
 
 def test_missing_system_compiler_names_the_python_backend(bad):

@@ -70,6 +70,38 @@ def test_skips_comment_lines_before_the_header_and_keeps_line_numbers(tmp_path):
     assert "line 5" in msg and "column 'u'" in msg
 
 
+def test_skips_comment_lines_among_the_data_and_keeps_line_numbers(tmp_path):
+    """A '# ...' line among the data rows (also one with delimiters) is skipped as before the header."""
+    rec = load_recording(write(tmp_path, "time,u,y\n0,1,2\n# re-zeroed, 3 s\n1,2,3\n  # note\n2,3,4\n"))
+    np.testing.assert_array_equal(rec.t, [0, 1, 2])
+    np.testing.assert_array_equal(rec.y, [2, 3, 4])
+    msg = error_of(tmp_path, "time,u,y\n0,0,0\n# gap\n1,1,1\n2,abc,2\n")
+    assert "line 5, column 'u': 'abc' is not a number" in msg
+
+
+def test_a_file_without_header_is_refused(tmp_path):
+    msg = error_of(tmp_path, "# rig 3\n0,1,2\n1,2,3\n2,3,4\n")
+    assert "rec.csv: line 2: the first row '0,1,2' is numbers, not a header: a header line naming the columns is " \
+           "needed" in msg
+
+
+def test_decimal_commas_get_a_hint(tmp_path):
+    msg = error_of(tmp_path, "time;u;y\n0;0,5;1\n1;1,5;2\n2;2,5;3\n")
+    assert msg.endswith("line 2, column 'u': '0,5' is not a number (a decimal comma? write a decimal point: 0.5)")
+    msg = error_of(tmp_path, "time,u,y\n0,0,5,1\n1,1,5,2\n2,2,5,3\n")
+    assert msg.endswith("line 2 has 4 fields but the header has 3 (decimal commas? write decimal points, or "
+                        "separate the columns by ';')")
+    assert error_of(tmp_path, "time;u;y\n0;x;1\n1;1;2\n2;2;3\n").endswith("'x' is not a number")   # no hint
+
+
+def test_a_field_over_the_csv_limit_names_its_line(tmp_path):
+    msg = error_of(tmp_path, "time,u,y\n0,1,2\n1,\"" + "1" * 200_000 + "\",3\n2,3,4\n")
+    assert msg.startswith(str(tmp_path / "rec.csv") + ": line 3: a field of more than 131072 characters (csv's "
+                          "field size limit)")
+    msg = error_of(tmp_path, "time,\"" + "u" * 200_000 + "\",y\n0,1,2\n")
+    assert ": line 1: a field of more than 131072 characters" in msg
+
+
 def error_of(tmp_path, text, **kw):
     with pytest.raises(RecordingError) as exc:
         load_recording(write(tmp_path, text), **kw)

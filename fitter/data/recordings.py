@@ -4,8 +4,10 @@ File format
 -----------
 A text file with one header line, then one row per sample; the delimiter is a
 comma (a tab or semicolon is accepted when the header has no comma).  Blank
-lines, and comment lines starting with '#' before the header, are skipped; a
-UTF-8 byte-order mark is ignored.  Only the three chosen
+lines and comment lines starting with '#' (before the header or among the
+data rows) are skipped; a UTF-8 byte-order mark is ignored.  A first row of
+numbers is refused (the header is needed); a number with a decimal comma is
+refused with a hint (write decimal points, or separate the columns by ';').  Only the three chosen
 columns must be numeric.  The file is read a block of lines at a time: besides
 the chosen columns (as float arrays) the reader holds about one block.
 
@@ -264,11 +266,15 @@ class _Table:
     before input before output; in a column, its first non-number before its first non-finite value).
     """
 
-    def __init__(self, path: str, header_line: str, specs: dict[str, str | int | None], rows_hint: int):
+    def __init__(self, path: str, header_line: str, specs: dict[str, str | int | None], rows_hint: int,
+                 line: int = 1):
         self.path = path
         self.delimiter = "," if "," in header_line else "\t" if "\t" in header_line else ";" \
             if ";" in header_line else ","
-        self.header = [h.strip() for h in next(csv.reader([header_line], delimiter=self.delimiter))]
+        self.header = [h.strip() for h in _csv_rows(path, [header_line], self.delimiter, line)[0][1]]
+        if all(_is_number(h) for h in self.header):
+            raise RecordingError(f"{path}: line {line}: the first row {header_line.strip()[:60]!r} is numbers, not a "
+                                 "header: a header line naming the columns is needed (e.g. time,u,y)")
         self.cols: dict[str, int] = {}
         self.column_error: RecordingError | None = None
         try:
@@ -328,12 +334,14 @@ class _Table:
     def _add_rows(self, lines: list[str], first: int) -> None:
         """Add the data rows of `lines` one by one (csv), skipping blank rows; a ragged row is an error."""
         rows, numbers = [], []
-        for number, row in enumerate(csv.reader(lines, delimiter=self.delimiter), start=first):
-            if not row or all(not c.strip() for c in row):
+        for number, row in _csv_rows(self.path, lines, self.delimiter, first):
+            if not row or all(not c.strip() for c in row) or row[0].lstrip().startswith("#"):
                 continue
             if len(row) != len(self.header):
+                comma = " (decimal commas? write decimal points, or separate the columns by ';')" \
+                    if self.delimiter == "," and len(row) > len(self.header) else ""
                 raise RecordingError(f"{self.path}: line {number} has {len(row)} fields but the header has "
-                                     f"{len(self.header)}")
+                                     f"{len(self.header)}{comma}")
             rows.append(row)
             numbers.append(number)
         follow = bool(numbers) and numbers[-1] - numbers[0] == len(numbers) - 1
@@ -349,7 +357,9 @@ class _Table:
         except ValueError:
             if role not in self.errors["number"]:
                 cell, line = next((c, k) for c, k in zip(cells, numbers) if not _is_number(c))
-                what = "an empty cell" if not cell.strip() else f"{cell.strip()!r} is not a number"
+                what = "an empty cell" if not cell.strip() else f"{cell.strip()!r} is not a number" + (
+                    " (a decimal comma? write a decimal point: " + cell.strip().replace(",", ".") + ")"
+                    if _is_number(cell.replace(",", ".")) else "")
                 self.errors["number"][role] = f"{self.path}: line {line}, column {name!r}: {what}"
             return np.empty(0)
         bad = np.flatnonzero(~np.isfinite(values))
@@ -403,6 +413,22 @@ class _Column:
         return self.data
 
 
+def _csv_rows(path: str, lines: list[str], delimiter: str, first: int) -> list[tuple[int, list[str]]]:
+    """(line number, fields) of `lines` (the first numbered `first`) as csv reads them; a field over csv's size
+    limit is a `RecordingError` naming its line."""
+    reader = csv.reader(lines, delimiter=delimiter)
+    rows = []
+    try:
+        for row in reader:
+            rows.append((first + reader.line_num - 1, row))
+    except csv.Error as exc:
+        limit = csv.field_size_limit()
+        what = f"a field of more than {limit} characters (csv's field size limit): not a CSV recording, or a " \
+            "quote (\") left open" if "field larger than field limit" in str(exc) else f"not CSV: {exc}"
+        raise RecordingError(f"{path}: line {first + reader.line_num - 1}: {what}") from None
+    return rows
+
+
 def _is_number(cell: str) -> bool:
     try:
         float(cell)
@@ -423,7 +449,7 @@ def _read_table(path: str, specs: dict[str, str | int | None]) -> _Table:
             line += len(lines)
             continue
         rows_hint = int(1.25 * os.path.getsize(path) * len(lines) / len(text)) + 1024
-        table = _Table(path, lines[k].splitlines()[0], specs, rows_hint)
+        table = _Table(path, lines[k].splitlines()[0], specs, rows_hint, line + k)
         rest = "".join(lines[k + 1:])
         line += k + 1
         line += table.add_block(rest, line) if rest else 0

@@ -233,6 +233,19 @@ def _release(fmu, instantiated: bool) -> None:
         fmu.freeLibrary()
 
 
+_GUID_REFUSED = re.compile(r'GUID "([^"]*)" does not match this FMU\'s "([^"]*)"')
+"""The native binary's refusal of a GUID other than its own (fmi2Instantiate, `fmu_src/native/fmi2_framework.c`)."""
+
+
+def _run_failure(fmu_path, exc: Exception, log: str, guid: str) -> str:
+    """The message of a failed FMU run: a GUID refusal names both GUIDs, otherwise fmpy's error and the log's tail."""
+    refused = _GUID_REFUSED.search(log)
+    if refused:
+        return (f"{fmu_path}: GUID mismatch: modelDescription.xml gives {guid}, the binary was built for "
+                f"{refused[2]} (the archive mixes two exports, or was edited): export the FMU again")
+    return f"{fmu_path}: {exc}" + (f" FMU log: {log}" if log else "")
+
+
 def simulate_fmu(fmu_path: str | os.PathLike, t, u, start: Mapping[str, float] | None = None) -> np.ndarray:
     """Output y at every sample of (t, u), from the FMU driven by fmpy's `FMU2Slave`.
 
@@ -281,8 +294,7 @@ def simulate_fmu(fmu_path: str | os.PathLike, t, u, start: Mapping[str, float] |
         fmu.terminate()
     except Exception as exc:  # fmpy raises FMICallException (and OSError on load)
         fatal = getattr(exc, "status", None) == _FMI2_FATAL
-        log = "; ".join(messages)
-        raise FmuRunError(f"{fmu_path}: {exc}" + (f" FMU log: {log}" if log else "")) from exc
+        raise FmuRunError(_run_failure(fmu_path, exc, "; ".join(messages), md.guid)) from exc
     finally:
         if not fatal:
             _release(fmu, instantiated)
