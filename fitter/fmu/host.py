@@ -223,9 +223,11 @@ def collecting_callbacks(messages: MutableSequence[str]):
 def _release(fmu, instantiated: bool) -> None:
     """Free the instance (or only the library when instantiation failed).
 
-    Not called after fmi2Fatal: FMI 2.0 allows no further call then, and a
-    pythonfmu FMU crashes on fmi2FreeInstance after a fatal error (its
-    exception path already released its Python objects).
+    Not called after fmi2Fatal: FMI 2.0 allows no further call then.  (A
+    python FMU of this version survives one, `fmu_src/duhem_slave.py`; one
+    exported before it, or another pythonfmu FMU, crashes on
+    fmi2FreeInstance after a fatal error: pythonfmu's exception path has
+    already released its Python objects.)
     """
     if instantiated:
         fmu.freeInstance()
