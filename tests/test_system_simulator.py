@@ -5,7 +5,7 @@ The system steps with a fixed macro step h: before each step the host sets the i
 override manipulator, libcosim's way to drive a variable from outside the system) and after it passes each
 connected output to its input.  So an FMU's input is held over each step (no input derivatives), and the
 recorded output after the step from t_k is the model's output at t_k: one step late, as fmusim and fmpy's
-`simulate_fmu` (README, "Input interpolation").
+`simulate_fmu` (docs/fmu.md, "Input interpolation").
 
 What is checked:
 - a fitted model's FMU, its input driven by the system and nothing else set (no start values: the FMU starts
