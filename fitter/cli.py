@@ -40,7 +40,7 @@ import numpy as np
 from fitter.baselines import comparison
 from fitter.batch import BatchOptions, run_batch
 from fitter.cli_support import (EXIT_ERROR, CliError, FilePath, GuardedGroup, Number, backend_option,
-                                fmi_version_option)
+                                fmi_version_option, ordered_pair)
 from fitter.core.checks import check_agreement, check_model, with_convergence
 from fitter.core.effects import REGISTRY
 from fitter.core.files import atomic_directory, atomic_file, atomic_pair, json_text, jsonable
@@ -636,7 +636,7 @@ def simulate(model, input_csv, out, time_col, input_col, allow_unstable, as_json
 @click.option("--time", "time_col", default="time", show_default=True, metavar="COL", help="time column")
 @click.option("--ref", "ref_col", default="y_ref", show_default=True, metavar="COL", help="reference column")
 @click.option("--u0", type=Number(), help="the plant's input before the first sample (default: mid input range)")
-@click.option("--input-range", "input_range", type=Number(), nargs=2, metavar="LO HI",
+@click.option("--input-range", "input_range", type=Number(), nargs=2, metavar="LO HI", callback=ordered_pair,
               help="inputs the compensator may use (default: the model's input_range)")
 @click.option("--measurement", type=click.Choice(MEASUREMENT_CHOICES), default="refuse", show_default=True,
               help="a model with measurement effects (sensor_lag, measurement_drift): drop them (the device "

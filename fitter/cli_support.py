@@ -28,7 +28,7 @@ import click
 from fitter.core.errors import DuhemError
 
 __all__ = ["CliError", "EXIT_ERROR", "FilePath", "Number", "one_line_errors", "guarded", "GuardedGroup",
-           "backend_option", "fmi_version_option", "run_command", "usage_line"]
+           "backend_option", "fmi_version_option", "ordered_pair", "run_command", "usage_line"]
 
 EXIT_ERROR = 1
 _COMMAND_PATH = "fitter.cli_support.command_path"
@@ -88,6 +88,13 @@ class Number(click.ParamType):
                 and (self.high is None or number <= self.high)):
             self.fail(f"{value} is out of range: give {self.rule}", param, ctx)
         return number
+
+
+def ordered_pair(ctx: click.Context, param: click.Parameter, value: tuple | None) -> tuple | None:
+    """Callback of a ``nargs=2`` `Number` option LO HI: refuses LO >= HI."""
+    if value is not None and not value[0] < value[1]:
+        raise click.BadParameter(f"{value[0]:g} {value[1]:g}: give LO < HI", ctx, param)
+    return value
 
 
 def usage_line(exc: click.UsageError) -> str:

@@ -536,6 +536,8 @@ OPTION_ERRORS = {
     "input range one value": (["compensate", "{d}/model.json", "{d}/rec.csv", "-o", "{d}/out.csv",
                                "--input-range", "0"],
                               "duhem compensate: option '--input-range' requires 2 arguments"),
+    "input range reversed": (["compensate", "{d}/model.json", "{d}/rec.csv", "-o", "{d}/out.csv",
+                              "--input-range", "3", "1"], "duhem compensate: --input-range: 3 1: give LO < HI"),
     "batch workers 0": (["batch", "{d}/rec.csv", "-o", "{d}/outdir", "--workers", "0"],
                         "duhem batch: --workers: 0 is out of range: give an integer >= 1"),
     "batch threshold": (["batch", "{d}/rec.csv", "-o", "{d}/outdir", "--threshold", "-0.1"],
