@@ -24,7 +24,7 @@ from fitter.diagnosis.procedure import CANDIDATES
 from fitter.diagnosis.fitting import Fit, first_order_ri
 from fitter.diagnosis.statistics import effect_report
 from fitter.diagnosis.synthetic import TRUTH_BASE, cell_base
-from fitter.identification.output_error import RefineResult, effective_samples as effective_sample_size
+from fitter.identification.refine import RefineResult, effective_samples as effective_sample_size
 from fitter.identification.parametrisation import StateSpace, WithEffects
 from fitter.reports.diagnosis_report import write_diagnosis_report
 from fitter.data.recordings import Recording

@@ -5,7 +5,8 @@ import pytest
 from fitter.core import RateIndependentModel, simulate
 from fitter.core.effects import EffectContext
 from fitter.data.recordings import Recording
-from fitter.identification.output_error import Options, Recordings, effective_samples, refine
+from fitter.identification.output_error import Recordings
+from fitter.identification.refine import Options, effective_samples, refine
 from fitter.identification.parametrisation import (Parametrisation, RDCanonical, RICanonical, StateSpace,
                                                    WithEffects, hurwitz_poly, hurwitz_theta)
 
@@ -184,7 +185,7 @@ def test_covariance_does_not_depend_on_the_units_of_the_parameters():
     """Two correlated regressors on scales 1e8 apart: the standard errors are the ones of the well-scaled
     problem divided by each column's scale (the pseudo-inverse of the raw J^T J dropped the small column's
     direction, giving it a zero error)."""
-    from fitter.identification.output_error import RefineResult
+    from fitter.identification.refine import RefineResult
     rng = np.random.default_rng(0)
     X = rng.standard_normal((200, 2))
     X[:, 1] += 0.9 * X[:, 0]

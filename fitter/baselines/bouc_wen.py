@@ -15,7 +15,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from fitter.baselines.base import Baseline, BaselineError
-from fitter.identification.output_error import Options, refine
+from fitter.identification.refine import Options, refine
 from fitter.identification.parametrisation import Parametrisation
 
 _SATURATION_GAP = 1e-13
@@ -386,7 +386,7 @@ class _BWProblem:
         return self
 
     def residuals(self, param, theta: np.ndarray):
-        """The output-error engine's interface (`fitter.identification.output_error.refine`): the stacked
+        """The output-error engine's interface (`fitter.identification.refine.refine`): the stacked
         residual, theta as the 'model', and per recording (start, x0, residual, rho, effect state)."""
         r = self.residual(theta)
         parts = np.split(r, np.cumsum([len(d.u) for d in self.data])[:-1])

@@ -1,6 +1,6 @@
 """Output-error fits of the diagnosis: the base model and each candidate effect.
 
-Every fit is `fitter.identification.output_error.refine` on the joined
+Every fit is `fitter.identification.refine.refine` on the joined
 experiment as one recording (x0 = "model": the initial state is part of
 theta) or, for separate runs (`JoinedExperiment.separate`), on each recording
 alone with its initial state fitted to it (x0 = "fit"; theta's x0 is then
@@ -52,7 +52,8 @@ from fitter.core.kernel import simulate
 from fitter.core.models import RateIndependentModel, Signals
 from fitter.data.recordings import Recording
 from fitter.diagnosis.experiment import JoinedExperiment
-from fitter.identification.output_error import Options, Recordings, RefineResult, refine
+from fitter.identification.output_error import Recordings
+from fitter.identification.refine import Options, RefineResult, refine
 from fitter.identification.parametrisation import StateSpace, WithEffects
 
 __all__ = ["Fit", "family", "fit_base", "fit_family", "fit_per_recording", "first_order_ri", "free_base", "problem",

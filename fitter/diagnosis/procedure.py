@@ -128,7 +128,7 @@ from fitter.diagnosis.statistics import (ALPHA, MIN_EXPLAINED, NOISE_MARGIN, con
 from fitter.diagnosis.text import comparison_text, summary_paragraph
 from fitter.identification.exported import described, fitted_range
 from fitter.identification.fit import fit_recordings
-from fitter.identification.output_error import effective_samples
+from fitter.identification.refine import effective_samples
 from fitter.progress import Progress, silent
 
 __all__ = ["CANDIDATES", "diagnose"]

@@ -5,7 +5,7 @@ without the candidate and RSS_1 with it, chi-square with as many degrees of
 freedom as the effect has parameters.  Residuals of sampled dynamics are
 autocorrelated, so n_eff = N (1 - rho) / (1 + rho), rho the lag-1
 autocorrelation of the candidate's residual (AR(1) effective sample size,
-`fitter.identification.output_error.effective_samples`; rho clipped to
+`fitter.identification.refine.effective_samples`; rho clipped to
 [0, 0.98]).
 
 Consistency across recordings (`consistency_report`): a finding's effect is

@@ -50,7 +50,8 @@ from fitter.core.errors import DuhemError
 from fitter.core.kernel import flows, simulate
 from fitter.data.cycles import closed_loop
 from fitter.data.recordings import Recording
-from fitter.identification.output_error import Options, Recordings, RefineResult, refine
+from fitter.identification.output_error import Recordings
+from fitter.identification.refine import Options, RefineResult, refine
 from fitter.identification.parametrisation import StateSpace, WithEffects
 from fitter.progress import Progress, silent
 

@@ -11,7 +11,7 @@ Pipeline of `fit_recordings`
    exactly (`Physical`).
 3. **Starts** (`fitter.identification.starts`): the loop methods of the
    paper (Section III, Section V) and simple branch regressions.
-4. **Output-error refinement** (`fitter.identification.output_error.refine`).
+4. **Output-error refinement** (`fitter.identification.refine.refine`).
    Initial state ``x0="fit"`` (recordings with several cycles, and general
    inputs): every sample is fitted and the state at each recording's first
    sample is eliminated by linear least squares, so a start-up transient is
@@ -72,7 +72,8 @@ from fitter.identification.fit_data import (FitData, FitError, RateLevels, avera
 from fitter.identification.effects_fit import check_effects, check_held, fit_effects
 from fitter.identification.exported import (MINOR_LOOP_WARNING, NRMSE_CONVENTION, X0_POLICIES, described,
                                             fitted_range, initial_state, minor_loop_excursion, raw_input_rho, score)
-from fitter.identification.output_error import Options, Recordings, RefineResult, jacobian, refine
+from fitter.identification.output_error import Recordings
+from fitter.identification.refine import Options, RefineResult, jacobian, refine
 from fitter.identification.parametrisation import Parametrisation, Physical, RDCanonical, RICanonical, WithEffects
 from fitter.identification.starts import Q_CANDIDATES, generic_ri_starts, ri_starts, rd_starts
 from fitter.progress import Progress, silent

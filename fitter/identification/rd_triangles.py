@@ -88,7 +88,8 @@ from scipy.sparse import lil_matrix
 
 from fitter.core import (CallableRate, ConvergenceError, KernelError, RateDependentModel, TabulatedRate,
                          periodic_response)
-from fitter.identification.output_error import FAIL, Options, refine
+from fitter.identification.output_error import FAIL
+from fitter.identification.refine import Options, refine
 from fitter.identification.parametrisation import Parametrisation
 
 __all__ = ["ESTIMATORS", "TriangleWave", "triangle_wave", "triangle_response", "periodic_triangle_output",

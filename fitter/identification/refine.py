@@ -1,0 +1,236 @@
+"""The output-error engine: the one least-squares fitter of the package.
+
+`refine(param, theta0, problem, options)` minimises the simulation error
+
+    J(theta) = sum_i sum_k w_ik (y_ik - yhat_ik(theta))^2,
+    yhat_i = simulate(param.build(theta), t_i, u_i, x0=x0_i(theta)).y
+
+with `scipy.optimize.least_squares` (trust-region reflective, parameters scaled
+by the Jacobian's column norms, forward-difference Jacobian, the bounds of the
+`Parametrisation`).  Used by `fit_recordings`, the diagnosis and the Section V
+estimator; each passes its `Options` (tolerances, budget, decimation).  The
+problems it solves (residuals of a theta, initial states, variable projection,
+decimation, the failure policy) are in `fitter.identification.output_error`.
+
+Threads
+-------
+The evaluations are many small array operations: BLAS runs single-threaded
+during `refine` (threadpoolctl), since its worker threads only cost CPU on
+matrices this small (measured: twice the CPU, the same wall time).
+
+Uncertainty
+-----------
+J is the solver's Jacobian at the optimum (in output units; of the kept samples
+when decimated, the information then scaled by N_all / N_kept).
+sigma^2 = RSS / (N - p), cov = sigma^2 (J^T J)^+ (N / n_eff), the
+pseudo-inverse taken as S (S J^T J S)^+ S with S = diag(1 / ||J_j||) (so a
+parameter's error does not depend on the units of the others), n_eff the
+effective sample size (N when not given; the diagnosis passes the AR(1)
+value of `effective_samples` for autocorrelated residuals).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+from scipy.optimize import least_squares
+from threadpoolctl import threadpool_limits
+
+from fitter.identification.parametrisation import Parametrisation
+from fitter.progress import Progress, silent
+
+__all__ = ["Options", "RefineResult", "refine", "jacobian", "effective_samples"]
+
+
+@dataclass(frozen=True)
+class Options:
+    """Tolerances, budget and policies of `refine` (scipy ``least_squares`` names)."""
+
+    ftol: float = 1e-6
+    xtol: float = 1e-8
+    gtol: float = 1e-8
+    max_nfev: int | None = None
+    max_samples: int | None = 6000
+    normalise: bool = False
+    """Divide the residuals by the data's output range (scale-free tolerances)."""
+    covariance: bool = True
+    """Compute the Jacobian at the optimum for `RefineResult.covariance` (with elimination, p more
+    evaluations); False leaves ``jac`` zero (a start's trial run)."""
+    eliminate: bool = False
+    """Eliminate the parameters in which the model is linear (`Parametrisation.linear_entries`)
+    by linear least squares at every evaluation (variable projection, module docstring)."""
+
+
+@dataclass
+class RefineResult:
+    """Outcome of `refine`.
+
+    theta: optimum; model: param.build(theta); residuals: per part, y - yhat on
+    the fitted samples (from `starts[i]` on; all samples, masked ones included);
+    starts, x0s, rho: per recording (see `Recordings`); states: per recording, the effect chain state it
+    started from where that is not the model's own start (`simulate_from`), else None; cost: 0.5 sum w r^2 on
+    all samples; jac: Jacobian of the weighted residuals (output units);
+    info_scale: N_all / N_kept (decimation).
+    """
+
+    theta: np.ndarray
+    model: Any
+    residuals: list[np.ndarray]
+    weighted: np.ndarray
+    jac: np.ndarray
+    nfev: int
+    success: bool
+    message: str = ""
+    starts: list[int] = field(default_factory=list)
+    x0s: list = field(default_factory=list)
+    rho: list[float] = field(default_factory=list)
+    states: list = field(default_factory=list)
+    info_scale: float = 1.0
+
+    @property
+    def rss(self) -> float:
+        """Weighted residual sum of squares over the fitted samples."""
+        return float(np.sum(self.weighted ** 2))
+
+    @property
+    def cost(self) -> float:
+        return 0.5 * self.rss
+
+    @property
+    def sigma(self) -> float:
+        return float(np.sqrt(self.rss / max(len(self.weighted) - len(self.theta), 1)))
+
+    def covariance(self, n_eff: float | None = None) -> np.ndarray:
+        """sigma^2 (info_scale J^T J)^+ N / n_eff (module docstring), the pseudo-inverse taken of the
+        column-equilibrated J (the same in any units of the parameters)."""
+        n = len(self.weighted)
+        inflate = 1.0 if n_eff is None else n / max(n_eff, 1.0)
+        norms = np.linalg.norm(self.jac, axis=0)
+        norms = np.where(norms > 0, norms, 1.0)
+        scaled = self.jac / norms
+        inverse = np.linalg.pinv(self.info_scale * (scaled.T @ scaled)) / np.outer(norms, norms)
+        return self.sigma ** 2 * inverse * inflate
+
+    def stderr(self, n_eff: float | None = None) -> np.ndarray:
+        return np.sqrt(np.clip(np.diag(self.covariance(n_eff)), 0, None))
+
+
+def effective_samples(residual: np.ndarray) -> float:
+    """AR(1) effective sample size N (1 - r1) / (1 + r1), r1 the lag-1 autocorrelation in [0, 0.98]."""
+    r = residual - residual.mean()
+    r1 = float(np.dot(r[1:], r[:-1]) / max(np.dot(r, r), 1e-300))
+    r1 = min(max(r1, 0.0), 0.98)
+    return len(r) * (1 - r1) / (1 + r1)
+
+
+
+# ----------------------------------------------------------------------------- refine
+def jacobian(fun: Callable[[np.ndarray], np.ndarray], theta: np.ndarray,
+             f0: np.ndarray | None = None) -> np.ndarray:
+    """Forward-difference Jacobian of a vector function, steps 1e-6 (1 + |theta_j|)."""
+    f0 = fun(theta) if f0 is None else f0
+    J = np.empty((len(f0), len(theta)))
+    for j in range(len(theta)):
+        h = 1e-6 * (1.0 + abs(theta[j]))
+        th = theta.copy()
+        th[j] += h
+        J[:, j] = (fun(th) - f0) / h
+    return J
+
+
+def refine(param: Parametrisation, theta0: np.ndarray, problem, options: Options = Options(), *,
+           penalty: Callable[[np.ndarray], np.ndarray] | None = None, free: np.ndarray | None = None,
+           jac_sparsity=None, jac: Callable[[np.ndarray], np.ndarray] | None = None,
+           progress: Progress = silent) -> RefineResult:
+    """Output-error least squares of `param.build(theta)` on `problem`.
+
+    Parameters
+    ----------
+    param : the theta -> model map (its bounds are the optimisation's bounds).
+    theta0 : start (moved inside the bounds by 1e-9 (1 + |theta|) where needed).
+    problem : `Recordings` or any object with ``residuals(param, theta) -> (r, model, info)`` (info: per
+        recording (start, x0, residual, rho, effect state), as `Recordings.residuals`),
+        ``decimated(max_samples)`` and ``scale`` (output range).
+    options : tolerances, budget, decimation, normalisation.
+    penalty : optional theta -> extra residuals (e.g. a convergence barrier), of the theta whose residuals they
+        join: with elimination, its linear entries at their least-squares values.
+    free : boolean mask of the entries of theta that move (default all).
+    jac_sparsity : sparsity structure of the Jacobian (scipy's argument).
+    jac : optional theta -> Jacobian of the problem's residuals in all entries of theta (a problem that
+        differentiates more cheaply than by plain forward differences); not with a penalty or elimination.
+    progress : `fitter.progress.Progress`, called with a one-line status at the end.
+    """
+    obj = _Objective(param, theta0, problem, options, penalty, free)
+    lo, hi = param.bounds()
+    if jac is not None and (penalty is not None or obj.lin.any()):
+        raise ValueError("a problem's own Jacobian cannot be combined with a penalty or elimination")
+    jac_moving = "2-point" if jac is None else (lambda z: jac(obj.full_theta(z))[:, obj.moving] / obj.scale)
+    with np.errstate(all="ignore"), threadpool_limits(limits=1, user_api="blas"):
+        sol = least_squares(obj, obj.theta0[obj.moving], jac=jac_moving, bounds=(lo[obj.moving], hi[obj.moving]),
+                            method="trf", x_scale="jac", ftol=options.ftol, xtol=options.xtol, gtol=options.gtol,
+                            max_nfev=options.max_nfev, jac_sparsity=jac_sparsity if jac is None else None)
+    progress(f"output-error refinement: cost {sol.cost:.4g} after {sol.nfev} evaluations", None)
+    theta = obj.full_theta(sol.x)
+    if obj.lin.any():
+        theta = obj.coarse.projected(param, theta)[1]
+    weighted, model, info = problem.residuals(param, theta)
+    if not options.covariance:
+        J = np.broadcast_to(0.0, (len(weighted), len(theta)))      # zero, in no memory
+    else:
+        if obj.lin.any():
+            J_free = _free_jacobian(obj.coarse, param, theta, obj.free) / obj.scale
+        else:
+            J_free = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
+            J_free = J_free[:len(J_free) - (0 if penalty is None else len(penalty(theta)))]
+        J = np.zeros((len(J_free), len(theta)))
+        J[:, obj.free] = J_free * obj.scale
+    return RefineResult(theta=theta, model=model, residuals=[i[2] for i in info], weighted=weighted, jac=J,
+                        nfev=int(sol.nfev), success=bool(sol.success), message=str(sol.message),
+                        starts=[i[0] for i in info], x0s=[i[1] for i in info],
+                        rho=[float(i[3]) for i in info], states=[i[4] for i in info], info_scale=len(weighted) / len(J))
+
+
+class _Objective:
+    """The residual function `refine` minimises, of the moving entries z of theta: theta0 moved
+    inside the bounds, the problem decimated, the linear entries eliminated when asked
+    (`Options.eliminate`), the penalty appended."""
+
+    def __init__(self, param: Parametrisation, theta0, problem, options: Options, penalty=None, free=None):
+        self.param, self.penalty = param, penalty
+        theta0 = np.asarray(theta0, dtype=float)
+        lo, hi = param.bounds()
+        pad = 1e-9 * (np.abs(theta0) + 1)
+        self.theta0 = np.minimum(np.maximum(theta0, lo + pad), hi - pad)
+        self.free = np.ones(len(theta0), bool) if free is None else np.asarray(free, bool)
+        self.coarse = problem.decimated(options.max_samples)
+        self.scale = problem.scale if options.normalise else 1.0
+        self.lin = np.zeros(len(theta0), bool)
+        if options.eliminate and hasattr(self.coarse, "projected"):
+            self.lin[list(param.linear_entries())] = True
+            self.lin &= bool(self.free[self.lin].all())
+        self.moving = self.free & ~self.lin
+
+    def full_theta(self, z: np.ndarray) -> np.ndarray:
+        theta = self.theta0.copy()
+        theta[self.moving] = z
+        return theta
+
+    def __call__(self, z: np.ndarray) -> np.ndarray:
+        theta = self.full_theta(z)
+        if self.lin.any():
+            r, theta = self.coarse.projected(self.param, theta)[:2]
+        else:
+            r = self.coarse.residuals(self.param, theta)[0]
+        r = r / self.scale
+        return r if self.penalty is None else np.r_[r, self.penalty(theta)]
+
+
+def _free_jacobian(problem, param: Parametrisation, theta: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """Forward-difference Jacobian of `problem.residuals` in the free entries of theta."""
+    def fun(z):
+        th = theta.copy()
+        th[free] = z
+        with np.errstate(all="ignore"):
+            return problem.residuals(param, th)[0]
+    return jacobian(fun, theta[free])
