@@ -33,7 +33,7 @@ Layout of the C, after the Modelica Reference-FMUs:
   interface) with each parameter's allowed range, and the effect chain: the
   list DUHEM_EFFECTS of the effects of `fitter.core.effects.REGISTRY` that the C
   implements, whether the model has each, where its parameters and its state
-  live (docs/developer.md, "Adding an effect").
+  live (docs/architecture.md, "Adding an effect").
 
 The compensator (`build_native_compensator`, ``duhem export --inverse``):
 ``inverse_model.c`` in place of ``duhem_model.c``, which it includes with its

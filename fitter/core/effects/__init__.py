@@ -11,7 +11,7 @@ scale), whether it needs time and whether the native C FMU implements it,
 applies itself in the chain (`EffectSpec.apply`), and gives the diagnosis its
 fitting bounds, starting values and vanishing point (`bounds`, `starts`,
 `null`, from an `EffectContext`).  Model validation, the diagnosis, the native
-FMU generator and the tests all read it (docs/developer.md, "Adding an effect").
+FMU generator and the tests all read it (docs/architecture.md, "Adding an effect").
 
 Input semantics are the kernel's: the input u is piecewise linear between the
 samples t_0 < t_1 < ... (for a rate-independent model without time, t_k = k).
