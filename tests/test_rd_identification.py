@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from fitter.core import CallableRate, RateDependentModel, load_model, save_model, simulate
-from fitter.identification.rd_triangles import (ESTIMATORS, bilinear_d2c, identify_rd_triangles, periodic_triangle_output,
-                                      triangle_response, triangle_wave)
-from fitter.identification.rd_triangles import TriangleWave
+from fitter.identification.rd_triangles import ESTIMATORS, bilinear_d2c, identify_rd_triangles
+from fitter.identification.triangle_waves import (TriangleWave, periodic_triangle_output, triangle_response,
+                                                  triangle_wave)
 
 # A first-order model with an asymmetric g (g(b) != g(a)), so the falling-branch
 # normalisation of eq (50) matters; sampled coarsely (delta = 0.3).

@@ -18,7 +18,8 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from fitter.core import CallableRate, RateDependentModel, model_from_dict
-from fitter.identification.rd_triangles import ESTIMATORS, identify_rd_triangles, triangle_response
+from fitter.identification.rd_triangles import ESTIMATORS, identify_rd_triangles
+from fitter.identification.triangle_waves import triangle_response
 from fitter.paper.example3 import loop_errors, plot_loops
 
 __all__ = ["PAPER", "SLOPES", "DELTA", "NOISE_PP", "PERIODS", "OMEGAS", "g_true", "true_model", "records",

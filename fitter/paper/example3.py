@@ -19,7 +19,8 @@ from __future__ import annotations
 import numpy as np
 
 from fitter.core import CallableRate, ConvergenceError, RateDependentModel, model_from_dict, periodic_response
-from fitter.identification.rd_triangles import ESTIMATORS, identify_rd_triangles, triangle_response
+from fitter.identification.rd_triangles import ESTIMATORS, identify_rd_triangles
+from fitter.identification.triangle_waves import triangle_response
 
 __all__ = ["PAPER", "SLOPES", "DELTA", "PERIODS", "ORDER", "OMEGAS", "g_true", "true_model", "records",
            "sine_period", "loop_errors", "plot_loops", "run_example3", "plot_example3"]
