@@ -53,7 +53,7 @@ from fitter.diagnosis import diagnose as run_diagnosis
 from fitter.diagnosis.procedure import CANDIDATES
 from fitter.fmu.build import PYTHON_HOST_NEEDS, build_fmu
 from fitter.fmu.host import check_fmu_file, simulate_fmu
-from fitter.fmu.model_description import start_state_values
+from fitter.fmu.variables import start_state_values
 from fitter.fmu.native import check_toolchain
 from fitter.fmu.pair import check_fmu_pair, recorded_fmu_digest, with_fmu_record
 from fitter.fmu.toolchain import PLATFORMS, parse_platforms

@@ -3,7 +3,7 @@
 Runs inside the FMU, with only the FMU's ``resources/`` directory on
 ``sys.path`` (pythonfmu puts it there): it reads ``duhem_fmu.json`` (written by
 `build_fmu`: the name of the kernel package copied from ``fitter/core``, the
-model file, the variable table of `fitter.fmu.model_description.model_variables`)
+model file, the variable table of `fitter.fmu.variables.model_variables`)
 and the model JSON, and steps the model with the kernel's ``Stepper``.  The
 slave holds no physics of its own.
 

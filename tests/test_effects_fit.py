@@ -183,7 +183,7 @@ def test_each_recordings_reference_is_fitted_with_its_initial_state(tmp_path):
     d_0 as parameters, as `duhem validate --x0 fitted` sets them) gives the fit's figure there."""
     from fitter.fmu.build import build_fmu
     from fitter.fmu.host import simulate_fmu
-    from fitter.fmu.model_description import start_state_values
+    from fitter.fmu.variables import start_state_values
     from fitter.identification.exported import own_start, started
 
     recs = _referenced()

@@ -442,7 +442,7 @@ def test_rollback_and_serialized_state_replay_exactly(fmus, backend):
 
 
 def test_compensator_source_compiles_without_warnings(tmp_path):
-    from fitter.fmu.model_description import reference_start
+    from fitter.fmu.variables import reference_start
     from fitter.fmu.native import COMPENSATOR_FILE, SOURCE_DIR, headers, model_data_header
 
     for name in ("fmi2_framework.c", "duhem_model.c", COMPENSATOR_FILE) + headers(2):

@@ -42,7 +42,7 @@ from fitter.core import (RateDependentModel, RateIndependentModel, Stepper,  # n
                          TabulatedRate, model_from_dict, simulate)
 from fitter.core.effects import REGISTRY  # noqa: E402
 from fitter.fmu.host import collecting_callbacks, simulate_fmu, validate_fmu_file  # noqa: E402
-from fitter.fmu.model_description import model_variables  # noqa: E402
+from fitter.fmu.variables import model_variables  # noqa: E402
 from fitter.fmu.native import NATIVE_EFFECTS, NativeBuildError, build_native_fmu  # noqa: E402
 from conftest import sampled_input  # noqa: E402
 
@@ -916,7 +916,7 @@ def _started(model, t, u, reverse: bool = False):
 def test_stored_effect_start_and_its_parameters_run_as_in_python(make, tmp_path):
     """A model whose effects store their start (a fit on single cycles) starts there in the native FMU, and
     the ``<effect>.start.<state>`` parameters move it, as `duhem validate --x0 fitted` sets them."""
-    from fitter.fmu.model_description import start_state_values
+    from fitter.fmu.variables import start_state_values
 
     t, u = sampled_input(200)
     model = _started(make(ALL_EFFECTS), t, u)

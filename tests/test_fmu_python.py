@@ -21,7 +21,8 @@ from fmpy.fmi2 import FMU2Slave
 import build_fmu
 from fitter.core import CallableRate, model_from_dict, save_model, simulate
 from fitter.fmu.host import collecting_callbacks, simulate_fmu, validate_fmu_file
-from fitter.fmu.model_description import model_description_xml, model_variables
+from fitter.fmu.model_description import model_description_xml
+from fitter.fmu.variables import model_variables
 from fitter.paper.example1 import true_model as example1
 from fitter.paper.example3 import g_true as g3
 
@@ -251,7 +252,7 @@ def test_stored_effect_start_and_its_parameters_run_as_in_process(tmp_path):
     ``<effect>.start.<state>`` parameters move it (`duhem validate --x0 fitted`)."""
     from fitter.core.effects import settled_state, with_start
     from fitter.core.kernel import flows
-    from fitter.fmu.model_description import start_state_values
+    from fitter.fmu.variables import start_state_values
 
     t, u = periodic_input(cycles=2)
     fresh = example1_with_effects()

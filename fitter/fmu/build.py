@@ -19,7 +19,7 @@ The FMU's ``resources/`` holds
   simulation kernel (numpy only, relative imports only),
 * ``model.json``: the model, as `fitter.core.save_model` writes it,
 * ``duhem_fmu.json``: the kernel package name, the model file name and the
-  variable table of `fitter.fmu.model_description.model_variables`,
+  variable table of `fitter.fmu.variables.model_variables`,
 * ``pythonfmu/``: the pythonfmu runtime that pythonfmu embeds.
 
 ``<code>`` is a hash of the slave and kernel sources.  pythonfmu's binary
@@ -47,7 +47,7 @@ The compensator (``inverse=True``, ``duhem export --inverse``): the same
 slave in its compensator mode (``"inverse": true`` in ``duhem_fmu.json``, the
 kernel's `fitter.core.inverse.Compensator`), model identifier
 ``duhem_compensator``, the interface of
-`fitter.fmu.model_description.compensator_variables`.  The model it carries is
+`fitter.fmu.variables.compensator_variables`.  The model it carries is
 the plant the compensator inverts (``measurement="drop"`` has removed the
 measurement effects; "refuse", the default, refuses a model that has them).
 The native backend builds it from ``fmu_src/native/inverse_model.c``.
@@ -72,8 +72,8 @@ from fitter.core import load_model, save_model
 from fitter.core.errors import DuhemError
 from fitter.core.files import atomic_file, scratch_directory, write_json
 from fitter.core.inverse import Compensator
-from fitter.fmu.model_description import (FMI_VERSIONS, compensator_variables, converges, model_description_xml,
-                                          model_variables, package_version, reference_start)
+from fitter.fmu.model_description import FMI_VERSIONS, converges, model_description_xml, package_version
+from fitter.fmu.variables import compensator_variables, model_variables, reference_start
 from fitter.fmu.native import build_native_compensator, build_native_fmu
 
 __all__ = ["build_fmu", "FmuBuildError", "MODEL_IDENTIFIER", "COMPENSATOR_IDENTIFIER", "BACKENDS", "FMI_VERSIONS",

@@ -254,7 +254,7 @@ def simulate_fmu(fmu_path: str | os.PathLike, t, u, start: Mapping[str, float] |
     At each sample k: set u_k, read y_k, then ``doStep(t_k, t_{k+1} - t_k)``.
     `t` may be None for the sample index (rate-independent models ignore time).
     `start`: real parameters set by name before initialisation (for example ``{"x0[1]": 0.2}``, the start
-    state: `fitter.fmu.model_description.start_state_values`).
+    state: `fitter.fmu.variables.start_state_values`).
     Raises `FmuRunError` when the FMU fails (with fmpy's message) or has no parameter of a `start` name.
     """
     from fmpy import extract, read_model_description

@@ -29,7 +29,7 @@ Layout of the C, after the Modelica Reference-FMUs:
   that both frameworks compile the same model file;
 * ``model_data.h``: generated here, numbers only: kind, order, parameter start
   values, the value-reference table of
-  `fitter.fmu.model_description.model_variables` (so both backends have the same
+  `fitter.fmu.variables.model_variables` (so both backends have the same
   interface) with each parameter's allowed range, and the effect chain: the
   list DUHEM_EFFECTS of the effects of `fitter.core.effects.REGISTRY` that the C
   implements, whether the model has each, where its parameters and its state
@@ -73,9 +73,8 @@ import fmu_src.native
 from fitter.core.effects import REGISTRY, SWITCHING_NODES, SWITCHING_NODES_Z, SWITCHING_POPULATIONS, ParameterSpec
 from fitter.core.files import atomic_file, scratch_directory
 from fitter.core.rates import TabulatedRate
-from fitter.fmu.model_description import (FMI_VERSIONS, U_REF, Y_REF, model_description_xml,
-                                          model_description_xml3, model_variables,
-                                          time_variable)
+from fitter.fmu.model_description import FMI_VERSIONS, model_description_xml, model_description_xml3
+from fitter.fmu.variables import U_REF, Y_REF, model_variables, time_variable
 from fitter.fmu.toolchain import (PLATFORMS, NativeBuildError, check_zig, compile_libraries, fat_macho,
                                   host_platform, parse_platforms)
 
@@ -497,7 +496,7 @@ def build_native_compensator(model, out_path: str | os.PathLike, *, sanitize: bo
     native FMI 2.0 or 3.0 Co-Simulation FMU: input y_ref, output u (``inverse_model.c``); arguments as
     `build_native_fmu`.  The numbers are those of `fitter.core.inverse.Compensator` with
     ``measurement="invert"`` (the caller has dropped measurement effects it does not want inverted)."""
-    from fitter.fmu.model_description import reference_start
+    from fitter.fmu.variables import reference_start
 
     _check_fmi_version(fmi_version)
     _selection(platforms, fmi_version, cc, sanitize)
