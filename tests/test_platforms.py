@@ -448,7 +448,7 @@ def test_platforms_option_chooses_the_binaries(tmp_path):
             "binaries/aarch64-darwin/duhem_compensator.dylib", "binaries/x86_64-darwin/duhem_compensator.dylib",
             "binaries/x86_64-windows/duhem_compensator.dll"]
     result = _duhem("export", tmp_path / "model.json", "-o", tmp_path / "m.fmu", "--platforms", "linux,solaris")
-    assert result.returncode == 2 and "unknown platform 'solaris'" in result.stderr
+    assert result.returncode == 1 and result.stderr.count("\n") == 1 and "unknown platform 'solaris'" in result.stderr
     result = _duhem("export", tmp_path / "model.json", "-o", tmp_path / "m.fmu", "--backend", "python",
                     "--platforms", "linux")
     assert result.returncode == 1 and "apply to the native backend" in result.stderr
