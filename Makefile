@@ -23,6 +23,7 @@ demo: install
 	$(BIN)/duhem diagnose examples/diagnose/*.csv --report $(OUT)/diagnose --json $(OUT)/diagnose.json
 
 test: install
+	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q -n 2
 
 test-newest:
@@ -31,6 +32,7 @@ test-newest:
 	.venv-newest/bin/pip install -q --upgrade pip
 	.venv-newest/bin/pip install -q --upgrade ".[test]"
 	.venv-newest/bin/pip freeze --exclude semilinear-duhem | grep -iE "^(numpy|scipy|cvxpy|fmpy|pythonfmu)=="
+	.venv-newest/bin/ruff check .
 	.venv-newest/bin/python -m pytest -q -n 2
 
 bench: install

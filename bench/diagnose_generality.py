@@ -420,7 +420,8 @@ def run_case(case: Case, seed: int, samples: int) -> Row:
 
 
 def line(row: Row) -> str:
-    claimed = ", ".join(f"{'' if f.get('consistent', True) else '~'}{f['effect']}({100 * f['explained_fraction']:.0f}%; "
+    claimed = ", ".join(f"{'' if f.get('consistent', True) else '~'}{f['effect']}"
+                        f"({100 * f['explained_fraction']:.0f}%; "
                         + ", ".join(f"{k}={v:.3g}" for k, v in f["parameters"].items()) + ")"
                         for f in row.findings) or "-"
     return (f"{'PASS' if row.ok else 'FAIL'}  {row.group:9s} {row.case:20s} s{row.seed} expected {row.expected:33s} "

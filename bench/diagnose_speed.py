@@ -126,8 +126,9 @@ def piezo(out: Path, base_order: int | None) -> None:
             print(f"  {c['rank']}. {c['effect']:16s} residual {c['residual_rms']:.4g}  explains "
                   f"{100 * c['explained_fraction']:5.1f}%  p = {c['p_value']:.2g}  n_eff = {c['n_eff']:.0f}  "
                   f"{c['parameters']}")
-        print("  NRMSE per recording before:", {k: round(100 * v, 2) for k, v in d.baseline["nrmse_per_recording"].items()})
-        print("  NRMSE per recording after: ", {k: round(100 * v, 2) for k, v in d.extended["nrmse_per_recording"].items()})
+        for label, part in (("before:", d.baseline), ("after: ", d.extended)):
+            percent = {k: round(100 * v, 2) for k, v in part["nrmse_per_recording"].items()}
+            print(f"  NRMSE per recording {label}", percent)
         print("  hold-out:", d.validation)
 
 

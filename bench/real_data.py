@@ -17,12 +17,12 @@ Beside the classical models (``piezo.best``, ``piezo.baselines``,
 ``friction.baselines``; `fitter.baselines`): every model scored the same way,
 RMS error / output range over all samples with its initial state fitted per
 recording (what `duhem validate --x0 fitted` gives for the exported FMU; from the stored x0, fitted to the
-first recording, in ``fit_stored_x0``).  ``piezo.best`` is the single model for all three rates that `duhem fit` (``--kind auto``),
-`duhem diagnose --separate` (the fit as its base) or `duhem fit --effects switching,measurement_drift --hold
-measurement_drift.rate=0` (the physics a user names for a ferroelectric and what they know of the
-instrument, `PIEZO_EFFECTS`, `PIEZO_HELD`) give, the lowest mean NRMSE of the three, with the same
-structure refitted on two rates predicting the third (``holdout``; the predicted record's initial state
-fitted to it, as for every score here: the base's x0 and, with `measurement_drift`, the output's
+first recording, in ``fit_stored_x0``).  ``piezo.best`` is the single model for all three rates that `duhem fit`
+(``--kind auto``), `duhem diagnose --separate` (the fit as its base) or
+`duhem fit --effects switching,measurement_drift --hold measurement_drift.rate=0` (the physics a user names for a
+ferroelectric and what they know of the instrument, `PIEZO_EFFECTS`, `PIEZO_HELD`) give, the lowest mean NRMSE of the
+three, with the same structure refitted on two rates predicting the third (``holdout``; the predicted record's initial
+state fitted to it, as for every score here: the base's x0 and, with `measurement_drift`, the output's
 reference d_0).
 
 "fit" NRMSE is the fit's own (the saved model from its stored x0, all samples);
@@ -209,8 +209,8 @@ def _best(recs: dict[str, Recording], labels: list[str]) -> dict:
     recording, all samples): of `duhem fit` (``--kind auto``), `duhem diagnose` with that fit as its base (its
     base refined on the records, with the effects it found) and `duhem fit --effects` (`PIEZO_EFFECTS`,
     `PIEZO_HELD`), the lowest mean NRMSE.  ``candidates`` lists all three.  The held-out rates: the same pipeline
-    on two rates (the fit of the same kind and order, with the same effects named and held; when the diagnosis' model was picked, the
-    diagnosis restricted to its effects), predicting the third."""
+    on two rates (the fit of the same kind and order, with the same effects named and held; when the diagnosis' model
+    was picked, the diagnosis restricted to its effects), predicting the third."""
     _log("piezo: best single model: duhem fit on all three rates")
     t0 = time.perf_counter()
     r = fit_recordings([recs[k] for k in labels])

@@ -620,8 +620,8 @@ def summary_csv(report: BatchReport) -> str:
     for d in report.devices:
         r = report.summary_row(d)
         p = (report.entries[d].get("row") or {}).get("parameters") or {}
-        w.writerow([_csv_value(r[c]) for c in base] +
-                   [_csv_value(x) for k in params for x in ((p[k]["value"], p[k]["stderr"]) if k in p else (None, None))])
+        pairs = [(p[k]["value"], p[k]["stderr"]) if k in p else (None, None) for k in params]
+        w.writerow([_csv_value(r[c]) for c in base] + [_csv_value(x) for pair in pairs for x in pair])
     return buf.getvalue()
 
 

@@ -8,9 +8,10 @@ FMU -> plant FMU tracks y_ref within 1e-6 of its range, both in one co-simulatio
 u(t_k), set the plant's u, read y(t_k), step both) and as two runs of the standard host loop with input
 derivatives (fmpy's simulate_fmu loop: set the input and its slope, step, record after the step); in fmusim's
 loop (set y_ref(t_k), step, read u before the next y_ref) u read after the step is the sample's u on a backlash model
-(native FMI 2.0 and 3.0, python); FMI 3.0 gives the FMI 2.0 numbers; `fmpy.validation.validate_fmu` finds nothing; misuse (NaN y_ref, a step after terminate,
-a corrupt state) is an error status with a logged reason, never a crash; rollback and serialized state replay
-exactly.  Models: the monotone test models of test_inverse.py (rate independent, rate dependent, with effects).
+(native FMI 2.0 and 3.0, python); FMI 3.0 gives the FMI 2.0 numbers; `fmpy.validation.validate_fmu` finds nothing;
+misuse (NaN y_ref, a step after terminate, a corrupt state) is an error status with a logged reason, never a crash;
+rollback and serialized state replay exactly.  Models: the monotone test models of test_inverse.py (rate independent,
+rate dependent, with effects).
 """
 from __future__ import annotations
 

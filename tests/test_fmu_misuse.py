@@ -417,8 +417,9 @@ def _run_case(name: str, backend: str, fmu_path: str, unzipdir: str) -> None:
             status, state = call(fmu.getFMUstate)
             blob = bytes(fmu.serializeFMUstate(state))
             fmu.freeFMUstate(state)
+            half = len(blob) // 2
             garbage = {"short": b"short", "zeros": bytes(len(blob)),
-                       "flipped": blob[:len(blob) // 2] + bytes([blob[len(blob) // 2] ^ 0x5A]) + blob[len(blob) // 2 + 1:]}
+                       "flipped": blob[:half] + bytes([blob[half] ^ 0x5A]) + blob[half + 1:]}
             status, memory["deserialized"] = call(fmu.deSerializeFMUstate, garbage[args[0]])
         elif op == "restore_deserialized":
             if memory["deserialized"] is None:
@@ -478,10 +479,10 @@ if __name__ == "__main__" and len(sys.argv) == 6 and sys.argv[1] == "run":
 
 
 # --------------------------------------------------------------------- the tests
+# (imported here: a case's subprocess runs the code above alone, before the repository is on its path)
+import pytest  # noqa: E402
 
-import pytest
-
-from fitter.core import simulate
+from fitter.core import simulate  # noqa: E402
 
 MODELS = _models()
 

@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1] / "fitter"
-ORDER = ["core", "data", "progress", "identification", "baselines", "diagnosis", "fmu", "reports", "cli_support", "paper",
-         "estimator", "batch", "cli"]
+ORDER = ["core", "data", "progress", "identification", "baselines", "diagnosis", "fmu", "reports", "cli_support",
+         "paper", "estimator", "batch", "cli"]
 
 
 def _imports(path: Path) -> set[str]:

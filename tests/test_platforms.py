@@ -247,7 +247,7 @@ def _run_host(command: list[str], text: str, env=None) -> list[np.ndarray]:
 @pytest.fixture(scope="module")
 def linux_runs(built, cases, hosts) -> dict[str, list[np.ndarray]]:
     out = {}
-    for name, (path, md, unzipdir) in built.items():
+    for name, (_, md, unzipdir) in built.items():
         library = _library(md, unzipdir, "linux64" if md.fmiVersion == "2.0" else "x86_64-linux", ".so")
         arguments, text = _host_arguments(md, str(library), cases[name][2])
         out[name] = _run_host([str(hosts["x86_64-linux"]), *arguments], text)
@@ -467,5 +467,6 @@ def test_cc_compiles_this_machines_binary_with_the_system_compiler(tmp_path):
             "binaries/linux64/semilinear_duhem.so", "binaries/win64/semilinear_duhem.dll"]
         assert b"GCC: (" in zf.read("binaries/linux64/semilinear_duhem.so")
         assert b"GCC: (" not in zf.read("binaries/win64/semilinear_duhem.dll")
-    result = _duhem("export", tmp_path / "model.json", "-o", tmp_path / "w.fmu", "--cc", "gcc", "--platforms", "windows")
+    result = _duhem("export", tmp_path / "model.json", "-o", tmp_path / "w.fmu", "--cc", "gcc",
+                    "--platforms", "windows")
     assert result.returncode == 1 and "not among the platforms" in result.stderr

@@ -8,7 +8,8 @@ from .stepper import Stepper
 from .periodic import convergence_rho, limiting_loop, periodic_response
 from .rates import CallableRate, RateFunction, TabulatedRate
 
-__all__ = ["AffineFlow", "DuhemError", "EffectError", "KernelError", "Simulation", "simulate", "Experiment", "ModelFileError",
+__all__ = ["AffineFlow", "DuhemError", "EffectError", "KernelError", "Simulation", "simulate", "Experiment",
+           "ModelFileError",
            "RateDependentModel", "RateIndependentModel", "Signal", "Signals", "load_model",
            "model_from_dict", "save_model", "ConvergenceError", "convergence_rho", "limiting_loop",
            "periodic_response", "Stepper", "CallableRate", "RateFunction", "TabulatedRate", "Compensation",

@@ -11,6 +11,8 @@ of condition (5).
 """
 from __future__ import annotations
 
+from collections import deque
+
 from dataclasses import dataclass
 from typing import Iterator
 
@@ -44,8 +46,7 @@ def affine_response(model, t, u, cache: dict | None = None) -> tuple[np.ndarray,
 def period_map(model, t, u, cache: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(Phi, c) of the affine map x_N = Phi x_0 + c over the given samples (one period): the last
     state of `affine_blocks`, only the last piece kept."""
-    for c, Phi in affine_blocks(model, t, u, cache):
-        pass
+    (c, Phi), = deque(affine_blocks(model, t, u, cache), maxlen=1)
     return Phi[-1], c[-1]
 
 

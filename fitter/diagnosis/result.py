@@ -33,6 +33,7 @@ class Diagnosis:
         """The JSON-able form (without the model outputs)."""
         return {"verdict": self.verdict, "separate": self.separate, "noise_rms": self.noise_rms, "noise": self.noise,
                 "baseline": self.baseline,
-                "mismatch": self.mismatch, "findings": self.findings, "candidates": self.candidates, "extended": self.extended,
+                "mismatch": self.mismatch, "findings": self.findings, "candidates": self.candidates,
+                "extended": self.extended,
                 "validation": self.validation, "comparison": self.comparison, "summary": self.paragraph,
                 "base_model": self.base_model.to_dict(), "extended_model": self.extended_model.to_dict()}

@@ -73,8 +73,9 @@ def synthetic_experiment(effect: str | None = None, *, seed: int = 0, samples: i
     `fitter.diagnosis.fitting.first_order_ri`).
     Each run (period s, amplitude) is `cycles` trapezoidal triangles with holds of fraction `hold` at the
     tips, `samples` samples, `gap` seconds apart; the last default run repeats the first.  The effect's
-    strength (`EffectSpec.strength_parameter`; the others at the registry's `example`) is set (bisection) so that max |y_with - y_without| = `size` times the output
-    range; white Gaussian noise of RMS (size x range) / `snr` is added (seeded).  Returns
+    strength (`EffectSpec.strength_parameter`; the others at the registry's `example`) is set (bisection) so that
+    max |y_with - y_without| = `size` times the output range; white Gaussian noise of RMS (size x range) / `snr`
+    is added (seeded).  Returns
     (recordings, truth), truth a JSON-able dict with the base model, the effect and the noise level.
     """
     ts, us = _runs_signal(runs, samples, cycles, hold, gap)

@@ -62,7 +62,10 @@ def embed(m, n: int):
     if k <= 0:
         return m
     extra = -np.arange(2.0, 2.0 + k) * 5.0
-    vec = lambda v: np.r_[v, np.zeros(k)]
+
+    def vec(v):
+        return np.r_[v, np.zeros(k)]
+
     C = np.r_[m.C, 0.05 * np.ones(k)]
     if isinstance(m, RateDependentModel):
         return RateDependentModel(A=_pad(m.A, extra), B=vec(m.B), C=C, g=m.g, E=vec(m.E), D=m.D)

@@ -101,8 +101,10 @@ def _page(result, rows: list[tuple[str, dict, str, str]]) -> str:
         ratio = m["residual_rms"] / m["noise_rms"] if m.get("noise_rms") else None
         body.append(f"<tr><td>{html.escape(name)}</td><td>{m['samples']}</td><td>{_fmt(m['nrmse'], '.3%')}</td>"
                     f"<td>{_fmt(own.get(name), '.3%')}</td>"
-                    f"<td>{_fmt(m['max_error'])}</td><td>{_fmt(m['loop_area_error'], '.2%') if m['loop_area_error'] is not None else '–'}</td>"
-                    f"<td>{_fmt(m['residual_rms'])}</td><td>{_fmt(m['noise_rms'])}</td><td>{_fmt(ratio, '.2f')}</td></tr>")
+                    f"<td>{_fmt(m['max_error'])}</td>"
+                    f"<td>{_fmt(m['loop_area_error'], '.2%') if m['loop_area_error'] is not None else '–'}</td>"
+                    f"<td>{_fmt(m['residual_rms'])}</td><td>{_fmt(m['noise_rms'])}</td>"
+                    f"<td>{_fmt(ratio, '.2f')}</td></tr>")
     figs = "".join(f"<h3>{html.escape(n)}</h3><img src='{a}' alt='loop {html.escape(n)}'>"
                    f"<img src='{b}' alt='residual {html.escape(n)}'>" for n, _, a, b in rows)
     notes = "".join(f"<li><b>{html.escape(p['recording'])}</b>: {html.escape('; '.join(p['notes']))}</li>"
