@@ -231,12 +231,12 @@ def test_second_run_does_no_work(first_run, client, monkeypatch):
     root, manifest, _ = first_run
     out = root / "out"
     before = files_of(out)
-    import fitter.batch
+    import fitter.batch.scheduling
 
     def refuse(*args, **kwargs):
         raise AssertionError("a current device was submitted")
 
-    monkeypatch.setattr(fitter.batch, "_run", refuse)                  # no cluster, no task
+    monkeypatch.setattr(fitter.batch.scheduling, "_run", refuse)              # no cluster, no task
     report = run_batch(manifest, out, options=OPTIONS, client=client, progress=False)
     assert set(report.actions.values()) == {"skipped: current"}
     assert files_of(out) == before                                    # no file written, not even the summary
