@@ -28,7 +28,7 @@ from click.testing import CliRunner
 
 import build_fmu
 from conftest import ri_model, sine_input
-import fitter.cli
+import fitter.cli.diagnose_command
 import fitter.core.files
 import fitter.identification.exported
 from fitter.cli import main
@@ -131,17 +131,17 @@ def clean_run(tmp_path_factory) -> dict:
     recs, truth = synthetic_experiment(None, seed=1, samples=300)
     files = [write_csv(d / f"{r.name}.csv", r.t, r.u, r.y) for r in recs]
     seen = []
-    real = fitter.cli.run_diagnosis
+    real = fitter.cli.diagnose_command.run_diagnosis
 
     def spy(*args, **kwargs):
         seen.append(real(*args, **kwargs))
         return seen[-1]
 
     mp = pytest.MonkeyPatch()
-    mp.setattr(fitter.cli, "run_diagnosis", spy)
+    mp.setattr(fitter.cli.diagnose_command, "run_diagnosis", spy)
     try:
         as_json = ok(invoke("diagnose", *files, "--json", "-"))
-        mp.setattr(fitter.cli, "run_diagnosis", lambda *a, **k: seen[0])   # the text run reuses the result
+        mp.setattr(fitter.cli.diagnose_command, "run_diagnosis", lambda *a, **k: seen[0])   # the text run: same
         text = ok(invoke("diagnose", *files))
     finally:
         mp.undo()
@@ -351,7 +351,7 @@ def test_diagnose_unexplained_and_base_order(clean_run, monkeypatch):
         calls.append(kwargs)
         return dataclasses.replace(clean_run["diagnosis"], verdict="unexplained")
 
-    monkeypatch.setattr(fitter.cli, "run_diagnosis", fake)
+    monkeypatch.setattr(fitter.cli.diagnose_command, "run_diagnosis", fake)
     out = ok(invoke("diagnose", *clean_run["files"], "--base-order", 3)).stdout
     assert "unexplained: the residual is above the noise but no candidate effect explains it" in out
     assert "nothing missing:" not in out
