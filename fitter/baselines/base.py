@@ -1,46 +1,6 @@
-"""The interface every baseline shares (`Baseline`), its error, the recording checks and the unit scaling.
-
-A user choosing a hysteresis model wants to know how the semilinear Duhem fit
-compares with the models they would otherwise pick.  The three estimators
-here are the project's own numpy/scipy implementations, with a small common
-interface (`Baseline`: ``fit`` on one or more recordings -> one parameter
-set, ``predict``, ``score``, ``parameters``, ``to_dict``; `BASELINES` by
-name) and `compare_baselines` for the side-by-side NRMSE.
-
-Conventions shared with the Duhem fit
--------------------------------------
-* **Samples and preparation.**  The raw recordings, every sample: nothing is
-  resampled, trimmed or smoothed.  All three models are rate independent:
-  their output depends on the path of u only, not on time.  A recording is
-  refused (`BaselineError`, the message names it) when it has fewer than
-  `MIN_SAMPLES` samples, no output, a constant input or output, or an input
-  that never reverses (`fitter.data.cycles.find_reversals`, the project's
-  one reversal rule), and (`fitter.identification.fit_data.FitError`) when
-  the Duhem fit's preparation refuses it (no full cycle and not one closing
-  period).  Where noise makes the input reverse at many more samples than
-  at its true reversals, the Duhem fit runs its model on the input through
-  a dead band, a play operator of width b (a multiple of the input noise,
-  `fitter.identification.fit_data.prepare_for_fit`, the exported model's
-  ``backlash`` effect).  The baselines take b from the same function (on the
-  same recordings) and run on w = play_b[u] (w_0 =
-  u_0) in the fit and in `predict` (``input_deadband`` in
-  `Baseline.to_dict`; 0 for a clean input; ``deadband=False``: the raw u).
-* **Units.**  Every model is fitted in normalised units, u_n = (u - u_mid) /
-  u_half (u after the dead band) and y_n = (y - y_mid) / y_half, mid-range
-  and half-range over all the fitted recordings; predictions are mapped
-  back.  The Preisach relay grid and the play radii span [min u_n, max u_n]
-  of the fitted data.
-* **Initial state: fitted.**  Each fitted recording has its own initial
-  state, fitted with the shared parameters (Bouc-Wen: z0; Preisach and
-  Prandtl-Ishlinskii: the input history before the first sample, below).
-  `predict` fits the initial state of the recording it is given to its
-  output with the parameters fixed (as the Duhem model's ``x0="fitted"``:
-  the least-squares initial state over all samples); for a recording
-  without an output (y all NaN) it uses the state fitted to the first
-  fitted recording, as the Duhem model stores the x0 of its first recording.
-* **Score.**  `Baseline.score` is `fitter.data.metrics.compare` of `predict`
-  over all samples: ``nrmse`` = RMS error / output range, the project's one
-  NRMSE.
+"""The interface every baseline shares (`Baseline`), its error, the recording checks and the unit scaling;
+the conventions they follow (samples and preparation, units, initial state, score) are the `fitter.baselines`
+docstring's.
 """
 from __future__ import annotations
 
@@ -69,7 +29,7 @@ class BaselineError(DuhemError):
 
 
 def check_recordings(recordings: Sequence[Recording] | Recording) -> list[Recording]:
-    """The recordings as a list, each checked for fitting (module docstring, "Samples and preparation").
+    """The recordings as a list, each checked for fitting (`fitter.baselines` docstring, "Samples and preparation").
 
     Raises
     ------
@@ -103,7 +63,7 @@ def check_recordings(recordings: Sequence[Recording] | Recording) -> list[Record
 
 @dataclass(frozen=True)
 class _Scale:
-    """Mid-range and half-range of u and y over the fitted recordings (module docstring, "Units")."""
+    """Mid-range and half-range of u and y over the fitted recordings (`fitter.baselines` docstring, "Units")."""
 
     u_mid: float
     u_half: float
@@ -133,7 +93,7 @@ class _Scale:
 
 
 class Baseline(ABC):
-    """A classical hysteresis model fitted to recordings (module docstring for the shared conventions).
+    """A classical hysteresis model fitted to recordings (`fitter.baselines` docstring for the shared conventions).
 
     Subclasses set `name` and implement `_fit` and `_predict` in normalised
     units, and `parameters` and `_settings`/`_fitted` for `to_dict`.
@@ -141,7 +101,7 @@ class Baseline(ABC):
     Parameters
     ----------
     deadband : run on the input through the Duhem fit's dead band for a noisy input (default), or on
-        the raw input (module docstring, "Samples and preparation").
+        the raw input (`fitter.baselines` docstring, "Samples and preparation").
     """
 
     name: str = ""
@@ -163,7 +123,7 @@ class Baseline(ABC):
             A recording that cannot be fitted (`check_recordings`), or recordings on which the model's
             least-squares problem is singular (e.g. an input outlier that leaves one sample on its elements).
         FitError
-            A recording the Duhem fit's preparation refuses (module docstring).
+            A recording the Duhem fit's preparation refuses (`fitter.baselines` docstring).
         """
         recs = check_recordings(recordings)
         self.deadband_ = float(prepare_for_fit(recs).deadband) if self.deadband else 0.0
@@ -178,11 +138,11 @@ class Baseline(ABC):
         return self
 
     def _input(self, rec: Recording) -> np.ndarray:
-        """The input the model runs on: u through the dead band of width `deadband_` (module docstring)."""
+        """The input the model runs on: u through the dead band of width `deadband_` (`fitter.baselines` docstring)."""
         return play_operator(rec.u, self.deadband_, float(rec.u[0])) if self.deadband_ > 0 else rec.u
 
     def predict(self, rec: Recording) -> np.ndarray:
-        """The model's output on every sample of `rec` (initial state: module docstring)."""
+        """The model's output on every sample of `rec` (initial state: `fitter.baselines` docstring)."""
         scale = self._scale()
         y_n = scale.y(rec.y) if np.all(np.isfinite(rec.y)) else None
         return scale.y_back(self._predict(scale.u(self._input(rec)), y_n))
