@@ -166,6 +166,28 @@ def test_output_equals_python_kernel(fmus, name):
     assert np.abs(y - ref).max() <= 1e-10 * max(1.0, np.abs(ref).max())
 
 
+def test_c_reads_the_registrys_numbers(tmp_path, monkeypatch):
+    """Every native effect's fixed numbers (`EffectSpec.c_constants`) are macros of the generated header, and the
+    C computes with them: with the switching integrals capped at 0.05 instead of 40 (a cap that binds on every
+    interval), kernel and C still agree to 1e-10, and both differ from the uncapped output."""
+    import fitter.core.effects.catalogue as catalogue
+    from fitter.fmu.native import model_data_header
+
+    model = ri_model(ALL_EFFECTS)
+    header = model_data_header(model, "{guid}")
+    for name, spec in REGISTRY.items():
+        for key in spec.c_constants() if name in NATIVE_EFFECTS else ():
+            assert f"#define DUHEM_{name.upper()}_{key} " in header, (name, key)
+    t, u = sampled_input()
+    before = simulate(model, t, u).y
+    monkeypatch.setattr(catalogue, "_MAX_DECAY", 0.05)
+    assert "#define DUHEM_SWITCHING_MAX_DECAY 0.05" in model_data_header(model, "{guid}")
+    ref = simulate(model, t, u).y
+    y = simulate_fmu(build_native_fmu(model, tmp_path / "capped.fmu", platforms="host"), t, u)
+    assert np.abs(ref - before).max() > 1e-3
+    assert np.abs(y - ref).max() <= 1e-10 * max(1.0, np.abs(ref).max())
+
+
 @pytest.mark.parametrize("name", MODELS)
 def test_validate_fmu_is_empty(fmus, name):
     assert validate_fmu_file(fmus[name]) == []

@@ -70,7 +70,7 @@ from xml.etree import ElementTree as ET
 import numpy as np
 
 import fmu_src.native
-from fitter.core.effects import REGISTRY, SWITCHING_NODES, SWITCHING_NODES_Z, SWITCHING_POPULATIONS, ParameterSpec
+from fitter.core.effects import REGISTRY, ParameterSpec
 from fitter.core.files import atomic_file, scratch_directory
 from fitter.core.rates import TabulatedRate
 from fitter.fmu.model_description import FMI_VERSIONS, model_description_xml, model_description_xml3
@@ -79,9 +79,8 @@ from fitter.fmu.toolchain import (PLATFORMS, NativeBuildError, check_zig, compil
                                   host_platform, parse_platforms)
 
 __all__ = ["build_native_fmu", "build_native_compensator", "COMPENSATOR_FILE", "build_gain_fmu", "NativeBuildError",
-           "find_c_compiler", "check_toolchain", "PLATFORMS",
-           "model_data_header", "SOURCE_DIR", "C_SOURCES", "HEADERS", "c_sources", "headers",
-           "MODEL_IDENTIFIER", "LOG_CATEGORIES", "NATIVE_EFFECTS"]
+           "find_c_compiler", "check_toolchain", "PLATFORMS", "model_data_header", "SOURCE_DIR", "C_SOURCES", "HEADERS",
+           "c_sources", "headers", "MODEL_IDENTIFIER", "LOG_CATEGORIES", "NATIVE_EFFECTS"]
 
 SOURCE_DIR = Path(fmu_src.native.__file__).resolve().parent
 MODEL_HEADERS = ("model_interface.h", "duhem_model.h")
@@ -202,8 +201,8 @@ def _c_string(text: str) -> str:
 
 def _effect_macros(model, real_index: dict) -> list[str]:
     """DUHEM_EFFECT_STATES, DUHEM_EFFECT_START (the effects' stored start, `Effect.start`) and the
-    DUHEM_EFFECTS(X) list of duhem_model.h, from `REGISTRY`, and the `switching` effect's populations and
-    threshold nodes (`SWITCHING_NODES_Z`).
+    DUHEM_EFFECTS(X) list of duhem_model.h, from `REGISTRY`, and every native effect's fixed numbers
+    (`EffectSpec.c_constants`, as ``DUHEM_<EFFECT>_<KEY>``).
 
     Every native effect appears, in chain order, as X(name, stage, present,
     index of its first parameter, offset of its state); the C reads an
@@ -229,9 +228,14 @@ def _effect_macros(model, real_index: dict) -> list[str]:
     return [f"#define DUHEM_EFFECT_STATES {offset}",
             f"#define DUHEM_EFFECT_START {starts[0] if starts else -1}",
             "#define DUHEM_EFFECTS(X)" + "".join(f" \\\n{entry}" for entry in entries),
-            f"#define DUHEM_SWITCHING_POPULATIONS {SWITCHING_POPULATIONS}",
-            f"#define DUHEM_SWITCHING_NODES {SWITCHING_NODES}",
-            "#define DUHEM_SWITCHING_NODES_Z {" + ", ".join(_c_double(z) for z in SWITCHING_NODES_Z) + "}"]
+            *(f"#define DUHEM_{name.upper()}_{key} {_c_constant(value)}" for name, spec in REGISTRY.items()
+              if name in NATIVE_EFFECTS for key, value in spec.c_constants().items())]
+
+
+def _c_constant(value: int | float | tuple[float, ...]) -> str:
+    """A C literal: an int as written, a float as a double, a tuple as a brace initializer of doubles."""
+    return "{" + ", ".join(map(_c_double, value)) + "}" if isinstance(value, tuple) else \
+        str(value) if isinstance(value, int) else _c_double(value)
 
 
 def _parameter_spec(name: str) -> ParameterSpec | None:

@@ -394,16 +394,25 @@ static void effect_creep(const double *p, const double *s0, double *s1, Chain *c
 }
 
 /*
- * Step 5, stage output, parameters (k, w2, w3, w4, tau_min, tau_max), state (c1..c4): y += sum_i c_i,
- * dc_i/dt = (k_i u - c_i)/tau_i, k_i = k w_i / (w1 + w2 + w3 + w4) with w1 = 1, tau_i = tau_min (tau_max/tau_min)^(i/3)
+ * Step 5, stage output, parameters (k, w2 .. wM, tau_min, tau_max), state (c1..cM), M = DUHEM_RELAXATION_TERMS:
+ * y += sum_i c_i, dc_i/dt = (k_i u - c_i)/tau_i, k_i = k w_i / (w1 + ... + wM) with w1 = 1,
+ * tau_i = tau_min (tau_max/tau_min)^(i/(M - 1))
  * (effects.Relaxation.gains, effects.relaxation_taus).
  */
 static void effect_relaxation(const double *p, const double *s0, double *s1, Chain *c)
 {
+    enum { M = DUHEM_RELAXATION_TERMS };
+    const double tau_min = p[M], tau_max = p[M + 1];
+    double w[M], total = 1.0;
     int i;
-    double w[4] = {1.0, p[1], p[2], p[3]}, total = ((1.0 + p[1]) + p[2]) + p[3];
-    for (i = 0; i < 4; i++) {
-        double k = p[0] * w[i] / total, tau = p[4] * pow(p[5] / p[4], i / 3.0), c0 = s0 ? s0[i] : k * c->u[0];
+    w[0] = 1.0;
+    for (i = 1; i < M; i++) {
+        w[i] = p[i];
+        total = total + w[i];
+    }
+    for (i = 0; i < M; i++) {
+        double k = p[0] * w[i] / total, tau = tau_min * pow(tau_max / tau_min, i / (M - 1.0));
+        double c0 = s0 ? s0[i] : k * c->u[0];
         c->y[0] = c->y[0] + c0;
         s1[i] = c0;
         if (c->n == 2) {
@@ -426,7 +435,8 @@ static double log_exprel(double d)
  * DUHEM_SWITCHING_NODES equal shares j with thresholds u_up + spread z_j, u_dn - spread z_j (z_j: DUHEM_SWITCHING_NODES_Z,
  * effects.SWITCHING_NODES_Z), y += sum_i mean_j s_ij, ds/dt = k+(u) (S - s) - k-(u) (S + s), k+ = e^{(u - up)/width},
  * k- = e^{(dn - u)/width} per share (effects.switching_states): s1 = s_eq + (s0 - s_eq) e^{-(I+ + I-)},
- * s_eq = S tanh((ln I+ - ln I-)/2), I+ + I- capped at 40 (effects._MAX_DECAY).
+ * s_eq = S tanh((ln I+ - ln I-)/2), ln I+- capped at DUHEM_SWITCHING_MAX_EXPONENT and I+ + I- at
+ * DUHEM_SWITCHING_MAX_DECAY (effects._MAX_EXPONENT, _MAX_DECAY).
  */
 static void effect_switching(const double *p, const double *s0, double *s1, Chain *c)
 {
@@ -443,7 +453,9 @@ static void effect_switching(const double *p, const double *s0, double *s1, Chai
                 double d = (c->u[1] - c->u[0]) / q[3], log_h = log(c->h);
                 double lp = log_h + (c->u[0] - up) / q[3] + log_exprel(d);
                 double lm = log_h + (dn - c->u[0]) / q[3] + log_exprel(-d);
-                double big = fmax(lp, lm), total = fmin(exp(fmin(big, 700.0)) * (1.0 + exp(fmin(lp, lm) - big)), 40.0);
+                double big = fmax(lp, lm);
+                double total = fmin(exp(fmin(big, DUHEM_SWITCHING_MAX_EXPONENT)) * (1.0 + exp(fmin(lp, lm) - big)),
+                                    DUHEM_SWITCHING_MAX_DECAY);
                 double target = q[0] * tanh((lp - lm) / 2);
                 s = exp(-total) * s + -expm1(-total) * target;
                 c->y[1] = c->y[1] + s / DUHEM_SWITCHING_NODES;

@@ -158,6 +158,10 @@ class Relaxation(EffectSpec):
         total = sum(w)
         return [p["k"] * wi / total for wi in w]
 
+    def c_constants(self) -> dict[str, int | float | tuple[float, ...]]:
+        """The number of first-order terms."""
+        return {"TERMS": RELAXATION_TERMS}
+
     def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
         ends = []
         for i, (k, tau) in enumerate(zip(self.gains(p), relaxation_taus(p["tau_min"], p["tau_max"]))):
@@ -269,6 +273,11 @@ class Switching(EffectSpec):
     """Not tested by `duhem diagnose` unless named: with its thresholds just beyond the input's tips it switches
     slowly at every tip, a drift in time, and was named for quadratic and exponential output drifts
     (`bench/diagnose_generality.py`)."""
+
+    def c_constants(self) -> dict[str, int | float | tuple[float, ...]]:
+        """Populations, shares, their threshold offsets and the caps of the switching integrals."""
+        return {"POPULATIONS": SWITCHING_POPULATIONS, "NODES": SWITCHING_NODES, "NODES_Z": SWITCHING_NODES_Z,
+                "MAX_EXPONENT": _MAX_EXPONENT, "MAX_DECAY": _MAX_DECAY}
 
     def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
         ends = []

@@ -195,6 +195,12 @@ class EffectSpec(ABC):
         constants tau_i; None (the default) for every other effect."""
         return None
 
+    def c_constants(self) -> dict[str, int | float | tuple[float, ...]]:
+        """Fixed numbers of the effect's C twin (``effect_<name>`` in duhem_model.c), written into the native FMU's
+        generated header as ``DUHEM_<NAME>_<KEY>`` (a tuple as a C initializer list), so that the C reads the
+        numbers this class computes with; default none."""
+        return {}
+
     def null(self, ctx: EffectContext) -> dict[str, float]:
         """Parameter values at which the effect (almost) vanishes (the nested model); default all 0."""
         return {par.name: 0.0 for par in self.parameters}
