@@ -57,11 +57,19 @@ A theta whose model cannot be built or simulated, or whose simulation leaves
 
 Decimation
 ----------
-Recordings longer than ``Options.max_samples`` are decimated for the
-optimisation: from each block of k samples the first one and those with the
-block's largest and smallest input are kept, so every input reversal survives
-to within a block (exact at the kept samples for a rate-independent model,
-Proposition 1).  Final residuals are on all samples.
+Recordings longer than ``Options.max_samples`` (M) are decimated for the
+optimisation.  The kept samples are every turning point of the input (the
+last sample before its direction changes) and every k-th sample, k =
+ceil(N / M); the residuals are scored on the every-k-th samples alone (the
+turning points get weight 0).  Between kept samples the input is monotone,
+so a rate-independent model's state at the kept samples is exact
+(Proposition 1: its output depends on the path of u only), and the scored
+samples are spread evenly along the whole recording: a long recording of
+many short loops is scored along its branches as densely as a short one,
+not only at its turning points.  When the input turns at more than M
+samples (a noisy input), each block of 3N / M samples keeps its first, its
+largest and its smallest input, all scored.  Final residuals are on all
+samples.
 """
 from __future__ import annotations
 
@@ -242,19 +250,34 @@ def simulate_from(model, t, u, y, mode: str, cycle: tuple[int, int] | None, sett
 
 
 # ----------------------------------------------------------------------------- the recordings problem
-def _keep_indices(u: np.ndarray, max_samples: int | None, cycle) -> np.ndarray:
-    """Decimation keeping each block's first, max-input and min-input samples."""
+def _turning_points(u: np.ndarray) -> np.ndarray:
+    """Indices where the input turns: the last sample before its direction of motion changes (flat stretches
+    carry the last direction), so the input is monotone between consecutive turning points."""
+    du = np.diff(u)
+    idx = np.where(du != 0, np.arange(len(du)), 0)
+    np.maximum.accumulate(idx, out=idx)
+    direction = np.sign(du[idx])
+    return np.flatnonzero(direction[1:] * direction[:-1] < 0) + 1
+
+
+def _keep_indices(u: np.ndarray, max_samples: int | None, cycle) -> tuple[np.ndarray, np.ndarray]:
+    """Decimation (module docstring): the kept samples and, of them, those scored (a boolean mask)."""
     n = len(u)
     if max_samples is None or n <= max_samples:
-        return np.arange(n)
+        return np.arange(n), np.ones(n, dtype=bool)
+    ends = [] if cycle is None else [cycle[0], cycle[1]]
+    turns = _turning_points(u)
+    if len(turns) <= max_samples:
+        scored = np.r_[np.arange(0, n, int(np.ceil(n / max_samples))), n - 1]
+        keep = np.unique(np.r_[scored, turns, ends]).astype(int)
+        return keep, np.isin(keep, scored)
     k = int(np.ceil(3 * n / max_samples))
     nb = n // k
     blocks = u[:nb * k].reshape(nb, k)
     base = np.arange(nb) * k
-    keep = np.r_[base, base + blocks.argmax(axis=1), base + blocks.argmin(axis=1), np.arange(nb * k, n), n - 1]
-    if cycle is not None:
-        keep = np.r_[keep, cycle[0], cycle[1]]
-    return np.unique(keep)
+    keep = np.unique(np.r_[base, base + blocks.argmax(axis=1), base + blocks.argmin(axis=1), np.arange(nb * k, n),
+                           n - 1, ends]).astype(int)
+    return keep, np.ones(len(keep), dtype=bool)
 
 
 def _first_cycle(rec: Recording) -> tuple[int, int]:
@@ -307,16 +330,18 @@ class Recordings:
 
     def decimated(self, max_samples: int | None) -> "Recordings":
         """The problem on the kept samples of `_keep_indices` (self when nothing is dropped)."""
-        keeps = [_keep_indices(r.u, max_samples, c) for r, c in zip(self.recordings, self.cycles)]
-        if all(len(k) == len(r.u) for k, r in zip(keeps, self.recordings)):
+        kept = [_keep_indices(r.u, max_samples, c) for r, c in zip(self.recordings, self.cycles)]
+        if all(len(k) == len(r.u) for (k, _), r in zip(kept, self.recordings)):
             return self
+        keeps = [k for k, _ in kept]
+        weights = [np.where(scored, w[k], 0.0) for w, (k, scored) in zip(self._w, kept)]
         recs = [Recording(r.t[k], r.u[k], r.y[k], r.name, r.input, r.output, r.source)
                 for r, k in zip(self.recordings, keeps)]
         cycles = [None if c is None else tuple(int(i) for i in np.searchsorted(k, c))
                   for c, k in zip(self.cycles, keeps)]
         if any(self._settle):
             raise DuhemError("settled effect starts need every sample of a recording (no decimation)")
-        return Recordings(recs, self.x0, [w[k] for w, k in zip(self._w, keeps)], cycles, references=self.references)
+        return Recordings(recs, self.x0, weights, cycles, references=self.references)
 
     def residuals(self, param: Parametrisation, theta: np.ndarray):
         """Stacked weighted residuals sqrt(w) (y - yhat) of the unmasked samples, and per
