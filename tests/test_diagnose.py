@@ -305,10 +305,13 @@ def _two_rate_triangles(model, seed: int, noise: float = 0.005) -> list[Recordin
             Recording(rec.t[300:], rec.u[300:], rec.y[300:], name="fast")]
 
 
-@pytest.mark.parametrize("order", [1, 2, 3])
+@pytest.mark.parametrize("order", [1, 3])
 def test_default_base_on_clean_data_of_any_order_has_nothing_missing(order):
-    """Effect-free data of order-1/2/3 bases (`cell_base`): the default base (the order chosen by BIC,
-    competing with the first-order base's best effect) is adequate, and no effect is claimed."""
+    """Effect-free data of order-1/3 bases (`cell_base`): the default base (the order chosen by BIC,
+    competing with the first-order base's best effect) is adequate, and no effect is claimed.  Order 1 keeps
+    the first-order base, order 3 needs a higher one; order 2 (the second path again; clean order-2 data is
+    also `test_clean_second_order_data_with_a_bic_base_has_nothing_missing`) and more seeds:
+    `python bench/diagnose_clean_orders.py [--seeds N]`."""
     d = diagnose(_two_rate_triangles(cell_base(order), seed=order))
     assert d.verdict == "nothing_missing" and d.findings == [], (d.verdict, [f["effect"] for f in d.findings])
     assert d.baseline["residual_rms"] <= 1.2 * d.noise_rms
