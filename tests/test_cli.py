@@ -278,6 +278,39 @@ def test_simulate_fmu_names_an_unknown_start_parameter(work):
         simulate_fmu(work["dir"] / "native.fmu", work["t"], work["u"], start={"x0[7]": 1.0})
 
 
+def test_tables_cut_no_name_and_no_number(work):
+    """Into a pipe (CliRunner is not a terminal, 80 columns by default) the validation table of seven columns is
+    printed whole: every column name on one line, every value with its digits, no ellipsis."""
+    out = ok(invoke("validate", work["dir"] / "native.fmu", work["rec"])).stdout
+    row = json.loads(ok(invoke("validate", work["dir"] / "native.fmu", work["rec"], "--json")).stdout)["recordings"][0]
+    assert "…" not in out and max(len(line) for line in out.splitlines()) > 80
+    header = next(line for line in out.splitlines() if "recording" in line)
+    for name in ("NRMSE all", "NRMSE last cycle", "max err last cycle", "loop area err", "FMU vs in-process", "pass"):
+        assert name in header, (name, header)
+    assert f"{row['nrmse']:.4g}" in out
+
+
+@pytest.mark.parametrize("command", ["simulate", "compensate"])
+def test_no_time_reads_a_file_without_time(work, tmp_path, command):
+    """``--no-time`` on simulate and compensate (as on fit and validate): the sample index is the time; the
+    result equals the run of the same file with a time column 0, 1, 2, ..."""
+    n = len(work["u"])
+    column = "u" if command == "simulate" else "y_ref"
+    values = work["u"] if command == "simulate" else simulate(load_model(work["dir"] / "model.json"), np.arange(n),
+                                                              work["u"]).y
+    np.savetxt(tmp_path / "bare.csv", values[:, None], delimiter=",", header=column, comments="", fmt="%.17g")
+    np.savetxt(tmp_path / "timed.csv", np.c_[np.arange(n), values], delimiter=",", header=f"time,{column}",
+               comments="", fmt="%.17g")
+    option = ["--input", "u"] if command == "simulate" else []
+    ok(invoke(command, work["dir"] / "model.json", tmp_path / "bare.csv", "-o", tmp_path / "a.csv", "--no-time",
+              *option))
+    ok(invoke(command, work["dir"] / "model.json", tmp_path / "timed.csv", "-o", tmp_path / "b.csv", *option))
+    assert read_csv(tmp_path / "a.csv")[0] == read_csv(tmp_path / "b.csv")[0]
+    np.testing.assert_array_equal(read_csv(tmp_path / "a.csv")[1], read_csv(tmp_path / "b.csv")[1])
+    refused = invoke(command, work["dir"] / "model.json", tmp_path / "bare.csv", "-o", tmp_path / "c.csv", *option)
+    assert refused.exit_code == 1 and "--no-time" in refused.stderr
+
+
 def test_validate_threshold_fails(work):
     result = invoke("validate", work["dir"] / "native.fmu", work["rec"], "--threshold", "1e-6", "--json")
     assert result.exit_code == 3

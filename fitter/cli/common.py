@@ -36,15 +36,23 @@ def emit_json(data) -> None:
 
 
 def table(title: str, columns: list[str], rows: list[list]) -> None:
+    """Print a table that cuts no column name and no value: into a file or a pipe its lines are as long as it
+    needs; in a narrower terminal the names wrap, the values keep their width (a terminal narrower than the
+    values alone gets the needed width and wraps its lines)."""
     from rich.console import Console
     from rich.table import Table
 
+    cells = [[fmt(v) for v in row] for row in rows]
     table = Table(title=title)
-    for c in columns:
-        table.add_column(c, justify="left" if c == columns[0] else "right")
-    for row in rows:
-        table.add_row(*[fmt(v) for v in row])
-    Console(file=sys.stdout, soft_wrap=True).print(table)
+    for i, c in enumerate(columns):
+        table.add_column(c, justify="left" if i == 0 else "right", overflow="fold",
+                         min_width=max((len(row[i]) for row in cells), default=1))
+    for row in cells:
+        table.add_row(*row)
+    console = Console(file=sys.stdout, soft_wrap=True)
+    need = console.measure(table, options=console.options.update(max_width=10_000))
+    console.width = max(console.width, need.minimum if console.is_terminal else need.maximum)
+    console.print(table)
 
 
 def fmt(v) -> str:
@@ -147,10 +155,15 @@ def time_column(time_col: str) -> str | None:
     return None if click.get_current_context().meta.get("no_time") else time_col
 
 
-def column_options(func: Callable) -> Callable:
-    func = click.option("--no-time", is_flag=True, expose_value=False, callback=_no_time,
+def no_time_option(func: Callable) -> Callable:
+    """``--no-time``: the file has no time column (`time_column` then gives None)."""
+    return click.option("--no-time", is_flag=True, expose_value=False, callback=_no_time,
                         help="the file has no time column: use the sample index as time (rate-independent "
                              "models only depend on the input's path)")(func)
+
+
+def column_options(func: Callable) -> Callable:
+    func = no_time_option(func)
     for name, default, role in (("output", "y", "output"), ("input", "u", "input"),
                                 ("time", "time", "time")):
         func = click.option(f"--{name}", f"{name}_col", default=default, show_default=True, metavar="COL",

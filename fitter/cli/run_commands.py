@@ -14,8 +14,10 @@ from fitter.cli.common import (
     finite_output,
     is_zip,
     load_model_json,
+    no_time_option,
     open_fmu,
     refuse_overwrite,
+    time_column,
     use_unstable_option,
     warn_minor_loops,
 )
@@ -41,6 +43,7 @@ from fitter.reports.compensation_plot import write_compensation_plot
 @click.option("-o", "--out", "out", required=True, type=FilePath(),
               help="CSV file to write (columns time,u,y)")
 @click.option("--time", "time_col", default="time", show_default=True, metavar="COL", help="time column")
+@no_time_option
 @click.option("--input", "input_col", default="u", show_default=True, metavar="COL", help="input column")
 @use_unstable_option
 @click.option("--json", "as_json", is_flag=True, help="print a summary as JSON")
@@ -51,7 +54,7 @@ def simulate(model, input_csv, out, time_col, input_col, allow_unstable, as_json
     from its stored initial state x0.  The output CSV has columns time,u,y.
     """
     refuse_overwrite([model, input_csv], out)
-    rec = load_recording(input_csv, time_col, input_col, None)
+    rec = load_recording(input_csv, time_column(time_col), input_col, None)
     with stderr_progress("duhem simulate") as say, atomic_file(out, suffix=".csv") as tmp:
         say(f"simulating {len(rec)} samples", None)
         if is_zip(model):
@@ -85,6 +88,7 @@ def simulate(model, input_csv, out, time_col, input_col, allow_unstable, as_json
 @click.option("--plot", type=FilePath(),
               help="write a PNG: y_ref, the plant without compensation (linear gain) and with it")
 @click.option("--time", "time_col", default="time", show_default=True, metavar="COL", help="time column")
+@no_time_option
 @click.option("--ref", "ref_col", default="y_ref", show_default=True, metavar="COL", help="reference column")
 @click.option("--u0", type=Number(), help="the plant's input before the first sample (default: mid input range)")
 @click.option("--input-range", "input_range", type=Number(), nargs=2, metavar="LO HI", callback=ordered_pair,
@@ -109,7 +113,7 @@ def compensate(model, reference, out, plot, time_col, ref_col, u0, input_range, 
         raise CliError(f"{plot}: the plot file name must end in .png")
     m = load_model_json(model)
     checked(m, model, allow_unstable, *([input_range] if input_range else []))
-    rec = load_recording(reference, time_col, ref_col, None)
+    rec = load_recording(reference, time_column(time_col), ref_col, None)
     comp = Compensator(m, t0=float(rec.t[0]), u0=u0, measurement=measurement, input_range=input_range)
     with stderr_progress("duhem compensate") as say, contextlib.ExitStack() as outputs:
         csv_tmp = outputs.enter_context(atomic_file(out, suffix=".csv"))
