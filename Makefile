@@ -45,3 +45,5 @@ bench: install
 	$(BIN)/python bench/compensation.py
 	$(BIN)/python bench/other_systems.py
 	$(BIN)/python bench/batch.py
+	$(BIN)/python bench/long_recordings.py
+	$(BIN)/python bench/export_platforms.py
