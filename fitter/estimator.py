@@ -15,6 +15,7 @@ Example
 """
 from __future__ import annotations
 
+import inspect
 import os
 from typing import Sequence
 
@@ -39,11 +40,23 @@ class NotFittedError(DuhemError):
 class DuhemEstimator:
     """Identify a semilinear Duhem model from recordings.
 
+    Every option of ``duhem fit`` and ``duhem export`` is a constructor parameter, under the name of the
+    function it goes to (`fit_recordings`, `build_fmu`); `get_params` / `set_params` follow scikit-learn's
+    conventions (the constructor's parameters, by name).
+
     Parameters
     ----------
-    kind : "auto" (BIC), "ri" (eqs 1-2) or "rd" (eqs 18-19).
-    order : state dimension; None chooses it by BIC among 1, 2, 3.
-    q : bound of the Section III constrained least squares (a start only); None chooses it.
+    kind : "auto" (BIC), "ri" (eqs 1-2) or "rd" (eqs 18-19) (``--kind``).
+    order : state dimension; None chooses it by BIC (``--order``).
+    q : bound of the Section III constrained least squares (a start only); None chooses it (``--q``).
+    x0 : "fitted" or "periodic" (``--x0``).
+    faithful_minor_loops : keep the minor loops near the data (``--faithful-minor-loops``).
+    effects : effects of the catalogue fitted with the base (``--effects``).
+    held : effect parameters held at known values, ``{"effect.parameter": value}`` (``--hold``).
+    backend : "native" or "python", the FMU `export` builds (``--backend``).
+    fmi_version : 2 or 3 (``--fmi-version``).
+    platforms : the native FMU's binaries, None for all (``--platforms``).
+    allow_unstable : export a model that fails the convergence check (``--allow-unstable``).
     progress : `fitter.progress.Progress` callback for one-line status messages.
 
     Attributes (after `fit`)
@@ -53,14 +66,40 @@ class DuhemEstimator:
     result_ : the `FitResult` (parameters, covariance, `predict`, `band`).
     """
 
-    def __init__(self, kind: str = "auto", order: int | None = None, q: float | None = None,
+    def __init__(self, kind: str = "auto", order: int | None = None, q: float | None = None, x0: str = "fitted",
+                 faithful_minor_loops: bool = False, effects: Sequence[str] = (),
+                 held: dict[str, float] | None = None, backend: str = "native", fmi_version: int = 2,
+                 platforms: str | Sequence[str] | None = None, allow_unstable: bool = False,
                  progress: Progress = silent):
-        self.kind, self.order, self.q, self.progress = kind, order, q, progress
+        self.kind, self.order, self.q, self.x0 = kind, order, q, x0
+        self.faithful_minor_loops, self.effects, self.held = faithful_minor_loops, effects, held
+        self.backend, self.fmi_version, self.platforms = backend, fmi_version, platforms
+        self.allow_unstable, self.progress = allow_unstable, progress
+
+    @classmethod
+    def _param_names(cls) -> list[str]:
+        return [name for name in inspect.signature(cls.__init__).parameters if name != "self"]
+
+    def get_params(self, deep: bool = True) -> dict:
+        """The constructor's parameters and their values (`deep` is accepted for scikit-learn; nothing is
+        nested)."""
+        return {name: getattr(self, name) for name in self._param_names()}
+
+    def set_params(self, **params) -> "DuhemEstimator":
+        """Set constructor parameters by name; an unknown name is a ValueError naming the known ones."""
+        unknown = sorted(set(params) - set(self._param_names()))
+        if unknown:
+            raise ValueError(f"unknown parameter(s) {unknown} of DuhemEstimator: known are {self._param_names()}")
+        for name, value in params.items():
+            setattr(self, name, value)
+        return self
 
     def fit(self, recordings: Sequence[Recording]) -> "DuhemEstimator":
         """Fit to one or more recordings with the same columns; returns self."""
-        self.result_: FitResult = fit_recordings(list(recordings), kind=self.kind, order=self.order, q=self.q,
-                                                 progress=self.progress)
+        self.result_: FitResult = fit_recordings(
+            list(recordings), kind=self.kind, order=self.order, q=self.q, x0=self.x0,
+            faithful_minor_loops=self.faithful_minor_loops, effects=tuple(self.effects), held=self.held,
+            progress=self.progress)
         self.model_ = self.result_.model
         self.summary_ = self.result_.summary
         return self
@@ -88,6 +127,14 @@ class DuhemEstimator:
         """Write the fitted model as JSON (atomically)."""
         save_model(self._fitted().model, path)
 
-    def export(self, path: str | os.PathLike, *, backend: str = "native") -> str:
-        """Build an FMI 2.0 Co-Simulation FMU of the fitted model; returns its path."""
-        return build_fmu(self._fitted().model, path, backend=backend)
+    def export(self, path: str | os.PathLike, **options) -> str:
+        """Build the Co-Simulation FMU of the fitted model with the estimator's `backend`, `fmi_version`,
+        `platforms` and `allow_unstable`, any of them overridden by name in `options`; returns its path."""
+        chosen = {name: getattr(self, name) for name in ("backend", "fmi_version", "platforms", "allow_unstable")}
+        unknown = sorted(set(options) - set(chosen))
+        if unknown:
+            raise ValueError(f"unknown export option(s) {unknown}: known are {sorted(chosen)}")
+        chosen.update(options)
+        platforms = chosen.pop("platforms")
+        native = {"platforms": platforms} if chosen["backend"] == "native" else {}
+        return build_fmu(self._fitted().model, path, **chosen, **native)
