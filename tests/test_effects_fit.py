@@ -34,18 +34,51 @@ def _recordings(seed: int = 4) -> list[Recording]:
     return out
 
 
+def _csv_files(recs: list[Recording], folder) -> list[str]:
+    """Each recording as folder/<name>.csv (columns time, u, y, written exactly: %.18e); their paths."""
+    paths = []
+    for rec in recs:
+        paths.append(str(folder / f"{rec.name}.csv"))
+        np.savetxt(paths[-1], np.c_[rec.t, rec.u, rec.y], delimiter=",", header="time,u,y", comments="")
+    return paths
+
+
+def _cli_fit(args: list[str]):
+    """`duhem fit ARGS` through the CLI, its own `fit_recordings` call watched (run as it is, its FitResult
+    kept): the CLI's result and that FitResult."""
+    import sys
+    command = sys.modules[main.commands["fit"].callback.__module__]      # where `duhem fit` looks it up
+    results = []
+
+    def watched(*args, **kwargs):
+        results.append(fit_recordings(*args, **kwargs))
+        return results[-1]
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(command, "fit_recordings", watched)
+        res = CliRunner().invoke(main, ["fit", *args])
+    assert res.exit_code == 0, res.output
+    (result,) = results
+    return res, result
+
+
 @pytest.fixture(scope="module")
-def fits():
+def fits(tmp_path_factory):
+    """The plain order-1 fit of `_recordings()`, and their switching fit, done once by `duhem fit --effects
+    switching` on their CSV files (text output): (recordings, plain FitResult, extended FitResult, CLI result,
+    the saved model's path)."""
     recs = _recordings()
-    return recs, fit_recordings(recs, kind="ri", order=1), fit_recordings(recs, kind="ri", order=1,
-                                                                          effects=["switching"])
+    folder = tmp_path_factory.mktemp("switching")
+    out = folder / "m.json"
+    res, extended = _cli_fit([*_csv_files(recs, folder), "--kind", "ri", "--order", "1", "--effects",
+                              "switching", "-o", str(out)])
+    return recs, fit_recordings(recs, kind="ri", order=1), extended, res, out
 
 
 def test_switching_fitted_with_the_base_reaches_the_noise(fits):
     """Without the effect an order-1 Duhem model cannot follow a loop that switches more when slower (> 2 %);
     with it the fit reaches the noise (0.2 %) on both rates, and one population is the truth's (the other may
     take a share of the base's smooth part)."""
-    recs, plain, extended = fits
+    recs, plain, extended, _, _ = fits
     for rec in recs:
         assert compare(rec, simulate(plain.model, rec.t, rec.u).y)["nrmse"] > 0.02
     nrmse = [r["nrmse"] for r in extended.summary["recordings"]]
@@ -61,26 +94,15 @@ def test_switching_fitted_with_the_base_reaches_the_noise(fits):
     assert [e.effect for e in extended.model.effects] == ["switching"]
 
 
-def _csv_files(recs: list[Recording], folder) -> list[str]:
-    """Each recording as folder/<name>.csv (columns time, u, y); their paths."""
-    paths = []
-    for rec in recs:
-        paths.append(str(folder / f"{rec.name}.csv"))
-        np.savetxt(paths[-1], np.c_[rec.t, rec.u, rec.y], delimiter=",", header="time,u,y", comments="")
-    return paths
-
-
-def test_cli_fit_with_effects_writes_the_extended_model(tmp_path):
-    recs = _recordings()
-    paths = _csv_files(recs, tmp_path)
-    out = tmp_path / "m.json"
-    res = CliRunner().invoke(main, ["fit", *paths, "--kind", "ri", "--order", "1", "--effects", "switching",
-                                    "-o", str(out)])
-    assert res.exit_code == 0, res.output
+def test_cli_fit_with_effects_writes_the_extended_model(fits):
+    """`duhem fit --effects switching` (the `fits` fixture's run): it prints the fitted effect and how its state
+    started, and saves the model of its fit, which follows the first recording near the noise."""
+    recs, _, extended, res, out = fits
     assert "effect switching fitted with the base: S1 = " in res.output
     assert "effects started afresh (no recording is a closed loop)" in res.output
     model = load_model(out)
     assert [e.effect for e in model.effects] == ["switching"]
+    assert model.effects[0].parameters == pytest.approx(extended.model.effects[0].parameters, rel=1e-12)
     y = simulate(model, recs[0].t, recs[0].u).y
     assert compare(recs[0], y)["nrmse"] < 0.006
 
