@@ -9,7 +9,7 @@ from statistics import NormalDist
 import numpy as np
 
 from ..flow import linear_recurrence
-from .spec import _INF, Chain, EffectContext, EffectSpec, ParameterSpec
+from .spec import INF, Chain, EffectContext, EffectSpec, ParameterSpec
 
 
 def _first_order(m0: float, target: np.ndarray, h: np.ndarray, tau: float) -> np.ndarray:
@@ -67,7 +67,7 @@ class Backlash(EffectSpec):
     description = "mechanical play: the input must travel b across a dead band before the output follows"
     stage = "input"
     timed = False
-    parameters = (ParameterSpec("b", 0.0, _INF),)
+    parameters = (ParameterSpec("b", 0.0, INF),)
     state = ("w",)
     example = {"b": 0.1}
 
@@ -86,7 +86,7 @@ class RateDependence(EffectSpec):
     description = "rate-dependent lag: the faster the input moves, the less the loop keeps up"
     stage = "rate"
     timed = True
-    parameters = (ParameterSpec("alpha", 0.0, _INF),)
+    parameters = (ParameterSpec("alpha", 0.0, INF),)
     example = {"alpha": 0.3}
 
     def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
@@ -106,7 +106,7 @@ class Creep(EffectSpec):
     stage = "output"
     additive = True
     timed = True
-    parameters = (ParameterSpec("k", -_INF, _INF), ParameterSpec("tau", 0.0, _INF, strict=True, log=True))
+    parameters = (ParameterSpec("k", -INF, INF), ParameterSpec("tau", 0.0, INF, strict=True, log=True))
     state = ("c",)
     example = {"k": 0.05, "tau": 3.0}
 
@@ -144,10 +144,10 @@ class Relaxation(EffectSpec):
     stage = "output"
     additive = True
     timed = True
-    parameters = (ParameterSpec("k", -_INF, _INF),) + tuple(
-        ParameterSpec(f"w{i}", 0.0, _INF) for i in range(2, RELAXATION_TERMS + 1)) + (
-        ParameterSpec("tau_min", 0.0, _INF, strict=True, log=True),
-        ParameterSpec("tau_max", 0.0, _INF, strict=True, log=True))
+    parameters = (ParameterSpec("k", -INF, INF),) + tuple(
+        ParameterSpec(f"w{i}", 0.0, INF) for i in range(2, RELAXATION_TERMS + 1)) + (
+        ParameterSpec("tau_min", 0.0, INF, strict=True, log=True),
+        ParameterSpec("tau_max", 0.0, INF, strict=True, log=True))
     state = tuple(f"c{i + 1}" for i in range(RELAXATION_TERMS))
     example = {"k": 0.08, "w2": 1.0, "w3": 1.0, "w4": 1.0, "tau_min": 0.3, "tau_max": 30.0}
 
@@ -248,9 +248,9 @@ def _population_parameters(i: int) -> tuple[ParameterSpec, ...]:
     def spec(name: str, lower: float, upper: float, default: float, **kw) -> ParameterSpec:
         return ParameterSpec(f"{name}{i}", lower, upper, default=default if more else None, refinement=more, **kw)
 
-    return (spec("S", 0.0, _INF, 0.0), spec("u_up", -_INF, _INF, 0.0), spec("u_dn", -_INF, _INF, 0.0),
-            spec("width", 0.0, _INF, 1.0, strict=True, log=True), spec("q", -1.0, 1.0, 0.0),
-            ParameterSpec(f"spread{i}", 0.0, _INF, log=True, default=0.0, refinement=True))
+    return (spec("S", 0.0, INF, 0.0), spec("u_up", -INF, INF, 0.0), spec("u_dn", -INF, INF, 0.0),
+            spec("width", 0.0, INF, 1.0, strict=True, log=True), spec("q", -1.0, 1.0, 0.0),
+            ParameterSpec(f"spread{i}", 0.0, INF, log=True, default=0.0, refinement=True))
 
 
 class Switching(EffectSpec):
@@ -339,7 +339,7 @@ class Viscous(EffectSpec):
     stage = "output"
     additive = True
     timed = True
-    parameters = (ParameterSpec("c", -_INF, _INF),)
+    parameters = (ParameterSpec("c", -INF, INF),)
     example = {"c": 0.02}
 
     def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
@@ -355,7 +355,7 @@ class ThermalDrift(EffectSpec):
     stage = "output"
     steady = False
     timed = False
-    parameters = (ParameterSpec("kappa", -_INF, _INF),)
+    parameters = (ParameterSpec("kappa", -INF, INF),)
     state = ("W",)
     example = {"kappa": 0.01}
 
@@ -372,7 +372,7 @@ class Saturation(EffectSpec):
     description = "saturation: the output flattens smoothly (tanh) away from a centre y_c"
     stage = "output"
     timed = False
-    parameters = (ParameterSpec("y_c", -_INF, _INF), ParameterSpec("beta", 0.0, _INF))
+    parameters = (ParameterSpec("y_c", -INF, INF), ParameterSpec("beta", 0.0, INF))
     example = {"y_c": 0.0, "beta": 0.4}
     strength = "beta"
 
@@ -402,7 +402,7 @@ class SensorLag(EffectSpec):
     stage = "output"
     follows_output = True
     timed = True
-    parameters = (ParameterSpec("tau", 0.0, _INF, log=True),)
+    parameters = (ParameterSpec("tau", 0.0, INF, log=True),)
     state = ("m", "y")
     example = {"tau": 0.05}
 
@@ -435,7 +435,7 @@ class MeasurementDrift(EffectSpec):
     additive = True
     offset = "d"
     timed = True
-    parameters = (ParameterSpec("rate", -_INF, _INF),)
+    parameters = (ParameterSpec("rate", -INF, INF),)
     state = ("d",)
     example = {"rate": 0.01}
 

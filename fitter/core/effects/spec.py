@@ -18,7 +18,7 @@ STAGES = ("input", "rate", "output")
 ORIGINS = ("material", "measurement")
 """Where an effect comes from: the device's physics or the measuring chain (module docstring)."""
 
-_INF = math.inf
+INF = math.inf
 
 
 @dataclass(frozen=True)
