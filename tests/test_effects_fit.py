@@ -61,26 +61,20 @@ def _cli_fit(args: list[str]):
     return res, result
 
 
-@pytest.fixture(scope="module")
-def fits(tmp_path_factory):
-    """The plain order-1 fit of `_recordings()`, and their switching fit, done once by `duhem fit --effects
-    switching` on their CSV files (text output): (recordings, plain FitResult, extended FitResult, CLI result,
-    the saved model's path)."""
-    recs = _recordings()
-    folder = tmp_path_factory.mktemp("switching")
-    out = folder / "m.json"
-    res, extended = _cli_fit([*_csv_files(recs, folder), "--kind", "ri", "--order", "1", "--effects",
-                              "switching", "-o", str(out)])
-    return recs, fit_recordings(recs, kind="ri", order=1), extended, res, out
-
-
-def test_switching_fitted_with_the_base_reaches_the_noise(fits):
+def test_switching_fitted_with_the_base_reaches_the_noise_and_is_saved(tmp_path):
     """Without the effect an order-1 Duhem model cannot follow a loop that switches more when slower (> 2 %);
-    with it the fit reaches the noise (0.2 %) on both rates, and one population is the truth's (the other may
-    take a share of the base's smooth part)."""
-    recs, plain, extended, _, _ = fits
+    with it (`duhem fit --effects switching` on the CSV files, its fit_recordings call watched: one fit for the
+    library's result and the command's output) the fit reaches the noise (0.2 %) on both rates, and one
+    population is the truth's (the other may take a share of the base's smooth part).  The command prints the
+    fitted effect and how its state started, and saves the model of that fit, which follows the first
+    recording near the noise."""
+    recs = _recordings()
+    plain = fit_recordings(recs, kind="ri", order=1)
     for rec in recs:
         assert compare(rec, simulate(plain.model, rec.t, rec.u).y)["nrmse"] > 0.02
+    out = tmp_path / "m.json"
+    res, extended = _cli_fit([*_csv_files(recs, tmp_path), "--kind", "ri", "--order", "1", "--effects",
+                              "switching", "-o", str(out)])
     nrmse = [r["nrmse"] for r in extended.summary["recordings"]]
     assert max(nrmse) < 0.0025, nrmse
     fitted = extended.summary["effects"]["fitted"][0]
@@ -93,11 +87,6 @@ def test_switching_fitted_with_the_base_reaches_the_noise(fits):
     assert extended.summary["effects"]["base"] == "ri1" and "extended by switching" in extended.summary["why"]
     assert [e.effect for e in extended.model.effects] == ["switching"]
 
-
-def test_cli_fit_with_effects_writes_the_extended_model(fits):
-    """`duhem fit --effects switching` (the `fits` fixture's run): it prints the fitted effect and how its state
-    started, and saves the model of its fit, which follows the first recording near the noise."""
-    recs, _, extended, res, out = fits
     assert "effect switching fitted with the base: S1 = " in res.output
     assert "effects started afresh (no recording is a closed loop)" in res.output
     model = load_model(out)
