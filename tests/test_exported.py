@@ -163,13 +163,15 @@ def _friction(bar: int):
 
 
 CASES = {"demo": _demo}
-"""The demo and one recording of each shared rig: a piezo triangle, a piezo trapezoid (holds), the friction
-rig.  Every shared recording: `python bench/export_measured.py` (the same checks, one row each)."""
+"""The demo and one recording of each shared rig, the sharpest: a piezo triangle, the piezo trapezoid and the
+friction run that used not to converge on their raw input (creep_T04, friction 2 bar: the unclosed last cycle;
+friction 2 bar also had a branch amplifying by 1e15, and its FMU is the furthest from the kernel, 3e-6 of the
+range).  Every shared recording: `python bench/export_measured.py` (the same checks, one row each)."""
 if (DATA / "piezo-pnzt").is_dir():
-    for _name in ("slow_T06_triangle_1400V_1Hz", "creep_T01_trapezoid_1400V_1000V_60S"):
+    for _name in ("slow_T06_triangle_1400V_1Hz", "creep_T04_trapezoid_1400V_1200V_1400S"):
         CASES[_name] = (lambda n=_name: _piezo(n))
 if (DATA / "friction-pneumatic").is_dir():
-    CASES["friction 7 bar"] = lambda: _friction(7)
+    CASES["friction 2 bar"] = lambda: _friction(2)
 
 
 @pytest.mark.parametrize("case", list(CASES))
