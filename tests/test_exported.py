@@ -163,15 +163,17 @@ def _friction(bar: int):
 
 
 CASES = {"demo": _demo}
-"""The demo and one recording of each shared rig, the sharpest: a piezo triangle, the piezo trapezoid and the
-friction run that used not to converge on their raw input (creep_T04, friction 2 bar: the unclosed last cycle;
-friction 2 bar also had a branch amplifying by 1e15, and its FMU is the furthest from the kernel, 3e-6 of the
-range).  Every shared recording: `python bench/export_measured.py` (the same checks, one row each)."""
+"""The demo and a few shared recordings, the sharpest: a piezo triangle, the piezo trapezoid and the friction
+run that used not to converge on their raw input (creep_T04, friction 2 bar: the unclosed last cycle; friction
+2 bar also had a branch amplifying by 1e15), and friction 4 bar (since the decimation of 5650e8a an order-4 fit
+whose FMU leaves the kernel by 1e-4 of the range).  Every shared recording: `python bench/export_measured.py`
+(the same checks, one row each)."""
 if (DATA / "piezo-pnzt").is_dir():
     for _name in ("slow_T06_triangle_1400V_1Hz", "creep_T04_trapezoid_1400V_1200V_1400S"):
         CASES[_name] = (lambda n=_name: _piezo(n))
 if (DATA / "friction-pneumatic").is_dir():
-    CASES["friction 2 bar"] = lambda: _friction(2)
+    for _bar in (2, 4):
+        CASES[f"friction {_bar} bar"] = (lambda b=_bar: _friction(b))
 
 
 @pytest.mark.parametrize("case", list(CASES))
