@@ -236,7 +236,7 @@ def test_decimation_keeps_every_turn_and_scores_evenly():
 def test_a_long_recording_of_short_loops_fits_as_well_as_its_first_tenth():
     """30 000 samples of 1000 short loops, fitted on at most 3000 samples each: the model fitted to the whole
     recording scores on it within 5 % of the model fitted to its first tenth, and both near the noise (0.2 %).
-    Scoring each block's first and extreme samples (the previous decimation: 3 samples per loop, at its tips)
+    Scoring each block's first and extreme samples (decimation by blocks: 3 samples per loop, at its tips)
     fits the whole recording 1.4x worse (0.27 % against 0.20 %)."""
     from fitter.data.metrics import compare
     from fitter.identification.fit import fit_recordings

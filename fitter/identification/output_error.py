@@ -58,18 +58,19 @@ A theta whose model cannot be built or simulated, or whose simulation leaves
 Decimation
 ----------
 Recordings longer than ``Options.max_samples`` (M) are decimated for the
-optimisation.  The kept samples are every turning point of the input (the
-last sample before its direction changes) and every k-th sample, k =
-ceil(N / M); the residuals are scored on the every-k-th samples alone (the
-turning points get weight 0).  Between kept samples the input is monotone,
+optimisation.  By blocks: each block of k = ceil(3N / M) samples keeps its
+first, its largest and its smallest input, all scored, so every input
+reversal survives to within a block.  That keeps the branches' shape while
+the input's monotone runs span several blocks; a long recording of many
+short loops (runs shorter than `RUN_BLOCKS` blocks on average) would keep
+little but its loops' tips.  Such a recording keeps every turning point of
+the input (the last sample before its direction changes) and every j-th
+sample, j = ceil(N / M), and only the every-j-th samples are scored (the
+turning points get weight 0): between kept samples the input is monotone,
 so a rate-independent model's state at the kept samples is exact
 (Proposition 1: its output depends on the path of u only), and the scored
-samples are spread evenly along the whole recording: a long recording of
-many short loops is scored along its branches as densely as a short one,
-not only at its turning points.  When the input turns at more than M
-samples (a noisy input), each block of 3N / M samples keeps its first, its
-largest and its smallest input, all scored.  Final residuals are on all
-samples.
+samples are spread evenly along the branches, as densely as in a short
+recording.  Final residuals are on all samples.
 """
 from __future__ import annotations
 
@@ -260,6 +261,11 @@ def _turning_points(u: np.ndarray) -> np.ndarray:
     return np.flatnonzero(direction[1:] * direction[:-1] < 0) + 1
 
 
+RUN_BLOCKS = 4
+"""Decimation by blocks needs the input's monotone runs at least this many blocks long on average (module
+docstring, "Decimation")."""
+
+
 def _keep_indices(u: np.ndarray, max_samples: int | None, cycle) -> tuple[np.ndarray, np.ndarray]:
     """Decimation (module docstring): the kept samples and, of them, those scored (a boolean mask)."""
     n = len(u)
@@ -267,11 +273,11 @@ def _keep_indices(u: np.ndarray, max_samples: int | None, cycle) -> tuple[np.nda
         return np.arange(n), np.ones(n, dtype=bool)
     ends = [] if cycle is None else [cycle[0], cycle[1]]
     turns = _turning_points(u)
-    if len(turns) <= max_samples:
+    k = int(np.ceil(3 * n / max_samples))
+    if len(turns) <= max_samples and n / (len(turns) + 1) < RUN_BLOCKS * k:
         scored = np.r_[np.arange(0, n, int(np.ceil(n / max_samples))), n - 1]
         keep = np.unique(np.r_[scored, turns, ends]).astype(int)
         return keep, np.isin(keep, scored)
-    k = int(np.ceil(3 * n / max_samples))
     nb = n // k
     blocks = u[:nb * k].reshape(nb, k)
     base = np.arange(nb) * k
