@@ -10,9 +10,7 @@ from typing import Callable
 import click
 import numpy as np
 
-from fitter.cli_support import (
-    CliError,
-)
+from fitter.cli_support import CliError
 from fitter.core.checks import check_model
 from fitter.core.effects import REGISTRY
 from fitter.core.files import json_text

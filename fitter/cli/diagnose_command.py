@@ -6,23 +6,9 @@ import contextlib
 
 import click
 
-from fitter.cli.common import (
-    check_backend,
-    check_fmu_name,
-    column_options,
-    effect_names,
-    emit_json,
-    load_model_json,
-    python_host_note,
-    refuse_overwrite,
-    table,
-    time_column,
-)
-from fitter.cli_support import (
-    CliError,
-    FilePath,
-    backend_option,
-)
+from fitter.cli.common import (check_backend, check_fmu_name, column_options, effect_names, emit_json, load_model_json,
+                               python_host_note, refuse_overwrite, table, time_column)
+from fitter.cli_support import CliError, FilePath, backend_option
 from fitter.core.files import atomic_directory, atomic_file, json_text, jsonable
 from fitter.data.recordings import load_recordings
 from fitter.diagnosis import diagnose as run_diagnosis

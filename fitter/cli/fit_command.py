@@ -7,27 +7,10 @@ import contextlib
 import click
 
 from fitter.baselines import comparison
-from fitter.cli.common import (
-    allow_unstable_option,
-    check_backend,
-    check_fmu_name,
-    column_options,
-    effect_names,
-    emit_json,
-    fmt,
-    fmt_list,
-    held_values,
-    python_host_note,
-    refuse_overwrite,
-    table,
-    time_column,
-    warn_minor_loops,
-)
-from fitter.cli_support import (
-    FilePath,
-    Number,
-    backend_option,
-)
+from fitter.cli.common import (allow_unstable_option, check_backend, check_fmu_name, column_options, effect_names,
+                               emit_json, fmt, fmt_list, held_values, python_host_note, refuse_overwrite, table,
+                               time_column, warn_minor_loops)
+from fitter.cli_support import FilePath, Number, backend_option
 from fitter.core.effects import REGISTRY
 from fitter.core.files import atomic_directory, atomic_file, atomic_pair, jsonable
 from fitter.core.models import save_model

@@ -8,32 +8,11 @@ from pathlib import Path
 import click
 import numpy as np
 
-from fitter.cli.common import (
-    DEFAULT_THRESHOLD,
-    EXIT_VALIDATION_FAILED,
-    allow_unstable_option,
-    check_fmu_name,
-    checked,
-    column_options,
-    emit_json,
-    finite_output,
-    load_model_json,
-    open_fmu,
-    platforms,
-    python_host_note,
-    refuse_overwrite,
-    table,
-    time_column,
-    use_unstable_option,
-    warn_minor_loops,
-)
-from fitter.cli_support import (
-    CliError,
-    FilePath,
-    Number,
-    backend_option,
-    fmi_version_option,
-)
+from fitter.cli.common import (DEFAULT_THRESHOLD, EXIT_VALIDATION_FAILED, allow_unstable_option, check_fmu_name,
+                               checked, column_options, emit_json, finite_output, load_model_json, open_fmu, platforms,
+                               python_host_note, refuse_overwrite, table, time_column, use_unstable_option,
+                               warn_minor_loops)
+from fitter.cli_support import CliError, FilePath, Number, backend_option, fmi_version_option
 from fitter.core.checks import check_agreement, with_convergence
 from fitter.core.files import atomic_file
 from fitter.core.inverse import MEASUREMENT_CHOICES

@@ -8,25 +8,9 @@ from pathlib import Path
 import click
 import numpy as np
 
-from fitter.cli.common import (
-    checked,
-    emit_json,
-    finite_output,
-    is_zip,
-    load_model_json,
-    no_time_option,
-    open_fmu,
-    refuse_overwrite,
-    time_column,
-    use_unstable_option,
-    warn_minor_loops,
-)
-from fitter.cli_support import (
-    CliError,
-    FilePath,
-    Number,
-    ordered_pair,
-)
+from fitter.cli.common import (checked, emit_json, finite_output, is_zip, load_model_json, no_time_option, open_fmu,
+                               refuse_overwrite, time_column, use_unstable_option, warn_minor_loops)
+from fitter.cli_support import CliError, FilePath, Number, ordered_pair
 from fitter.core.files import atomic_file
 from fitter.core.inverse import MEASUREMENT_CHOICES, Compensator, linear_gain
 from fitter.core.kernel import simulate as simulate_model

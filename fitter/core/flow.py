@@ -46,8 +46,9 @@ import numpy as np
 
 from .errors import KernelError
 
-__all__ = ["AffineFlow", "check_finite", "check_increasing", "expm", "flows", "integrate", "integrate_blocks",
-           "interval_coefficients", "linear_recurrence", "one_interval", "phi1", "phi2", "phi_blocks"]
+__all__ = ["AffineFlow", "branches", "check_finite", "check_increasing", "expm", "flows", "integrate",
+           "integrate_blocks", "interval_coefficients", "linear_recurrence", "one_interval", "phi1", "phi2",
+           "phi_blocks"]
 
 _COND_LIMIT = 1e6
 _CHUNK_SPAN = 300.0
@@ -340,6 +341,18 @@ def check_increasing(t: np.ndarray) -> None:
                           f"after t[{bad[0]}] = {t[bad[0]]}")
 
 
+def branches(du: np.ndarray) -> np.ndarray:
+    """The branch of each input interval, eq (1): +1 where u rises, -1 where it falls; a held input (du = 0)
+    keeps the previous branch, +1 before the first move."""
+    branch = np.sign(du)
+    if not branch.all():
+        idx = np.where(branch != 0, np.arange(len(du)), 0)
+        np.maximum.accumulate(idx, out=idx)
+        branch = branch[idx]
+        branch[branch == 0] = 1.0
+    return branch
+
+
 def interval_coefficients(model, t: np.ndarray, u: np.ndarray):
     """Per-interval (branch, p, r, S) of (K) for a sampled input; see module docstring.
 
@@ -350,13 +363,7 @@ def interval_coefficients(model, t: np.ndarray, u: np.ndarray):
     du = np.diff(u)
     p = u[:-1]
     if model.kind == "ri":
-        branch = np.sign(du)
-        if not branch.all():
-            idx = np.where(branch != 0, np.arange(len(du)), 0)
-            np.maximum.accumulate(idx, out=idx)
-            branch = branch[idx]
-            branch[branch == 0] = 1.0
-        return branch, p, np.broadcast_to(1.0, du.shape), du
+        return branches(du), p, np.broadcast_to(1.0, du.shape), du
     check_increasing(t)
     dt = np.diff(t)
     v = du / dt

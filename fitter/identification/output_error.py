@@ -81,6 +81,7 @@ import numpy as np
 
 from fitter.core.effects import fresh_state, offset_position, settled_state, shifted, stored_start
 from fitter.core.errors import DuhemError, KernelError
+from fitter.core.flow import branches
 from fitter.core.kernel import flows, simulate, state_response
 from fitter.core.periodic import affine_blocks, fixed_point
 from fitter.data.preparation import prepare
@@ -252,13 +253,10 @@ def simulate_from(model, t, u, y, mode: str, cycle: tuple[int, int] | None, sett
 
 # ----------------------------------------------------------------------------- the recordings problem
 def _turning_points(u: np.ndarray) -> np.ndarray:
-    """Indices where the input turns: the last sample before its direction of motion changes (flat stretches
-    carry the last direction), so the input is monotone between consecutive turning points."""
-    du = np.diff(u)
-    idx = np.where(du != 0, np.arange(len(du)), 0)
-    np.maximum.accumulate(idx, out=idx)
-    direction = np.sign(du[idx])
-    return np.flatnonzero(direction[1:] * direction[:-1] < 0) + 1
+    """Indices where the input turns: the samples where the kernel's branch changes (`fitter.core.flow.branches`),
+    so the input is monotone between consecutive turning points."""
+    branch = branches(np.diff(u))
+    return np.flatnonzero(branch[1:] != branch[:-1]) + 1
 
 
 RUN_BLOCKS = 4

@@ -8,7 +8,7 @@ from statistics import NormalDist
 
 import numpy as np
 
-from ..flow import linear_recurrence
+from ..flow import branches, linear_recurrence
 from .spec import INF, Chain, EffectContext, EffectSpec, ParameterSpec
 
 
@@ -39,10 +39,7 @@ def play_operator(u: np.ndarray, b: float, w0: float) -> np.ndarray:
     w = np.empty_like(u)
     w[0] = min(u[0] + h, max(u[0] - h, w0))
     du = np.diff(u)
-    sgn = np.sign(du)
-    idx = np.where(sgn != 0, np.arange(len(du)), 0)
-    np.maximum.accumulate(idx, out=idx)
-    sgn = np.where(sgn[idx] == 0, 1.0, sgn[idx])
+    sgn = branches(du)
     cuts = np.r_[0, np.flatnonzero(np.diff(sgn)) + 1, len(du)]
     for s0, s1 in zip(cuts[:-1], cuts[1:]):
         seg = u[s0 + 1:s1 + 1]
