@@ -245,3 +245,18 @@ def test_a_long_recording_of_short_loops_fits_as_well_as_its_first_tenth():
     head = Recording(rec.t[:3000], rec.u[:3000], rec.y[:3000])
     scores = [compare(rec, fit_recordings([r], kind="ri", order=2).simulate(rec))["nrmse"] for r in (rec, head)]
     assert scores[0] <= 1.05 * scores[1] and scores[1] < 0.0025, scores
+
+
+def test_a_recording_held_out_of_the_fit_has_its_reference_fitted():
+    """Three recordings of one device, each on its instrument's own zero (offsets 2, 0, -3).  With the first
+    held out of the fit (weights 0), its output reference is fitted with its x0 like the others' (the second,
+    the first with weight, owns the model's reference): the true model predicts it to the noise; before, the
+    first kept the model's own reference and its offset of 2 stayed in its residual."""
+    recs = [_recording(0.5, seed=k, cycles=2.0) for k in range(3)]
+    recs = [Recording(r.t, r.u, r.y + off) for r, off in zip(recs, (2.0, 0.0, -3.0))]
+    weights = [np.zeros(len(recs[0].t)), None, None]
+    residual = Recordings(recs, x0="fit", weights=weights, references=True).residuals(_Five(), TRUE)[2]
+    held = residual[0][2]
+    assert np.sqrt(np.mean(held ** 2)) < 0.012
+    plain = Recordings(recs, x0="fit", references=True).residuals(_Five(), TRUE)[2]
+    assert np.sqrt(np.mean(plain[0][2] ** 2)) > 0.5            # all weighted: the first owns the reference

@@ -301,9 +301,9 @@ class Recordings:
     settle: per recording, whether a model's effect chain starts it from its state settled on it
     (`fitter.core.effects.settled_state`: the recording taken as one cycle of a periodic experiment, as
     ``"periodic"`` takes the base); default None (none): from the effects' stored start, else afresh.
-    references: with ``"fit"``, every recording but the first has its own output reference (the zero of the
-    instrument that wrote it, a constant added to its output) fitted with its x0 even when no effect of
-    the model carries one (`fitted_initial_state`'s ``constant``); default False.
+    references: with ``"fit"``, every recording but the first (`_reference_owner`) has its own output
+    reference (the zero of the instrument that wrote it, a constant added to its output) fitted with its x0
+    even when no effect of the model carries one (`fitted_initial_state`'s ``constant``); default False.
 
     With ``"fit"``, the output's reference of an effect that has one (`fitted_initial_state`) is fitted for
     every recording but the first, whose reference is the model's own: the base carries a constant output
@@ -355,8 +355,9 @@ class Recordings:
         except (ValueError, np.linalg.LinAlgError, FloatingPointError):
             model = None
         parts, info = [], []
+        owner = self._reference_owner()
         for i, (rec, w, cyc, settle) in enumerate(zip(self.recordings, self._w, self.cycles, self._settle)):
-            one = self._one(model, rec, cyc, settle, reference=i > 0)
+            one = self._one(model, rec, cyc, settle, reference=i != owner)
             parts.append(_weighted(one[2], w[one[0]:]))
             info.append(one)
         return (parts[0] if len(parts) == 1 else np.concatenate(parts)), model, info
@@ -411,6 +412,12 @@ class Recordings:
         if not (np.all(np.isfinite(M)) and np.all(np.isfinite(b)) and np.abs(M).max() < 1e150):
             raise KernelError("simulation overflowed")
         return _lstsq_scaled(M, b)
+
+    def _reference_owner(self) -> int:
+        """The recording whose output reference is the model's own: the first with a sample of positive weight
+        (a recording held out of the fit, all weights 0, has its reference fitted like the others', so that
+        it is predicted as every recording is scored)."""
+        return next((i for i, w in enumerate(self._w) if np.any(w > 0)), 0)
 
     def _one(self, model, rec: Recording, cyc, settle: bool = False, reference: bool = True):
         start = cyc[0] if (self.x0 == "periodic" and cyc is not None) else 0
