@@ -8,10 +8,12 @@ dx/dt = g(du/dt) (A x + B u + E); both with y = C x + D u.
 Test modules import the plain functions (``from conftest import ri_model``;
 pytest puts tests/ on sys.path) and request the session fixture `fmu_cache`,
 which builds each (model, backend) FMU once per session, and `holder`, another process holding an
-output's lock (`fitter.core.files.output_lock`).
+output's lock (`fitter.core.files.output_lock`).  The diagnosis' fits run in the test's own process
+(``DUHEM_WORKERS=1``, `fitter.diagnosis.workers`); one test runs it on two processes and compares.
 """
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -24,6 +26,8 @@ from fitter.core import (Experiment, RateDependentModel, RateIndependentModel, S
                          TabulatedRate, simulate)
 from fitter.data.recordings import Recording
 from fitter.paper import example3
+
+os.environ.setdefault("DUHEM_WORKERS", "1")   # the suite runs on pytest-xdist's workers already (one per core)
 
 
 def ri_model(order: int, effects=()) -> RateIndependentModel:

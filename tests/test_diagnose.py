@@ -22,7 +22,7 @@ from fitter.diagnosis import DiagnoseError, JoinedExperiment, diagnose, syntheti
 from fitter.diagnosis.experiment import join_recordings
 from fitter.diagnosis.procedure import CANDIDATES
 from fitter.diagnosis.fitting import Fit, first_order_ri
-from fitter.diagnosis.statistics import effect_report
+from fitter.diagnosis.statistics import effect_report, reversal_report, swing
 from fitter.diagnosis.synthetic import TRUTH_BASE, cell_base
 from fitter.identification.refine import RefineResult, effective_samples as effective_sample_size
 from fitter.identification.parametrisation import StateSpace, WithEffects
@@ -631,3 +631,51 @@ def test_held_out_confirmation_needs_every_recording_and_a_typical_gain():
     assert not confirmed(np.array([1.0, 4.1, 3.0]), np.array([1e6, 4.0, 6.0]))      # one recording worse
     assert not confirmed(np.array([0.9, 0.9, 0.9]), np.array([1.0, 1.0, 1.0]))      # typical gain 10 % only
     assert not confirmed(None, np.array([1.0]))
+
+
+def _switching_fit(ex, values: dict) -> Fit:
+    """A `Fit` of the basic switching form at `values` (physical units) on `ex`'s joined experiment."""
+    fam = WithEffects(StateSpace(BASE), ["switching"], ex.effect_context(0.0), refinements=False)
+    theta = np.r_[fam.base.theta(BASE), fam.encode([values])]
+    result = RefineResult(theta=theta, model=None, residuals=[np.zeros(len(ex.t))], weighted=np.zeros(len(ex.t)),
+                          jac=np.zeros((len(ex.t), fam.size)), nfev=0, success=True)
+    return Fit(fam, result, np.ones(len(ex.t), bool))
+
+
+def test_switching_must_swing_both_ways_to_be_switching():
+    """Domains that switch over and back (thresholds near the tips: at a tip it takes about a second, runs of
+    2-40 s) reverse, ratio near 1; with the up-threshold just beyond the tips and the down-threshold far below,
+    the same effect only creeps up at every tip: a drift in time (ratio 0), which `diagnose` does not take for
+    switching."""
+    recs, _ = synthetic_experiment(None, samples=300)
+    ex = join_recordings(recs)
+    kinetics = {"S1": 0.3, "u_up1": 0.9, "u_dn1": -0.9, "width1": 0.1, "q1": -1.0}
+    drift = {"S1": 0.3, "u_up1": 1.02, "u_dn1": -3.0, "width1": 0.01, "q1": -1.0}
+    rev = reversal_report(_switching_fit(ex, kinetics), ex, "switching")
+    assert rev["reverses"] and rev["ratio"] > 0.9 and rev["rise"] > 1.0
+    one_way = reversal_report(_switching_fit(ex, drift), ex, "switching")
+    assert not one_way["reverses"] and one_way["fall"] < 1e-6 * one_way["rise"] and one_way["rise"] > 0.01
+    assert swing([np.array([0.0, 1.0, 0.5, 2.0])]) == (2.5, 0.5)
+
+
+def test_the_diagnosis_is_the_same_on_two_processes(monkeypatch):
+    """The candidates of a round and the held-out refits run on forked processes (`fitter.diagnosis.workers`);
+    every fit is deterministic, so two processes give the JSON of one, number for number."""
+    recs, _ = synthetic_experiment("viscous", seed=1, samples=200)
+    runs = {}
+    for n in ("1", "2"):
+        monkeypatch.setenv("DUHEM_WORKERS", n)
+        runs[n] = diagnose(recs, base_order=1, candidates=("viscous", "creep", "sensor_lag")).to_json()
+    assert runs["1"]["findings"][0]["effect"] == "viscous"
+    assert runs["1"]["extended"]["heldout_nrmse_per_recording"]
+    assert json.dumps(runs["1"], sort_keys=True) == json.dumps(runs["2"], sort_keys=True)
+
+
+def test_workers_come_from_the_environment(monkeypatch):
+    from fitter.diagnosis.workers import parallel_map, workers
+    monkeypatch.setenv("DUHEM_WORKERS", "3")
+    assert workers() == 3
+    assert parallel_map(lambda k: k * k, [1, 2, 3, 4]) == [1, 4, 9, 16]
+    monkeypatch.setenv("DUHEM_WORKERS", "many")
+    with pytest.raises(ValueError, match="DUHEM_WORKERS='many': give a whole number"):
+        workers()

@@ -4,7 +4,9 @@ Every fit is `fitter.identification.refine.refine` on the joined
 experiment as one recording (x0 = "model": the initial state is part of
 theta) or, for separate runs (`JoinedExperiment.separate`), on each recording
 alone with its initial state fitted to it (x0 = "fit"; theta's x0 is then
-held, and a fit's model carries the first recording's initial state), with
+held, and a fit's model carries the first recording's initial state; the effect chain of a recording that
+is one closed loop, `fitter.data.cycles.closed_loop`, starts from its state settled on it, as
+`duhem fit --effects` starts it: `fitter.identification.effects_fit`), with
 the mask as 0/1 weights, residuals normalised by the output range and the
 tolerances of `OPTIONS` (`problem`).  Separate runs each carry their
 instrument's zero: every recording but the first has its output reference
@@ -42,6 +44,7 @@ converge, condition (5)) and |A| <= 1000 / input range.
 """
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -50,6 +53,7 @@ import numpy as np
 from fitter.core.effects import EffectContext
 from fitter.core.kernel import simulate
 from fitter.core.models import RateIndependentModel, Signals
+from fitter.data.cycles import closed_loop
 from fitter.data.recordings import Recording
 from fitter.diagnosis.experiment import JoinedExperiment
 from fitter.identification.output_error import Recordings
@@ -57,10 +61,15 @@ from fitter.identification.refine import Options, RefineResult, refine
 from fitter.identification.parametrisation import StateSpace, WithEffects
 
 __all__ = ["Fit", "family", "fit_base", "fit_family", "fit_per_recording", "first_order_ri", "free_base", "problem",
-           "output_references", "refit", "OPTIONS"]
+           "output_references", "refit", "with_refinements", "OPTIONS"]
 
 OPTIONS = Options(xtol=1e-7, ftol=1e-7, gtol=1e-8, max_samples=None, normalise=True)
 """Tolerances of every diagnosis fit; the budget is 30 (free parameters + 1) evaluations."""
+
+
+REFINE_STEPS = 60
+"""Steps of the joint refinement of `with_refinements` (a quarter of it for each start's screen): its
+families are the largest of the diagnosis (switching refined: 12 parameters and the base's B, E)."""
 
 
 @dataclass
@@ -111,9 +120,11 @@ def _base_bounds(template, ex: JoinedExperiment) -> tuple[np.ndarray | None, np.
     return lo, hi
 
 
-def family(template, effects: Sequence[str], ex: JoinedExperiment, ctx: EffectContext | None) -> WithEffects:
-    """The parametrisation of `template` extended by `effects` (module docstring)."""
-    return WithEffects(StateSpace(template, *_base_bounds(template, ex)), effects, ctx, refinements=False)
+def family(template, effects: Sequence[str], ex: JoinedExperiment, ctx: EffectContext | None,
+           refinements: bool = False) -> WithEffects:
+    """The parametrisation of `template` extended by `effects` (module docstring; `refinements`: the effects'
+    refinement parameters fitted too, `with_refinements`)."""
+    return WithEffects(StateSpace(template, *_base_bounds(template, ex)), effects, ctx, refinements=refinements)
 
 
 def free_base(fam: WithEffects) -> np.ndarray | None:
@@ -136,19 +147,21 @@ def problem(ex: JoinedExperiment, mask: np.ndarray) -> Recordings:
     (x0 = "model"), or its separate runs (x0 = "fit"), `mask` as 0/1 weights."""
     if ex.separate:
         return Recordings(list(ex.recordings), x0="fit", weights=[mask[s].astype(float) for s in ex.runs()],
-                          references=len(ex.recordings) > 1)
+                          settle=[closed_loop(r) for r in ex.recordings], references=len(ex.recordings) > 1)
     return Recordings([Recording(ex.t, ex.u, ex.y, "experiment")], x0="model", weights=[mask.astype(float)])
 
 
 def _refine(fam: WithEffects, theta0: np.ndarray, ex: JoinedExperiment, mask: np.ndarray,
-            free: np.ndarray | None = None) -> Fit:
+            free: np.ndarray | None = None, iterations: int | None = None) -> Fit:
     """Minimise the sum over `mask` of (y - yhat(theta))^2; only the `free` entries of theta move (and
-    never theta's x0 for separate runs: each run's initial state is fitted inside `problem`)."""
+    never theta's x0 for separate runs: each run's initial state is fitted inside `problem`); at most
+    `iterations` steps (default 30 (free parameters + 1); scipy's count, each step also takes one evaluation
+    per free parameter for its Jacobian)."""
     if ex.separate:
         held = np.r_[[name.startswith("x0[") for name in fam.base.names()], np.zeros(fam.size - fam.n_base, bool)]
         free = ~held if free is None else free & ~held
     n_free = len(theta0) if free is None else int(np.count_nonzero(free))
-    options = Options(**{**vars(OPTIONS), "max_nfev": 30 * (n_free + 1)})
+    options = Options(**{**vars(OPTIONS), "max_nfev": iterations or 30 * (n_free + 1)})
     return Fit(fam, refine(fam, theta0, problem(ex, mask), options, free=free), mask, ex.separate)
 
 
@@ -203,6 +216,31 @@ def _grid_basis(ex: JoinedExperiment, a: float) -> np.ndarray:
         for j in range(5):
             basis[s, j if j < 4 else 4 + r] = simulate(first_order_ri(a, -a, *np.eye(5)[j]), ex.t[s], ex.u[s]).y
     return basis
+
+
+def with_refinements(fit: Fit, names: Sequence[str], ex: JoinedExperiment, mask: np.ndarray,
+                     drop: Sequence[str] = ()) -> Fit | None:
+    """The effects `names` of `fit`'s model (found in their basic form) refitted jointly with their refinement
+    parameters (`ParameterSpec.refinement`: switching's spreads and second population) and the base's free
+    entries (`free_base`), the effects `drop` left out of the model; None when none of `names` has a
+    refinement.  Each refinement start of the effects' `EffectSpec.starts` (the basic parameters at their
+    found values) is screened with the base held; the best is refined jointly (`REFINE_STEPS`)."""
+    found = [e for e in fit.model.effects if e.effect in names]
+    if not any(p.refinement for e in found for p in e.spec.parameters):
+        return None
+    kept = [e for e in fit.model.effects if e.effect not in names and e.effect not in drop]
+    template = fit.model.replace(effects=kept, fit_info={})
+    y_fit = ex.y - fit.residual
+    fam = family(template, [e.effect for e in found], ex, ex.effect_context(float(np.mean(y_fit))), True)
+    combos = {}
+    for combo in itertools.product(*[e.spec.starts(fam.ctx) for e in found]):
+        values = [{p.name: (start if p.refinement else e.parameters)[p.name] for p in e.spec.parameters}
+                  for e, start in zip(found, combo)]
+        combos.setdefault(tuple(fam.encode(values)), None)
+    base = fam.base.theta(template)
+    screened = [_refine(fam, np.r_[base, np.array(c)], ex, mask, _effects_only(fam), REFINE_STEPS // 4)
+                for c in combos]
+    return _refine(fam, min(screened, key=lambda f: f.rss).theta, ex, mask, free_base(fam), REFINE_STEPS)
 
 
 def refit(fit: Fit, ex: JoinedExperiment, mask: np.ndarray) -> Fit:

@@ -13,7 +13,8 @@ is *confirmed on held-out data* (`confirmed`) when, added to the model, it
 lowers the prediction error of every recording, and of a typical one (the
 geometric mean of the ratios) by at least `HELD_OUT_GAIN`: an effect that only bends the fit toward noise or
 toward one recording's peculiarity does not predict the others better.
-With a single recording there is nothing to hold out (None).
+With a single recording there is nothing to hold out (None).  The recordings' refits run on several
+processes (`fitter.diagnosis.workers`).
 """
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ import numpy as np
 from fitter.data.metrics import nrmse
 from fitter.diagnosis.experiment import JoinedExperiment
 from fitter.diagnosis.fitting import Fit, refit
+from fitter.diagnosis.workers import parallel_map
 
 __all__ = ["HELD_OUT_GAIN", "confirmed", "held_out_nrmse", "held_out_rss"]
 
@@ -34,13 +36,14 @@ def _held_out_residuals(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> lis
     """Residual y - yhat on each recording's fitted samples, `fit` refitted without that recording."""
     if len(ex.recordings) < 2:
         return None
-    out = []
-    for k in range(len(ex.recordings)):
+
+    def held_out(k: int) -> np.ndarray:
         part = ex.part(k)
         train = mask.copy()
         train[part] = False
-        out.append(refit(fit, ex, train).residual[part][mask[part]])
-    return out
+        return refit(fit, ex, train).residual[part][mask[part]]
+
+    return parallel_map(held_out, list(range(len(ex.recordings))))
 
 
 def held_out_rss(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> np.ndarray | None:

@@ -16,15 +16,22 @@ Procedure (`diagnose`)
    predicts the held-out last recording better (an effect is not hidden by
    an extra order that fits as well but generalises worse; one recording:
    the lower BIC); a higher order that leaves a misfit above the noise is
-   not taken (the misfit is then physics for the effects to explain), unless
-   the first-order account fails and its first finding stands in for the
-   missing order: when the first-order base with its findings (steps 3-4)
-   stays above `NOISE_MARGIN` times the noise, its first finding does not
-   hold with one parameter set across the recordings, and that effect is
-   not significant on the higher-order base (the order was what it
-   fitted), the search is run on the higher order too, and its account is
-   taken when it reaches the noise and predicts the held-out last recording
-   better (one recording: the lower BIC).  A higher order that reaches the
+   not taken alone (the misfit is then physics for the effects to explain),
+   unless the first-order account fails (`_higher_order_account`): when the
+   first-order base with its findings (steps 3-4) stays above
+   `FAR_FROM_NOISE` times the noise, or above `NOISE_MARGIN` times it with a
+   first finding that does not hold with one parameter set across the
+   recordings and is not significant on the higher-order base (it stood in
+   for the order), the search is run on the higher order too, and its
+   account (refined, step 4) is taken when it predicts the held-out last
+   recording better (one recording: the lower BIC; scikit-learn's model
+   selection), and, in the second case, reaches the noise.  The piezo
+   triangles need the order `duhem fit` chooses, with switching: the
+   first-order base with saturation stays hundreds of times the noise away.
+   On a base below the order `duhem fit` chooses, the reversing effects
+   (switching) are not tested (`_below_order`): they add a hysteretic state
+   and there stand in for the states the base lacks.
+   A higher order that reaches the
    noise with a loop still far from settled when the experiment ends
    (`_unsettled_rms` beyond `NOISE_MARGIN` times the noise: a
    rate-independent base fits a drift of the output with a loop that keeps
@@ -57,7 +64,9 @@ Procedure (`diagnose`)
    relaxation spectrum must also follow the input
    (`statistics.memory_response_report`): its start transient alone is a
    change in time, a drift, not a memory of the material; one that fits only
-   its start is not significant.
+   its start is not significant.  A reversing effect (switching domains,
+   `EffectSpec.reverses`) must swing both ways
+   (`statistics.reversal_report`): one that moves one way only is a drift.
 4. The significant candidates are ranked by BIC, N ln(RSS / N) + p ln N over
    the fitted samples, p the effect's parameters, and for separate recordings
    the reference each but the first fits with its x0 (`EffectSpec.offset`;
@@ -78,7 +87,15 @@ Procedure (`diagnose`)
    (`fitter.diagnosis.statistics.consistency_report`, its ``consistency``):
    when one parameter set does not hold across the recordings, the paragraph
    says that the data follow the effect only approximately (the nearest
-   catalogue effect, not necessarily the physics).
+   catalogue effect, not necessarily the physics).  Last, the findings,
+   tested in their basic form, are refitted with their refinements
+   (`_refined`: switching's threshold spreads and second population), taken
+   when the BIC, counting the refinement parameters, is lower: the extended
+   model is the refined one; the findings after a refined first one are kept
+   only when the refined model with them predicts the held-out last
+   recording better than the refined first finding alone (on the piezo
+   triangles rate_dependence, significant on top of switching's basic form,
+   made the refined model's 0.01 Hz prediction worse).
 
 Every finding carries its origin (`fitter.core.effects.EffectSpec.origin`):
 the material's physics or the measuring chain (a sensor lag, a drift of the
@@ -110,7 +127,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from fitter.core.effects import ORIGINS, REGISTRY
+from fitter.core.effects import ORIGINS, REGISTRY, with_start
 from fitter.core.errors import DuhemError, KernelError
 from fitter.core.kernel import simulate
 from fitter.core.periodic import fixed_point
@@ -118,23 +135,30 @@ from fitter.data.cycles import closed_last_cycle
 from fitter.data.metrics import nrmse, rms
 from fitter.data.recordings import Recording
 from fitter.diagnosis.experiment import DiagnoseError, JoinedExperiment, join_recordings
-from fitter.diagnosis.fitting import Fit, fit_base, fit_family, fit_per_recording, output_references
+from fitter.diagnosis.fitting import (Fit, fit_base, fit_family, fit_per_recording, output_references, refit,
+                                      with_refinements)
 from fitter.diagnosis.locate import locate_mismatch, where_differs
 from fitter.diagnosis.noise_floor import noise_floor
 from fitter.diagnosis.result import Diagnosis
 from fitter.diagnosis.held_out import confirmed, held_out_nrmse, held_out_rss
 from fitter.diagnosis.statistics import (ALPHA, MIN_EXPLAINED, NOISE_MARGIN, consistency_report,
-                                         memory_response_report, effect_report, is_significant, remainder_report)
+                                         memory_response_report, effect_report, is_significant, remainder_report,
+                                         reversal_report)
 from fitter.diagnosis.text import comparison_text, summary_paragraph
+from fitter.diagnosis.workers import parallel_map
 from fitter.identification.exported import described, fitted_range
 from fitter.identification.fit import fit_recordings
 from fitter.identification.refine import effective_samples
 from fitter.progress import Progress, silent
 
-__all__ = ["CANDIDATES", "diagnose"]
+__all__ = ["CANDIDATES", "FAR_FROM_NOISE", "diagnose"]
 
 CANDIDATES = tuple(name for name, spec in REGISTRY.items() if spec.searched)
 """The effects tested by default (`EffectSpec.searched`)."""
+FAR_FROM_NOISE = 10.0
+"""An account (a base and its findings) that leaves over this many times the noise has missed most of the
+structure (99 % of the residual energy is not noise): the higher-order base is searched too, and the account
+that predicts better is taken (`_higher_order_account`)."""
 _FINDING_KEYS = ("effect", "origin", "p_value", "parameters", "stderr", "explained_fraction", "residual_rms", "lr",
                  "df", "n_eff", "confirmed_held_out", "held_out_rss", "held_out_rss_without")
 
@@ -179,21 +203,22 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
     first = fit_base(ex, None, mask)
     floor = noise_floor(ex, first.model)
     noise = floor["rms"]
-    n_steps = len(candidates) * (3 if model is None and base_order is None else 2) + 4
+    n_steps = len(candidates) * (3 if model is None and base_order is None else 2) + 5
     done = [1]
 
     def tick(msg):
         done[0] += 1
         progress(msg, min(done[0] / n_steps, 0.99))
 
-    alternative = None
+    alternative, below = None, False
     if model is None and base_order is None:
-        base, first_round, alternative = _adequate_base(ex, first, mask, noise, candidates, alpha, tick)
+        base, first_round, alternative, below = _adequate_base(ex, first, mask, noise, candidates, alpha, tick)
     else:
         if model is None and base_order != 1:
             model = fit_recordings(ex.recordings, kind="ri", order=base_order).model
         base, first_round = (first if model is None else fit_base(ex, model, mask)), None
-    account = _search(ex, base, first_round, candidates, mask, noise, alpha, max_findings, tick)
+    account = _refined(ex, _search(ex, base, first_round, _below_order(candidates) if below else candidates, mask,
+                                   noise, alpha, max_findings, tick), mask, tick)
     if alternative is not None:
         base, account = _higher_order_account(ex, base, account, alternative, candidates, mask, noise, alpha,
                                               max_findings, tick)
@@ -204,7 +229,7 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
     for f in findings:
         f["partial"] = not remainder["explained"]
     validation, comparison = _validate(ex, base, findings, tested, fits, mask, noise)
-    ext_model = described(current.model, ex.recordings).replace(fit_info={
+    ext_model = described(_with_first_start(current), ex.recordings).replace(fit_info={
         "method": "duhem diagnose", "effects": [f["effect"] for f in findings], "noise_rms": noise,
         "x0": {"stored": np.ravel(current.model.x0).tolist(), "recording": ex.recordings[0].name,
                "u0": float(ex.u[0])}, "fitted_range": fitted_range(ex.recordings)})
@@ -245,7 +270,7 @@ def _search(ex: JoinedExperiment, base: Fit, first_round: list | None, candidate
         if winner is None:
             break
         rep, current = winner
-        findings.append({k: rep[k] for k in _FINDING_KEYS + ("response",) if k in rep})
+        findings.append({k: rep[k] for k in _FINDING_KEYS + ("response", "reversal") if k in rep})
         findings[-1]["consistency"] = _consistency(ex, current, mask, alpha)
         remaining = [c for c in remaining if c != rep["effect"]]
         if rms(current.residual) <= NOISE_MARGIN * noise:
@@ -256,23 +281,49 @@ def _search(ex: JoinedExperiment, base: Fit, first_round: list | None, candidate
 def _higher_order_account(ex: JoinedExperiment, base: Fit, account: tuple, alternative: tuple,
                           candidates: Sequence[str], mask: np.ndarray, noise: float, alpha: float,
                           max_findings: int, tick: Callable[[str], None]) -> tuple[Fit, tuple]:
-    """Step 1's retry (module docstring): the first-order `base` and its `account`, or the higher-order base
-    of `alternative` (its fit and parameter count) with its own account when the first-order account stays
-    above the noise, its first finding is inconsistent across the recordings and not significant on the
-    higher-order base, and the higher-order account reaches the noise and generalises better."""
-    findings = account[1]
-    if not findings or rms(account[0].residual) <= NOISE_MARGIN * noise or \
-            (findings[0]["consistency"] or {}).get("consistent", False):
+    """Step 1's second account (module docstring): the first-order `base` and its `account`, or the base of
+    `alternative` (the order `duhem fit` chooses, its fit and parameter count) with its own account (refined,
+    `_refined`).  Far from the noise (over `FAR_FROM_NOISE` times it) the first-order account is no account of
+    the data, and the one that predicts the held-out last recording better is taken (`_account_error`).  Nearer,
+    the higher order is searched only when the first finding is inconsistent across the recordings and not
+    significant on the higher-order base (it stood in for the order), and its account is taken when it reaches
+    the noise and predicts better."""
+    findings, left = account[1], rms(account[0].residual)
+    if left <= NOISE_MARGIN * noise:
+        return base, account
+    far = left > FAR_FROM_NOISE * noise
+    if not far and (not findings or (findings[0]["consistency"] or {}).get("consistent", False)):
         return base, account
     high, k_high = alternative
-    stand_in = _test_round(ex, high, [findings[0]["effect"]], mask, alpha, len(candidates), tick)
-    if stand_in[0][0]["significant"]:
+    if not far and _test_round(ex, high, [findings[0]["effect"]], mask, alpha, len(candidates), tick)[0][0][
+            "significant"]:
         return base, account
-    other = _search(ex, high, None, candidates, mask, noise, alpha, max_findings, tick)
-    if other[1] and rms(other[0].residual) <= NOISE_MARGIN * noise and \
-            _account_error(ex, other, k_high, mask) < _account_error(ex, account, base.family.n_base, mask):
+    other = _refined(ex, _search(ex, high, None, candidates, mask, noise, alpha, max_findings, tick), mask, tick)
+    adequate = far or (other[1] and rms(other[0].residual) <= NOISE_MARGIN * noise)
+    if adequate and _account_error(ex, other, k_high, mask) < _account_error(ex, account, base.family.n_base, mask):
         return high, other
     return base, account
+
+
+def _refined(ex: JoinedExperiment, account: tuple, mask: np.ndarray, tick: Callable[[str], None]) -> tuple:
+    """Step 4's last part (module docstring): the account (`_search`) with its extended fit's findings, tested
+    in their basic form, refitted with their refinement parameters (`fitter.diagnosis.fitting.with_refinements`)
+    when the BIC counting them (`_bic`) is lower; the first finding alone, refined, when it predicts the
+    held-out last recording at least as well (`_held_out_rms`) as all of them."""
+    fit, findings = account[0], account[1]
+    if not findings:
+        return account
+    tick("refining the findings")
+    names = [f["effect"] for f in findings]
+    refined = with_refinements(fit, names, ex, mask)
+    extra = sum(p.refinement for f in findings for p in REGISTRY[f["effect"]].parameters)
+    if refined is None or _bic(refined, extra) >= _bic(fit, 0):
+        return account
+    if len(names) > 1 and len(ex.recordings) > 1:
+        first = with_refinements(fit, names[:1], ex, mask, drop=names[1:])
+        if first is not None and _held_out_rms(ex, first, mask) <= _held_out_rms(ex, refined, mask):
+            return (first, findings[:1], *account[2:])
+    return (refined, *account[1:])
 
 
 def _account_error(ex: JoinedExperiment, account: tuple, k_base: int, mask: np.ndarray) -> float:
@@ -292,9 +343,10 @@ def _bic(fit: Fit, n_parameters: int) -> float:
 
 
 def _adequate_base(ex: JoinedExperiment, first: Fit, mask: np.ndarray, noise: float, candidates: Sequence[str],
-                   alpha: float, tick: Callable[[str], None]) -> tuple[Fit, list | None, tuple | None]:
-    """The base of step 1 (module docstring) and, when it is the first-order base, its first round of
-    candidate tests (reused by the search).
+                   alpha: float, tick: Callable[[str], None]) -> tuple[Fit, list | None, tuple | None, bool]:
+    """The base of step 1 (module docstring), when it is the first-order base its first round of candidate
+    tests (reused by the search), the higher-order alternative (`_higher_order_account`) and whether the
+    base is below the order `duhem fit` chooses (its candidates then `_below_order`).
 
     The order-n base is taken only when it alone is adequate (residual within `NOISE_MARGIN` of the
     noise): otherwise the misfit is more than a missing order, and the first-order base stays for the
@@ -305,27 +357,35 @@ def _adequate_base(ex: JoinedExperiment, first: Fit, mask: np.ndarray, noise: fl
     7 for the first-order base plus the effect's; for the order-n base its canonical parameters
     (`fit_recordings`) plus its n initial states)."""
     if rms(first.residual) <= NOISE_MARGIN * noise:
-        return first, None, None
+        return first, None, None, False
     tick("choosing the base order (BIC)")
     higher = fit_recordings(ex.recordings, kind="ri")
     order = higher.model.order
     if order == 1:
-        return first, None, None
+        return first, None, None, False
     high = fit_base(ex, higher.model, mask)
     k_high = next(c["parameters"] for c in higher.summary["candidates"] if c["order"] == order) + order
     if not _settled_at_noise(high, ex, noise):
         lower = _settled_lower_order(ex, mask, noise, order)
-        return (lower, None, None) if lower is not None else (first, None, (high, k_high))
-    results = _test_round(ex, first, candidates, mask, alpha, len(candidates), tick)
+        return (lower, None, None, True) if lower is not None else (first, None, (high, k_high), True)
+    below = _below_order(candidates)
+    results = _test_round(ex, first, below, mask, alpha, len(below), tick)
     best = next((f for r, f in results if r["significant"]), None)
     if best is None or rms(best.residual) > NOISE_MARGIN * noise or \
             _structured(ex, best, mask, alpha) and not _structured(ex, high, mask, alpha):
-        return high, None, None
+        return high, None, None, False
     if len(ex.recordings) > 1:
         better = _held_out_rms(ex, best, mask) < _held_out_rms(ex, high, mask)
     else:
         better = _bic(best, best.family.size) < _bic(high, k_high)
-    return (first, results, None) if better else (high, None, None)
+    return (first, results, None, True) if better else (high, None, None, False)
+
+
+def _below_order(candidates: Sequence[str]) -> list[str]:
+    """The candidates tested on a base below the order `duhem fit` chooses: not the reversing effects
+    (`EffectSpec.reverses`), which add a hysteretic state and on such a base stand in for the states it
+    lacks (switching fitted a Bouc-Wen loop's shape, and its drift with it, on a first-order base)."""
+    return [c for c in candidates if not REGISTRY[c].reverses]
 
 
 def _settled_at_noise(fit: Fit, ex: JoinedExperiment, noise: float) -> bool:
@@ -377,48 +437,66 @@ def _unsettled_rms(fit: Fit, ex: JoinedExperiment) -> float:
 
 
 def _held_out_rms(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> float:
-    """RMS error on the last recording of `fit`'s family refitted on the others (from `fit`'s values)."""
+    """RMS error on the last recording of `fit`'s family refitted on the others: from the best of its effects'
+    starts (`fit_family`), or for refined effects (`_refined`) from `fit`'s values
+    (`fitter.diagnosis.fitting.refit`)."""
     train = mask.copy()
     train[ex.part(len(ex.recordings) - 1)] = False
     fam = fit.family
-    refit = fit_family(fam.base.template, fam.effects, fit.theta[:fam.n_base], ex, train, ex.y - fit.residual)
-    return rms(refit.residual[~train])
+    if any(par.refinement for _, par in fam.keys):
+        return rms(refit(fit, ex, train).residual[~train])
+    again = fit_family(fam.base.template, fam.effects, fit.theta[:fam.n_base], ex, train, ex.y - fit.residual)
+    return rms(again.residual[~train])
 
 
 def _test_round(ex: JoinedExperiment, current: Fit, names: Sequence[str], mask: np.ndarray,
                 alpha: float, n_candidates: int, tick: Callable[[str], None]) -> list[tuple[dict, Fit]]:
-    """Fit and test each candidate on top of `current` (base + the effects found); sorted by BIC (`_bic`, the
-    effect's parameters counted: module docstring, step 4)."""
-    base = current.theta[:current.family.n_base]
-    results, null_held_out = [], []
+    """Fit and test each candidate on top of `current` (base + the effects found; the candidates' fits and
+    held-out refits on several processes, `fitter.diagnosis.workers`); sorted by BIC (`_bic`, the effect's
+    parameters counted: module docstring, step 4)."""
     for name in names:
         tick(f"testing {name}")
-        fit = fit_family(current.model, [name], base, ex, mask, ex.y - current.residual)
-        rep = effect_report(fit, current.rss, effective_samples(fit.residual), _freedoms(name, ex))
-        rep["effect"] = name
-        rep["origin"] = REGISTRY[name].origin
-        rep["significant"] = is_significant(rep, alpha, n_candidates)
-        if not rep["significant"] and rep["explained_fraction"] >= MIN_EXPLAINED and len(ex.recordings) > 1:
-            if not null_held_out:
-                null_held_out.append(held_out_rss(ex, current, mask))
-            rep["held_out_rss"] = held_out_rss(ex, fit, mask).tolist()
-            rep["held_out_rss_without"] = null_held_out[0].tolist()
-            rep["significant"] = rep["confirmed_held_out"] = confirmed(np.array(rep["held_out_rss"]),
-                                                                       null_held_out[0])
+    results = parallel_map(lambda name: _candidate(ex, current, name, mask, alpha, n_candidates), list(names))
+    if any("held_out_rss" in rep for rep, _ in results):
+        without = held_out_rss(ex, current, mask)
+        for rep, _ in results:
+            if "held_out_rss" in rep:
+                rep["held_out_rss_without"] = without.tolist()
+                rep["significant"] = rep["confirmed_held_out"] = confirmed(np.array(rep["held_out_rss"]), without)
+    for rep, fit in results:
+        name = rep["effect"]
         if rep["significant"] and REGISTRY[name].memory_taus(rep["parameters"]) is not None:
             rep["response"] = memory_response_report(fit, ex, name, rep["n_eff"], alpha, n_candidates)
             rep["significant"] = rep["response"]["follows_input"]
-        results.append((rep, fit))
+        if rep["significant"] and REGISTRY[name].reverses:
+            rep["reversal"] = reversal_report(fit, ex, name)
+            rep["significant"] = rep["reversal"]["reverses"]
     results.sort(key=lambda rf: _bic(rf[1], _freedoms(rf[0]["effect"], ex)))
     return results
 
 
+def _candidate(ex: JoinedExperiment, current: Fit, name: str, mask: np.ndarray, alpha: float,
+               n_candidates: int) -> tuple[dict, Fit]:
+    """One candidate of `_test_round`: its joint fit and report (significance by the likelihood ratio); with two
+    or more recordings, one it cannot establish that explains at least `MIN_EXPLAINED` also gets its held-out
+    squared errors (``held_out_rss``), for `_test_round` to confirm against the model without it."""
+    fit = fit_family(current.model, [name], current.theta[:current.family.n_base], ex, mask, ex.y - current.residual)
+    rep = effect_report(fit, current.rss, effective_samples(fit.residual), _freedoms(name, ex))
+    rep.update(effect=name, origin=REGISTRY[name].origin)
+    rep["significant"] = is_significant(rep, alpha, n_candidates)
+    if not rep["significant"] and rep["explained_fraction"] >= MIN_EXPLAINED and len(ex.recordings) > 1:
+        rep["held_out_rss"] = held_out_rss(ex, fit, mask).tolist()
+    return rep, fit
+
+
 def _freedoms(name: str, ex: JoinedExperiment) -> int:
-    """The number of values an effect adds to the fit: its parameters and, for separate recordings (each
-    with its initial state fitted), the reference of each but the first (`EffectSpec.offset`; the first's is
-    the base's, `fitter.identification.output_error.Recordings`)."""
+    """The number of values an effect adds to the fit: its parameters fitted in its basic form (not those
+    declared ``refinement``, held at their defaults: `fitter.diagnosis.fitting`) and, for separate recordings
+    (each with its initial state fitted), the reference of each but the first (`EffectSpec.offset`; the
+    first's is the base's, `fitter.identification.output_error.Recordings`)."""
     spec = REGISTRY[name]
-    return len(spec.parameters) + (len(ex.recordings) - 1 if ex.separate and spec.offset else 0)
+    fitted = sum(not p.refinement for p in spec.parameters)
+    return fitted + (len(ex.recordings) - 1 if ex.separate and spec.offset else 0)
 
 
 def _consistency(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, alpha: float) -> dict | None:
@@ -485,6 +563,15 @@ def _validate(ex: JoinedExperiment, base: Fit, findings: list, tested: list, fit
     else:
         out["confirmed"] = bool(out[win] < out["base"])
     return out, comparison_text(findings[0], runner, out, noise, worst)
+
+
+def _with_first_start(fit: Fit):
+    """`fit`'s model with its effects' stored start the first recording's (settled on it where it is a closed
+    loop, `fitter.diagnosis.fitting.problem`), so that the model runs from where the fit started it."""
+    states = fit.result.states
+    if fit.separate and states and states[0] is not None:
+        return with_start(fit.model, states[0])
+    return fit.model
 
 
 def _summary(ex: JoinedExperiment, model_fit: Fit, noise: float) -> dict:

@@ -41,6 +41,13 @@ is its start, a change in time (a drift: an exponential drift over the
 experiment is fitted by a creep with tau near the duration, or a relaxation
 spectrum, with no response, or one of the opposite sign, to the input).
 
+Does a reversing effect swing both ways (`reversal_report`)?  An effect whose output is a state the input
+drives both ways (`EffectSpec.reverses`: switching domains) fits a drift in time too, with thresholds
+just beyond the input's tips, where it moves one way a little at every tip.  Its fitted output c (on each
+run, started afresh, everything else off) rises by V+ = sum max(dc, 0) and falls by V- = sum
+max(-dc, 0); it reverses when min(V+, V-) >= `REVERSAL_MIN` max(V+, V-).  A population that switches over
+and back once in a run gives a ratio near 1 from any start but the far tip's; a drift gives 0.
+
 Is the residual left explained (`remainder_report`)?  Under "explained" it is
 the white measurement noise the noise level assumes; a remainder that a
 missing effect leaves is smooth, so its samples correlate with their
@@ -67,12 +74,14 @@ from fitter.core.effects import REGISTRY, Chain
 from fitter.diagnosis.experiment import JoinedExperiment
 from fitter.diagnosis.fitting import Fit
 
-__all__ = ["ALPHA", "MIN_EXPLAINED", "NOISE_MARGIN", "consistency_report", "effect_report", "is_significant",
-           "memory_response_report", "remainder_report"]
+__all__ = ["ALPHA", "MIN_EXPLAINED", "NOISE_MARGIN", "REVERSAL_MIN", "consistency_report",
+           "effect_report", "is_significant", "memory_response_report", "remainder_report", "reversal_report", "swing"]
 
 ALPHA = 0.01
 MIN_EXPLAINED = 0.02
 NOISE_MARGIN = 1.2
+REVERSAL_MIN = 0.25
+"""Least ratio of the smaller to the larger one-way travel of a reversing effect's output (`reversal_report`)."""
 START_TRANSIENTS = 6
 """Generic start transients per run in `memory_response_report` (module docstring)."""
 
@@ -155,6 +164,28 @@ def memory_response_report(fit: Fit, ex: JoinedExperiment, name: str, n_eff: flo
     p = float(chi2.sf(max(lr, 0.0), 1))
     return {"gain_response": gain, "lr": lr, "p_value": p,
             "follows_input": bool(gain * k > 0 and p < alpha / n_candidates)}
+
+
+def swing(outputs: list[np.ndarray]) -> tuple[float, float]:
+    """(V+, V-): the total rise and the total fall of the signals in `outputs` (one per run)."""
+    steps = np.concatenate([np.diff(c) for c in outputs]) if outputs else np.zeros(0)
+    return float(np.sum(np.maximum(steps, 0.0))), float(np.sum(np.maximum(-steps, 0.0)))
+
+
+def reversal_report(fit: Fit, ex: JoinedExperiment, name: str) -> dict:
+    """Does the reversing effect `name` of `fit` swing both ways (module docstring)?  Its output alone on
+    each run, started afresh: ``rise`` V+, ``fall`` V-, ``ratio`` min / max and ``reverses`` (ratio >=
+    `REVERSAL_MIN`)."""
+    spec = REGISTRY[name]
+    par = next(e.parameters for e in fit.family.effect_list(fit.theta) if e.effect == name)
+    outputs = []
+    for s in ex.runs():
+        chain = Chain(t=ex.t[s], u=ex.u[s], h=np.diff(ex.t[s]), w=ex.u[s], y=np.zeros(s.stop - s.start))
+        spec.apply(par, chain, None)
+        outputs.append(chain.y)
+    rise, fall = swing(outputs)
+    ratio = min(rise, fall) / max(rise, fall) if max(rise, fall) > 0 else 0.0
+    return {"rise": rise, "fall": fall, "ratio": ratio, "reverses": bool(ratio >= REVERSAL_MIN)}
 
 
 def _linear_fit(columns: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, float]:

@@ -266,10 +266,10 @@ class Switching(EffectSpec):
     example = {"S1": 0.3, "u_up1": 0.5, "u_dn1": -0.5, "width1": 0.1, "q1": -1.0, "spread1": 0.0,
                "S2": 0.0, "u_up2": 0.8, "u_dn2": -0.8, "width2": 0.05, "q2": -1.0, "spread2": 0.0}
     strength = "S1"
-    searched = False
-    """Not tested by `duhem diagnose` unless named: with its thresholds just beyond the input's tips it switches
-    slowly at every tip, a drift in time, and was named for quadratic and exponential output drifts
-    (`bench/diagnose_generality.py`)."""
+    reverses = True
+    """With its thresholds just beyond the input's tips it switches slowly at every tip, one way: a drift in
+    time, which the generality sweep's quadratic and exponential output drifts were named as before
+    `duhem diagnose` asked for the swing both ways (`fitter.diagnosis.statistics.reversal_report`)."""
 
     def c_constants(self) -> dict[str, int | float | tuple[float, ...]]:
         """Populations, shares, their threshold offsets and the caps of the switching integrals."""

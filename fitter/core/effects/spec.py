@@ -137,6 +137,9 @@ class EffectSpec(ABC):
     offset : the name of a state whose start is added to the output at every sample and does nothing else
         (a reference, `offset_position`): an initial state fitted to a recording fits it with the base's x0
         (`fitter.identification.output_error.fitted_initial_state`); None for every other effect
+    reverses : its output is a state the input drives both ways (domains switching back and forth):
+        `duhem diagnose` takes it only when its fitted output swings both ways
+        (`fitter.diagnosis.statistics.reversal_report`), since a one-way swing is a drift in time
     searched : `duhem diagnose` tests it by default (`fitter.diagnosis.procedure.CANDIDATES`); an effect that
         can stand in for other physics is tested only when named (``--candidates``) or fitted when named
         (``duhem fit --effects``)
@@ -156,6 +159,7 @@ class EffectSpec(ABC):
     steady: bool = True
     follows_output: bool = False
     offset: str | None = None
+    reverses: bool = False
     searched: bool = True
 
     @property
