@@ -28,11 +28,10 @@ from pathlib import Path
 from fitter.baselines import compare_baselines
 from fitter.data.recordings import load_recordings
 from fitter.diagnosis import diagnose
+from real_data import DATA, PIEZO          # the shared data's place and the piezo triangles (bench/real_data.py)
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 SETS = {
-    "piezo": ("piezo-pnzt", ["slow_T06_triangle_1400V_1Hz", "slow_T01_triangle_1400V_0.1Hz",
-                             "slow_T02_triangle_1400V_0.01Hz"], ("time_s", "voltage_V", "polarization_uC_per_cm2")),
+    "piezo": ("piezo-pnzt", list(PIEZO.values()), ("time_s", "voltage_V", "polarization_uC_per_cm2")),
     "creep": ("piezo-pnzt", [f"creep_T0{k}_trapezoid_1400V_{v}" for k, v in
                              ((1, "1000V_60S"), (2, "1000V_60S"), (3, "1200V_105S"), (4, "1200V_1400S"))],
               ("time_s", "voltage_V", "polarization_uC_per_cm2")),

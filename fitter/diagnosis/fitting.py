@@ -45,7 +45,7 @@ converge, condition (5)) and |A| <= 1000 / input range.
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
@@ -80,6 +80,9 @@ class Fit:
     result: RefineResult
     mask: np.ndarray
     separate: bool = False
+    held_out: dict = field(default_factory=dict, repr=False, compare=False)
+    """Residuals of each recording predicted by this fit refitted without it, by (recording, mask)
+    (`fitter.diagnosis.held_out.held_out_residual`)."""
 
     @property
     def theta(self) -> np.ndarray:

@@ -25,7 +25,7 @@ from fitter.diagnosis.experiment import JoinedExperiment
 from fitter.diagnosis.fitting import Fit, refit
 from fitter.diagnosis.workers import parallel_map
 
-__all__ = ["HELD_OUT_GAIN", "confirmed", "held_out_nrmse", "held_out_rss"]
+__all__ = ["HELD_OUT_GAIN", "confirmed", "held_out_nrmse", "held_out_residual", "held_out_rss"]
 
 HELD_OUT_GAIN = 0.25
 """Fraction of the held-out squared error of a typical recording that an effect must remove (`confirmed`;
@@ -36,14 +36,21 @@ def _held_out_residuals(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> lis
     """Residual y - yhat on each recording's fitted samples, `fit` refitted without that recording."""
     if len(ex.recordings) < 2:
         return None
+    out = parallel_map(lambda k: held_out_residual(ex, fit, mask, k), list(range(len(ex.recordings))))
+    fit.held_out.update({(k, mask.tobytes()): r for k, r in enumerate(out)})     # computed in other processes
+    return out
 
-    def held_out(k: int) -> np.ndarray:
+
+def held_out_residual(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, k: int) -> np.ndarray:
+    """Residual y - yhat on recording `k`'s fitted samples, `fit` refitted without it (`refit`); computed once
+    per fit, recording and mask (`Fit.held_out`)."""
+    key = (k, mask.tobytes())
+    if key not in fit.held_out:
         part = ex.part(k)
         train = mask.copy()
         train[part] = False
-        return refit(fit, ex, train).residual[part][mask[part]]
-
-    return parallel_map(held_out, list(range(len(ex.recordings))))
+        fit.held_out[key] = refit(fit, ex, train).residual[part][mask[part]]
+    return fit.held_out[key]
 
 
 def held_out_rss(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> np.ndarray | None:

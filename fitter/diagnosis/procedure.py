@@ -135,12 +135,12 @@ from fitter.data.cycles import closed_last_cycle
 from fitter.data.metrics import nrmse, rms
 from fitter.data.recordings import Recording
 from fitter.diagnosis.experiment import DiagnoseError, JoinedExperiment, join_recordings
-from fitter.diagnosis.fitting import (Fit, fit_base, fit_family, fit_per_recording, output_references, refit,
+from fitter.diagnosis.fitting import (Fit, fit_base, fit_family, fit_per_recording, output_references,
                                       with_refinements)
 from fitter.diagnosis.locate import locate_mismatch, where_differs
 from fitter.diagnosis.noise_floor import noise_floor
 from fitter.diagnosis.result import Diagnosis
-from fitter.diagnosis.held_out import confirmed, held_out_nrmse, held_out_rss
+from fitter.diagnosis.held_out import confirmed, held_out_nrmse, held_out_residual, held_out_rss
 from fitter.diagnosis.statistics import (ALPHA, MIN_EXPLAINED, NOISE_MARGIN, consistency_report,
                                          memory_response_report, effect_report, is_significant, remainder_report,
                                          reversal_report)
@@ -439,12 +439,13 @@ def _unsettled_rms(fit: Fit, ex: JoinedExperiment) -> float:
 def _held_out_rms(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> float:
     """RMS error on the last recording of `fit`'s family refitted on the others: from the best of its effects'
     starts (`fit_family`), or for refined effects (`_refined`) from `fit`'s values
-    (`fitter.diagnosis.fitting.refit`)."""
-    train = mask.copy()
-    train[ex.part(len(ex.recordings) - 1)] = False
+    (`fitter.diagnosis.held_out.held_out_residual`, once per fit)."""
+    last = len(ex.recordings) - 1
     fam = fit.family
     if any(par.refinement for _, par in fam.keys):
-        return rms(refit(fit, ex, train).residual[~train])
+        return rms(held_out_residual(ex, fit, mask, last))
+    train = mask.copy()
+    train[ex.part(last)] = False
     again = fit_family(fam.base.template, fam.effects, fit.theta[:fam.n_base], ex, train, ex.y - fit.residual)
     return rms(again.residual[~train])
 

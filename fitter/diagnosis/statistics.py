@@ -138,14 +138,10 @@ def memory_response_report(fit: Fit, ex: JoinedExperiment, name: str, n_eff: flo
     spec = REGISTRY[name]
     par = next(e.parameters for e in fam.effect_list(fit.theta) if e.effect == name)
     k, taus = float(par["k"]), spec.memory_taus(par)
-    unit = dict(par, k=1.0)
-    L = np.zeros(len(ex.t))                                         # the output per unit k
+    L = np.concatenate(_alone(spec, dict(par, k=1.0), ex))            # the output per unit k
     runs = ex.runs()
     E = np.zeros((len(ex.t), len(runs) * (len(taus) + START_TRANSIENTS)))
     for j, s in enumerate(runs):
-        chain = Chain(t=ex.t[s], u=ex.u[s], h=np.diff(ex.t[s]), w=ex.u[s], y=np.zeros(s.stop - s.start))
-        spec.apply(unit, chain, None)
-        L[s] = chain.y
         elapsed = ex.t[s] - ex.t[s][0]
         step = float(np.median(np.diff(ex.t[s]))) if s.stop - s.start > 1 else 1.0
         generic = np.geomspace(3 * step, max(elapsed[-1], 3 * step), START_TRANSIENTS)
@@ -166,6 +162,17 @@ def memory_response_report(fit: Fit, ex: JoinedExperiment, name: str, n_eff: flo
             "follows_input": bool(gain * k > 0 and p < alpha / n_candidates)}
 
 
+def _alone(spec, par: dict, ex: JoinedExperiment) -> list[np.ndarray]:
+    """The output of effect `spec` alone (the input as its only signal, y = 0 before it) at parameters `par`
+    on each run of `ex` (`JoinedExperiment.runs`, which cover every sample), started afresh."""
+    outputs = []
+    for s in ex.runs():
+        chain = Chain(t=ex.t[s], u=ex.u[s], h=np.diff(ex.t[s]), w=ex.u[s], y=np.zeros(s.stop - s.start))
+        spec.apply(par, chain, None)
+        outputs.append(chain.y)
+    return outputs
+
+
 def swing(outputs: list[np.ndarray]) -> tuple[float, float]:
     """(V+, V-): the total rise and the total fall of the signals in `outputs` (one per run)."""
     steps = np.concatenate([np.diff(c) for c in outputs]) if outputs else np.zeros(0)
@@ -176,14 +183,8 @@ def reversal_report(fit: Fit, ex: JoinedExperiment, name: str) -> dict:
     """Does the reversing effect `name` of `fit` swing both ways (module docstring)?  Its output alone on
     each run, started afresh: ``rise`` V+, ``fall`` V-, ``ratio`` min / max and ``reverses`` (ratio >=
     `REVERSAL_MIN`)."""
-    spec = REGISTRY[name]
     par = next(e.parameters for e in fit.family.effect_list(fit.theta) if e.effect == name)
-    outputs = []
-    for s in ex.runs():
-        chain = Chain(t=ex.t[s], u=ex.u[s], h=np.diff(ex.t[s]), w=ex.u[s], y=np.zeros(s.stop - s.start))
-        spec.apply(par, chain, None)
-        outputs.append(chain.y)
-    rise, fall = swing(outputs)
+    rise, fall = swing(_alone(REGISTRY[name], par, ex))
     ratio = min(rise, fall) / max(rise, fall) if max(rise, fall) > 0 else 0.0
     return {"rise": rise, "fall": fall, "ratio": ratio, "reverses": bool(ratio >= REVERSAL_MIN)}
 
