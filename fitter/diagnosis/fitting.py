@@ -80,6 +80,8 @@ class Fit:
     result: RefineResult
     mask: np.ndarray
     separate: bool = False
+    steps: int | None = None
+    """The iteration budget the fit had (None: the default of `_refine`); its refits (`refit`) have the same."""
     held_out: dict = field(default_factory=dict, repr=False, compare=False)
     """Residuals of each recording predicted by this fit refitted without it, by (recording, mask)
     (`fitter.diagnosis.held_out.held_out_residual`)."""
@@ -165,7 +167,7 @@ def _refine(fam: WithEffects, theta0: np.ndarray, ex: JoinedExperiment, mask: np
         free = ~held if free is None else free & ~held
     n_free = len(theta0) if free is None else int(np.count_nonzero(free))
     options = Options(**{**vars(OPTIONS), "max_nfev": iterations or 30 * (n_free + 1)})
-    return Fit(fam, refine(fam, theta0, problem(ex, mask), options, free=free), mask, ex.separate)
+    return Fit(fam, refine(fam, theta0, problem(ex, mask), options, free=free), mask, ex.separate, iterations)
 
 
 def fit_family(template, effects: Sequence[str], base: np.ndarray, ex: JoinedExperiment, mask: np.ndarray,
@@ -248,8 +250,9 @@ def with_refinements(fit: Fit, names: Sequence[str], ex: JoinedExperiment, mask:
 
 def refit(fit: Fit, ex: JoinedExperiment, mask: np.ndarray) -> Fit:
     """`fit`'s family refined on the samples of `mask`, from `fit`'s values, with the same free entries
-    (`free_base`): the fit as it would have ended on that part of the data."""
-    return _refine(fit.family, fit.theta, ex, mask, free_base(fit.family))
+    (`free_base`) and iteration budget (`Fit.steps`: a refined family, `with_refinements`, has
+    `REFINE_STEPS`): the fit as it would have ended on that part of the data."""
+    return _refine(fit.family, fit.theta, ex, mask, free_base(fit.family), fit.steps)
 
 
 def output_references(fit: Fit, ex: JoinedExperiment) -> dict[str, float] | None:

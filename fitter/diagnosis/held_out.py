@@ -25,7 +25,7 @@ from fitter.diagnosis.experiment import JoinedExperiment
 from fitter.diagnosis.fitting import Fit, refit
 from fitter.diagnosis.workers import parallel_map
 
-__all__ = ["HELD_OUT_GAIN", "confirmed", "held_out_nrmse", "held_out_residual", "held_out_rss"]
+__all__ = ["HELD_OUT_GAIN", "confirmed", "held_out_nrmse", "held_out_residual", "held_out_rss", "prediction_error"]
 
 HELD_OUT_GAIN = 0.25
 """Fraction of the held-out squared error of a typical recording that an effect must remove (`confirmed`;
@@ -39,6 +39,22 @@ def _held_out_residuals(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> lis
     out = parallel_map(lambda k: held_out_residual(ex, fit, mask, k), list(range(len(ex.recordings))))
     fit.held_out.update({(k, mask.tobytes()): r for k, r in enumerate(out)})     # computed in other processes
     return out
+
+
+def prediction_error(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> float:
+    """The mean NRMSE of the recordings predicted by `fit` refitted without each (leave one recording out), over
+    those whose start a prediction knows: every separate run (its initial state fitted to it), on one clock
+    every recording but the first (its state carried in from the recordings before it; the first's would be
+    the model's x0 fitted to later data only, unconstrained).  Each recording on its own range, so that a
+    model is not chosen for predicting one of them."""
+    ks = list(range(len(ex.recordings) if ex.separate else 1, len(ex.recordings)))
+    parts = parallel_map(lambda k: held_out_residual(ex, fit, mask, k), ks)
+    out = []
+    for k, r in zip(ks, parts):
+        fit.held_out[(k, mask.tobytes())] = r
+        y = ex.y[ex.part(k)][mask[ex.part(k)]]
+        out.append(nrmse(y, y - r))
+    return float(np.mean(out))
 
 
 def held_out_residual(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, k: int) -> np.ndarray:
