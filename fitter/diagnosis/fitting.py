@@ -5,8 +5,9 @@ experiment as one recording (x0 = "model": the initial state is part of
 theta) or, for separate runs (`JoinedExperiment.separate`), on each recording
 alone with its initial state fitted to it (x0 = "fit"; theta's x0 is then
 held, and a fit's model carries the first recording's initial state; the effect chain of a recording that
-is one closed loop, `fitter.data.cycles.closed_loop`, starts from its state settled on it, as
-`duhem fit --effects` starts it: `fitter.identification.effects_fit`), with
+is one closed loop, `fitter.data.cycles.closed_loop`, and no longer than its share of `SAMPLES`, starts from its state
+settled on it, as `duhem fit --effects` starts it: `fitter.identification.effects_fit`; longer runs are decimated
+for the optimisation, `SAMPLES`), with
 the mask as 0/1 weights, residuals normalised by the output range and the
 tolerances of `OPTIONS` (`problem`).  Separate runs each carry their
 instrument's zero: every recording but the first has its output reference
@@ -66,6 +67,11 @@ __all__ = ["Fit", "family", "fit_base", "fit_family", "fit_per_recording", "firs
 OPTIONS = Options(xtol=1e-7, ftol=1e-7, gtol=1e-8, max_samples=None, normalise=True)
 """Tolerances of every diagnosis fit; the budget is 30 (free parameters + 1) evaluations."""
 
+
+SAMPLES = 2400
+"""The samples every fit of separate runs optimises on: a run longer than its share (`SAMPLES` / runs) is decimated
+for the optimisation (`fitter.identification.output_error`, "Decimation": every input reversal kept to within a
+block), its residuals and statistics taken on every sample; on one clock every sample is optimised."""
 
 REFINE_STEPS = 60
 """Steps of the joint refinement of `with_refinements` (a quarter of it for each start's screen): its
@@ -151,9 +157,16 @@ def problem(ex: JoinedExperiment, mask: np.ndarray) -> Recordings:
     """The output-error problem of every diagnosis fit (module docstring): the experiment as one recording
     (x0 = "model"), or its separate runs (x0 = "fit"), `mask` as 0/1 weights."""
     if ex.separate:
+        share = _share(ex)
         return Recordings(list(ex.recordings), x0="fit", weights=[mask[s].astype(float) for s in ex.runs()],
-                          settle=[closed_loop(r) for r in ex.recordings], references=len(ex.recordings) > 1)
+                          settle=[closed_loop(r) and len(r.t) <= share for r in ex.recordings],
+                          references=len(ex.recordings) > 1)
     return Recordings([Recording(ex.t, ex.u, ex.y, "experiment")], x0="model", weights=[mask.astype(float)])
+
+
+def _share(ex: JoinedExperiment) -> int | None:
+    """The samples each separate run is optimised on at most (`SAMPLES`); None on one clock (all)."""
+    return SAMPLES // len(ex.recordings) if ex.separate else None
 
 
 def _refine(fam: WithEffects, theta0: np.ndarray, ex: JoinedExperiment, mask: np.ndarray,
@@ -166,7 +179,7 @@ def _refine(fam: WithEffects, theta0: np.ndarray, ex: JoinedExperiment, mask: np
         held = np.r_[[name.startswith("x0[") for name in fam.base.names()], np.zeros(fam.size - fam.n_base, bool)]
         free = ~held if free is None else free & ~held
     n_free = len(theta0) if free is None else int(np.count_nonzero(free))
-    options = Options(**{**vars(OPTIONS), "max_nfev": iterations or 30 * (n_free + 1)})
+    options = Options(**{**vars(OPTIONS), "max_nfev": iterations or 30 * (n_free + 1), "max_samples": _share(ex)})
     return Fit(fam, refine(fam, theta0, problem(ex, mask), options, free=free), mask, ex.separate, iterations)
 
 

@@ -47,7 +47,7 @@ def prediction_error(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> float:
     every recording but the first (its state carried in from the recordings before it; the first's would be
     the model's x0 fitted to later data only, unconstrained).  Each recording on its own range, so that a
     model is not chosen for predicting one of them."""
-    ks = list(range(len(ex.recordings) if ex.separate else 1, len(ex.recordings)))
+    ks = list(range(0 if ex.separate else 1, len(ex.recordings)))
     parts = parallel_map(lambda k: held_out_residual(ex, fit, mask, k), ks)
     out = []
     for k, r in zip(ks, parts):
