@@ -652,7 +652,8 @@ def test_a_prediction_is_scored_where_its_start_is_known():
 def test_long_separate_runs_are_optimised_on_their_share_and_scored_on_every_sample(monkeypatch):
     """Separate runs over `fitting.SAMPLES` are decimated for the optimisation (each to its share, every input
     reversal kept) and scored on every sample: the drift's fit on under a quarter of the samples leaves the
-    residual of the fit on all of them, within 2 %, and finds the same rate within 10 %."""
+    residual of the fit on all of them, within 2 %, and finds the same rate within 10 %; its Jacobian's rows are
+    the optimised samples (`jacobian_rows`: the memory test regresses on them)."""
     from fitter.diagnosis import fitting
     recs = _separate_runs(Effect("measurement_drift", {"rate": -0.004}), seed=3)
     ex = join_recordings(recs)
@@ -666,6 +667,9 @@ def test_long_separate_runs_are_optimised_on_their_share_and_scored_on_every_sam
     kept = fitting.problem(ex, mask).decimated(fitting._share(ex))
     assert sum(len(r.t) for r in kept.recordings) < len(ex.t) / 4 and len(fits[400].residual) == len(ex.t)
     assert fits[400].rss == pytest.approx(fits[10 ** 6].rss, rel=0.02)
+    rows = fitting.jacobian_rows(ex, mask)          # the samples the Jacobian has: the optimised ones
+    assert len(rows) == len(fits[400].result.jac) < len(ex.t) / 4 and np.all(np.diff(rows) > 0)
+    assert rows[0] == 0 and rows[-1] == len(ex.t) - 1
     rate = [f.theta[-1] for f in fits.values()]
     assert abs(rate[0] - rate[1]) < 0.1 * abs(rate[0])
 

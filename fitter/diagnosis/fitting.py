@@ -62,7 +62,7 @@ from fitter.identification.refine import Options, RefineResult, refine
 from fitter.identification.parametrisation import StateSpace, WithEffects
 
 __all__ = ["Fit", "family", "fit_base", "fit_family", "fit_per_recording", "first_order_ri", "free_base", "problem",
-           "output_references", "refit", "with_refinements", "OPTIONS"]
+           "jacobian_rows", "output_references", "refit", "with_refinements", "OPTIONS"]
 
 OPTIONS = Options(xtol=1e-7, ftol=1e-7, gtol=1e-8, max_samples=None, normalise=True)
 """Tolerances of every diagnosis fit; the budget is 30 (free parameters + 1) evaluations."""
@@ -162,6 +162,14 @@ def problem(ex: JoinedExperiment, mask: np.ndarray) -> Recordings:
                           settle=[closed_loop(r) and len(r.t) <= share for r in ex.recordings],
                           references=len(ex.recordings) > 1)
     return Recordings([Recording(ex.t, ex.u, ex.y, "experiment")], x0="model", weights=[mask.astype(float)])
+
+
+def jacobian_rows(ex: JoinedExperiment, mask: np.ndarray) -> np.ndarray:
+    """The samples (indices into the joined arrays) that are the rows of a fit's Jacobian (`RefineResult.jac`):
+    those of `mask` the optimisation scored (all of them, or for long separate runs their share, `SAMPLES`)."""
+    rows = problem(ex, mask).rows(_share(ex))
+    starts = [run.start for run in ex.runs()]
+    return np.concatenate([start + r for start, r in zip(starts, rows)])
 
 
 def _share(ex: JoinedExperiment) -> int | None:

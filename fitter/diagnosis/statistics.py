@@ -72,7 +72,7 @@ from scipy.stats import chi2, norm
 
 from fitter.core.effects import REGISTRY, Chain
 from fitter.diagnosis.experiment import JoinedExperiment
-from fitter.diagnosis.fitting import Fit
+from fitter.diagnosis.fitting import Fit, jacobian_rows
 
 __all__ = ["ALPHA", "MIN_EXPLAINED", "NOISE_MARGIN", "REVERSAL_MIN", "consistency_report",
            "effect_report", "is_significant", "memory_response_report", "remainder_report", "reversal_report", "swing"]
@@ -147,11 +147,11 @@ def memory_response_report(fit: Fit, ex: JoinedExperiment, name: str, n_eff: flo
         generic = np.geomspace(3 * step, max(elapsed[-1], 3 * step), START_TRANSIENTS)
         for i, tau in enumerate([*taus, *generic]):
             E[s, j * (len(taus) + START_TRANSIENTS) + i] = np.exp(-elapsed / tau)
-    L, E = L[mask], E[mask]
-    J = fit.result.jac[mask] if len(fit.result.jac) == len(ex.t) else fit.result.jac
+    rows = jacobian_rows(ex, mask)                 # the samples the Jacobian has (the optimised ones)
+    L, E, J = L[rows], E[rows], fit.result.jac
     own = {fam.n_base + i for i, (e, _) in enumerate(fam.keys) if e == name}
     moving = [j for j in np.flatnonzero(np.any(J != 0, axis=0)) if j not in own]
-    r = fit.residual[mask]
+    r = fit.residual[rows]
 
     coef, rss_with = _linear_fit(np.column_stack([J[:, moving], E, L]), r)
     _, rss_without = _linear_fit(np.column_stack([J[:, moving], E]), r + k * L)

@@ -347,6 +347,16 @@ class Recordings:
             raise DuhemError("settled effect starts need every sample of a recording (no decimation)")
         return Recordings(recs, self.x0, weights, cycles, references=self.references)
 
+    def rows(self, max_samples: int | None) -> list[np.ndarray]:
+        """Per recording, the indices of its samples that are the rows of ``decimated(max_samples).residuals``
+        (and of a Jacobian `refine` takes on them): kept, scored, of positive weight, from the start."""
+        out = []
+        for rec, w, cyc in zip(self.recordings, self._w, self.cycles):
+            keep, scored = _keep_indices(rec.u, max_samples, cyc)
+            start = int(np.searchsorted(keep, cyc[0])) if self.x0 == "periodic" and cyc is not None else 0
+            out.append(keep[start:][(np.where(scored, w[keep], 0.0) > 0)[start:]])
+        return out
+
     def residuals(self, param: Parametrisation, theta: np.ndarray):
         """Stacked weighted residuals sqrt(w) (y - yhat) of the unmasked samples, and per
         recording (start, x0, y - yhat from start, rho, effect state: `simulate_from`)."""
