@@ -57,12 +57,13 @@ from fitter.core.models import RateIndependentModel, Signals
 from fitter.data.cycles import closed_loop
 from fitter.data.recordings import Recording
 from fitter.diagnosis.experiment import JoinedExperiment
+from fitter.identification.fit import fit_recordings
 from fitter.identification.output_error import Recordings
 from fitter.identification.refine import Options, RefineResult, refine
 from fitter.identification.parametrisation import StateSpace, WithEffects
 
-__all__ = ["Fit", "family", "fit_base", "fit_family", "fit_per_recording", "first_order_ri", "free_base", "problem",
-           "jacobian_rows", "output_references", "refit", "with_refinements", "OPTIONS"]
+__all__ = ["Fit", "duhem_fit", "family", "fit_base", "fit_family", "fit_per_recording", "first_order_ri", "free_base",
+           "problem", "jacobian_rows", "output_references", "refit", "with_refinements", "OPTIONS"]
 
 OPTIONS = Options(xtol=1e-7, ftol=1e-7, gtol=1e-8, max_samples=None, normalise=True)
 """Tolerances of every diagnosis fit; the budget is 30 (free parameters + 1) evaluations."""
@@ -231,6 +232,28 @@ def fit_base(ex: JoinedExperiment, model, mask: np.ndarray) -> Fit:
     _, a, (bp, bm, ep, em, x0, *_) = best
     fam = family(first_order_ri(a, -a, bp, bm, ep, em, x0), [], ex, None)
     return _refine(fam, np.array([a, -a, bp, bm, ep, em, x0]), ex, mask)
+
+
+def duhem_fit(ex: JoinedExperiment, mask: np.ndarray, order: int | None = None):
+    """The rate-independent model `duhem fit` makes of the experiment's recordings (`fit_recordings`, kind "ri",
+    the order by BIC or `order`): a `FitResult`.  Separate runs each carry their instrument's zero, which
+    `duhem fit` does not fit: the fit is made again on the recordings less the references (`output_references`)
+    that its first model, refined here (`fit_base`), finds (one alternation; a control of order 3 whose files'
+    zeros differ by 15 % of the range got order 2 at 2.8 times the noise, then order 3 at the noise).  The order
+    BIC picks on the levelled recordings is not below the first fit's: the piezo triangles' levelled fit picked
+    order 2, whose account with switching predicts the 0.01 Hz record at 11 % where order 3's does at 5 % (an
+    order chosen by held-out prediction would settle this; not done: each order is a whole search)."""
+    first = fit_recordings(ex.recordings, kind="ri", order=order)
+    if not ex.separate or len(ex.recordings) < 2:
+        return first
+    refs = output_references(fit_base(ex, first.model, mask), ex)
+    if refs is None:
+        return first
+    level = [Recording(r.t, r.u, r.y - refs[r.name], r.name, r.input, r.output, r.source) for r in ex.recordings]
+    levelled = fit_recordings(level, kind="ri", order=order)
+    if levelled.model.order < first.model.order:
+        return fit_recordings(level, kind="ri", order=first.model.order)
+    return levelled
 
 
 def _grid_basis(ex: JoinedExperiment, a: float) -> np.ndarray:

@@ -9,7 +9,8 @@ Procedure (`diagnose`)
 1. Base model, made adequate before effects are added (`_adequate_base`):
    by default the first-order rate-independent model (eqs (1)-(2) with
    C = 1, D = 0, fitted here) or the order `duhem fit` chooses (BIC over
-   orders 1-4, `fitter.identification.fit.fit_recordings`).  The higher
+   orders 1-4, `fitter.identification.fit.fit_recordings`; separate runs
+   levelled to one instrument zero, `fitting.duhem_fit`).  The higher
    order is the base when it brings the residual to the noise and the
    first-order base with its best effect does not (a missing order is not
    "explained" by whichever effect absorbs it); when both do, the one that
@@ -139,7 +140,7 @@ from fitter.data.cycles import closed_last_cycle
 from fitter.data.metrics import nrmse, rms
 from fitter.data.recordings import Recording
 from fitter.diagnosis.experiment import DiagnoseError, JoinedExperiment, join_recordings
-from fitter.diagnosis.fitting import (Fit, fit_base, fit_family, fit_per_recording, output_references,
+from fitter.diagnosis.fitting import (Fit, duhem_fit, fit_base, fit_family, fit_per_recording, output_references,
                                       with_refinements)
 from fitter.diagnosis.locate import locate_mismatch, where_differs
 from fitter.diagnosis.noise_floor import noise_floor
@@ -151,7 +152,6 @@ from fitter.diagnosis.statistics import (ALPHA, MIN_EXPLAINED, NOISE_MARGIN, con
 from fitter.diagnosis.text import comparison_text, summary_paragraph
 from fitter.diagnosis.workers import parallel_map
 from fitter.identification.exported import described, fitted_range
-from fitter.identification.fit import fit_recordings
 from fitter.identification.refine import effective_samples
 from fitter.progress import Progress, silent
 
@@ -178,7 +178,7 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
     model : optional base model (`RateIndependentModel` or `RateDependentModel`); its A, B, E, x0 are
         refined on the experiment.
     base_order : without `model`: None (default) takes the base from
-        `fitter.identification.fit.fit_recordings(recordings, kind="ri")`, the order chosen by BIC as
+        `fitter.diagnosis.fitting.duhem_fit` (`fit_recordings(recordings, kind="ri")`), the order chosen by BIC as
         `duhem fit` chooses it; 2-4 the same with that order; 1 fits the first-order base here (fast:
         every candidate fit refits its 7 parameters).  A fitted base of order 2-4 is refined like a
         given model (its A matrices held).
@@ -219,7 +219,7 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
         base, first_round, alternative, below = _adequate_base(ex, first, mask, noise, candidates, alpha, tick)
     else:
         if model is None and base_order != 1:
-            model = fit_recordings(ex.recordings, kind="ri", order=base_order).model
+            model = duhem_fit(ex, mask, base_order).model
         base, first_round = (first if model is None else fit_base(ex, model, mask)), None
     account = _refined(ex, _search(ex, base, first_round, _below_order(candidates) if below else candidates, mask,
                                    noise, alpha, max_findings, tick), mask, tick)
@@ -364,7 +364,7 @@ def _adequate_base(ex: JoinedExperiment, first: Fit, mask: np.ndarray, noise: fl
     if rms(first.residual) <= NOISE_MARGIN * noise:
         return first, None, None, False
     tick("choosing the base order (BIC)")
-    higher = fit_recordings(ex.recordings, kind="ri")
+    higher = duhem_fit(ex, mask)
     order = higher.model.order
     if order == 1:
         return first, None, None, False
@@ -405,7 +405,7 @@ def _settled_lower_order(ex: JoinedExperiment, mask: np.ndarray, noise: float, o
     that is not settled (a mode the data do not determine), a lower order that reaches it settled is the
     base, and the misfit is not handed to the effects."""
     for k in range(2, order):
-        fit = fit_base(ex, fit_recordings(ex.recordings, kind="ri", order=k).model, mask)
+        fit = fit_base(ex, duhem_fit(ex, mask, k).model, mask)
         if _settled_at_noise(fit, ex, noise):
             return fit
     return None
