@@ -97,10 +97,11 @@ Procedure (`diagnose`)
    model is the refined one; the findings after a refined first one are kept
    only when the refined model with them predicts the held-out recordings
    better (`fitter.diagnosis.held_out.prediction_error`) than the first
-   finding alone, refined from its own basic fit (on the piezo triangles rate_dependence, significant on
-   top of switching's basic form, made the refined model's 1 Hz prediction
-   worse: 8.9 % against 4.0 %).  A refined fit's held-out refits have its
-   iteration budget (`fitter.diagnosis.fitting.REFINE_STEPS`).
+   finding alone, refined from its own basic fit (on the piezo triangles'
+   unlevelled ri3 base, rate_dependence, significant on top of switching's
+   basic form, made the refined model's 1 Hz prediction worse: 8.9 %
+   against 4.0 %).  A refined fit's held-out refits have its iteration
+   budget (`fitter.diagnosis.fitting.REFINE_STEPS`).
 
 Every finding carries its origin (`fitter.core.effects.EffectSpec.origin`):
 the material's physics or the measuring chain (a sensor lag, a drift of the
