@@ -267,17 +267,16 @@ def _grid_basis(ex: JoinedExperiment, a: float) -> np.ndarray:
     return basis
 
 
-def with_refinements(fit: Fit, names: Sequence[str], ex: JoinedExperiment, mask: np.ndarray,
-                     drop: Sequence[str] = ()) -> Fit | None:
+def with_refinements(fit: Fit, names: Sequence[str], ex: JoinedExperiment, mask: np.ndarray) -> Fit | None:
     """The effects `names` of `fit`'s model (found in their basic form) refitted jointly with their refinement
     parameters (`ParameterSpec.refinement`: switching's spreads and second population) and the base's free
-    entries (`free_base`), the effects `drop` left out of the model; None when none of `names` has a
-    refinement.  Each refinement start of the effects' `EffectSpec.starts` (the basic parameters at their
-    found values) is screened with the base held; the best is refined jointly (`REFINE_STEPS`)."""
+    entries (`free_base`); None when none of `names` has a refinement.  Each refinement start of the effects'
+    `EffectSpec.starts` (the basic parameters at their found values) is screened with the base held; the best is
+    refined jointly (`REFINE_STEPS`)."""
     found = [e for e in fit.model.effects if e.effect in names]
     if not any(p.refinement for e in found for p in e.spec.parameters):
         return None
-    kept = [e for e in fit.model.effects if e.effect not in names and e.effect not in drop]
+    kept = [e for e in fit.model.effects if e.effect not in names]
     template = fit.model.replace(effects=kept, fit_info={})
     y_fit = ex.y - fit.residual
     fam = family(template, [e.effect for e in found], ex, ex.effect_context(float(np.mean(y_fit))), True)

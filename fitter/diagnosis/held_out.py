@@ -32,13 +32,22 @@ HELD_OUT_GAIN = 0.25
 every recording's own must fall by a fifth of it)."""
 
 
-def _held_out_residuals(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> list[np.ndarray] | None:
-    """Residual y - yhat on each recording's fitted samples, `fit` refitted without that recording."""
+def _held_out_residuals(ex: JoinedExperiment, fit: Fit, mask: np.ndarray,
+                        ks: list[int] | None = None) -> list[np.ndarray] | None:
+    """Residual y - yhat on the fitted samples of each recording of `ks` (default all), `fit` refitted without
+    it (`held_out_residual`, on several processes); None for a single recording."""
     if len(ex.recordings) < 2:
         return None
-    out = parallel_map(lambda k: held_out_residual(ex, fit, mask, k), list(range(len(ex.recordings))))
-    fit.held_out.update({(k, mask.tobytes()): r for k, r in enumerate(out)})     # computed in other processes
+    ks = list(range(len(ex.recordings))) if ks is None else ks
+    out = parallel_map(lambda k: held_out_residual(ex, fit, mask, k), ks)
+    fit.held_out.update({(k, mask.tobytes()): r for k, r in zip(ks, out)})     # computed in other processes
     return out
+
+
+def _nrmse(ex: JoinedExperiment, mask: np.ndarray, k: int, residual: np.ndarray) -> float:
+    """NRMSE of recording `k`'s fitted samples predicted with `residual` y - yhat."""
+    y = ex.y[ex.part(k)][mask[ex.part(k)]]
+    return nrmse(y, y - residual)
 
 
 def prediction_error(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> float:
@@ -48,13 +57,7 @@ def prediction_error(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> float:
     the model's x0 fitted to later data only, unconstrained).  Each recording on its own range, so that a
     model is not chosen for predicting one of them."""
     ks = list(range(0 if ex.separate else 1, len(ex.recordings)))
-    parts = parallel_map(lambda k: held_out_residual(ex, fit, mask, k), ks)
-    out = []
-    for k, r in zip(ks, parts):
-        fit.held_out[(k, mask.tobytes())] = r
-        y = ex.y[ex.part(k)][mask[ex.part(k)]]
-        out.append(nrmse(y, y - r))
-    return float(np.mean(out))
+    return float(np.mean([_nrmse(ex, mask, k, r) for k, r in zip(ks, _held_out_residuals(ex, fit, mask, ks))]))
 
 
 def held_out_residual(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, k: int) -> np.ndarray:
@@ -80,11 +83,7 @@ def held_out_nrmse(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> dict[str
     parts = _held_out_residuals(ex, fit, mask)
     if parts is None:
         return None
-    out = {}
-    for k, (rec, r) in enumerate(zip(ex.recordings, parts)):
-        y = ex.y[ex.part(k)][mask[ex.part(k)]]
-        out[rec.name] = nrmse(y, y - r)
-    return out
+    return {rec.name: _nrmse(ex, mask, k, r) for k, (rec, r) in enumerate(zip(ex.recordings, parts))}
 
 
 def confirmed(with_effect: np.ndarray | None, without: np.ndarray | None) -> bool:
