@@ -13,6 +13,7 @@ writes an FMI 3.0 Co-Simulation FMU; ``--inverse`` the model's compensator
 backend=...)`` is the same function (``duhem export`` is the same export with
 the package's command line).
 """
+
 from __future__ import annotations
 
 import sys

@@ -20,6 +20,7 @@ time for the same CPU time.  Default options of `duhem batch` except ``--kind ri
 native FMU, validation, report).  On a 2-core machine a speed-up of 2 is the limit, less when the machine
 is shared.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -36,8 +37,16 @@ from fitter.core.effects import REGISTRY, Effect
 from fitter.core.kernel import simulate
 from fitter.diagnosis.fitting import first_order_ri
 
-EFFECTS = ("backlash", "creep", "saturation", "sensor_lag", "viscous", "thermal_drift", "rate_dependence",
-           "measurement_drift")
+EFFECTS = (
+    "backlash",
+    "creep",
+    "saturation",
+    "sensor_lag",
+    "viscous",
+    "thermal_drift",
+    "rate_dependence",
+    "measurement_drift",
+)
 OUTLIER = 6
 
 
@@ -52,15 +61,28 @@ def generate(directory: Path, n: int, seed: int = 0) -> Path:
     for i in range(n):
         s = 1.0 + 0.25 * rng.uniform(-1, 1, 4)
         a = 3.0 * s[0] * (2.5 if i == OUTLIER else 1.0)
-        base = first_order_ri(a_plus=-a, a_minus=a, b_plus=3.0 * s[1], b_minus=-3.0 * s[1],
-                              e_plus=-1.5 * s[2], e_minus=-1.5 * s[2], x0=-0.1 * s[3])
+        base = first_order_ri(
+            a_plus=-a,
+            a_minus=a,
+            b_plus=3.0 * s[1],
+            b_minus=-3.0 * s[1],
+            e_plus=-1.5 * s[2],
+            e_minus=-1.5 * s[2],
+            x0=-0.1 * s[3],
+        )
         effect = EFFECTS[(i // 4) % len(EFFECTS)] if i % 4 == 3 else None
         model = base.replace(effects=[Effect(effect, dict(REGISTRY[effect].example))]) if effect else base
         y = simulate(model, t, u).y
         y = y + rng.normal(0.0, 0.003 * np.ptp(y), y.size)
         name = f"dev{i + 1:02d}"
-        np.savetxt(data / f"{name}.csv", np.column_stack([t, u, y]), delimiter=",", header="time,u_V,y_um",
-                   comments="", fmt="%.12g")
+        np.savetxt(
+            data / f"{name}.csv",
+            np.column_stack([t, u, y]),
+            delimiter=",",
+            header="time,u_V,y_um",
+            comments="",
+            fmt="%.12g",
+        )
         rows.append({"device": name, "recordings": f"data/{name}.csv", "input": "u", "output": "y"})
     manifest = directory / "manifest.csv"
     with open(manifest, "w", newline="") as fh:
@@ -75,10 +97,14 @@ def timed_run(manifest: Path, outdir: Path, workers: int, options: BatchOptions)
     import distributed
 
     t0 = time.perf_counter()
-    with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                  dashboard_address=":0") as cluster, distributed.Client(cluster) as client:
+    with (
+        distributed.LocalCluster(
+            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0"
+        ) as cluster,
+        distributed.Client(cluster) as client,
+    ):
         client.wait_for_workers(workers)
-        client.run(lambda: __import__("fitter.batch"))          # every worker imports the package once
+        client.run(lambda: __import__("fitter.batch"))  # every worker imports the package once
         startup = time.perf_counter() - t0
         t1 = time.perf_counter()
         report = run_batch(manifest, outdir, options=options, client=client, progress=False)
@@ -91,8 +117,9 @@ def main() -> None:
     ap.add_argument("--workers", type=int, nargs="+", help="worker counts (default: 1, 2 and os.cpu_count())")
     ap.add_argument("--diagnose", action="store_true", help="also diagnose every device (much slower)")
     ap.add_argument("--order", type=int, help="fit this order (default: chosen by BIC, as duhem batch)")
-    ap.add_argument("--keep", type=Path, help="write the manifest, data and outputs here (default: a temporary "
-                                              "directory, removed)")
+    ap.add_argument(
+        "--keep", type=Path, help="write the manifest, data and outputs here (default: a temporary directory, removed)"
+    )
     args = ap.parse_args()
     counts = args.workers or sorted({1, 2, os.cpu_count() or 1})
     options = BatchOptions(kind="ri", order=args.order, diagnose=args.diagnose)
@@ -100,17 +127,22 @@ def main() -> None:
         root = args.keep or Path(tmp)
         root.mkdir(parents=True, exist_ok=True)
         manifest = generate(root, args.devices)
-        print(f"{args.devices} devices, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the start; "
-              f"options {options}")
+        print(
+            f"{args.devices} devices, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the start; "
+            f"options {options}"
+        )
         results = {}
         for n in counts:
             startup, wall, report = timed_run(manifest, root / f"out-{n}-workers", n, options)
             busy = sum((report.entries[d].get("seconds") or 0.0) for d in report.devices)
             cpu = sum(((report.entries[d].get("row") or {}).get("cpu_seconds") or 0.0) for d in report.devices)
             results[n] = wall
-            print(f"workers {n}: batch {wall:6.1f} s (cluster start-up {startup:4.1f} s), task wall time summed "
-                  f"{busy:6.1f} s, task CPU time summed {cpu:6.1f} s, {report.counts()}, outliers "
-                  f"{sorted(report.outliers)}, load average {os.getloadavg()[0]:.1f}", flush=True)
+            print(
+                f"workers {n}: batch {wall:6.1f} s (cluster start-up {startup:4.1f} s), task wall time summed "
+                f"{busy:6.1f} s, task CPU time summed {cpu:6.1f} s, {report.counts()}, outliers "
+                f"{sorted(report.outliers)}, load average {os.getloadavg()[0]:.1f}",
+                flush=True,
+            )
         t1 = results.get(1)
         print("\n| workers | wall time (s) | speed-up | per worker |\n|---|---|---|---|")
         for n in counts:

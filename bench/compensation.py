@@ -35,6 +35,7 @@ inverse gives for the measured output, against the measured input (RMS / range o
 
 The data have no licence: read at run time, never copied; the bench is skipped with a message when absent.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -59,14 +60,23 @@ from fitter.identification.fit import fit_recordings  # noqa: E402
 JOINT_EFFECTS = ("switching",)
 """The material physics named for the second one-for-all model (of `bench/real_data.py`'s ``PIEZO_EFFECTS``,
 its piezo.best, the material's)."""
-JOINTS = (("one_for_all", (), {}, "refuse"), ("one_for_all_effects", JOINT_EFFECTS, {}, "refuse"),
-          ("one_for_all_best", PIEZO_EFFECTS, PIEZO_HELD, "invert"))
+JOINTS = (
+    ("one_for_all", (), {}, "refuse"),
+    ("one_for_all_effects", JOINT_EFFECTS, {}, "refuse"),
+    ("one_for_all_best", PIEZO_EFFECTS, PIEZO_HELD, "invert"),
+)
 """The one-for-all models: (key, effects, held effect parameters, the compensator's ``measurement`` choice).
 The last is `bench/real_data.py`'s piezo.best (ri3 + switching + measurement_drift, rate held at 0): its
 measurement effect is each record's output reference, so the compensator inverts it (``measurement="invert"``:
 the measured output, in the record's own zero, follows y_ref)."""
-FITS = ((None, False, ()), (1, False, ()), (2, False, ()), (3, False, ()), (None, True, ()),
-        (None, True, JOINT_EFFECTS))
+FITS = (
+    (None, False, ()),
+    (1, False, ()),
+    (2, False, ()),
+    (3, False, ()),
+    (None, True, ()),
+    (None, True, JOINT_EFFECTS),
+)
 """Duhem fits per record, (order, faithful minor loops, effects): order None = chosen by BIC (as
 bench/real_data.py), then fixed orders, then the BIC order with `fit_recordings(faithful_minor_loops=True)`,
 and that with the material effect (`duhem fit --faithful-minor-loops --effects switching`: the barrier on the
@@ -111,19 +121,29 @@ def _rows(model, rec: Recording, pi: PrandtlIshlinskii, y0: float, gain: float, 
     t1 = time.perf_counter()
     comp = compensate(model, t, y_ref, u0=u0, measurement=measurement)
     comp_seconds = time.perf_counter() - t1
-    inputs = {"compensated": comp.u,
-              "linear gain": np.r_[u0, np.clip((y_ref[1:] - y0) / gain, rec.u.min(), rec.u.max())],
-              "PI inverse": np.r_[u0, pi.invert(y_ref[1:])]}
+    inputs = {
+        "compensated": comp.u,
+        "linear gain": np.r_[u0, np.clip((y_ref[1:] - y0) / gain, rec.u.min(), rec.u.max())],
+        "PI inverse": np.r_[u0, pi.invert(y_ref[1:])],
+    }
     duhem = {k: _error(simulate(model, t, u).y, y_ref) for k, u in inputs.items()}
     on_pi = {k: _error(_pi_output(pi, t, u), y_ref) for k, u in inputs.items()}
     # on the record itself: the input each inverse gives for the measured output, against the measured input
     back = compensate(model, rec.t, rec.y, u0=u0, measurement=measurement)
     recovered = {"compensated": back.u, "linear gain": (rec.y - y0) / gain, "PI inverse": pi.invert(rec.y)}
     on_record = {k: float(np.sqrt(np.mean((u - rec.u) ** 2)) / np.ptp(rec.u)) for k, u in recovered.items()}
-    return {"samples": len(t), "clamped": comp.n_clamped, "max_shortfall": comp.max_shortfall,
-            "compensation_seconds": comp_seconds, "plant_duhem": duhem, "plant_pi": on_pi,
-            "record_input_error": on_record, "record_clamped": back.n_clamped, "record_samples": len(rec),
-            "u_range": [float(comp.u.min()), float(comp.u.max())]}
+    return {
+        "samples": len(t),
+        "clamped": comp.n_clamped,
+        "max_shortfall": comp.max_shortfall,
+        "compensation_seconds": comp_seconds,
+        "plant_duhem": duhem,
+        "plant_pi": on_pi,
+        "record_input_error": on_record,
+        "record_clamped": back.n_clamped,
+        "record_samples": len(rec),
+        "u_range": [float(comp.u.min()), float(comp.u.max())],
+    }
 
 
 def record_part(rec: Recording) -> dict:
@@ -132,27 +152,34 @@ def record_part(rec: Recording) -> dict:
     y0, gain = linear_gain(rec.u, rec.y)
     out = {"linear_gain": {"y0": y0, "gain": gain}, "pi_nrmse": pi.score(rec)["nrmse"], "models": []}
     for order, faithful, effects in FITS:
-        _log(f"{rec.name}: Duhem fit, order {'by BIC' if order is None else order}"
-             + (", faithful minor loops" if faithful else "") + (f", effects {','.join(effects)}" if effects else ""))
+        _log(
+            f"{rec.name}: Duhem fit, order {'by BIC' if order is None else order}"
+            + (", faithful minor loops" if faithful else "")
+            + (f", effects {','.join(effects)}" if effects else "")
+        )
         t0 = time.perf_counter()
         fit = fit_recordings([rec], kind="ri", order=order, faithful_minor_loops=faithful, effects=effects)
-        out["models"].append({
-            "model": "+".join([f"ri{fit.model.order}", *(e.effect for e in fit.model.effects)]),
-            "order_rule": RULES[order is None, faithful],
-            "minor_loop_excursion": fit.summary["minor_loops"]["excursion"],
-            "fit_nrmse": fit.summary["recordings"][0]["nrmse"], "fit_seconds": time.perf_counter() - t0,
-            **_rows(fit.model, rec, pi, y0, gain)})
+        out["models"].append(
+            {
+                "model": "+".join([f"ri{fit.model.order}", *(e.effect for e in fit.model.effects)]),
+                "order_rule": RULES[order is None, faithful],
+                "minor_loop_excursion": fit.summary["minor_loops"]["excursion"],
+                "fit_nrmse": fit.summary["recordings"][0]["nrmse"],
+                "fit_seconds": time.perf_counter() - t0,
+                **_rows(fit.model, rec, pi, y0, gain),
+            }
+        )
     return out
 
 
-def joint_part(recs: dict[str, Recording], effects: tuple[str, ...] = (), held: dict | None = None,
-               measurement: str = "refuse") -> dict:
+def joint_part(
+    recs: dict[str, Recording], effects: tuple[str, ...] = (), held: dict | None = None, measurement: str = "refuse"
+) -> dict:
     """One Duhem model for the three rates (`duhem fit` on all three, kind and order by BIC, with `effects`
     and `held` as `duhem fit --effects --hold`) and one Prandtl-Ishlinskii model for the three, each record's
     plant started from the state fitted to that record (`own_start`: x0, and the effects' start with the output
     reference, as `bench/real_data.py` scores it: `duhem validate --x0 fitted`)."""
-    _log(f"all rates: Duhem fit (auto{', effects ' + ','.join(effects) if effects else ''}) and "
-         "Prandtl-Ishlinskii fit")
+    _log(f"all rates: Duhem fit (auto{', effects ' + ','.join(effects) if effects else ''}) and Prandtl-Ishlinskii fit")
     t0 = time.perf_counter()
     fit = fit_recordings(list(recs.values()), effects=effects, held=held)
     seconds = time.perf_counter() - t0
@@ -162,52 +189,78 @@ def joint_part(recs: dict[str, Recording], effects: tuple[str, ...] = (), held: 
     for label, rec in recs.items():
         start = own_start(fit.model, rec)
         y0, gain = linear_gain(rec.u, rec.y)
-        out["records"][label] = {"fit_nrmse": compare(rec, start[1])["nrmse"], "pi_nrmse": pi.score(rec)["nrmse"],
-                                 **_rows(started(fit.model, start), rec, pi, y0, gain, measurement)}
+        out["records"][label] = {
+            "fit_nrmse": compare(rec, start[1])["nrmse"],
+            "pi_nrmse": pi.score(rec)["nrmse"],
+            **_rows(started(fit.model, start), rec, pi, y0, gain, measurement),
+        }
     return out
 
 
 def _print(res: dict) -> None:
     print("Tracking a triangle over 10-90 % of the measured output range, two periods: RMS(y - y_ref) / range")
     print("plant = the fitted Duhem model (columns 4-6) or the fitted Prandtl-Ishlinskii model (columns 7-9)\n")
-    head = f"{'record':8s} {'model':24s} {'clamped':>9s} | {'comp.':>9s} {'linear':>8s} {'PI inv.':>8s} | " \
-           f"{'comp.':>8s} {'linear':>8s} {'PI inv.':>8s}"
+    head = (
+        f"{'record':8s} {'model':24s} {'clamped':>9s} | {'comp.':>9s} {'linear':>8s} {'PI inv.':>8s} | "
+        f"{'comp.':>8s} {'linear':>8s} {'PI inv.':>8s}"
+    )
     print(head)
     print("-" * len(head))
     for rec, part in res["records"].items():
         for m in part["models"]:
             d, p = m["plant_duhem"], m["plant_pi"]
             tag = f"{m['model']} ({m['order_rule']})"
-            print(f"{rec:8s} {tag:24s} {m['clamped']:4d}/{m['samples']:<4d} | {d['compensated']:9.2e} "
-                  f"{d['linear gain']:8.1%} {d['PI inverse']:8.1%} | {p['compensated']:8.1%} "
-                  f"{p['linear gain']:8.1%} {p['PI inverse']:8.2e}")
-    print("\nOn the record itself (no extrapolation): the input each inverse gives for the measured output, "
-          "RMS(u - u_measured) / range(u)")
+            print(
+                f"{rec:8s} {tag:24s} {m['clamped']:4d}/{m['samples']:<4d} | {d['compensated']:9.2e} "
+                f"{d['linear gain']:8.1%} {d['PI inverse']:8.1%} | {p['compensated']:8.1%} "
+                f"{p['linear gain']:8.1%} {p['PI inverse']:8.2e}"
+            )
+    print(
+        "\nOn the record itself (no extrapolation): the input each inverse gives for the measured output, "
+        "RMS(u - u_measured) / range(u)"
+    )
     print(f"{'record':8s} {'model':24s} {'clamped':>9s} | {'comp.':>8s} {'linear':>8s} {'PI inv.':>8s}")
     for rec, part in res["records"].items():
         for m in part["models"]:
             e = m["record_input_error"]
             tag = f"{m['model']} ({m['order_rule']})"
-            print(f"{rec:8s} {tag:24s} {m['record_clamped']:4d}/{m['record_samples']:<4d} | {e['compensated']:8.2%} "
-                  f"{e['linear gain']:8.2%} {e['PI inverse']:8.2%}")
+            print(
+                f"{rec:8s} {tag:24s} {m['record_clamped']:4d}/{m['record_samples']:<4d} | {e['compensated']:8.2%} "
+                f"{e['linear gain']:8.2%} {e['PI inverse']:8.2%}"
+            )
     for key, effects, held, _ in JOINTS:
         j = res[key]
-        how = "`duhem fit" + (f" --effects {','.join(effects)}" if effects else "") + "".join(
-            f" --hold {k}={v:g}" for k, v in held.items()) + "`"
-        print(f"\nOne model for the three rates ({j['model']} by {how}, one Prandtl-Ishlinskii model), each "
-              "record's plant from the state fitted to it:")
-        print(f"{'record':8s} {'fit':>6s} {'clamped':>9s} | {'comp.':>9s} {'linear':>8s} {'PI inv.':>8s} | "
-              f"{'on the record: comp.':>20s} {'linear':>8s} {'PI inv.':>8s}")
+        how = (
+            "`duhem fit"
+            + (f" --effects {','.join(effects)}" if effects else "")
+            + "".join(f" --hold {k}={v:g}" for k, v in held.items())
+            + "`"
+        )
+        print(
+            f"\nOne model for the three rates ({j['model']} by {how}, one Prandtl-Ishlinskii model), each "
+            "record's plant from the state fitted to it:"
+        )
+        print(
+            f"{'record':8s} {'fit':>6s} {'clamped':>9s} | {'comp.':>9s} {'linear':>8s} {'PI inv.':>8s} | "
+            f"{'on the record: comp.':>20s} {'linear':>8s} {'PI inv.':>8s}"
+        )
         for rec, m in j["records"].items():
             d, e = m["plant_duhem"], m["record_input_error"]
-            print(f"{rec:8s} {m['fit_nrmse']:6.2%} {m['clamped']:4d}/{m['samples']:<4d} | {d['compensated']:9.2e} "
-                  f"{d['linear gain']:8.1%} {d['PI inverse']:8.1%} | {e['compensated']:20.2%} "
-                  f"{e['linear gain']:8.2%} {e['PI inverse']:8.2%}")
-    print("\nfit NRMSE of each Duhem model on its record [its summary's minor-loop excursion, output ranges], and "
-          "of the Prandtl-Ishlinskii model:")
+            print(
+                f"{rec:8s} {m['fit_nrmse']:6.2%} {m['clamped']:4d}/{m['samples']:<4d} | {d['compensated']:9.2e} "
+                f"{d['linear gain']:8.1%} {d['PI inverse']:8.1%} | {e['compensated']:20.2%} "
+                f"{e['linear gain']:8.2%} {e['PI inverse']:8.2%}"
+            )
+    print(
+        "\nfit NRMSE of each Duhem model on its record [its summary's minor-loop excursion, output ranges], and "
+        "of the Prandtl-Ishlinskii model:"
+    )
     for rec, part in res["records"].items():
-        fits = ", ".join(f"{m['model']} ({m['order_rule']}) {m['fit_nrmse']:.2%} [minor loops "
-                         f"{excursion_text(m['minor_loop_excursion'])}]" for m in part["models"])
+        fits = ", ".join(
+            f"{m['model']} ({m['order_rule']}) {m['fit_nrmse']:.2%} [minor loops "
+            f"{excursion_text(m['minor_loop_excursion'])}]"
+            for m in part["models"]
+        )
         print(f"  {rec}: {fits}; PI {part['pi_nrmse']:.2%}")
 
 

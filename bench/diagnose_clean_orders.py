@@ -13,6 +13,7 @@ chosen by BIC, competing with the first-order base's best effect).  A row passes
 "nothing_missing" with no finding, the base's residual RMS is within 1.2 x the noise floor, and for orders 2
 and 3 the base is of order > 1.  The exit status is 1 when a row fails.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -42,11 +43,13 @@ def run(order: int, seed: int) -> bool:
     t0 = time.perf_counter()
     d = diagnose(two_rate_triangles(cell_base(order), seed=seed))
     ratio = d.baseline["residual_rms"] / d.noise_rms
-    ok = (d.verdict == "nothing_missing" and d.findings == [] and ratio <= 1.2
-          and (order == 1 or d.base_model.order > 1))
-    print(f"{'PASS' if ok else 'FAIL'}  order {order} seed {seed}: verdict {d.verdict:15s} findings "
-          f"{[f['effect'] for f in d.findings]}  base order {d.base_model.order}  base/noise {ratio:.3f}  "
-          f"{time.perf_counter() - t0:.0f} s", flush=True)
+    ok = d.verdict == "nothing_missing" and d.findings == [] and ratio <= 1.2 and (order == 1 or d.base_model.order > 1)
+    print(
+        f"{'PASS' if ok else 'FAIL'}  order {order} seed {seed}: verdict {d.verdict:15s} findings "
+        f"{[f['effect'] for f in d.findings]}  base order {d.base_model.order}  base/noise {ratio:.3f}  "
+        f"{time.perf_counter() - t0:.0f} s",
+        flush=True,
+    )
     return ok
 
 
@@ -55,8 +58,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=0, help="seeds 1..N per order (default: the order's own seed)")
     ap.add_argument("--orders", type=int, nargs="*", default=[1, 2, 3], choices=[1, 2, 3])
     args = ap.parse_args(argv)
-    results = [run(order, seed) for order in args.orders
-               for seed in (range(1, args.seeds + 1) if args.seeds else (order,))]
+    results = [
+        run(order, seed) for order in args.orders for seed in (range(1, args.seeds + 1) if args.seeds else (order,))
+    ]
     print(f"{sum(results)} of {len(results)} clean experiments: nothing missing")
     return 0 if all(results) else 1
 

@@ -75,6 +75,7 @@ Clean controls (``--clean N``): effect-free data of the order-1, -2 and -3 bases
 design rotating with the seed over trapezoids, triangles, random reversals and two recordings; the
 score is the number of "nothing_missing" verdicts per order.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -111,7 +112,7 @@ class Design:
     def recordings(self, y: np.ndarray) -> list[Recording]:
         recs, i = [], 0
         for name, n in self.parts:
-            recs.append(Recording(self.t[i:i + n], self.u[i:i + n], y[i:i + n], name=name, source=f"{name}.csv"))
+            recs.append(Recording(self.t[i : i + n], self.u[i : i + n], y[i : i + n], name=name, source=f"{name}.csv"))
             i += n
         return recs
 
@@ -151,7 +152,7 @@ def random_design(rng: np.random.Generator, samples: int, recordings: int = 3, p
         knots, direction = [u_now], 1.0
         for _ in range(points):
             target = float(np.clip(knots[-1] + direction * rng.uniform(0.2, 2.0), -1.0, 1.0))
-            if abs(target - knots[-1]) < 0.1:            # at an edge: go the other way
+            if abs(target - knots[-1]) < 0.1:  # at an edge: go the other way
                 direction = -direction
                 target = float(np.clip(knots[-1] + direction * rng.uniform(0.2, 2.0), -1.0, 1.0))
             knots.append(target)
@@ -186,11 +187,11 @@ def du_convolution(t: np.ndarray, u: np.ndarray, G: Callable[[np.ndarray], np.nd
     """c(t_k) = sum_{j<k} v_j [G(t_k - t_j) - G(t_k - t_{j+1})] (u piecewise linear; G(0) = 0)."""
     v = np.diff(u) / np.diff(t)
     out = np.zeros(len(t))
-    for k0 in range(1, len(t), 512):                    # blocks of rows: bounded memory
-        tk = t[k0:k0 + 512, None]
+    for k0 in range(1, len(t), 512):  # blocks of rows: bounded memory
+        tk = t[k0 : k0 + 512, None]
         lo = np.clip(tk - t[None, :-1], 0.0, None)
         hi = np.clip(tk - t[None, 1:], 0.0, None)
-        out[k0:k0 + 512] = (G(lo) - G(hi)) @ v
+        out[k0 : k0 + 512] = (G(lo) - G(hi)) @ v
     return out
 
 
@@ -209,7 +210,7 @@ def soft_play(u: np.ndarray, h: float) -> np.ndarray:
     top = h * (1 - 1e-12)
     for k in range(1, len(u)):
         d = u[k] - u[k - 1]
-        s = 1.0 if d >= 0 else -1.0                     # mirror a fall onto a rise
+        s = 1.0 if d >= 0 else -1.0  # mirror a fall onto a rise
         zs, ds = s * z, abs(d)
         if zs < 0:
             step = min(ds, -zs)
@@ -236,7 +237,7 @@ def rate_slowed_first_order(model: RateIndependentModel, t: np.ndarray, w: np.nd
             continue
         a, b, e = (ap, bp, ep) if d > 0 else (am, bm, em)
         s = s_all[k]
-        al = s * a                                       # dx/dw = al x + s (b w + e): exact for w linear
+        al = s * a  # dx/dw = al x + s (b w + e): exact for w linear
         p = -s * b / al
         q = (p - s * e) / al
         x[k + 1] = p * w[k + 1] + q + (x[k] - p * w[k] - q) * math.exp(al * d)
@@ -247,7 +248,7 @@ def two_pole(t: np.ndarray, y: np.ndarray, tau: float, zeta: float = 0.7) -> np.
     """m'' + 2 zeta omega m' + omega^2 m = omega^2 y, y linear between samples, m(0) = y(0), m'(0) = 0."""
     om = 1.0 / tau
     M = np.zeros((4, 4))
-    M[0, 1], M[1, 0], M[1, 1], M[1, 2], M[2, 3] = 1.0, -om ** 2, -2 * zeta * om, om ** 2, 1.0
+    M[0, 1], M[1, 0], M[1, 1], M[1, 2], M[2, 3] = 1.0, -(om**2), -2 * zeta * om, om**2, 1.0
     h = np.diff(t)
     cache: dict[float, np.ndarray] = {}
     m, mdot, out = y[0], 0.0, np.empty(len(y))
@@ -275,7 +276,7 @@ class Form:
 
 
 def _hum(t, u, y, s):
-    dt_max = max(np.median(np.diff(t[i:i + 50])) for i in range(0, len(t) - 50, 50))
+    dt_max = max(np.median(np.diff(t[i : i + 50])) for i in range(0, len(t) - 50, 50))
     return y + s * np.sin(2 * np.pi * t / (7 * dt_max) + 0.7)
 
 
@@ -314,6 +315,7 @@ def truth_output(model, d: Design, effects: Sequence[tuple[str, float]]) -> np.n
 
 def strength_for(model, d: Design, name: str, target: float, y0: np.ndarray) -> float:
     """Strength s with max |y_with - y0| = target (geometric bisection, deviation increasing in s)."""
+
     def dev(s: float) -> float:
         return float(np.max(np.abs(truth_output(model, d, [(name, s)]) - y0)))
 
@@ -330,8 +332,8 @@ def strength_for(model, d: Design, name: str, target: float, y0: np.ndarray) -> 
 @dataclass(frozen=True)
 class Case:
     name: str
-    group: str                      # "catalogue", "two", "outside", "clean"
-    effects: tuple[str, ...] = ()   # keys of FORMS
+    group: str  # "catalogue", "two", "outside", "clean"
+    effects: tuple[str, ...] = ()  # keys of FORMS
     expected: tuple[str, ...] = ()  # registry effects to be found ("a|b": either)
     design: str = "trapezoids"
     base: str = "ri1"
@@ -409,24 +411,46 @@ def run_case(case: Case, seed: int, samples: int) -> Row:
     recs, sigma = build_experiment(case, seed, samples)
     t0 = time.perf_counter()
     d = diagnose(recs)
-    row = Row(case.name, case.group, seed, "+".join(case.expected) or
-              ("unexplained|ext>1.5" if case.group == "outside" else "nothing_missing"),
-              d.verdict, [{"effect": f["effect"], "p_value": f["p_value"], "parameters": f["parameters"],
-                           "explained_fraction": f["explained_fraction"],
-                           "consistent": (f.get("consistency") or {}).get("consistent", True)} for f in d.findings],
-              d.baseline["residual_rms"] / sigma, d.extended["residual_rms"] / sigma, time.perf_counter() - t0)
+    row = Row(
+        case.name,
+        case.group,
+        seed,
+        "+".join(case.expected) or ("unexplained|ext>1.5" if case.group == "outside" else "nothing_missing"),
+        d.verdict,
+        [
+            {
+                "effect": f["effect"],
+                "p_value": f["p_value"],
+                "parameters": f["parameters"],
+                "explained_fraction": f["explained_fraction"],
+                "consistent": (f.get("consistency") or {}).get("consistent", True),
+            }
+            for f in d.findings
+        ],
+        d.baseline["residual_rms"] / sigma,
+        d.extended["residual_rms"] / sigma,
+        time.perf_counter() - t0,
+    )
     row.ok = score_row(case, row)
     return row
 
 
 def line(row: Row) -> str:
-    claimed = ", ".join(f"{'' if f.get('consistent', True) else '~'}{f['effect']}"
-                        f"({100 * f['explained_fraction']:.0f}%; "
-                        + ", ".join(f"{k}={v:.3g}" for k, v in f["parameters"].items()) + ")"
-                        for f in row.findings) or "-"
-    return (f"{'PASS' if row.ok else 'FAIL'}  {row.group:9s} {row.case:20s} s{row.seed} expected {row.expected:33s} "
-            f"verdict {row.verdict:15s} base/noise {row.base_ratio:5.2f} ext/noise {row.ext_ratio:5.2f} "
-            f"{row.seconds:4.1f} s  findings [{claimed}]")
+    claimed = (
+        ", ".join(
+            f"{'' if f.get('consistent', True) else '~'}{f['effect']}"
+            f"({100 * f['explained_fraction']:.0f}%; "
+            + ", ".join(f"{k}={v:.3g}" for k, v in f["parameters"].items())
+            + ")"
+            for f in row.findings
+        )
+        or "-"
+    )
+    return (
+        f"{'PASS' if row.ok else 'FAIL'}  {row.group:9s} {row.case:20s} s{row.seed} expected {row.expected:33s} "
+        f"verdict {row.verdict:15s} base/noise {row.base_ratio:5.2f} ext/noise {row.ext_ratio:5.2f} "
+        f"{row.seconds:4.1f} s  findings [{claimed}]"
+    )
 
 
 def summary(rows: Sequence[Row]) -> str:
@@ -438,11 +462,13 @@ def summary(rows: Sequence[Row]) -> str:
         sel = [r for r in rows if r.group == group and r.findings]
         return f"{sum(not r.findings[0].get('consistent', True) for r in sel)}/{len(sel)}"
 
-    return (f"score: {frac(None)} cases right; catalogue-in-other-forms {frac('catalogue')}, "
-            f"two-effects {frac('two')}, outside-catalogue {frac('outside')}, clean {frac('clean')}\n"
-            f"first finding flagged '~' (one parameter set does not hold across the recordings: only approximate): "
-            f"outside-catalogue {flagged('outside')}, catalogue-in-other-forms {flagged('catalogue')}, "
-            f"two-effects {flagged('two')}")
+    return (
+        f"score: {frac(None)} cases right; catalogue-in-other-forms {frac('catalogue')}, "
+        f"two-effects {frac('two')}, outside-catalogue {frac('outside')}, clean {frac('clean')}\n"
+        f"first finding flagged '~' (one parameter set does not hold across the recordings: only approximate): "
+        f"outside-catalogue {flagged('outside')}, catalogue-in-other-forms {flagged('catalogue')}, "
+        f"two-effects {flagged('two')}"
+    )
 
 
 CLEAN_DESIGNS = ("trapezoids", "triangles", "random", "two")
@@ -468,8 +494,9 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=None, help="samples per recording (default 600, quick 350)")
     ap.add_argument("--only", default=None, help="run only the cases whose name contains this")
     ap.add_argument("--json", type=str, default=None, help="write the table to this path")
-    ap.add_argument("--clean", type=int, default=None, metavar="N",
-                    help="run only the clean controls: orders 1-3, N seeds each")
+    ap.add_argument(
+        "--clean", type=int, default=None, metavar="N", help="run only the clean controls: orders 1-3, N seeds each"
+    )
     args = ap.parse_args()
     samples = args.samples or (350 if args.quick else 600)
     rows, t_start = [], time.perf_counter()

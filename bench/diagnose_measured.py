@@ -17,6 +17,7 @@ the findings (material and measurement apart), the verdict and the wall time.
 The data are read at run time (no licence for the piezo set: never copied into the repository); a set whose
 folder is absent is skipped with a message.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -28,13 +29,18 @@ from pathlib import Path
 from fitter.baselines import compare_baselines
 from fitter.data.recordings import load_recordings
 from fitter.diagnosis import diagnose
-from real_data import DATA, PIEZO          # the shared data's place and the piezo triangles (bench/real_data.py)
+from real_data import DATA, PIEZO  # the shared data's place and the piezo triangles (bench/real_data.py)
 
 SETS = {
     "piezo": ("piezo-pnzt", list(PIEZO.values()), ("time_s", "voltage_V", "polarization_uC_per_cm2")),
-    "creep": ("piezo-pnzt", [f"creep_T0{k}_trapezoid_1400V_{v}" for k, v in
-                             ((1, "1000V_60S"), (2, "1000V_60S"), (3, "1200V_105S"), (4, "1200V_1400S"))],
-              ("time_s", "voltage_V", "polarization_uC_per_cm2")),
+    "creep": (
+        "piezo-pnzt",
+        [
+            f"creep_T0{k}_trapezoid_1400V_{v}"
+            for k, v in ((1, "1000V_60S"), (2, "1000V_60S"), (3, "1200V_105S"), (4, "1200V_1400S"))
+        ],
+        ("time_s", "voltage_V", "polarization_uC_per_cm2"),
+    ),
     "friction": ("friction-pneumatic", [f"Circle_{p}bar" for p in range(1, 8)], ("time_s", "position_mm", "force_N")),
 }
 CLASSICAL = ("preisach", "prandtl_ishlinskii")
@@ -58,26 +64,45 @@ def run_set(name: str) -> dict | None:
         best = classical[best_name]["per_recording"][rec.name]
         ext = d.extended["nrmse_per_recording"][rec.name]
         held = (d.extended["heldout_nrmse_per_recording"] or {}).get(rec.name)
-        rows.append({"record": rec.name, "base": d.baseline["nrmse_per_recording"][rec.name], "extended": ext,
-                     "held_out": held, "best_classical": best, "classical_model": best_name,
-                     "at_or_below_classical": bool(ext <= best)})
-    return {"set": name, "seconds": seconds, "verdict": d.verdict, "separate": d.separate,
-            "material_effects": d.extended["material_effects"],
-            "measurement_effects": d.extended["measurement_effects"],
-            "base_order": d.base_model.order, "noise_rms": d.noise_rms,
-            "remainder_noise_ratio": d.extended["remainder"]["noise_ratio"], "records": rows}
+        rows.append(
+            {
+                "record": rec.name,
+                "base": d.baseline["nrmse_per_recording"][rec.name],
+                "extended": ext,
+                "held_out": held,
+                "best_classical": best,
+                "classical_model": best_name,
+                "at_or_below_classical": bool(ext <= best),
+            }
+        )
+    return {
+        "set": name,
+        "seconds": seconds,
+        "verdict": d.verdict,
+        "separate": d.separate,
+        "material_effects": d.extended["material_effects"],
+        "measurement_effects": d.extended["measurement_effects"],
+        "base_order": d.base_model.order,
+        "noise_rms": d.noise_rms,
+        "remainder_noise_ratio": d.extended["remainder"]["noise_ratio"],
+        "records": rows,
+    }
 
 
 def _print(res: dict) -> None:
-    print(f"\n{res['set']}: {res['seconds']:.0f} s wall, verdict {res['verdict']}, base order {res['base_order']}, "
-          f"material {res['material_effects'] or '-'}, measurement {res['measurement_effects'] or '-'}, "
-          f"remainder {res['remainder_noise_ratio']:.3g} x the noise")
+    print(
+        f"\n{res['set']}: {res['seconds']:.0f} s wall, verdict {res['verdict']}, base order {res['base_order']}, "
+        f"material {res['material_effects'] or '-'}, measurement {res['measurement_effects'] or '-'}, "
+        f"remainder {res['remainder_noise_ratio']:.3g} x the noise"
+    )
     print(f"{'record':34s} {'base':>7s} {'extended':>9s} {'held out':>9s} {'classical':>10s}  ok")
     for r in res["records"]:
         held = "-" if r["held_out"] is None else f"{100 * r['held_out']:.2f}%"
-        print(f"{r['record']:34s} {100 * r['base']:6.2f}% {100 * r['extended']:8.2f}% {held:>9s} "
-              f"{100 * r['best_classical']:9.2f}%  {'yes' if r['at_or_below_classical'] else 'NO'} "
-              f"({r['classical_model']})")
+        print(
+            f"{r['record']:34s} {100 * r['base']:6.2f}% {100 * r['extended']:8.2f}% {held:>9s} "
+            f"{100 * r['best_classical']:9.2f}%  {'yes' if r['at_or_below_classical'] else 'NO'} "
+            f"({r['classical_model']})"
+        )
 
 
 def main() -> None:

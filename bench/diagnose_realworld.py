@@ -150,6 +150,7 @@ noise).  Measurement findings are otherwise not scored (references are the instr
 A control is right when there is no material finding.  The score is right/total, effect cases and controls
 apart, and the controls' rate: "no material finding in X % of control seeds".
 """
+
 from __future__ import annotations
 
 import argparse
@@ -168,8 +169,8 @@ from scipy.stats import norm
 from fitter.data.recordings import Recording
 from fitter.diagnosis import diagnose
 
-REF_SPAN = 0.15          # references uniform in +-15 % of the output range
-NOISE = 0.003            # white noise RMS, fraction of the output range
+REF_SPAN = 0.15  # references uniform in +-15 % of the output range
+NOISE = 0.003  # white noise RMS, fraction of the output range
 GL_X, GL_W = np.polynomial.legendre.leggauss(8)
 
 
@@ -218,8 +219,15 @@ class Wave:
         return t, pre * m
 
 
-def ode_path(rhs: Callable, wave: Wave, t: np.ndarray, x0: Sequence[float], method: str = "LSODA",
-             rtol: float = 1e-8, atol: float = 1e-10) -> np.ndarray:
+def ode_path(
+    rhs: Callable,
+    wave: Wave,
+    t: np.ndarray,
+    x0: Sequence[float],
+    method: str = "LSODA",
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+) -> np.ndarray:
     """States at the samples t of dx/dt = rhs(t, x, u, du/dt), u the analytic wave (piece by piece between
     its corners, so that no solver step crosses a jump of du/dt)."""
     x = np.asarray(x0, float)
@@ -233,14 +241,23 @@ def ode_path(rhs: Callable, wave: Wave, t: np.ndarray, x0: Sequence[float], meth
 
         def f(tt, xx, v=v):
             return rhs(tt, xx, float(wave.u(tt)), wave.du(tt) if v is None else v)
-        sol = solve_ivp(f, (a, b), x, method=method, rtol=rtol, atol=atol, t_eval=t[inside] if inside.any() else None,
-                        dense_output=False)
+
+        sol = solve_ivp(
+            f,
+            (a, b),
+            x,
+            method=method,
+            rtol=rtol,
+            atol=atol,
+            t_eval=t[inside] if inside.any() else None,
+            dense_output=False,
+        )
         if not sol.success:
             raise RuntimeError(sol.message)
         x = sol.y[:, -1]
         if inside.any():
             out[inside] = sol.y.T
-            if t[inside][-1] < b:                          # t_eval ended before b: go on to b
+            if t[inside][-1] < b:  # t_eval ended before b: go on to b
                 x = solve_ivp(f, (t[inside][-1], b), x, method=method, rtol=rtol, atol=atol).y[:, -1]
     return out
 
@@ -258,11 +275,12 @@ def path_in_u(slope: Callable, u: np.ndarray, x0: Sequence[float]) -> np.ndarray
         while j < len(u) - 1 and np.sign(u[j + 1] - u[j]) == d:
             j += 1
         if d == 0:
-            out[k + 1:j + 1] = x
+            out[k + 1 : j + 1] = x
         else:
-            sol = solve_ivp(lambda uu, xx, d=d: slope(uu, xx, d), (u[k], u[j]), x, t_eval=u[k + 1:j + 1],
-                            rtol=1e-9, atol=1e-11)
-            out[k + 1:j + 1] = sol.y.T
+            sol = solve_ivp(
+                lambda uu, xx, d=d: slope(uu, xx, d), (u[k], u[j]), x, t_eval=u[k + 1 : j + 1], rtol=1e-9, atol=1e-11
+            )
+            out[k + 1 : j + 1] = sol.y.T
             x = sol.y[:, -1]
         k = j
     return out
@@ -271,8 +289,10 @@ def path_in_u(slope: Callable, u: np.ndarray, x0: Sequence[float]) -> np.ndarray
 # --------------------------------------------------------------------------------------- material models
 def branch_slope(Hc: float, a: float, lam: float) -> Callable:
     """dm/du of the rate-independent branch loop (module docstring, ``eddy_bh``)."""
+
     def slope(u, m, s):
         return lam * max(s * (math.tanh((u - s * Hc) / a) - m), 0.0)
+
     return slope
 
 
@@ -284,7 +304,7 @@ def kai(t: np.ndarray, E: np.ndarray, Ea: np.ndarray, tau0: float, n: float) -> 
     out[0] = s.mean()
     for k in range(len(t) - 1):
         pieces = [(t[k], t[k + 1], E[k], E[k + 1])]
-        if E[k] * E[k + 1] < 0:                            # split where E crosses 0
+        if E[k] * E[k + 1] < 0:  # split where E crosses 0
             tz = t[k] + (t[k + 1] - t[k]) * E[k] / (E[k] - E[k + 1])
             pieces = [(t[k], tz, E[k], 0.0), (tz, t[k + 1], 0.0, E[k + 1])]
         for ta, tb, ea, eb in pieces:
@@ -292,13 +312,13 @@ def kai(t: np.ndarray, E: np.ndarray, Ea: np.ndarray, tau0: float, n: float) -> 
             if em == 0.0:
                 continue
             gi = 1.0 if em > 0 else -1.0
-            if gi != g:                                    # the field turned: a new KAI transformation
+            if gi != g:  # the field turned: a new KAI transformation
                 g, ref, theta = gi, s.copy(), np.zeros(len(Ea))
             e_nodes = np.abs(0.5 * (ea + eb) + 0.5 * (eb - ea) * GL_X)
             with np.errstate(divide="ignore", over="ignore"):
                 rates = np.exp(-Ea[:, None] / np.maximum(e_nodes[None, :], 1e-300)) / tau0
             theta = theta + 0.5 * (tb - ta) * rates @ GL_W
-            s = g - (g - ref) * np.exp(-theta ** n)
+            s = g - (g - ref) * np.exp(-(theta**n))
         out[k + 1] = s.mean()
     return out
 
@@ -330,9 +350,11 @@ def duhem_exact(model: dict, u: np.ndarray) -> np.ndarray:
 
 def bouc_wen(x: np.ndarray, n: float, beta: float, gamma: float, x_y: float, z0: float = 0.0) -> np.ndarray:
     """z of dz/dx = (1 - (beta s sign(z) + gamma) |z|^n) / x_y (rate-independent)."""
+
     def slope(xx, z, s):
         zz = z[0]
         return [(1.0 - (beta * s * math.copysign(1.0, zz) + gamma) * abs(zz) ** n) / x_y]
+
     return path_in_u(slope, x, [z0])[:, 0]
 
 
@@ -372,8 +394,12 @@ def case_ferro_kai(rng, samples):
     Eas = Ea * np.exp(sigma * norm.ppf((np.arange(24) + 0.5) / 24))
     Ps, eps = rng.uniform(20, 30), 0.0
     eps = rng.uniform(0.03, 0.1) * Ps / E0
-    design = [Wave("triangle", 100.0, E0, 2), Wave("triangle", 10.0, E0, 2), Wave("triangle", 1.0, E0, 2),
-              Wave("triangle", 10.0, 0.8 * E0, 2)]
+    design = [
+        Wave("triangle", 100.0, E0, 2),
+        Wave("triangle", 10.0, E0, 2),
+        Wave("triangle", 1.0, E0, 2),
+        Wave("triangle", 10.0, 0.8 * E0, 2),
+    ]
     return _files(design, samples, lambda w, t, u, i: (Ps * kai(t, u, Eas, tau0, n) + eps * u, None))
 
 
@@ -387,7 +413,7 @@ def case_eddy_bh(rng, samples):
     def rhs(tt, xx, Ha, dHa):
         Hh, m = xx
         s = 1.0 if Ha >= Hh else -1.0
-        g = lam * max(s * (math.tanh((Hh - s * Hc) / a) - m), 0.0)     # |dm/dHh| on branch s
+        g = lam * max(s * (math.tanh((Hh - s * Hc) / a) - m), 0.0)  # |dm/dHh| on branch s
         dHh = (Ha - Hh) / (k_e * (mu_rev + Js * g))
         return [dHh, g * abs(dHh) * s]
 
@@ -398,18 +424,31 @@ def case_eddy_bh(rng, samples):
         mq = path_in_u(lambda uu, mm, s: [slope(uu, mm[0], s)], u, [m0])[:, 0]
         return B, mu_rev * u + Js * mq
 
-    design = [Wave("sine", 0.1, 100.0, 2), Wave("sine", 0.02, 100.0, 2), Wave("sine", 0.005, 100.0, 2),
-              Wave("sine", 0.02, 40.0, 2)]
+    design = [
+        Wave("sine", 0.1, 100.0, 2),
+        Wave("sine", 0.02, 100.0, 2),
+        Wave("sine", 0.005, 100.0, 2),
+        Wave("sine", 0.02, 40.0, 2),
+    ]
     return _files(design, samples, one)
 
 
 def _bw_params(rng, n=None):
-    return dict(n=2.0 if n is None else n, beta=rng.uniform(0.55, 0.85), x_y=rng.uniform(0.5, 1.5),
-                alpha=rng.uniform(300, 500), k=rng.uniform(2, 6))
+    return dict(
+        n=2.0 if n is None else n,
+        beta=rng.uniform(0.55, 0.85),
+        x_y=rng.uniform(0.5, 1.5),
+        alpha=rng.uniform(300, 500),
+        k=rng.uniform(2, 6),
+    )
 
 
-DAMPER_DESIGN = (Wave("sine", 4.0, 10.0, 2), Wave("sine", 1.0, 10.0, 2), Wave("sine", 0.5, 5.0, 2),
-                 Wave("sine", 0.25, 5.0, 2))
+DAMPER_DESIGN = (
+    Wave("sine", 4.0, 10.0, 2),
+    Wave("sine", 1.0, 10.0, 2),
+    Wave("sine", 0.5, 5.0, 2),
+    Wave("sine", 0.25, 5.0, 2),
+)
 
 
 def _damper(rng, samples, viscous: bool, n=None):
@@ -432,24 +471,29 @@ def case_damper_bw(rng, samples):
 
 def case_creep_drift(rng, samples):
     U = 100.0
-    d33, n_bw = 0.1, 1.0                                   # um / V: stroke ~ 20 um
+    d33, n_bw = 0.1, 1.0  # um / V: stroke ~ 20 um
     beta, u_y = rng.uniform(0.55, 0.85), rng.uniform(10, 25)
-    alpha = 0.12 * 2 * d33 * U / 2                         # hysteresis ~ 12 % of the stroke
+    alpha = 0.12 * 2 * d33 * U / 2  # hysteresis ~ 12 % of the stroke
     tau1, tau2 = rng.uniform(1, 3), rng.uniform(25, 80)
     ratio = rng.uniform(0.5, 2.0)
     k_tot = rng.uniform(0.06, 0.10) * 2 * d33 * U / (2 * U)  # creep 6-10 % of the stroke
     k1, k2 = k_tot / (1 + ratio), k_tot * ratio / (1 + ratio)
     T_d = rng.uniform(400, 900)
-    design = [Wave("trapezoid", 20.0, U, 2), Wave("trapezoid", 60.0, U, 2), Wave("trapezoid", 200.0, U, 2),
-              Wave("trapezoid", 60.0, 0.6 * U, 2)]
+    design = [
+        Wave("trapezoid", 20.0, U, 2),
+        Wave("trapezoid", 60.0, U, 2),
+        Wave("trapezoid", 200.0, U, 2),
+        Wave("trapezoid", 60.0, 0.6 * U, 2),
+    ]
     longest = max(w.period * w.cycles for w in design)
     r = rng.uniform(0.02, 0.04) * 2 * d33 * U / (T_d * (1 - math.exp(-longest / T_d)))
 
     def one(w, t, u, i):
         z = bouc_wen(u, n_bw, beta, 1.0 - beta, u_y, z0=-0.5)
         base = d33 * u + alpha * z
-        c = ode_path(lambda tt, cc, uu, du: [(k1 * uu - cc[0]) / tau1, (k2 * uu - cc[1]) / tau2], w, t,
-                     [k1 * u[0], k2 * u[0]])
+        c = ode_path(
+            lambda tt, cc, uu, du: [(k1 * uu - cc[0]) / tau1, (k2 * uu - cc[1]) / tau2], w, t, [k1 * u[0], k2 * u[0]]
+        )
         drift = np.where(t >= 0, r * T_d * (1 - np.exp(-np.maximum(t, 0) / T_d)), 0.0)
         return base + c.sum(axis=1) + drift, base
 
@@ -466,8 +510,12 @@ def case_heating(rng, samples):
     lam = 2.0 / a
     eps = rng.uniform(0.03, 0.1) * Ps / E0
     tau_th = rng.uniform(5, 15)
-    design = [Wave("triangle", 0.5, E0, 4), Wave("triangle", 5.0, E0, 4), Wave("triangle", 50.0, E0, 4),
-              Wave("triangle", 5.0, 0.75 * E0, 4)]
+    design = [
+        Wave("triangle", 0.5, E0, 4),
+        Wave("triangle", 5.0, E0, 4),
+        Wave("triangle", 50.0, E0, 4),
+        Wave("triangle", 5.0, 0.75 * E0, 4),
+    ]
     fast = design[0]
     # theta at the end of the fastest file ~ eta * total |dm| (no time to cool): |dm| ~ 4 per cycle
     eta = rng.uniform(0.2, 0.3) / (4 * (fast.cycles + 1))
@@ -479,6 +527,7 @@ def case_heating(rng, samples):
             g = lam * max(s * (math.tanh((uu - s * Ec) / a) - m), 0.0)
             dm = g * abs(du) * s
             return [dm, eta_ * abs(dm) - th / tau_th]
+
         return rhs
 
     def one(w, t, u, i):
@@ -494,8 +543,12 @@ def case_degradation(rng, samples):
     lam = 2.0 / a
     eps = rng.uniform(0.03, 0.1) * Ps / E0
     f, N0 = rng.uniform(0.04, 0.07), rng.uniform(0.5, 2.0)
-    design = [Wave("triangle", 2.0, E0, 4), Wave("triangle", 0.5, E0, 4), Wave("triangle", 10.0, E0, 3),
-              Wave("triangle", 2.0, 0.8 * E0, 4)]
+    design = [
+        Wave("triangle", 2.0, E0, 4),
+        Wave("triangle", 0.5, E0, 4),
+        Wave("triangle", 10.0, E0, 3),
+        Wave("triangle", 2.0, 0.8 * E0, 4),
+    ]
     state = {"m": -1.0, "N": 0.0}
 
     def rhs(tt, xx, uu, du):
@@ -523,8 +576,13 @@ def _duhem_model(rng, order: int) -> dict:
     np.fill_diagonal(Kp, 0.0)
     b = rng.uniform(0.6, 1.4, order)
     e = rng.uniform(0.2, 0.6, order) * U
-    model = {"A": {1: -np.diag(a) + K, -1: np.diag(a_m) - Kp}, "B": {1: a * b, -1: -a_m * b},
-             "E": {1: -a * e, -1: -a_m * e}, "C": rng.uniform(0.3, 1.0, order), "x0": np.zeros(order)}
+    model = {
+        "A": {1: -np.diag(a) + K, -1: np.diag(a_m) - Kp},
+        "B": {1: a * b, -1: -a_m * b},
+        "E": {1: -a * e, -1: -a_m * e},
+        "C": rng.uniform(0.3, 1.0, order),
+        "x0": np.zeros(order),
+    }
     for s in (1, -1):
         assert np.all(s * np.linalg.eigvals(model["A"][s]).real < 0), "a branch that does not converge"
     warm = U * np.r_[np.linspace(0, 1, 200), np.linspace(1, -1, 400)[1:], np.linspace(-1, 0, 200)[1:]]
@@ -536,9 +594,14 @@ def _duhem_model(rng, order: int) -> dict:
 def _control_duhem(order: int):
     def case(rng, samples):
         model = _duhem_model(rng, order)
-        design = [Wave("triangle", 40.0, 50.0, 2), Wave("triangle", 8.0, 35.0, 2), Wave("triangle", 2.0, 50.0, 2),
-                  Wave("triangle", 8.0, 42.0, 2)]
+        design = [
+            Wave("triangle", 40.0, 50.0, 2),
+            Wave("triangle", 8.0, 35.0, 2),
+            Wave("triangle", 2.0, 50.0, 2),
+            Wave("triangle", 8.0, 42.0, 2),
+        ]
         return _files(design, samples, lambda w, t, u, i: (duhem_exact(model, u), None))
+
     return case
 
 
@@ -556,11 +619,15 @@ def case_control_preisach(rng, samples):
     hc, sd_c = rng.uniform(0.25, 0.5) * U, rng.uniform(0.3, 0.6)
     hcs = (alpha - beta) / 2
     w = np.exp(-0.5 * (((alpha + beta) / 2) / sd_i) ** 2) * np.exp(-0.5 * (np.log(hcs / hc) / sd_c) ** 2) / hcs
-    w = w / w.sum()                                       # the relays span 2
-    frac = rng.uniform(0.1, 0.25)                         # share of the reversible part in the output
+    w = w / w.sum()  # the relays span 2
+    frac = rng.uniform(0.1, 0.25)  # share of the reversible part in the output
     c = frac / (1 - frac) / U
-    design = [Wave("triangle", 10.0, U, 2), Wave("triangle", 10.0, 0.7 * U, 2), Wave("triangle", 1.0, U, 2),
-              Wave("triangle", 10.0, 0.5 * U, 2)]
+    design = [
+        Wave("triangle", 10.0, U, 2),
+        Wave("triangle", 10.0, 0.7 * U, 2),
+        Wave("triangle", 1.0, U, 2),
+        Wave("triangle", 10.0, 0.5 * U, 2),
+    ]
     return _files(design, samples, lambda wv, t, u, i: (preisach(u, alpha, beta, w) + c * u, None))
 
 
@@ -569,10 +636,10 @@ class Case:
     name: str
     make: Callable
     control: bool = False
-    accepted: frozenset = frozenset()          # material effects that name the physics
-    tolerated: frozenset = frozenset()         # material effects also true of the truth (never alone)
+    accepted: frozenset = frozenset()  # material effects that name the physics
+    tolerated: frozenset = frozenset()  # material effects also true of the truth (never alone)
     required_measurement: frozenset = frozenset()
-    unexplained_ok: bool = False               # an honest "unexplained" without material claims is right
+    unexplained_ok: bool = False  # an honest "unexplained" without material claims is right
     seeds: int = 2
 
     def expected(self) -> str:
@@ -593,11 +660,16 @@ CASES = (
     Case("ferro_kai", case_ferro_kai, accepted=F({"switching", "rate_dependence"}), tolerated=F({"saturation"})),
     Case("eddy_bh", case_eddy_bh, accepted=F({"viscous", "rate_dependence"}), tolerated=F({"saturation"})),
     Case("damper_bw", case_damper_bw, accepted=F({"viscous"})),
-    Case("creep_drift", case_creep_drift, accepted=F({"creep", "relaxation"}),
-         required_measurement=F({"measurement_drift"})),
+    Case(
+        "creep_drift",
+        case_creep_drift,
+        accepted=F({"creep", "relaxation"}),
+        required_measurement=F({"measurement_drift"}),
+    ),
     Case("heating", case_heating, accepted=F({"thermal_drift"}), tolerated=F({"saturation"}), unexplained_ok=True),
-    Case("degradation", case_degradation, accepted=F({"thermal_drift"}), tolerated=F({"saturation"}),
-         unexplained_ok=True),
+    Case(
+        "degradation", case_degradation, accepted=F({"thermal_drift"}), tolerated=F({"saturation"}), unexplained_ok=True
+    ),
     Case("control_duhem1", _control_duhem(1), control=True, seeds=4),
     Case("control_duhem2", _control_duhem(2), control=True, seeds=4),
     Case("control_duhem3", _control_duhem(3), control=True, seeds=4),
@@ -648,8 +720,11 @@ def score(case: Case, row: Row) -> bool:
         return not material
     if not material:
         return case.unexplained_ok and row.verdict == "unexplained"
-    return (bool(material & case.accepted) and material <= (case.accepted | case.tolerated)
-            and case.required_measurement <= set(row.measurement))
+    return (
+        bool(material & case.accepted)
+        and material <= (case.accepted | case.tolerated)
+        and case.required_measurement <= set(row.measurement)
+    )
 
 
 def run(case: Case, seed: int, samples: int) -> Row:
@@ -658,7 +733,7 @@ def run(case: Case, seed: int, samples: int) -> Row:
     t0 = time.perf_counter()
     try:
         d = diagnose(recs).to_json()
-    except Exception as exc:                                # a refusal is a wrong answer, shown as such
+    except Exception as exc:  # a refusal is a wrong answer, shown as such
         row.error, row.verdict = f"{type(exc).__name__}: {exc}"[:200], "error"
     else:
         findings = d["findings"]
@@ -673,16 +748,19 @@ def run(case: Case, seed: int, samples: int) -> Row:
     return row
 
 
-HEADER = (f"{'case':17s} {'seed':>4s}  {'expected':44s} {'found material':26s} {'found measurement':20s} "
-          f"{'verdict':15s} {'right?':6s} {'eff%':>5s} {'base/n':>6s} {'ext/n':>6s} {'seconds':>7s}")
+HEADER = (
+    f"{'case':17s} {'seed':>4s}  {'expected':44s} {'found material':26s} {'found measurement':20s} "
+    f"{'verdict':15s} {'right?':6s} {'eff%':>5s} {'base/n':>6s} {'ext/n':>6s} {'seconds':>7s}"
+)
 
 
 def line(r: Row) -> str:
-    return (f"{r.case:17s} {r.seed:4d}  {r.expected:44s} {','.join(r.material) or '-':26s} "
-            f"{','.join(r.measurement) or '-':20s} {r.verdict:15s} {'yes' if r.right else 'NO':6s} "
-            f"{'-' if math.isnan(r.effect_size) else f'{100 * r.effect_size:.1f}':>5s} {r.base_ratio:6.2f} "
-            f"{r.ext_ratio:6.2f} {r.seconds:7.1f}"
-            + (f"  [{r.error}]" if r.error else ""))
+    return (
+        f"{r.case:17s} {r.seed:4d}  {r.expected:44s} {','.join(r.material) or '-':26s} "
+        f"{','.join(r.measurement) or '-':20s} {r.verdict:15s} {'yes' if r.right else 'NO':6s} "
+        f"{'-' if math.isnan(r.effect_size) else f'{100 * r.effect_size:.1f}':>5s} {r.base_ratio:6.2f} "
+        f"{r.ext_ratio:6.2f} {r.seconds:7.1f}" + (f"  [{r.error}]" if r.error else "")
+    )
 
 
 def summary(rows: Sequence[Row]) -> str:
@@ -690,17 +768,20 @@ def summary(rows: Sequence[Row]) -> str:
     ctl = [r for r in rows if r.control]
     pct = f"{100 * sum(r.right for r in ctl) / len(ctl):.0f} %" if ctl else "-"
     nm = sum(r.verdict == "nothing_missing" for r in ctl)
-    return (f"score: {sum(r.right for r in rows)}/{len(rows)} right; "
-            f"effect cases {sum(r.right for r in eff)}/{len(eff)}, "
-            f"controls {sum(r.right for r in ctl)}/{len(ctl)}\n"
-            f"controls: no material finding in {pct} of control seeds ({nm}/{len(ctl)} say nothing_missing)")
+    return (
+        f"score: {sum(r.right for r in rows)}/{len(rows)} right; "
+        f"effect cases {sum(r.right for r in eff)}/{len(eff)}, "
+        f"controls {sum(r.right for r in ctl)}/{len(ctl)}\n"
+        f"controls: no material finding in {pct} of control seeds ({nm}/{len(ctl)} say nothing_missing)"
+    )
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one seed per case, 300 samples per file")
-    ap.add_argument("--seeds", type=int, default=None,
-                    help="seeds per case (default: 2 per effect case, 4 per control)")
+    ap.add_argument(
+        "--seeds", type=int, default=None, help="seeds per case (default: 2 per effect case, 4 per control)"
+    )
     ap.add_argument("--samples", type=int, default=None, help="samples per file (default 400, quick 300)")
     ap.add_argument("--only", default=None, help="run only the cases whose name contains this")
     ap.add_argument("--json", default=None, help="write the table to this path")
@@ -724,8 +805,9 @@ def main() -> None:
 
 def _write(path: str, samples: int, rows: Sequence[Row]) -> None:
     with open(path, "w") as fh:
-        json.dump({"samples": samples, "rows": [vars(r) for r in rows], "score": summary(rows)}, fh, indent=1,
-                  default=float)
+        json.dump(
+            {"samples": samples, "rows": [vars(r) for r in rows], "score": summary(rows)}, fh, indent=1, default=float
+        )
 
 
 if __name__ == "__main__":

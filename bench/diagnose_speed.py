@@ -28,6 +28,7 @@ file's time runs on from the previous one's last sample by one sample
 period) and each file's P is shifted to start where the previous one ended
 (only differences of P are physical).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,10 +44,16 @@ from fitter.data.preparation import find_holds
 from fitter.data.recordings import Recording, load_recording
 
 PIEZO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "piezo-pnzt"
-TRIANGLES = ("slow_T01_triangle_1400V_0.1Hz.csv", "slow_T02_triangle_1400V_0.01Hz.csv",
-             "slow_T06_triangle_1400V_1Hz.csv")
-TRAPEZOIDS = ("creep_T01_trapezoid_1400V_1000V_60S.csv", "creep_T02_trapezoid_1400V_1000V_60S.csv",
-              "creep_T03_trapezoid_1400V_1200V_105S.csv")
+TRIANGLES = (
+    "slow_T01_triangle_1400V_0.1Hz.csv",
+    "slow_T02_triangle_1400V_0.01Hz.csv",
+    "slow_T06_triangle_1400V_1Hz.csv",
+)
+TRAPEZOIDS = (
+    "creep_T01_trapezoid_1400V_1000V_60S.csv",
+    "creep_T02_trapezoid_1400V_1000V_60S.csv",
+    "creep_T03_trapezoid_1400V_1200V_105S.csv",
+)
 
 RUNS7 = ((50.0, 1.0), (20.0, 1.0), (10.0, 1.0), (5.0, 1.0), (2.0, 1.0), (10.0, 0.6), (50.0, 1.0))
 
@@ -58,9 +65,11 @@ def timing(effect: str) -> None:
     with rich_progress(f"diagnosing {len(recordings)} recordings") as progress:
         d = diagnose(recordings, progress=progress)
     elapsed = time.perf_counter() - t0
-    print(f"diagnose: {len(recordings)} recordings, {n} samples, concealed {effect}: {elapsed:.1f} s "
-          f"(target < 120 s); findings {[f['effect'] for f in d.findings]}; residual RMS "
-          f"{d.baseline['residual_rms']:.4g} -> {d.extended['residual_rms']:.4g} (true noise {truth['noise_rms']:.4g})")
+    print(
+        f"diagnose: {len(recordings)} recordings, {n} samples, concealed {effect}: {elapsed:.1f} s "
+        f"(target < 120 s); findings {[f['effect'] for f in d.findings]}; residual RMS "
+        f"{d.baseline['residual_rms']:.4g} -> {d.extended['residual_rms']:.4g} (true noise {truth['noise_rms']:.4g})"
+    )
 
 
 def _varied(seed: int) -> dict:
@@ -75,8 +84,7 @@ def sweep(seeds: int, samples: int) -> None:
     right = total = clean_ok = clean = near_noise = 0
     for effect in list(REGISTRY) + [None]:
         for seed in range(seeds):
-            recordings, truth = synthetic_experiment(effect, seed=100 + seed, samples=samples,
-                                                     **_varied(seed))
+            recordings, truth = synthetic_experiment(effect, seed=100 + seed, samples=samples, **_varied(seed))
             d = diagnose(recordings)
             found = [f["effect"] for f in d.findings]
             ratio = d.extended["residual_rms"] / truth["noise_rms"]
@@ -89,9 +97,11 @@ def sweep(seeds: int, samples: int) -> None:
                 right += ok
                 near_noise += ok and ratio <= 1.2
             print(f"  {effect or 'clean':16s} seed {seed}: found {found}, extended/noise {ratio:.3f}", flush=True)
-    print(f"right effect first: {right}/{total} ({100 * right / total:.0f}%); nothing missing on clean: "
-          f"{clean_ok}/{clean} ({100 * clean_ok / clean:.0f}%); extended residual within 20% of the noise when "
-          f"right: {near_noise}/{right}")
+    print(
+        f"right effect first: {right}/{total} ({100 * right / total:.0f}%); nothing missing on clean: "
+        f"{clean_ok}/{clean} ({100 * clean_ok / clean:.0f}%); extended residual within 20% of the noise when "
+        f"right: {near_noise}/{right}"
+    )
 
 
 def piezo_experiment(files, clean_holds: bool) -> list[Recording]:
@@ -103,9 +113,17 @@ def piezo_experiment(files, clean_holds: bool) -> list[Recording]:
         if clean_holds:
             for a, b in find_holds(rec.t, u):
                 u[a:b] = np.median(u[a:b])
-        recs.append(Recording(rec.t, u, rec.y, name=Path(f).stem.split("_")[1] + "_"
-                              + "_".join(Path(f).stem.split("_")[2:4]), input=rec.input, output=rec.output,
-                              source=str(PIEZO / f)))
+        recs.append(
+            Recording(
+                rec.t,
+                u,
+                rec.y,
+                name=Path(f).stem.split("_")[1] + "_" + "_".join(Path(f).stem.split("_")[2:4]),
+                input=rec.input,
+                output=rec.output,
+                source=str(PIEZO / f),
+            )
+        )
     return chain_recordings(recs, relative_output=True)
 
 
@@ -123,9 +141,11 @@ def piezo(out: Path, base_order: int | None) -> None:
         print(f"verdict: {d.verdict}; findings: {[f['effect'] for f in d.findings]}")
         print(d.paragraph)
         for c in d.candidates:
-            print(f"  {c['rank']}. {c['effect']:16s} residual {c['residual_rms']:.4g}  explains "
-                  f"{100 * c['explained_fraction']:5.1f}%  p = {c['p_value']:.2g}  n_eff = {c['n_eff']:.0f}  "
-                  f"{c['parameters']}")
+            print(
+                f"  {c['rank']}. {c['effect']:16s} residual {c['residual_rms']:.4g}  explains "
+                f"{100 * c['explained_fraction']:5.1f}%  p = {c['p_value']:.2g}  n_eff = {c['n_eff']:.0f}  "
+                f"{c['parameters']}"
+            )
         for label, part in (("before:", d.baseline), ("after: ", d.extended)):
             percent = {k: round(100 * v, 2) for k, v in part["nrmse_per_recording"].items()}
             print(f"  NRMSE per recording {label}", percent)
@@ -138,8 +158,11 @@ def main() -> None:
     ap.add_argument("--sweep", type=int, default=0, help="seeds per effect for the success-rate sweep")
     ap.add_argument("--samples", type=int, default=1000, help="samples per recording in the sweep")
     ap.add_argument("--piezo", type=Path, default=None, help="diagnose the piezo data; reports in this folder")
-    ap.add_argument("--base-order", default="auto",
-                    help="piezo: base model order ('auto': as `duhem diagnose` by default; 1-4: fixed)")
+    ap.add_argument(
+        "--base-order",
+        default="auto",
+        help="piezo: base model order ('auto': as `duhem diagnose` by default; 1-4: fixed)",
+    )
     args = ap.parse_args()
     if args.piezo:
         piezo(args.piezo, None if args.base_order == "auto" else int(args.base_order))

@@ -10,6 +10,7 @@ verdict and the CPU seconds of the fit.  Cases: demo, piezo triangles at 1 / 0.1
 polarization), friction at 1 / 4 / 7 bar (position -> force); the shared data are read from
 ``../shared/data`` at run time and skipped when absent.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -25,21 +26,25 @@ from fitter.fmu.host import simulate_fmu
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
-PIEZO = {"piezo 1 Hz": "slow_T06_triangle_1400V_1Hz", "piezo 0.1 Hz": "slow_T01_triangle_1400V_0.1Hz",
-         "piezo 0.01 Hz": "slow_T02_triangle_1400V_0.01Hz"}
+PIEZO = {
+    "piezo 1 Hz": "slow_T06_triangle_1400V_1Hz",
+    "piezo 0.1 Hz": "slow_T01_triangle_1400V_0.1Hz",
+    "piezo 0.01 Hz": "slow_T02_triangle_1400V_0.01Hz",
+}
 
 
 def _cases() -> dict:
     cases = {"demo": lambda: load_recording(ROOT / "examples" / "demo.csv")}
     if (DATA / "piezo-pnzt").is_dir():
         for label, name in PIEZO.items():
-            cases[label] = (lambda n=name: load_recording(DATA / "piezo-pnzt" / f"{n}.csv", time="time_s",
-                                                          input="voltage_V", output="polarization_uC_per_cm2"))
+            cases[label] = lambda n=name: load_recording(
+                DATA / "piezo-pnzt" / f"{n}.csv", time="time_s", input="voltage_V", output="polarization_uC_per_cm2"
+            )
     if (DATA / "friction-pneumatic").is_dir():
         for p in (1, 4, 7):
-            cases[f"friction {p} bar"] = (lambda p=p: load_recording(
-                DATA / "friction-pneumatic" / f"Circle_{p}bar.csv", time="time_s", input="position_mm",
-                output="force_N"))
+            cases[f"friction {p} bar"] = lambda p=p: load_recording(
+                DATA / "friction-pneumatic" / f"Circle_{p}bar.csv", time="time_s", input="position_mm", output="force_N"
+            )
     return cases
 
 
@@ -53,10 +58,17 @@ def run(case: str, load) -> dict:
         fmu = build_fmu(fit.model, Path(tmp) / "m.fmu", backend="native", allow_unstable=True)
         got = nrmse(rec.y, simulate_fmu(fmu, rec.t, rec.u))
     prepared = row["nrmse_prepared"]
-    return {"case": case, "model": f"{fit.summary['kind']}{fit.summary['order']}", "prepared": prepared,
-            "fit": row["nrmse"], "fmu": got, "within": bool(got <= max(1.5 * prepared, prepared + 0.01)),
-            "deadband": fit.summary["input_deadband"], "converges": fit.summary["convergence"]["satisfied"],
-            "cpu_s": cpu}
+    return {
+        "case": case,
+        "model": f"{fit.summary['kind']}{fit.summary['order']}",
+        "prepared": prepared,
+        "fit": row["nrmse"],
+        "fmu": got,
+        "within": bool(got <= max(1.5 * prepared, prepared + 0.01)),
+        "deadband": fit.summary["input_deadband"],
+        "converges": fit.summary["convergence"]["satisfied"],
+        "cpu_s": cpu,
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -71,9 +83,12 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(run(case, load))
         if not args.json:
             r = rows[-1]
-            print(f"{case:16s} {r['model']:4s} prepared {r['prepared']:7.2%}  fit {r['fit']:7.2%}  "
-                  f"fmu {r['fmu']:7.2%}  within {'yes' if r['within'] else 'NO ':3s}  dead band "
-                  f"{r['deadband']:.3g}  converges {r['converges']}  cpu {r['cpu_s']:.0f} s", flush=True)
+            print(
+                f"{case:16s} {r['model']:4s} prepared {r['prepared']:7.2%}  fit {r['fit']:7.2%}  "
+                f"fmu {r['fmu']:7.2%}  within {'yes' if r['within'] else 'NO ':3s}  dead band "
+                f"{r['deadband']:.3g}  converges {r['converges']}  cpu {r['cpu_s']:.0f} s",
+                flush=True,
+            )
     if args.json:
         print(json.dumps(rows, indent=2))
     return 0 if all(r["within"] for r in rows) else 1

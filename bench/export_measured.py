@@ -20,6 +20,7 @@ of them and prints one row per recording:
 
 The exit status is 1 when any check fails on any recording.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -45,8 +46,11 @@ DATA = ROOT.parent / "shared" / "data"
 
 
 def _piezo(name: str) -> list[Recording]:
-    return [load_recording(DATA / "piezo-pnzt" / f"{name}.csv", time="time_s", input="voltage_V",
-                           output="polarization_uC_per_cm2")]
+    return [
+        load_recording(
+            DATA / "piezo-pnzt" / f"{name}.csv", time="time_s", input="voltage_V", output="polarization_uC_per_cm2"
+        )
+    ]
 
 
 def _friction(bar: int) -> list[Recording]:
@@ -54,7 +58,7 @@ def _friction(bar: int) -> list[Recording]:
     with open(DATA / "friction-pneumatic" / f"Circle_{bar}bar.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))[15:]
     t, x, p, f = (np.array([float(r[k]) for r in rows]) for k in ("time_s", "position_mm", "pressure_bar", "force_N"))
-    return [Recording(t, x, f - p * 1e5 * np.pi * 0.0125 ** 2, name=f"{bar} bar")]
+    return [Recording(t, x, f - p * 1e5 * np.pi * 0.0125**2, name=f"{bar} bar")]
 
 
 def cases() -> dict:
@@ -62,10 +66,10 @@ def cases() -> dict:
     out = {"demo": lambda: [load_recording(ROOT / "examples" / "demo.csv")]}
     if (DATA / "piezo-pnzt").is_dir():
         for path in sorted((DATA / "piezo-pnzt").glob("*_T*.csv")):
-            out[path.stem] = (lambda n=path.stem: _piezo(n))
+            out[path.stem] = lambda n=path.stem: _piezo(n)
     if (DATA / "friction-pneumatic").is_dir():
         for bar in range(1, 8):
-            out[f"friction {bar} bar"] = (lambda b=bar: _friction(b))
+            out[f"friction {bar} bar"] = lambda b=bar: _friction(b)
     return out
 
 
@@ -75,16 +79,24 @@ def run(case: str, load) -> dict:
     t0 = time.process_time()
     fit = fit_recordings(recs)
     cpu = time.process_time() - t0
-    checks = {"finite": all(math.isfinite(r["nrmse"]) for r in fit.summary["recordings"]),
-              "converges": bool(fit.summary["convergence"]["satisfied"])}
+    checks = {
+        "finite": all(math.isfinite(r["nrmse"]) for r in fit.summary["recordings"]),
+        "converges": bool(fit.summary["convergence"]["satisfied"]),
+    }
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         fmu = build_fmu(fit.model, Path(tmp) / "m.fmu", backend="native", allow_unstable=True)
         for rec, row in zip(recs, fit.summary["recordings"]):
             y_fmu = simulate_fmu(fmu, rec.t, rec.u)
             got = nrmse(rec.y, y_fmu)
-            rows.append({"prepared": row["nrmse_prepared"], "fit": row["nrmse"], "fmu": got,
-                         "fmu_sim": float(np.abs(y_fmu - fit.simulate(rec)).max() / np.ptp(rec.y))})
+            rows.append(
+                {
+                    "prepared": row["nrmse_prepared"],
+                    "fit": row["nrmse"],
+                    "fmu": got,
+                    "fmu_sim": float(np.abs(y_fmu - fit.simulate(rec)).max() / np.ptp(rec.y)),
+                }
+            )
     checks["fmu_sim"] = all(r["fmu_sim"] <= 2e-5 for r in rows)
     checks["fmu_fit"] = all(abs(r["fmu"] - r["fit"]) <= 1e-4 * abs(r["fit"]) for r in rows)
     checks["within"] = all(r["fmu"] <= max(1.5 * r["prepared"], r["prepared"] + 0.01) for r in rows)
@@ -93,20 +105,30 @@ def run(case: str, load) -> dict:
     minor = fit.summary["minor_loops"]
     checks["excursion"] = math.isclose(minor["excursion"], minor_loop_excursion(fit.model, recs), rel_tol=1e-12)
     checks["faithful"] = minor["faithful"] is (minor["excursion"] <= MINOR_LOOP_WARNING)
-    return {"case": case, "model": f"{fit.summary['kind']}{fit.summary['order']}", "recordings": rows,
-            "rho": rho, "excursion": minor["excursion"], "faithful": minor["faithful"], "checks": checks,
-            "ok": all(checks.values()), "cpu_s": cpu}
+    return {
+        "case": case,
+        "model": f"{fit.summary['kind']}{fit.summary['order']}",
+        "recordings": rows,
+        "rho": rho,
+        "excursion": minor["excursion"],
+        "faithful": minor["faithful"],
+        "checks": checks,
+        "ok": all(checks.values()),
+        "cpu_s": cpu,
+    }
 
 
 def line(r: dict) -> str:
     first = r["recordings"][0]
     failed = [k for k, ok in r["checks"].items() if not ok]
     rho = "-" if r["rho"] is None else f"{r['rho']:.3f}"
-    return (f"{r['case']:34s} {r['model']:4s} prepared {first['prepared']:7.2%}  fit {first['fit']:7.2%}  "
-            f"fmu {first['fmu']:7.2%}  |fmu-sim| {first['fmu_sim']:.1e}  rho {rho:5s}  excursion "
-            f"{r['excursion']:.3g} ({'faithful' if r['faithful'] else 'not faithful'})  converges "
-            f"{'yes' if r['checks']['converges'] else 'NO'}  {'ok' if r['ok'] else 'FAILED ' + ','.join(failed)}  "
-            f"cpu {r['cpu_s']:.0f} s")
+    return (
+        f"{r['case']:34s} {r['model']:4s} prepared {first['prepared']:7.2%}  fit {first['fit']:7.2%}  "
+        f"fmu {first['fmu']:7.2%}  |fmu-sim| {first['fmu_sim']:.1e}  rho {rho:5s}  excursion "
+        f"{r['excursion']:.3g} ({'faithful' if r['faithful'] else 'not faithful'})  converges "
+        f"{'yes' if r['checks']['converges'] else 'NO'}  {'ok' if r['ok'] else 'FAILED ' + ','.join(failed)}  "
+        f"cpu {r['cpu_s']:.0f} s"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

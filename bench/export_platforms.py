@@ -16,6 +16,7 @@ Usage::
 
     python bench/export_platforms.py [--repeats 3] [--json]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -66,9 +67,16 @@ def measure(repeats: int) -> list[dict]:
                 for sel in ("all", "host"):
                     t = timed_export(build, model, paths[sel], version, None if sel == "all" else "host")
                     best[sel] = min(best[sel], t)
-            rows.append({"kind": kind, "seconds_all": best["all"], "seconds_host": best["host"],
-                         "time_ratio": best["all"] / best["host"],
-                         "bytes_all": paths["all"].stat().st_size, "bytes_host": paths["host"].stat().st_size})
+            rows.append(
+                {
+                    "kind": kind,
+                    "seconds_all": best["all"],
+                    "seconds_host": best["host"],
+                    "time_ratio": best["all"] / best["host"],
+                    "bytes_all": paths["all"].stat().st_size,
+                    "bytes_host": paths["host"].stat().st_size,
+                }
+            )
     return rows
 
 
@@ -83,8 +91,10 @@ def main() -> None:
         return
     print(f"{'FMU':22s} {'all [s]':>8s} {'host [s]':>9s} {'ratio':>6s} {'all [kB]':>9s} {'host [kB]':>10s}")
     for r in rows:
-        print(f"{r['kind']:22s} {r['seconds_all']:8.2f} {r['seconds_host']:9.2f} {r['time_ratio']:6.2f} "
-              f"{r['bytes_all'] / 1e3:9.0f} {r['bytes_host'] / 1e3:10.0f}")
+        print(
+            f"{r['kind']:22s} {r['seconds_all']:8.2f} {r['seconds_host']:9.2f} {r['time_ratio']:6.2f} "
+            f"{r['bytes_all'] / 1e3:9.0f} {r['bytes_host'] / 1e3:10.0f}"
+        )
 
 
 if __name__ == "__main__":

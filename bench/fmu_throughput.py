@@ -27,6 +27,7 @@ the ratio as little as possible.
 A backend is a `Backend(name, build_model, build_trivial, target)`; a native
 backend is added by appending one to `BACKENDS`.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -108,18 +109,24 @@ class Backend:
     target: float
 
 
-BACKENDS = [Backend("python", lambda m, p: build_fmu.build_fmu(m, p, backend="python"),
-                    build_python_gain, 0.30)]
+BACKENDS = [Backend("python", lambda m, p: build_fmu.build_fmu(m, p, backend="python"), build_python_gain, 0.30)]
 
 # The native (C) backend: its trivial FMU is y = k u on the same C framework, compiled the
 # same way (`fitter.fmu.native.build_gain_fmu`).  Target: ratio >= 0.50 (issue 6).
 from fitter.fmu.native import build_gain_fmu  # noqa: E402
 
-BACKENDS.append(Backend("native", lambda m, p: build_fmu.build_fmu(m, p, backend="native"),
-                        lambda p: build_gain_fmu(p), 0.50))
+BACKENDS.append(
+    Backend("native", lambda m, p: build_fmu.build_fmu(m, p, backend="native"), lambda p: build_gain_fmu(p), 0.50)
+)
 # The same C model behind the FMI 3.0 framework, against the gain FMU of FMI 3.0 (issue 12).
-BACKENDS.append(Backend("native-fmi3", lambda m, p: build_fmu.build_fmu(m, p, backend="native", fmi_version=3),
-                        lambda p: build_gain_fmu(p, fmi_version=3), 0.50))
+BACKENDS.append(
+    Backend(
+        "native-fmi3",
+        lambda m, p: build_fmu.build_fmu(m, p, backend="native", fmi_version=3),
+        lambda p: build_gain_fmu(p, fmi_version=3),
+        0.50,
+    )
+)
 
 
 def stable_matrix(rng: np.random.Generator, n: int, decay: float) -> np.ndarray:
@@ -132,11 +139,16 @@ def bench_model(kind: str, n: int) -> RateIndependentModel | RateDependentModel:
     rng = np.random.default_rng(100 * n + (kind == "rd"))
     C = rng.standard_normal(n)
     if kind == "ri":
-        return RateIndependentModel(A_plus=stable_matrix(rng, n, 1.0), A_minus=-stable_matrix(rng, n, 1.0),
-                                    B_plus=rng.standard_normal(n), B_minus=-rng.standard_normal(n),
-                                    C=C, D=0.1)
+        return RateIndependentModel(
+            A_plus=stable_matrix(rng, n, 1.0),
+            A_minus=-stable_matrix(rng, n, 1.0),
+            B_plus=rng.standard_normal(n),
+            B_minus=-rng.standard_normal(n),
+            C=C,
+            D=0.1,
+        )
     nodes = np.geomspace(0.05, 10.0, 8)
-    g = TabulatedRate(np.r_[-nodes[::-1], nodes], np.r_[-nodes[::-1] ** 0.8, nodes ** 0.8])
+    g = TabulatedRate(np.r_[-nodes[::-1], nodes], np.r_[-(nodes[::-1] ** 0.8), nodes**0.8])
     return RateDependentModel(A=stable_matrix(rng, n, 1.0), B=rng.standard_normal(n), C=C, g=g)
 
 
@@ -149,8 +161,12 @@ class LoopedFmu:
         vr = {v.name: v.valueReference for v in md.modelVariables}
         self.unzipdir = extract(fmu_path)
         slave = FMU3Slave if md.fmiVersion == "3.0" else FMU2Slave
-        self.fmu = slave(guid=md.guid, unzipDirectory=self.unzipdir,
-                         modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bench")
+        self.fmu = slave(
+            guid=md.guid,
+            unzipDirectory=self.unzipdir,
+            modelIdentifier=md.coSimulation.modelIdentifier,
+            instanceName="bench",
+        )
         self.fmu.instantiate()
         if slave is FMU3Slave:
             self.fmu.enterInitializationMode(startTime=0.0)
@@ -181,8 +197,7 @@ class LoopedFmu:
         shutil.rmtree(self.unzipdir, ignore_errors=True)
 
 
-def paired_steps_per_second(model_fmu: str, trivial_fmu: str, steps: int,
-                            repeats: int) -> tuple[float, float]:
+def paired_steps_per_second(model_fmu: str, trivial_fmu: str, steps: int, repeats: int) -> tuple[float, float]:
     """Best steps/s of the model and the trivial FMU, measured in alternating runs."""
     h = 0.01
     u = np.sin(2 * np.pi * 0.5 * h * np.arange(steps)).tolist()
@@ -215,31 +230,46 @@ def run(steps: int, samples: int, repeats: int, backends: list[str] | None = Non
             gain = backend.build_trivial(Path(tmp) / f"gain_{backend.name}.fmu")
             for kind in ("ri", "rd"):
                 for n in range(1, 5):
-                    path = backend.build_model(bench_model(kind, n),
-                                               Path(tmp) / f"{backend.name}_{kind}{n}.fmu")
+                    path = backend.build_model(bench_model(kind, n), Path(tmp) / f"{backend.name}_{kind}{n}.fmu")
                     rate, trivial = paired_steps_per_second(path, gain, steps, repeats)
-                    fmu_rows.append({"backend": backend.name, "kind": kind, "order": n,
-                                     "model_steps_per_s": rate, "trivial_steps_per_s": trivial,
-                                     "ratio": rate / trivial, "target": backend.target,
-                                     "meets_target": rate / trivial >= backend.target})
+                    fmu_rows.append(
+                        {
+                            "backend": backend.name,
+                            "kind": kind,
+                            "order": n,
+                            "model_steps_per_s": rate,
+                            "trivial_steps_per_s": trivial,
+                            "ratio": rate / trivial,
+                            "target": backend.target,
+                            "meets_target": rate / trivial >= backend.target,
+                        }
+                    )
     for kind in ("ri", "rd"):
         for n in range(1, 5):
-            rate = max(kernel_samples_per_second(bench_model(kind, n), samples)
-                       for _ in range(repeats))
-            kernel_rows.append({"kind": kind, "order": n, "samples": samples,
-                                "samples_per_s": rate,
-                                "target": KERNEL_TARGET if kind == "ri" else None,
-                                "meets_target": rate >= KERNEL_TARGET if kind == "ri" else None})
+            rate = max(kernel_samples_per_second(bench_model(kind, n), samples) for _ in range(repeats))
+            kernel_rows.append(
+                {
+                    "kind": kind,
+                    "order": n,
+                    "samples": samples,
+                    "samples_per_s": rate,
+                    "target": KERNEL_TARGET if kind == "ri" else None,
+                    "meets_target": rate >= KERNEL_TARGET if kind == "ri" else None,
+                }
+            )
     return {"fmu": fmu_rows, "kernel": kernel_rows}
 
 
 def print_table(result: dict) -> None:
-    print(f"{'backend':11} {'kind':4} {'n':>2} {'model steps/s':>14} {'trivial steps/s':>16} "
-          f"{'ratio':>6} {'target':>6}")
+    print(
+        f"{'backend':11} {'kind':4} {'n':>2} {'model steps/s':>14} {'trivial steps/s':>16} {'ratio':>6} {'target':>6}"
+    )
     for r in result["fmu"]:
-        print(f"{r['backend']:11} {r['kind']:4} {r['order']:>2} {r['model_steps_per_s']:>14,.0f} "
-              f"{r['trivial_steps_per_s']:>16,.0f} {r['ratio']:>6.2f} "
-              f"{'ok' if r['meets_target'] else 'MISS':>6}")
+        print(
+            f"{r['backend']:11} {r['kind']:4} {r['order']:>2} {r['model_steps_per_s']:>14,.0f} "
+            f"{r['trivial_steps_per_s']:>16,.0f} {r['ratio']:>6.2f} "
+            f"{'ok' if r['meets_target'] else 'MISS':>6}"
+        )
     print()
     print(f"{'kernel':8} {'kind':4} {'n':>2} {'samples/s':>14} {'target':>16}")
     for r in result["kernel"]:
@@ -253,8 +283,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--samples", type=int, default=1_000_000, help="kernel input length")
     parser.add_argument("--repeats", type=int, default=5, help="runs per figure (best is kept)")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
-    parser.add_argument("--backend", dest="backends", action="append", choices=[b.name for b in BACKENDS],
-                        help="measure only this FMU backend (repeatable; default: all)")
+    parser.add_argument(
+        "--backend",
+        dest="backends",
+        action="append",
+        choices=[b.name for b in BACKENDS],
+        help="measure only this FMU backend (repeatable; default: all)",
+    )
     args = parser.parse_args(argv)
     result = run(args.steps, args.samples, args.repeats, args.backends)
     if args.json:

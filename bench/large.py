@@ -16,6 +16,7 @@ the interpreter and its libraries (numpy, scipy, click, fmpy), the whole figure 
 1e5 samples; the rest grows with the samples.  Figures depend on the machine's
 load: run it on a quiet one.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -69,9 +70,24 @@ def main() -> None:
             save_model(cell_base(1), d / "truth.json")
             steps = [("simulate", ["simulate", str(d / "truth.json"), str(csv), "-o", str(d / "out.csv")])]
             if not args.skip_fit:
-                steps += [("fit", ["fit", str(csv), "-o", str(d / "m.json"), "--fmu", str(d / "m.fmu"),
-                                   "--kind", "ri", "--order", "1"]),
-                          ("validate", ["validate", str(d / "m.fmu"), str(csv)])]
+                steps += [
+                    (
+                        "fit",
+                        [
+                            "fit",
+                            str(csv),
+                            "-o",
+                            str(d / "m.json"),
+                            "--fmu",
+                            str(d / "m.fmu"),
+                            "--kind",
+                            "ri",
+                            "--order",
+                            "1",
+                        ],
+                    ),
+                    ("validate", ["validate", str(d / "m.fmu"), str(csv)]),
+                ]
             for name, cmd in steps:
                 seconds, peak, code = _isolated(cmd)
                 print(f"{n:9d} {mb:7.1f}  {name:9s} {seconds:8.1f} {peak:8.0f} {peak / mb:6.1f}  {code}", flush=True)
@@ -79,8 +95,10 @@ def main() -> None:
 
 def _isolated(cmd: list[str]) -> tuple[float, float, int]:
     """`run(cmd)` in a fresh Python process, so the peak is this command's alone."""
-    code = ("import json, sys; sys.path.insert(0, %r); import large; print(json.dumps(large.run(%r)))"
-            % (str(Path(__file__).parent), cmd))
+    code = "import json, sys; sys.path.insert(0, %r); import large; print(json.dumps(large.run(%r)))" % (
+        str(Path(__file__).parent),
+        cmd,
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     seconds, peak, rc = json.loads(out.strip().splitlines()[-1])
     return seconds, peak, rc

@@ -16,6 +16,7 @@ Usage::
 
     python bench/long_recordings.py [--sizes 1000000 2000000] [--json]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -55,12 +56,15 @@ def write_csv(path: Path, t: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:
 
 def timed_fit(csv: Path, out: Path) -> tuple[float, float]:
     """Wall seconds and peak RSS (MB) of ``duhem fit csv -o out`` in a child process; raises on failure."""
-    code = ("import resource, subprocess, sys, time; t0 = time.perf_counter(); "
-            f"rc = subprocess.run({DUHEM!r} + ['fit', {str(csv)!r}, '-o', {str(out)!r}], "
-            "stdout=subprocess.DEVNULL).returncode; "
-            "print(time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024, rc)")
-    seconds, mb, rc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                                     check=True).stdout.split()
+    code = (
+        "import resource, subprocess, sys, time; t0 = time.perf_counter(); "
+        f"rc = subprocess.run({DUHEM!r} + ['fit', {str(csv)!r}, '-o', {str(out)!r}], "
+        "stdout=subprocess.DEVNULL).returncode; "
+        "print(time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024, rc)"
+    )
+    seconds, mb, rc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout.split()
     if int(rc) != 0:
         raise RuntimeError(f"duhem fit {csv} failed (exit {rc})")
     return float(seconds), float(mb)
@@ -70,7 +74,7 @@ def nrmse(model_path: Path, t: np.ndarray, u: np.ndarray, y: np.ndarray) -> tupl
     """NRMSE of the saved model on (t, u, y) from its stored x0, and its kind and order."""
     model = load_model(model_path)
     e = simulate(model, t, u).y - y
-    return float(np.sqrt(np.mean(e ** 2)) / np.ptp(y)), f"{model.kind}{model.order}"
+    return float(np.sqrt(np.mean(e**2)) / np.ptp(y)), f"{model.kind}{model.order}"
 
 
 def measure(n: int, folder: Path) -> dict:
@@ -104,8 +108,10 @@ def main() -> None:
     for r in rows:
         for part in ("tenth", "whole"):
             p = r[part]
-            print(f"{r['samples']:9d} {part:>6s} {p['model']:>5s} {100 * p['nrmse']:14.4f}% {p['seconds']:9.1f} "
-                  f"{p['peak_mb']:10.0f}")
+            print(
+                f"{r['samples']:9d} {part:>6s} {p['model']:>5s} {100 * p['nrmse']:14.4f}% {p['seconds']:9.1f} "
+                f"{p['peak_mb']:10.0f}"
+            )
         print(f"{'':9s} whole / tenth: score {r['score_ratio']:.3f} (target <= 1.05), time {r['time_ratio']:.2f}")
 
 

@@ -23,6 +23,7 @@ faithful minor loops (`fit_recordings(faithful_minor_loops=True)`, `duhem fit --
 condition (5) was required of every minor loop the B-H and damper fits reached 1.4e17 and 1.6e7 output ranges
 there.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -70,6 +71,7 @@ def b_h(rng: np.random.Generator) -> Recording:
         man = langevin(he)
         slope = (langevin(he + 1e-3) - man) / 1e-3
         return ((1 - c) * (man - m) / ((np.sign(dh) or 1.0) * k - alpha * (man - m)) + c * slope) * dh
+
     b = mu0 * (h + _euler(rate, 0.0, len(t)))
     return Recording(t, h, b + 0.005 * rng.standard_normal(len(t)), name="b-h")
 
@@ -84,6 +86,7 @@ def mr_damper(rng: np.random.Generator) -> Recording:
     def rate(i, z, s):
         vv = v[i - 1] + s * (v[i] - v[i - 1])
         return 1e-3 * (-gam * abs(vv) * z * abs(z) - beta * vv * z * z + amp * vv)
+
     f = c0 * v + k0 * x + al * _euler(rate, 0.0, len(t))
     return Recording(t, x, f + 20 * rng.standard_normal(len(t)), name="mr-damper")
 
@@ -97,6 +100,7 @@ def member(rng: np.random.Generator) -> Recording:
     def rate(i, z, _):
         dd = d[i] - d[i - 1]
         return dd - 0.05 * abs(dd) * abs(z) ** 0.5 * z - 0.05 * dd * abs(z) ** 1.5
+
     f = 2.0 * (0.1 * d + 0.9 * _euler(rate, 0.0, len(t)))
     return Recording(t, d, f + 0.3 * rng.standard_normal(len(t)), name="member")
 
@@ -110,14 +114,20 @@ def system_part(name: str, seed: int) -> dict:
     fit = fit_recordings([rec])
     seconds = time.perf_counter() - t0
     m = fit.model
-    out = {"samples": len(rec), "model": f"{m.kind}{m.order}", "fit_seconds": seconds,
-           "duhem": fit.summary["recordings"][0]["nrmse"],
-           "minor_loop_excursion": fit.summary["minor_loops"]["excursion"],
-           "minor_loop_rho": minor_loop_rho(m, *m.input_range) if m.kind == "ri" else None}
+    out = {
+        "samples": len(rec),
+        "model": f"{m.kind}{m.order}",
+        "fit_seconds": seconds,
+        "duhem": fit.summary["recordings"][0]["nrmse"],
+        "minor_loop_excursion": fit.summary["minor_loops"]["excursion"],
+        "minor_loop_rho": minor_loop_rho(m, *m.input_range) if m.kind == "ri" else None,
+    }
     faithful = fit_recordings([rec], faithful_minor_loops=True)
-    out["faithful"] = {"model": f"{faithful.model.kind}{faithful.model.order}",
-                       "duhem": faithful.summary["recordings"][0]["nrmse"],
-                       "minor_loop_excursion": faithful.summary["minor_loops"]["excursion"]}
+    out["faithful"] = {
+        "model": f"{faithful.model.kind}{faithful.model.order}",
+        "duhem": faithful.summary["recordings"][0]["nrmse"],
+        "minor_loop_excursion": faithful.summary["minor_loops"]["excursion"],
+    }
     base = compare_baselines([rec], per_recording=False)
     out["baselines"] = {b: r["one_for_all"][rec.name] for b, r in base.items()}
     return out
@@ -132,19 +142,26 @@ def main() -> None:
         print(json.dumps(res, indent=2))
         return
     names = list(next(iter(res.values()))["baselines"])
-    print(f"{'system':10s} {'model':6s} {'Duhem':>7s} " + " ".join(f"{n:>18s}" for n in names)
-          + f" {'minor-loop rho':>15s} {'excursion':>10s} {'fit s':>6s}")
+    print(
+        f"{'system':10s} {'model':6s} {'Duhem':>7s} "
+        + " ".join(f"{n:>18s}" for n in names)
+        + f" {'minor-loop rho':>15s} {'excursion':>10s} {'fit s':>6s}"
+    )
     for name, r in res.items():
         rho = "-" if r["minor_loop_rho"] is None else f"{r['minor_loop_rho']:.3g}"
-        print(f"{name:10s} {r['model']:6s} {r['duhem']:7.2%} "
-              + " ".join(f"{r['baselines'][n]:18.2%}" for n in names)
-              + f" {rho:>15s} {excursion_text(r['minor_loop_excursion']):>10s} {r['fit_seconds']:6.1f}")
+        print(
+            f"{name:10s} {r['model']:6s} {r['duhem']:7.2%} "
+            + " ".join(f"{r['baselines'][n]:18.2%}" for n in names)
+            + f" {rho:>15s} {excursion_text(r['minor_loop_excursion']):>10s} {r['fit_seconds']:6.1f}"
+        )
     print("\nwith --faithful-minor-loops (`fit_recordings(faithful_minor_loops=True)`):")
     for name, r in res.items():
         f = r["faithful"]
         print(f"{name:10s} {f['model']:6s} {f['duhem']:7.2%}  excursion {excursion_text(f['minor_loop_excursion'])}")
-    print("\nNRMSE = RMS error / output range over all samples; excursion = largest distance beyond the recorded "
-          "output range on minor loops of every sub-span of the stored input range, in output ranges")
+    print(
+        "\nNRMSE = RMS error / output range over all samples; excursion = largest distance beyond the recorded "
+        "output range on minor loops of every sub-span of the stored input range, in output ranges"
+    )
 
 
 if __name__ == "__main__":

@@ -47,6 +47,7 @@ The data are read at run time from ``<repo>/../shared/data`` (no licence for the
 piezo set: never copied into the repository); each part is skipped with a
 message when its folder is absent.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -68,9 +69,12 @@ from fitter.data.metrics import compare
 from fitter.data.recordings import Recording
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-PIEZO = {"1 Hz": "slow_T06_triangle_1400V_1Hz", "0.1 Hz": "slow_T01_triangle_1400V_0.1Hz",
-         "0.01 Hz": "slow_T02_triangle_1400V_0.01Hz"}
-AREA = np.pi * 0.0125 ** 2
+PIEZO = {
+    "1 Hz": "slow_T06_triangle_1400V_1Hz",
+    "0.1 Hz": "slow_T01_triangle_1400V_0.1Hz",
+    "0.01 Hz": "slow_T02_triangle_1400V_0.01Hz",
+}
+AREA = np.pi * 0.0125**2
 PIEZO_EFFECTS = ("switching", "measurement_drift")
 """What a user fitting a ferroelectric names (`duhem fit --effects switching,measurement_drift`): its domains
 switch over in time beyond a coercive voltage (`duhem diagnose` ranks switching first on the three triangles
@@ -92,10 +96,12 @@ def piezo_recordings(data: Path | None = None) -> dict[str, Recording]:
     """The three 1400 V triangles, read from `data` (default `DATA`)."""
     out = {}
     for label, stem in PIEZO.items():
-        t, u, y = _columns((data or DATA) / "piezo-pnzt" / f"{stem}.csv",
-                           ["time_s", "voltage_V", "polarization_uC_per_cm2"])
-        out[label] = Recording(t, u, y, name=label, input=Signal("voltage", "V"),
-                               output=Signal("polarization", "uC/cm2"), source=stem)
+        t, u, y = _columns(
+            (data or DATA) / "piezo-pnzt" / f"{stem}.csv", ["time_s", "voltage_V", "polarization_uC_per_cm2"]
+        )
+        out[label] = Recording(
+            t, u, y, name=label, input=Signal("voltage", "V"), output=Signal("polarization", "uC/cm2"), source=stem
+        )
     return out
 
 
@@ -104,9 +110,15 @@ def friction_recordings() -> dict[str, Recording]:
     for bar in range(1, 8):
         path = DATA / "friction-pneumatic" / f"Circle_{bar}bar.csv"
         t, x, p, f = (a[15:] for a in _columns(path, ["time_s", "position_mm", "pressure_bar", "force_N"]))
-        out[f"{bar} bar"] = Recording(t, x, f - p * 1e5 * AREA, name=f"{bar} bar",
-                                      input=Signal("position", "mm"),
-                                      output=Signal("friction_force", "N"), source=path.name)
+        out[f"{bar} bar"] = Recording(
+            t,
+            x,
+            f - p * 1e5 * AREA,
+            name=f"{bar} bar",
+            input=Signal("position", "mm"),
+            output=Signal("friction_force", "N"),
+            source=path.name,
+        )
     return out
 
 
@@ -117,6 +129,7 @@ def stack() -> dict[str, str]:
     import platform
 
     import scipy
+
     return {"python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__}
 
 
@@ -158,21 +171,27 @@ def piezo_part(report: Path | None) -> dict:
         _log(f"piezo: {kind} fit on all three rates")
         t0 = time.perf_counter()
         r = fit_recordings([recs[k] for k in labels], kind=kind)
-        out[key] = {"model": _model_tag(r), "seconds": time.perf_counter() - t0,
-                    "fit": dict(zip(labels, _fit_nrmse(r))),
-                    "pred": {k: _pred(r, recs[k]) for k in labels},
-                    "convergence": r.summary["convergence"]}
+        out[key] = {
+            "model": _model_tag(r),
+            "seconds": time.perf_counter() - t0,
+            "fit": dict(zip(labels, _fit_nrmse(r))),
+            "pred": {k: _pred(r, recs[k]) for k in labels},
+            "convergence": r.summary["convergence"],
+        }
         if report is not None:
             from fitter.reports.fit_report import write_fit_report
+
             write_fit_report(r, [recs[k] for k in labels], report / f"piezo_{kind}")
     for held in labels:
         _log(f"piezo: rd fit without {held}")
         train = [recs[k] for k in labels if k != held]
         r = fit_recordings(train, kind="rd")
-        out["holdout_rd"][held] = {"model": _model_tag(r), "pred": _pred(r, recs[held]),
-                                   "fit_on": [k for k in labels if k != held]}
-    out["rd_beats_ri_on_each_rate"] = all(out["joint_rd"]["fit"][k] < out["joint_ri"]["fit"][k]
-                                          for k in labels)
+        out["holdout_rd"][held] = {
+            "model": _model_tag(r),
+            "pred": _pred(r, recs[held]),
+            "fit_on": [k for k in labels if k != held],
+        }
+    out["rd_beats_ri_on_each_rate"] = all(out["joint_rd"]["fit"][k] < out["joint_ri"]["fit"][k] for k in labels)
     out["best"] = _best(recs, labels)
     _log("piezo: classical baselines")
     out["baselines"] = _baselines(recs)
@@ -182,8 +201,13 @@ def piezo_part(report: Path | None) -> dict:
 def _baselines(recs: dict[str, Recording]) -> dict:
     """Each classical model per recording and one for all (`fitter.baselines.compare_baselines`)."""
     res = compare_baselines(list(recs.values()))
-    return {name: {"per_recording": dict(zip(recs, b["per_recording"].values())),
-                   "one_for_all": dict(zip(recs, b["one_for_all"].values()))} for name, b in res.items()}
+    return {
+        name: {
+            "per_recording": dict(zip(recs, b["per_recording"].values())),
+            "one_for_all": dict(zip(recs, b["one_for_all"].values())),
+        }
+        for name, b in res.items()
+    }
 
 
 def _scores(model, recs: dict[str, Recording], labels: list[str]) -> dict[str, float]:
@@ -220,14 +244,28 @@ def _best(recs: dict[str, Recording], labels: list[str]) -> dict:
     diagnosed = _scores(ext, recs, labels)
     _log(f"piezo: best single model: duhem fit --effects {','.join(PIEZO_EFFECTS)} --hold {PIEZO_HELD}")
     e = fit_recordings([recs[k] for k in labels], effects=PIEZO_EFFECTS, held=PIEZO_HELD)
-    cands = {"fit": {"model": _model_tag(r), "effects": [], "fit": fitted,
-                     "fit_stored_x0": _stored_scores(r.model, recs, labels)},
-             "fit+diagnose": {"model": _model_tag(r), "effects": [e.effect for e in ext.effects],
-                              "verdict": d.verdict, "fit": diagnosed,
-                              "fit_stored_x0": _stored_scores(ext, recs, labels)},
-             "fit --effects": {"model": _model_tag(e), "effects": list(PIEZO_EFFECTS), "held": PIEZO_HELD,
-                               "fit": _scores(e.model, recs, labels),
-                               "fit_stored_x0": _stored_scores(e.model, recs, labels)}}
+    cands = {
+        "fit": {
+            "model": _model_tag(r),
+            "effects": [],
+            "fit": fitted,
+            "fit_stored_x0": _stored_scores(r.model, recs, labels),
+        },
+        "fit+diagnose": {
+            "model": _model_tag(r),
+            "effects": [e.effect for e in ext.effects],
+            "verdict": d.verdict,
+            "fit": diagnosed,
+            "fit_stored_x0": _stored_scores(ext, recs, labels),
+        },
+        "fit --effects": {
+            "model": _model_tag(e),
+            "effects": list(PIEZO_EFFECTS),
+            "held": PIEZO_HELD,
+            "fit": _scores(e.model, recs, labels),
+            "fit_stored_x0": _stored_scores(e.model, recs, labels),
+        },
+    }
     pick = min(cands, key=lambda c: np.mean(list(cands[c]["fit"].values())))
     out = dict(cands[pick], source=pick, seconds=time.perf_counter() - t0, candidates=cands, holdout={})
     for held in labels:
@@ -235,8 +273,13 @@ def _best(recs: dict[str, Recording], labels: list[str]) -> dict:
         train = [recs[k] for k in labels if k != held]
         chosen = e.model if pick == "fit --effects" else r.model
         named = pick == "fit --effects"
-        h = fit_recordings(train, kind=chosen.kind, order=chosen.order, effects=PIEZO_EFFECTS if named else (),
-                           held=PIEZO_HELD if named else None).model
+        h = fit_recordings(
+            train,
+            kind=chosen.kind,
+            order=chosen.order,
+            effects=PIEZO_EFFECTS if named else (),
+            held=PIEZO_HELD if named else None,
+        ).model
         if pick == "fit+diagnose":
             h, _ = _diagnosed(h, train, candidates=out["effects"], alpha=1.0, max_findings=len(out["effects"]))
         out["holdout"][held] = duhem_nrmse(h, recs[held])
@@ -253,9 +296,12 @@ def friction_part(report: Path | None) -> dict:
     _log("friction: one rate-independent model across pressures")
     t0 = time.perf_counter()
     r = fit_recordings(list(recs.values()), kind="ri", order=1)
-    out["joint_ri"] = {"model": _model_tag(r), "seconds": time.perf_counter() - t0,
-                       "fit": dict(zip(recs, _fit_nrmse(r))),
-                       "pred": {k: _pred(r, v) for k, v in recs.items()}}
+    out["joint_ri"] = {
+        "model": _model_tag(r),
+        "seconds": time.perf_counter() - t0,
+        "fit": dict(zip(recs, _fit_nrmse(r))),
+        "pred": {k: _pred(r, v) for k, v in recs.items()},
+    }
     out["per_pressure_auto"] = {}
     for lab, rec in recs.items():
         _log(f"friction: duhem fit (auto order) at {lab}")
@@ -265,6 +311,7 @@ def friction_part(report: Path | None) -> dict:
     out["baselines"] = _baselines(recs)
     if report is not None:
         from fitter.reports.fit_report import write_fit_report
+
         write_fit_report(r, list(recs.values()), report / "friction_joint_ri")
     return out
 
@@ -278,20 +325,33 @@ def _generated(model, n: int = 100_000) -> Recording:
 
 
 def timing_part() -> dict:
-    ri = RateIndependentModel(A_plus=[[-3.0]], A_minus=[[2.0]], B_plus=[3.0], B_minus=[2.0], C=[4.0],
-                              E_plus=[1.0], E_minus=[-1.0], D=0.5, x0=[2.0])
+    ri = RateIndependentModel(
+        A_plus=[[-3.0]],
+        A_minus=[[2.0]],
+        B_plus=[3.0],
+        B_minus=[2.0],
+        C=[4.0],
+        E_plus=[1.0],
+        E_minus=[-1.0],
+        D=0.5,
+        x0=[2.0],
+    )
     v = np.logspace(-3, 3, 121)
     g = v / (1 + v / 2)
-    rd = RateDependentModel(A=[[-1.0]], B=[1.0], C=[3.0], E=[0.2], D=0.3, x0=[1.5],
-                            g=TabulatedRate(np.r_[-v[::-1], v], np.r_[g[::-1], g]))
+    rd = RateDependentModel(
+        A=[[-1.0]], B=[1.0], C=[3.0], E=[0.2], D=0.3, x0=[1.5], g=TabulatedRate(np.r_[-v[::-1], v], np.r_[g[::-1], g])
+    )
     out = {}
     for kind, order, true in (("ri", 1, ri), ("ri", 2, ri), ("rd", 1, rd)):
         rec = _generated(true)
         _log(f"timing: {kind}{order} on 1e5 samples")
         t0 = time.perf_counter()
         r = fit_recordings([rec], kind=kind, order=order)
-        out[f"{kind}{order}"] = {"seconds": time.perf_counter() - t0, "nrmse": _fit_nrmse(r)[0],
-                                 "true_model": true.kind}
+        out[f"{kind}{order}"] = {
+            "seconds": time.perf_counter() - t0,
+            "nrmse": _fit_nrmse(r)[0],
+            "true_model": true.kind,
+        }
     return out
 
 
@@ -313,10 +373,12 @@ def _print(res: dict) -> None:
         row = "".join(f"{'':9s} {p['holdout_rd'][k]['pred']:7.2%}  " for k in labels)
         models = ",".join(p["holdout_rd"][k]["model"] for k in labels)
         print(f"{'(c) RD on the other two, predicting (' + models + ')':42s}{row}")
-        print(f"RD joint below RI joint on each rate (fit NRMSE): {p['rd_beats_ri_on_each_rate']}; "
-              f"RD convergence: {p['joint_rd']['convergence']['satisfied']} "
-              f"(max Re eig A = {p['joint_rd']['convergence']['value']:.3g}); RI condition (5) rho = "
-              f"{p['joint_ri']['convergence']['value']:.3g}")
+        print(
+            f"RD joint below RI joint on each rate (fit NRMSE): {p['rd_beats_ri_on_each_rate']}; "
+            f"RD convergence: {p['joint_rd']['convergence']['satisfied']} "
+            f"(max Re eig A = {p['joint_rd']['convergence']['value']:.3g}); RI condition (5) rho = "
+            f"{p['joint_ri']['convergence']['value']:.3g}"
+        )
     f = res.get("friction")
     if f is None:
         print("friction: skipped (../shared/data/friction-pneumatic is absent)")
@@ -325,13 +387,17 @@ def _print(res: dict) -> None:
         print(f"{'pressure':10s}{'RI per pressure':>26s}{'one RI across pressures':>30s}")
         for k in f["per_pressure_ri"]:
             a, j = f["per_pressure_ri"][k], f["joint_ri"]
-            print(f"{k:10s}{a['model']:>6s} {a['fit']:8.2%} /{a['pred']:7.2%}   "
-                  f"{j['model']:>8s} {j['fit'][k]:8.2%} /{j['pred'][k]:7.2%}")
+            print(
+                f"{k:10s}{a['model']:>6s} {a['fit']:8.2%} /{a['pred']:7.2%}   "
+                f"{j['model']:>8s} {j['fit'][k]:8.2%} /{j['pred'][k]:7.2%}"
+            )
     _print_baselines(res)
     print("\nFit of one generated 1e5-sample recording (sine, transient, 1% noise):")
     for k, v in res["timing"].items():
-        print(f"  {k} fit on data from a true {v['true_model']}1 model: {v['seconds']:.2f} s "
-              f"(target < 10 s), NRMSE {v['nrmse']:.2%}")
+        print(
+            f"  {k} fit on data from a true {v['true_model']}1 model: {v['seconds']:.2f} s "
+            f"(target < 10 s), NRMSE {v['nrmse']:.2%}"
+        )
 
 
 def _print_baselines(res: dict) -> None:
@@ -344,11 +410,15 @@ def _print_baselines(res: dict) -> None:
         for src, c in b["candidates"].items():
             label = f"Duhem, one {c['model']}{'+' + '+'.join(c['effects']) if c['effects'] else ''} ({src})"
             print(f"{label:44s}" + "".join(f"{v:10.2%}" for v in c["fit"].values()))
-            print(f"{'  from the stored x0 (duhem validate)':44s}"
-                  + "".join(f"{v:10.2%}" for v in c["fit_stored_x0"].values()))
+            print(
+                f"{'  from the stored x0 (duhem validate)':44s}"
+                + "".join(f"{v:10.2%}" for v in c["fit_stored_x0"].values())
+            )
         print(f"  best: {b['source']} ({b['seconds']:.0f} s)")
-        print(f"{'  same structure, rate held out (prediction)':44s}"
-              + "".join(f"{v:10.2%}" for v in b["holdout"].values()))
+        print(
+            f"{'  same structure, rate held out (prediction)':44s}"
+            + "".join(f"{v:10.2%}" for v in b["holdout"].values())
+        )
         for name, v in p["baselines"].items():
             print(f"{name + ', one per record':44s}" + "".join(f"{x:10.2%}" for x in v["per_recording"].values()))
             print(f"{name + ', one for all three':44s}" + "".join(f"{x:10.2%}" for x in v["one_for_all"].values()))
@@ -367,9 +437,11 @@ def main() -> None:
     ap.add_argument("--report", type=Path, default=None, help="write HTML fit reports into this folder")
     args = ap.parse_args()
     t0 = time.perf_counter()
-    res = {"piezo": piezo_part(args.report) if (DATA / "piezo-pnzt").is_dir() else None,
-           "friction": friction_part(args.report) if (DATA / "friction-pneumatic").is_dir() else None,
-           "timing": timing_part()}
+    res = {
+        "piezo": piezo_part(args.report) if (DATA / "piezo-pnzt").is_dir() else None,
+        "friction": friction_part(args.report) if (DATA / "friction-pneumatic").is_dir() else None,
+        "timing": timing_part(),
+    }
     res["total_seconds"] = time.perf_counter() - t0
     res["stack"] = stack()
     if args.json:

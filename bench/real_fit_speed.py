@@ -21,6 +21,7 @@ CPU time is `time.process_time` of the fit (all threads of the process),
 wall time beside it; NRMSE is the fit's reported one (all samples, from the
 stored x0).  The target of issue 10 is a median under 10 s CPU.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -39,12 +40,27 @@ from fitter.data.recordings import Recording, load_recording  # noqa: E402
 from fitter.identification.fit import fit_recordings  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-_RI2 = RateIndependentModel(A_plus=[[0.0, 1.0], [-2.0, -3.0]], A_minus=[[0.0, 1.0], [-2.0, 3.0]],
-                            B_plus=[0.5, 1.0], B_minus=[0.5, -1.0], C=[1.0, 0.0], E_plus=[0.0, 0.5],
-                            E_minus=[0.0, -0.5], D=0.2, x0=[2.0, 0.0])
+_RI2 = RateIndependentModel(
+    A_plus=[[0.0, 1.0], [-2.0, -3.0]],
+    A_minus=[[0.0, 1.0], [-2.0, 3.0]],
+    B_plus=[0.5, 1.0],
+    B_minus=[0.5, -1.0],
+    C=[1.0, 0.0],
+    E_plus=[0.0, 0.5],
+    E_minus=[0.0, -0.5],
+    D=0.2,
+    x0=[2.0, 0.0],
+)
 _V = np.logspace(-3, 3, 121)
-_RD1 = RateDependentModel(A=[[-1.0]], B=[1.0], C=[3.0], E=[0.2], D=0.3, x0=[1.5],
-                          g=TabulatedRate(np.r_[-_V[::-1], _V], np.r_[(_V / (1 + _V / 2))[::-1], _V / (1 + _V / 2)]))
+_RD1 = RateDependentModel(
+    A=[[-1.0]],
+    B=[1.0],
+    C=[3.0],
+    E=[0.2],
+    D=0.3,
+    x0=[1.5],
+    g=TabulatedRate(np.r_[-_V[::-1], _V], np.r_[(_V / (1 + _V / 2))[::-1], _V / (1 + _V / 2)]),
+)
 
 
 def _recording(model, t, u, name: str, seed: int, noise: float = 0.01, input_noise: float = 0.0) -> Recording:
@@ -76,17 +92,21 @@ def _random(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 def cases() -> dict[str, list[Recording]]:
     """The benchmark's recordings, by case name (module docstring)."""
-    out = {"ri2 sine 400": [_recording(_RI2, *_sine(400, 5), "sine 400", 1)],
-           "ri2 triangle 2000": [_recording(_RI2, *_triangle(2000, 8), "triangle 2000", 2)],
-           "ri2 sine 10000, noisy input": [_recording(_RI2, *_sine(10_000, 20), "sine 10000", 3, input_noise=0.003)]}
+    out = {
+        "ri2 sine 400": [_recording(_RI2, *_sine(400, 5), "sine 400", 1)],
+        "ri2 triangle 2000": [_recording(_RI2, *_triangle(2000, 8), "triangle 2000", 2)],
+        "ri2 sine 10000, noisy input": [_recording(_RI2, *_sine(10_000, 20), "sine 10000", 3, input_noise=0.003)],
+    }
     t, u = _sine(50_000, 40)
     u = np.where(t < 20, 0.5 * u, u)
     out["ri2 two amplitude blocks 50000"] = [_recording(_RI2, t, u, "blocks 50000", 4)]
     out["ri2 sine 1e5"] = [_recording(_RI2, *_sine(100_000, 20), "sine 1e5", 5)]
     out["ri2 random input 3000"] = [_recording(_RI2, *_random(3000), "random 3000", 8)]
     slow, fast = _triangle(3000, 6), _triangle(3000, 6)
-    out["rd1 two rates, 2 x 3000"] = [_recording(_RD1, slow[0] * 5.0, slow[1], "slow", 6),
-                                      _recording(_RD1, fast[0], fast[1], "fast", 7)]
+    out["rd1 two rates, 2 x 3000"] = [
+        _recording(_RD1, slow[0] * 5.0, slow[1], "slow", 6),
+        _recording(_RD1, fast[0], fast[1], "fast", 7),
+    ]
     out["demo.csv"] = [load_recording(str(ROOT / "examples" / "demo.csv"))]
     if (DATA / "piezo-pnzt").is_dir():
         out.update({f"piezo {k}": [v] for k, v in piezo_recordings().items()})
@@ -103,10 +123,14 @@ def run() -> dict:
         c0, w0 = time.process_time(), time.perf_counter()
         res = fit_recordings(recs)
         s = res.summary
-        rows[name] = {"samples": int(sum(len(r.u) for r in recs)), "cpu_s": time.process_time() - c0,
-                      "wall_s": time.perf_counter() - w0, "model": f"{s['kind']}{s['order']}",
-                      "nrmse": [r["nrmse"] for r in s["recordings"]],
-                      "convergence": bool(s["convergence"]["satisfied"])}
+        rows[name] = {
+            "samples": int(sum(len(r.u) for r in recs)),
+            "cpu_s": time.process_time() - c0,
+            "wall_s": time.perf_counter() - w0,
+            "model": f"{s['kind']}{s['order']}",
+            "nrmse": [r["nrmse"] for r in s["recordings"]],
+            "convergence": bool(s["convergence"]["satisfied"]),
+        }
     cpu = [r["cpu_s"] for r in rows.values()]
     return {"cases": rows, "median_cpu_s": float(np.median(cpu)), "max_cpu_s": float(np.max(cpu))}
 
@@ -122,8 +146,10 @@ def main() -> None:
     print(f"{'case':34s}{'samples':>9s}{'model':>7s}{'CPU s':>8s}{'wall s':>8s}  NRMSE (all samples)")
     for name, r in res["cases"].items():
         nr = " ".join(f"{x:.2%}" for x in r["nrmse"])
-        print(f"{name:34s}{r['samples']:9d}{r['model']:>7s}{r['cpu_s']:8.1f}{r['wall_s']:8.1f}  {nr}"
-              f"{'' if r['convergence'] else '  (convergence not satisfied)'}")
+        print(
+            f"{name:34s}{r['samples']:9d}{r['model']:>7s}{r['cpu_s']:8.1f}{r['wall_s']:8.1f}  {nr}"
+            f"{'' if r['convergence'] else '  (convergence not satisfied)'}"
+        )
     print(f"median CPU per fit: {res['median_cpu_s']:.1f} s (target < 10 s); max {res['max_cpu_s']:.1f} s")
 
 

@@ -3,6 +3,7 @@
 Usage: python bench/reproduce_paper.py [--json] [--figures DIR] [--seeds N]
 runs ``duhem reproduce-paper`` (`fitter.paper.report.command`).
 """
+
 import sys
 
 from fitter.cli import main

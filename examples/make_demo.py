@@ -24,6 +24,7 @@ of the output range), y rounded to 1 nm (quantisation).
 
 Run from the repository root: ``python examples/make_demo.py``.
 """
+
 from __future__ import annotations
 
 import os
@@ -43,11 +44,19 @@ PERIODS, SAMPLES_PER_PERIOD, FREQ = 6, 400, 1.0
 def truth() -> RateIndependentModel:
     a = np.array([0.06, 0.02])
     return RateIndependentModel(
-        A_plus=-np.diag(a), A_minus=np.diag(a), B_plus=[0, 0], B_minus=[0, 0], E_plus=2 * a, E_minus=[0, 0],
-        C=[0.9, 1.4], D=0.085, x0=[1.0, 1.0],
+        A_plus=-np.diag(a),
+        A_minus=np.diag(a),
+        B_plus=[0, 0],
+        B_minus=[0, 0],
+        E_plus=2 * a,
+        E_minus=[0, 0],
+        C=[0.9, 1.4],
+        D=0.085,
+        x0=[1.0, 1.0],
         signals=Signals(Signal("u", "V", "drive voltage"), Signal("y", "um", "displacement")),
         experiment=Experiment(0.0, PERIODS / FREQ, 1.0 / (FREQ * SAMPLES_PER_PERIOD)),
-        fit_info={"source": "ground truth of examples/demo.csv (examples/make_demo.py)"})
+        fit_info={"source": "ground truth of examples/demo.csv (examples/make_demo.py)"},
+    )
 
 
 def drive(t: np.ndarray) -> np.ndarray:

@@ -16,9 +16,26 @@ the output-error engine, the paper's estimators, `fit_recordings`) ->
 builders, the fmpy host) -> `fitter.reports` -> `fitter.estimator`,
 `fitter.batch` (`duhem batch` on Dask) -> `fitter.cli`.
 """
-from fitter.core import (Compensation, Compensator, ConvergenceError, DuhemError, KernelError, ModelFileError,
-                         RateDependentModel, RateIndependentModel, Stepper, TabulatedRate, compensate, invert,
-                         limiting_loop, load_model, periodic_response, save_model, simulate)
+
+from fitter.core import (
+    Compensation,
+    Compensator,
+    ConvergenceError,
+    DuhemError,
+    KernelError,
+    ModelFileError,
+    RateDependentModel,
+    RateIndependentModel,
+    Stepper,
+    TabulatedRate,
+    compensate,
+    invert,
+    limiting_loop,
+    load_model,
+    periodic_response,
+    save_model,
+    simulate,
+)
 from fitter.core.effects import Effect
 from fitter.data.recordings import Recording, load_recording, load_recordings
 from fitter.diagnosis import Diagnosis, diagnose
@@ -29,8 +46,36 @@ from fitter.identification.fit import FitResult, fit_recordings
 from fitter.identification.rd_triangles import identify_rd_triangles
 from fitter.identification.ri_loop import identify_ri_loop
 
-__all__ = ["Compensation", "Compensator", "ConvergenceError", "Diagnosis", "DuhemError", "DuhemEstimator", "Effect",
-           "FitResult", "KernelError", "ModelFileError", "RateDependentModel", "RateIndependentModel", "Recording",
-           "Stepper", "TabulatedRate", "build_fmu", "compensate", "diagnose", "fit_recordings", "identify_rd_triangles",
-           "identify_ri_loop", "invert", "limiting_loop", "load_model", "load_recording", "load_recordings",
-           "periodic_response", "save_model", "simulate", "simulate_fmu", "validate_fmu_file"]
+__all__ = [
+    "Compensation",
+    "Compensator",
+    "ConvergenceError",
+    "Diagnosis",
+    "DuhemError",
+    "DuhemEstimator",
+    "Effect",
+    "FitResult",
+    "KernelError",
+    "ModelFileError",
+    "RateDependentModel",
+    "RateIndependentModel",
+    "Recording",
+    "Stepper",
+    "TabulatedRate",
+    "build_fmu",
+    "compensate",
+    "diagnose",
+    "fit_recordings",
+    "identify_rd_triangles",
+    "identify_ri_loop",
+    "invert",
+    "limiting_loop",
+    "load_model",
+    "load_recording",
+    "load_recordings",
+    "periodic_response",
+    "save_model",
+    "simulate",
+    "simulate_fmu",
+    "validate_fmu_file",
+]

@@ -13,6 +13,7 @@ Numerical RuntimeWarnings (e.g. an overflow in a rejected trial step of an
 optimiser) are hidden too: a command's own result says whether it
 converged.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -27,8 +28,20 @@ import click
 
 from fitter.core.errors import DuhemError
 
-__all__ = ["CliError", "EXIT_ERROR", "FilePath", "Number", "one_line_errors", "guarded", "GuardedGroup",
-           "backend_option", "fmi_version_option", "ordered_pair", "run_command", "usage_line"]
+__all__ = [
+    "CliError",
+    "EXIT_ERROR",
+    "FilePath",
+    "Number",
+    "one_line_errors",
+    "guarded",
+    "GuardedGroup",
+    "backend_option",
+    "fmi_version_option",
+    "ordered_pair",
+    "run_command",
+    "usage_line",
+]
 
 EXIT_ERROR = 1
 _COMMAND_PATH = "fitter.cli_support.command_path"
@@ -70,12 +83,14 @@ class Number(click.ParamType):
     """A finite number option (`kind` int or float) within [`low`, `high`] (`open_low`: above `low`); a refusal
     names the value and the range (`usage_line` adds the command and the option)."""
 
-    def __init__(self, kind: type = float, *, low: float | None = None, high: float | None = None,
-                 open_low: bool = False) -> None:
+    def __init__(
+        self, kind: type = float, *, low: float | None = None, high: float | None = None, open_low: bool = False
+    ) -> None:
         self.kind, self.low, self.high, self.open_low = kind, low, high, open_low
         self.name = "integer" if kind is int else "number"
-        bounds = ([f"{'>' if open_low else '>='} {low:g}"] if low is not None else []) \
-            + ([f"<= {high:g}"] if high is not None else [])
+        bounds = ([f"{'>' if open_low else '>='} {low:g}"] if low is not None else []) + (
+            [f"<= {high:g}"] if high is not None else []
+        )
         self.rule = " ".join(["an integer" if kind is int else "a finite number", " and ".join(bounds)]).strip()
 
     def convert(self, value, param, ctx):
@@ -83,9 +98,11 @@ class Number(click.ParamType):
             number = self.kind(value)
         except (TypeError, ValueError):
             self.fail(f"{value!r} is not {self.rule}", param, ctx)
-        if not (math.isfinite(number) and (self.low is None or number > self.low or
-                                           (number == self.low and not self.open_low))
-                and (self.high is None or number <= self.high)):
+        if not (
+            math.isfinite(number)
+            and (self.low is None or number > self.low or (number == self.low and not self.open_low))
+            and (self.high is None or number <= self.high)
+        ):
             self.fail(f"{value} is out of range: give {self.rule}", param, ctx)
         return number
 
@@ -140,8 +157,9 @@ def one_line_errors() -> Iterator[None]:
         if debug:
             raise
         known = isinstance(exc, (DuhemError, ValueError, OSError, RuntimeError))
-        raise CliError(_one_line(exc) if known else
-                       f"internal error ({type(exc).__name__}): {_one_line(exc)}") from None
+        raise CliError(
+            _one_line(exc) if known else f"internal error ({type(exc).__name__}): {_one_line(exc)}"
+        ) from None
 
 
 def guarded(func: Callable) -> Callable:
@@ -151,6 +169,7 @@ def guarded(func: Callable) -> Callable:
     def wrapper(*args, **kwargs):
         with one_line_errors():
             return func(*args, **kwargs)
+
     return wrapper
 
 
@@ -173,18 +192,28 @@ class GuardedGroup(click.Group):
 
 def backend_option(func: Callable) -> Callable:
     """``--backend [native|python]`` (default native): the FMU backend."""
-    return click.option("--backend", type=click.Choice(["native", "python"]), default="native",
-                        show_default=True,
-                        help="native: C library for Linux, Windows and macOS, the simulator needs no Python "
-                             "(compiled with zig, package ziglang); python: pythonfmu, the simulator needs "
-                             "Python with numpy")(func)
+    return click.option(
+        "--backend",
+        type=click.Choice(["native", "python"]),
+        default="native",
+        show_default=True,
+        help="native: C library for Linux, Windows and macOS, the simulator needs no Python "
+        "(compiled with zig, package ziglang); python: pythonfmu, the simulator needs "
+        "Python with numpy",
+    )(func)
 
 
 def fmi_version_option(func: Callable) -> Callable:
     """``--fmi-version [2|3]`` (default 2): the FMI version of the FMU (3 needs --backend native)."""
-    return click.option("--fmi-version", "fmi_version", type=click.Choice(["2", "3"]), default="2",
-                        show_default=True, callback=lambda ctx, param, value: int(value),
-                        help="FMI 2.0 or FMI 3.0 Co-Simulation (3.0 needs --backend native)")(func)
+    return click.option(
+        "--fmi-version",
+        "fmi_version",
+        type=click.Choice(["2", "3"]),
+        default="2",
+        show_default=True,
+        callback=lambda ctx, param, value: int(value),
+        help="FMI 2.0 or FMI 3.0 Co-Simulation (3.0 needs --backend native)",
+    )(func)
 
 
 def run_command(command: click.Command, argv: Sequence[str] | None, prog_name: str) -> int:
@@ -195,8 +224,7 @@ def run_command(command: click.Command, argv: Sequence[str] | None, prog_name: s
     it; a usage error is one line (`usage_line`), exit status 1.
     """
     try:
-        status = command.main(args=None if argv is None else list(argv), prog_name=prog_name,
-                              standalone_mode=False)
+        status = command.main(args=None if argv is None else list(argv), prog_name=prog_name, standalone_mode=False)
     except click.UsageError as exc:
         exc = CliError(usage_line(exc))
         exc.show()

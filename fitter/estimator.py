@@ -13,6 +13,7 @@ Example
 >>> est.score(load_recording("examples/demo.csv"))              # NRMSE, fraction of the range
 >>> est.export("demo.fmu")                                      # native FMI 2.0 FMU
 """
+
 from __future__ import annotations
 
 import inspect
@@ -66,11 +67,21 @@ class DuhemEstimator:
     result_ : the `FitResult` (parameters, covariance, `predict`, `band`).
     """
 
-    def __init__(self, kind: str = "auto", order: int | None = None, q: float | None = None, x0: str = "fitted",
-                 faithful_minor_loops: bool = False, effects: Sequence[str] = (),
-                 held: dict[str, float] | None = None, backend: str = "native", fmi_version: int = 2,
-                 platforms: str | Sequence[str] | None = None, allow_unstable: bool = False,
-                 progress: Progress = silent):
+    def __init__(
+        self,
+        kind: str = "auto",
+        order: int | None = None,
+        q: float | None = None,
+        x0: str = "fitted",
+        faithful_minor_loops: bool = False,
+        effects: Sequence[str] = (),
+        held: dict[str, float] | None = None,
+        backend: str = "native",
+        fmi_version: int = 2,
+        platforms: str | Sequence[str] | None = None,
+        allow_unstable: bool = False,
+        progress: Progress = silent,
+    ):
         self.kind, self.order, self.q, self.x0 = kind, order, q, x0
         self.faithful_minor_loops, self.effects, self.held = faithful_minor_loops, effects, held
         self.backend, self.fmi_version, self.platforms = backend, fmi_version, platforms
@@ -97,9 +108,16 @@ class DuhemEstimator:
     def fit(self, recordings: Sequence[Recording]) -> "DuhemEstimator":
         """Fit to one or more recordings with the same columns; returns self."""
         self.result_: FitResult = fit_recordings(
-            list(recordings), kind=self.kind, order=self.order, q=self.q, x0=self.x0,
-            faithful_minor_loops=self.faithful_minor_loops, effects=tuple(self.effects), held=self.held,
-            progress=self.progress)
+            list(recordings),
+            kind=self.kind,
+            order=self.order,
+            q=self.q,
+            x0=self.x0,
+            faithful_minor_loops=self.faithful_minor_loops,
+            effects=tuple(self.effects),
+            held=self.held,
+            progress=self.progress,
+        )
         self.model_ = self.result_.model
         self.summary_ = self.result_.summary
         return self

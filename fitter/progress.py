@@ -15,6 +15,7 @@ when the block ends):
   `silent` (what the command line uses: nothing is written into a log or a
   pipe).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -46,8 +47,9 @@ def rich_progress(description: str = "working") -> Iterator[Progress]:
     from rich.console import Console
     from rich.progress import BarColumn, Progress as RichProgress, TextColumn, TimeElapsedColumn
 
-    with RichProgress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
-                      console=Console(stderr=True), transient=True) as bar:
+    with RichProgress(
+        TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(), console=Console(stderr=True), transient=True
+    ) as bar:
         task = bar.add_task(description, total=None)
 
         def update(message: str, fraction: float | None = None) -> None:

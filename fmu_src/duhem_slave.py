@@ -91,6 +91,7 @@ whole state, so a rollback replays the same u.
 The class statement must stay literally ``class DuhemSlave(Fmi2Slave):``:
 pythonfmu's binary finds the slave class with that regular expression.
 """
+
 from __future__ import annotations
 
 import copy
@@ -110,10 +111,14 @@ CONFIG_FILE = "duhem_fmu.json"
 _U, _Y = 0, 1
 _VALUE_KEYS = ("parameters", "g", "effects")
 _INSTANTIATED, _INITIALIZATION, _STEPPING, _TERMINATED = "instantiated", "initialization", "stepping", "terminated"
-_STATE_NAMES = {_INSTANTIATED: "Instantiated", _INITIALIZATION: "InitializationMode", _STEPPING: "StepComplete",
-                _TERMINATED: "Terminated"}
-_READABLE = (_INITIALIZATION, _STEPPING, _TERMINATED)      # fmi2Get*: as the native FMU (S_GET)
-_SETTABLE = (_INSTANTIATED, _INITIALIZATION, _STEPPING)    # fmi2Set*: as the native FMU (S_SET)
+_STATE_NAMES = {
+    _INSTANTIATED: "Instantiated",
+    _INITIALIZATION: "InitializationMode",
+    _STEPPING: "StepComplete",
+    _TERMINATED: "Terminated",
+}
+_READABLE = (_INITIALIZATION, _STEPPING, _TERMINATED)  # fmi2Get*: as the native FMU (S_GET)
+_SETTABLE = (_INSTANTIATED, _INITIALIZATION, _STEPPING)  # fmi2Set*: as the native FMU (S_SET)
 _STATE_KEYS = {"fmu", "phase", "t0", "dirty", "values", "stepper"}
 _SERIAL_TAG = b"duhem-fmu-state-1"
 _UNKNOWN = "unknown value reference for this type"
@@ -149,18 +154,21 @@ def _fmi(function: str):
     """An FMI entry point whose every failure is a logged refusal: the reason in the log (status error),
     then `FmiRefusal` (fmi2Fatal from pythonfmu, survivable: `_survive`).  The method changes nothing
     before it fails (each checks first, then applies)."""
+
     def decorate(method):
         @functools.wraps(method)
         def call(self, *args):
             try:
                 return method(self, *args)
-            except Exception as exc:     # noqa: BLE001 - every failure is a refusal, never a crash
+            except Exception as exc:  # noqa: BLE001 - every failure is a refusal, never a crash
                 why = str(exc) or type(exc).__name__
                 message = why if why.startswith(function) else f"{function}: {why}"
                 self.log(message, Fmi2Status.error)
                 _survive(self)
                 raise FmiRefusal(message) from None
+
         return call
+
     return decorate
 
 
@@ -234,14 +242,13 @@ class _Inverse:
         self.t, self.u, self.du, self._solved = float(t), float(u), float(du), None
 
 
-
 class DuhemSlave(Fmi2Slave):
     """FMI 2.0 CS slave driving ``kernel.Stepper`` (or, the compensator, ``kernel.Compensator``); see the
     module docstring."""
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self._hosted = "logger" in kwargs          # run by pythonfmu's binary (not by its build step)
+        self._hosted = "logger" in kwargs  # run by pythonfmu's binary (not by its build step)
         with open(os.path.join(self.resources, CONFIG_FILE), encoding="utf-8") as fh:
             config = json.load(fh)
         self.modelName = config["model_identifier"]
@@ -265,9 +272,11 @@ class DuhemSlave(Fmi2Slave):
         self._waived = self._convergence_waived(model)
         self._verdict = self._check(model)
         if self._verdict:
-            self.log(f"fmi2Instantiate: the model this FMU carries fails its check: {self._verdict}; "
-                     "fmi2ExitInitializationMode will refuse it unless its parameters are set to values that pass",
-                     Fmi2Status.warning)
+            self.log(
+                f"fmi2Instantiate: the model this FMU carries fails its check: {self._verdict}; "
+                "fmi2ExitInitializationMode will refuse it unless its parameters are set to values that pass",
+                Fmi2Status.warning,
+            )
         self._stepper = self._engine(model, 0.0, self._start)
 
     def _engine(self, model, t0: float, value: float):
@@ -285,7 +294,7 @@ class DuhemSlave(Fmi2Slave):
             return record["satisfied"] is False
         try:
             return not self._checks.convergence(model).satisfied
-        except Exception:             # noqa: BLE001 - not computable: not waived, `_check` says why
+        except Exception:  # noqa: BLE001 - not computable: not waived, `_check` says why
             return False
 
     def _check(self, model) -> str | None:
@@ -294,7 +303,7 @@ class DuhemSlave(Fmi2Slave):
             self._checks.check_model(model, "the FMU's model", allow_unstable=self._waived)
         except self._checks.ModelCheckError as exc:
             return str(exc)
-        except Exception as exc:      # noqa: BLE001 - an uncheckable model is not run
+        except Exception as exc:  # noqa: BLE001 - an uncheckable model is not run
             return f"the FMU's model could not be checked: {exc}"
         return None
 
@@ -325,9 +334,11 @@ class DuhemSlave(Fmi2Slave):
             value = float(self._stepper.output())
             finite = math.isfinite(value) and (self._inverse or bool(np.all(np.isfinite(self._stepper.state()))))
         if not finite:
-            raise ValueError(f"the state is not finite after this input change (output {value!r} at t = "
-                             f"{self._stepper.t!r}): the model's state overflows (a model whose state grows "
-                             "without bound, or too large an input change); roll back with fmi2SetFMUstate")
+            raise ValueError(
+                f"the state is not finite after this input change (output {value!r} at t = "
+                f"{self._stepper.t!r}): the model's state overflows (a model whose state grows "
+                "without bound, or too large an input change); roll back with fmi2SetFMUstate"
+            )
         return value
 
     # -- values ----------------------------------------------------------
@@ -365,8 +376,9 @@ class DuhemSlave(Fmi2Slave):
         if var is None or var["type"] != "Real" or var["causality"] != "parameter":
             raise ValueError(f"{label}: {_UNKNOWN} (not a settable Real)")
         if self._phase == _STEPPING:
-            raise ValueError(f"{label}: a fixed parameter (variability 'fixed') can only be set before "
-                             "fmi2ExitInitializationMode")
+            raise ValueError(
+                f"{label}: a fixed parameter (variability 'fixed') can only be set before fmi2ExitInitializationMode"
+            )
         why = self._parameter_rule(var["path"], value)
         if why:
             raise ValueError(f"{label}: {why}")
@@ -375,6 +387,7 @@ class DuhemSlave(Fmi2Slave):
         def apply():
             self._lookup(path[:-1])[path[-1]] = float(value)
             self._dirty = True
+
         return apply
 
     def _constant(self, function: str, vr: int, kind: str, value=None):
@@ -384,8 +397,10 @@ class DuhemSlave(Fmi2Slave):
             raise ValueError(f"{function}: {self._label(vr)}: {_UNKNOWN}")
         current = self._lookup(var["path"])
         if value is not None and value != current:
-            raise ValueError(f"{function}: {self._label(vr)} = {value!r}: {var['name']} is structural "
-                             f"({current!r}): export a new FMU to change it")
+            raise ValueError(
+                f"{function}: {self._label(vr)} = {value!r}: {var['name']} is structural "
+                f"({current!r}): export a new FMU to change it"
+            )
         return current
 
     def _real(self, vr: int) -> float:
@@ -406,7 +421,7 @@ class DuhemSlave(Fmi2Slave):
         for vr in vrs:
             try:
                 values.append(self._real(vr))
-            except Exception as exc:    # noqa: BLE001 - named, then refused by _fmi
+            except Exception as exc:  # noqa: BLE001 - named, then refused by _fmi
                 raise ValueError(f"{self._label(vr)}: {exc}") from None
         return values
 
@@ -487,14 +502,14 @@ class DuhemSlave(Fmi2Slave):
             if why is None:
                 saved = self._stepper.get_state()
                 try:
-                    self._output()                      # a non-finite point is not committed
+                    self._output()  # a non-finite point is not committed
                     with np.errstate(all="ignore"):
                         self._stepper.do_step(step_size)
                     return True
-                except Exception as exc:    # noqa: BLE001 - a KernelError, an overflow: refuse, keep the state
+                except Exception as exc:  # noqa: BLE001 - a KernelError, an overflow: refuse, keep the state
                     self._stepper.set_state(saved)
                     why = str(exc)
-        except Exception as exc:            # noqa: BLE001 - whatever it is, a refused step, never a crash
+        except Exception as exc:  # noqa: BLE001 - whatever it is, a refused step, never a crash
             why = str(exc) or type(exc).__name__
         self.log(f"fmi2DoStep refused: {why}", Fmi2Status.discard)
         return False
@@ -504,14 +519,18 @@ class DuhemSlave(Fmi2Slave):
         if self._phase == _TERMINATED:
             return "called after fmi2Terminate (not allowed in state Terminated: illegal call sequence)"
         if self._phase != _STEPPING:
-            return (f"called before fmi2ExitInitializationMode (not allowed in state {_STATE_NAMES[self._phase]}: "
-                    "illegal call sequence)")
+            return (
+                f"called before fmi2ExitInitializationMode (not allowed in state {_STATE_NAMES[self._phase]}: "
+                "illegal call sequence)"
+            )
         if not (math.isfinite(step_size) and step_size > 0):
             return f"the step size {step_size!r} must be positive and finite"
         t = self._stepper.t
         if not math.isfinite(current_time) or abs(current_time - t) > 1e-8 * max(1.0, abs(t), abs(step_size)):
-            return (f"fmi2DoStep from t = {current_time!r}, but the FMU is at t = {t!r}; "
-                    "roll back with fmi2SetFMUstate to step from an earlier point")
+            return (
+                f"fmi2DoStep from t = {current_time!r}, but the FMU is at t = {t!r}; "
+                "roll back with fmi2SetFMUstate to step from an earlier point"
+            )
         if not math.isfinite(t + step_size):
             return f"the time t = {t!r} + {step_size!r} would overflow"
         if self._dirty or self._verdict:
@@ -521,18 +540,30 @@ class DuhemSlave(Fmi2Slave):
     # -- FMU state -------------------------------------------------------
     @_fmi("fmi2GetFMUstate")
     def _get_fmu_state(self):
-        return {"fmu": self._identity, "phase": self._phase, "t0": self._t0, "dirty": self._dirty,
-                "values": {k: copy.deepcopy(self._dict[k]) for k in _VALUE_KEYS if k in self._dict},
-                "stepper": (self._stepper.get_state() if self._inverse
-                            else [_plain(v) for v in self._stepper.get_state()])}
+        return {
+            "fmu": self._identity,
+            "phase": self._phase,
+            "t0": self._t0,
+            "dirty": self._dirty,
+            "values": {k: copy.deepcopy(self._dict[k]) for k in _VALUE_KEYS if k in self._dict},
+            "stepper": (self._stepper.get_state() if self._inverse else [_plain(v) for v in self._stepper.get_state()]),
+        }
 
     @_fmi("fmi2SetFMUstate")
     def _set_fmu_state(self, state):
         if isinstance(state, dict) and set(state) == {"refused"}:
             raise ValueError(str(state["refused"]))
         self._valid_state(state)
-        saved = (copy.deepcopy(self._dict), self._model, self._stepper, self._stepper.get_state(), self._phase,
-                 self._t0, self._dirty, self._verdict)
+        saved = (
+            copy.deepcopy(self._dict),
+            self._model,
+            self._stepper,
+            self._stepper.get_state(),
+            self._phase,
+            self._t0,
+            self._dirty,
+            self._verdict,
+        )
         try:
             values = copy.deepcopy(state["values"])
             changed = any(values[k] != self._dict[k] for k in values)
@@ -543,9 +574,17 @@ class DuhemSlave(Fmi2Slave):
             self._dirty = state["dirty"]
             self._phase = state["phase"]
             self._stepper.set_state(tuple(state["stepper"]))
-        except Exception as exc:      # noqa: BLE001 - put everything back, whatever failed
-            (self._dict, self._model, self._stepper, stepper_state, self._phase, self._t0, self._dirty,
-             self._verdict) = saved
+        except Exception as exc:  # noqa: BLE001 - put everything back, whatever failed
+            (
+                self._dict,
+                self._model,
+                self._stepper,
+                stepper_state,
+                self._phase,
+                self._t0,
+                self._dirty,
+                self._verdict,
+            ) = saved
             self._stepper.set_state(stepper_state)
             raise ValueError(f"not a state of this FMU ({exc})") from None
 
@@ -560,8 +599,12 @@ class DuhemSlave(Fmi2Slave):
         current = {k: self._dict[k] for k in _VALUE_KEYS if k in self._dict}
         if not _same_layout(state["values"], current) or not _finite_numbers(state["values"]):
             raise ValueError("not a state of this FMU (its parameter values)")
-        if not isinstance(state["t0"], (int, float)) or not math.isfinite(state["t0"]) \
-                or not isinstance(state["stepper"], (list, tuple)) or not _finite_numbers(state["stepper"]):
+        if (
+            not isinstance(state["t0"], (int, float))
+            or not math.isfinite(state["t0"])
+            or not isinstance(state["stepper"], (list, tuple))
+            or not _finite_numbers(state["stepper"])
+        ):
             raise ValueError("not a state of this FMU (a time, input or state that is not finite)")
 
     @staticmethod
@@ -570,7 +613,7 @@ class DuhemSlave(Fmi2Slave):
         without an instance to keep alive: `_survive`)."""
         try:
             payload = json.dumps(state, sort_keys=True).encode("utf-8")
-        except Exception as exc:      # noqa: BLE001
+        except Exception as exc:  # noqa: BLE001
             payload = json.dumps({"refused": f"fmi2SerializeFMUstate: not serializable ({exc})"}).encode()
         return _SERIAL_TAG + b" " + hashlib.sha256(payload).hexdigest().encode("ascii") + b"\n" + payload
 
@@ -587,7 +630,7 @@ class DuhemSlave(Fmi2Slave):
             if hashlib.sha256(payload).hexdigest().encode("ascii") != digest:
                 return {"refused": f"{why} (checksum mismatch: corrupted)"}
             return json.loads(payload.decode("utf-8"))
-        except Exception as exc:      # noqa: BLE001
+        except Exception as exc:  # noqa: BLE001
             return {"refused": f"{why} ({type(exc).__name__}: {exc})"}
 
 

@@ -11,6 +11,7 @@ which builds each (model, backend) FMU once per session, and `holder`, another p
 output's lock (`fitter.core.files.output_lock`).  The diagnosis' fits run in the test's own process
 (``DUHEM_WORKERS=1``, `fitter.diagnosis.workers`); one test runs it on two processes and compares.
 """
+
 from __future__ import annotations
 
 import os
@@ -22,12 +23,11 @@ import numpy as np
 import pytest
 from fmu_host import FmuCache
 
-from fitter.core import (Experiment, RateDependentModel, RateIndependentModel, Signal, Signals,
-                         TabulatedRate, simulate)
+from fitter.core import Experiment, RateDependentModel, RateIndependentModel, Signal, Signals, TabulatedRate, simulate
 from fitter.data.recordings import Recording
 from fitter.paper import example3
 
-os.environ.setdefault("DUHEM_WORKERS", "1")   # the suite runs on pytest-xdist's workers already (one per core)
+os.environ.setdefault("DUHEM_WORKERS", "1")  # the suite runs on pytest-xdist's workers already (one per core)
 
 
 def ri_model(order: int, effects=()) -> RateIndependentModel:
@@ -39,23 +39,44 @@ def ri_model(order: int, effects=()) -> RateIndependentModel:
     and a default experiment (the FMU tests and the backend contract).
     """
     if order == 1:
-        return RateIndependentModel(A_plus=[[-3.0]], A_minus=[[2.0]], B_plus=[3.0], B_minus=[2.0],
-                                    C=[4.0], E_plus=[1.0], E_minus=[-1.0], D=0.5, x0=[2.0],
-                                    effects=list(effects))
+        return RateIndependentModel(
+            A_plus=[[-3.0]],
+            A_minus=[[2.0]],
+            B_plus=[3.0],
+            B_minus=[2.0],
+            C=[4.0],
+            E_plus=[1.0],
+            E_minus=[-1.0],
+            D=0.5,
+            x0=[2.0],
+            effects=list(effects),
+        )
     if order == 2:
-        return RateIndependentModel(A_plus=[[-3.0, 1.0], [0.0, -1.5]],
-                                    A_minus=[[2.5, 0.0], [1.0, 1.2]], B_plus=[2.0, 1.0],
-                                    B_minus=[1.5, 1.2], C=[1.0, 0.5], D=0.2, x0=[0.4, -0.3],
-                                    effects=list(effects))
+        return RateIndependentModel(
+            A_plus=[[-3.0, 1.0], [0.0, -1.5]],
+            A_minus=[[2.5, 0.0], [1.0, 1.2]],
+            B_plus=[2.0, 1.0],
+            B_minus=[1.5, 1.2],
+            C=[1.0, 0.5],
+            D=0.2,
+            x0=[0.4, -0.3],
+            effects=list(effects),
+        )
     if order == 3:
         return RateIndependentModel(
             A_plus=[[-2.0, 1.0, 0.0], [-1.0, -2.0, 0.5], [0.0, -0.5, -1.0]],
             A_minus=[[-1.5, -1.0, 0.2], [1.0, -1.5, 0.0], [0.0, 0.3, -2.0]],
-            B_plus=[1.0, 0.5, -0.2], B_minus=[0.8, -0.4, 0.3], E_plus=[0.1, 0.0, -0.05],
-            E_minus=[-0.1, 0.02, 0.0], C=[1.0, -0.5, 0.25], D=0.4, x0=[0.2, -0.1, 0.05],
-            signals=Signals(Signal("V_in", "V", "piezo drive voltage"),
-                            Signal("disp", "um", "stage displacement")),
-            experiment=Experiment(0.0, 12.0, 0.01), effects=list(effects))
+            B_plus=[1.0, 0.5, -0.2],
+            B_minus=[0.8, -0.4, 0.3],
+            E_plus=[0.1, 0.0, -0.05],
+            E_minus=[-0.1, 0.02, 0.0],
+            C=[1.0, -0.5, 0.25],
+            D=0.4,
+            x0=[0.2, -0.1, 0.05],
+            signals=Signals(Signal("V_in", "V", "piezo drive voltage"), Signal("disp", "um", "stage displacement")),
+            experiment=Experiment(0.0, 12.0, 0.01),
+            effects=list(effects),
+        )
     raise ValueError(f"no reference rate-independent model of order {order}")
 
 
@@ -70,14 +91,20 @@ def rd_model(order: int, effects=()) -> RateDependentModel:
     if order == 1:
         v = np.logspace(-3, 3, 121)
         g = v / (1 + v / 2)
-        return RateDependentModel(A=[[-1.0]], B=[1.0], C=[3.0], E=[0.2], D=0.3,
-                                  g=TabulatedRate(np.r_[-v[::-1], v], np.r_[g[::-1], g]), x0=[1.5],
-                                  effects=list(effects))
+        return RateDependentModel(
+            A=[[-1.0]],
+            B=[1.0],
+            C=[3.0],
+            E=[0.2],
+            D=0.3,
+            g=TabulatedRate(np.r_[-v[::-1], v], np.r_[g[::-1], g]),
+            x0=[1.5],
+            effects=list(effects),
+        )
     if order == 2:
         nodes = np.geomspace(0.05, 6.0, 10)
         g = TabulatedRate.from_function(example3.g_true, np.r_[-nodes[::-1], nodes])
-        return example3.true_model().replace(g=g, E=[0.1, -0.05], D=0.05, x0=[0.1, -0.2],
-                                             effects=list(effects))
+        return example3.true_model().replace(g=g, E=[0.1, -0.05], D=0.05, x0=[0.1, -0.2], effects=list(effects))
     raise ValueError(f"no reference rate-dependent model of order {order}")
 
 
@@ -88,19 +115,19 @@ def sampled_input(n: int = 400, seed: int = 3) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
     t = np.r_[0.0, np.cumsum(rng.uniform(0.01, 0.06, n - 1))]
     u = 1.4 * np.sin(1.7 * t) + 0.5 * np.sin(4.3 * t + 0.3)
-    u[n // 4:n // 4 + n // 20] = u[n // 4]
+    u[n // 4 : n // 4 + n // 20] = u[n // 4]
     return t, u
 
 
-def sine_input(omega: float, periods: int, per_period: int, offset: float = 0.0,
-               amplitude: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+def sine_input(
+    omega: float, periods: int, per_period: int, offset: float = 0.0, amplitude: float = 1.0
+) -> tuple[np.ndarray, np.ndarray]:
     """u = offset + amplitude sin(omega t), `per_period` samples a period, t in [0, periods 2 pi / omega]."""
     t = np.linspace(0, periods * 2 * np.pi / omega, periods * per_period + 1)
     return t, offset + amplitude * np.sin(omega * t)
 
 
-def noisy_recording(model, t, u, *, noise: float, seed, relative: bool = True,
-                    name: str = "recording") -> Recording:
+def noisy_recording(model, t, u, *, noise: float, seed, relative: bool = True, name: str = "recording") -> Recording:
     """The model's simulated response plus seeded Gaussian output noise.
 
     y = simulate(model, t, u).y + s z with z ~ N(0, 1) drawn from
@@ -134,11 +161,13 @@ def holder():
     procs = []
 
     def hold(path: Path) -> int:
-        proc = subprocess.Popen([sys.executable, "-c", _HOLD, str(path)], stdin=subprocess.PIPE,
-                                stdout=subprocess.PIPE, text=True)
+        proc = subprocess.Popen(
+            [sys.executable, "-c", _HOLD, str(path)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+        )
         procs.append(proc)
         assert proc.stdout.readline() == "held\n"
         return proc.pid
+
     yield hold
     for proc in procs:
         proc.communicate("")

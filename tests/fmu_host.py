@@ -5,6 +5,7 @@ sample t_k the host sets u(t_k), reads y(t_k) and steps to t_{k+1}.
 `Instance` drives an FMU through fmpy; `FmuCache` builds each FMU once per
 test session.
 """
+
 from __future__ import annotations
 
 import json
@@ -42,8 +43,7 @@ class FmuCache:
         """(model description, unzip directory) of the FMU of `model`."""
         path = self.build(model, backend)
         if path not in self._unzipped:
-            self._unzipped[path] = (read_model_description(path),
-                                    extract(path, str(Path(path).with_suffix(""))))
+            self._unzipped[path] = (read_model_description(path), extract(path, str(Path(path).with_suffix(""))))
         return self._unzipped[path]
 
 
@@ -70,7 +70,7 @@ class Host:
     def rollback_runs(self, t, u, k) -> list[np.ndarray]:
         """Run to sample k, save the state (also serialized), run on; then replay
         from the saved and from the deserialized state.  Returns the three runs."""
-        self.run(t[:k + 1], u[:k + 1])
+        self.run(t[: k + 1], u[: k + 1])
         state = self.get_state()
         blob = self.serialize(state)
         runs = [self.run(t[k:], u[k:])]
@@ -93,8 +93,9 @@ class Instance(Host):
 
     def __init__(self, md, unzipdir, name="inst", start=None, u0=0.0, initialise=True):
         self.vr = {v.name: v.valueReference for v in md.modelVariables}
-        self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
-                             modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
+        self.fmu = FMU2Slave(
+            guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name
+        )
         self.log: list[str] = []
         self._callbacks = collecting_callbacks(self.log)
         self.fmu.instantiate(callbacks=self._callbacks, loggingOn=self.LOGGING_ON)

@@ -14,6 +14,7 @@ A read-only output directory and an unreadable input are simulated (the
 suite may run as root): ``tempfile.mkstemp`` and ``os.access`` refuse as the
 operating system would.
 """
+
 import errno
 import json
 import os
@@ -48,7 +49,7 @@ def _variant(source: Path, target: Path, change: Callable[[str, bytes], bytes | 
 
 def _member(name: str, new: bytes | None) -> Callable[[str, bytes], bytes | None]:
     """A `_variant` change that replaces (or, with None, drops) the member `name`."""
-    return lambda member, data: (new if member == name else data)
+    return lambda member, data: new if member == name else data
 
 
 def _edited_xml(old: bytes, new: bytes) -> Callable[[str, bytes], bytes | None]:
@@ -117,14 +118,18 @@ def _read_only(d: Path, monkeypatch) -> None:
         if dir is not None and Path(dir) == d / "ro":
             raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), os.path.join(dir, f"{prefix}x{suffix}"))
         return real(suffix, prefix, dir, text)
+
     monkeypatch.setattr(tempfile, "mkstemp", mkstemp)
 
 
 def _unreadable(d: Path, monkeypatch) -> None:
     """``d/rec.csv`` cannot be read (access(2) says so; root could read it anyway)."""
     real = os.access
-    monkeypatch.setattr(os, "access", lambda path, mode, **kw: False if Path(path) == d / "rec.csv" and mode & os.R_OK
-                        else real(path, mode, **kw))
+    monkeypatch.setattr(
+        os,
+        "access",
+        lambda path, mode, **kw: False if Path(path) == d / "rec.csv" and mode & os.R_OK else real(path, mode, **kw),
+    )
 
 
 @dataclass(frozen=True)
@@ -154,17 +159,23 @@ def fit(*args: str, file: str, needles: tuple[str, ...], setup=None) -> Case:
 
 CASES = {
     # model JSON: the key, the expected type or shape, what the file has
-    "signals not an object": simulate_with("signals.json", "key 'signals': expected an object with keys 'input' "
-                                                           "and 'output', got the string 'u -> y'"),
-    "experiment not an object": simulate_with("experiment.json", "key 'experiment': expected an object with keys "
-                                                                 "start_time, stop_time, step_size, got a list of 2 "
-                                                                 "numbers"),
-    "ragged matrix": simulate_with("ragged.json", "key 'parameters.A_plus': expected a 2x2 matrix of numbers, got a "
-                                                  "ragged list"),
-    "string matrix": simulate_with("strings.json", "key 'parameters.A_minus': expected a 2x2 matrix of numbers, got "
-                                                   "a list containing the string '1'"),
-    "object for a number": simulate_with("object.json", "key 'parameters.D': expected a finite number, got an "
-                                                        "object with keys 'value'"),
+    "signals not an object": simulate_with(
+        "signals.json", "key 'signals': expected an object with keys 'input' and 'output', got the string 'u -> y'"
+    ),
+    "experiment not an object": simulate_with(
+        "experiment.json",
+        "key 'experiment': expected an object with keys start_time, stop_time, step_size, got a list of 2 numbers",
+    ),
+    "ragged matrix": simulate_with(
+        "ragged.json", "key 'parameters.A_plus': expected a 2x2 matrix of numbers, got a ragged list"
+    ),
+    "string matrix": simulate_with(
+        "strings.json",
+        "key 'parameters.A_minus': expected a 2x2 matrix of numbers, got a list containing the string '1'",
+    ),
+    "object for a number": simulate_with(
+        "object.json", "key 'parameters.D': expected a finite number, got an object with keys 'value'"
+    ),
     "fit_info not an object": simulate_with("fit_info.json", "key 'fit_info': expected an object, got a list"),
     "truncated JSON": simulate_with("truncated.json", "not a JSON model file (invalid JSON at line 5, column"),
     # FMU: the broken part
@@ -172,35 +183,56 @@ CASES = {
     "no modelDescription.xml": validate("no_xml.fmu", "not an FMU (the archive has no modelDescription.xml)"),
     "malformed XML": validate("bad_xml.fmu", "modelDescription.xml is not well-formed XML: line 3, column 1"),
     "FMI 1.0": validate("fmi1.fmu", "modelDescription.xml declares fmiVersion '1.0': not an FMI 2.0 or 3.0 FMU"),
-    "schema violation": validate("schema.fmu", "modelDescription.xml does not follow the FMI 2.0 schema: line 2:",
-                                 "'gxid'"),
+    "schema violation": validate(
+        "schema.fmu", "modelDescription.xml does not follow the FMI 2.0 schema: line 2:", "'gxid'"
+    ),
     "FMI 3.0 given to the FMI 2.0 host": validate("fmi3.fmu", "an FMI 3.0 FMU: this host drives FMI 2.0 FMUs"),
     "no binary for this platform": validate("no_binary.fmu", f"no binary for this platform ({BINARY} is missing"),
     "garbage binary": validate("bad_binary.fmu", f"the binary {BINARY} cannot be loaded on this machine"),
     "garbage binary, simulate": simulate_with("bad_binary.fmu", f"the binary {BINARY} cannot be loaded"),
     "no resources/model.json": validate("no_model.fmu", "no resources/model.json: not an FMU exported by duhem"),
-    "corrupt resources/model.json": validate("corrupt_model.fmu", "resources/model.json: not a JSON model file "
-                                                                  "(invalid JSON at line 2, column 10"),
-    "schema error in resources/model.json": simulate_with("schema_model.fmu", "resources/model.json: key "
-                                                          "'parameters.A_plus': expected a 2x2 matrix of numbers, "
-                                                          "got a ragged list"),
+    "corrupt resources/model.json": validate(
+        "corrupt_model.fmu", "resources/model.json: not a JSON model file (invalid JSON at line 2, column 10"
+    ),
+    "schema error in resources/model.json": simulate_with(
+        "schema_model.fmu",
+        "resources/model.json: key 'parameters.A_plus': expected a 2x2 matrix of numbers, got a ragged list",
+    ),
     # files and directories
     "directory as input": fit("{d}/folder", file="folder", needles=("is a directory, not a file",)),
     "directory as FMU": validate("folder", "is a directory, not a file"),
-    "file as report directory": fit("{d}/rec.csv", "--report", "{d}/out.csv", file="out.csv",
-                                    needles=("is a file, not a directory",)),
-    "unreadable input": fit("{d}/rec.csv", file="rec.csv", needles=("cannot be read (permission denied)",),
-                            setup=_unreadable),
-    "read-only output directory": Case(("simulate", "{d}/model.json", "{d}/rec.csv", "-o", "{d}/ro/out.csv"),
-                                       "ro/out.csv", ("cannot write in directory", "(Permission denied)"), _read_only),
+    "file as report directory": fit(
+        "{d}/rec.csv", "--report", "{d}/out.csv", file="out.csv", needles=("is a file, not a directory",)
+    ),
+    "unreadable input": fit(
+        "{d}/rec.csv", file="rec.csv", needles=("cannot be read (permission denied)",), setup=_unreadable
+    ),
+    "read-only output directory": Case(
+        ("simulate", "{d}/model.json", "{d}/rec.csv", "-o", "{d}/ro/out.csv"),
+        "ro/out.csv",
+        ("cannot write in directory", "(Permission denied)"),
+        _read_only,
+    ),
     # numerical dead ends, named by file
-    "baseline on an input outlier": fit("{d}/spike.csv", "--kind", "ri", "--order", "1", "--compare",
-                                        file="spike.csv", needles=("cannot be fitted: its least-squares problem is "
-                                                                   "singular",)),
-    "input lost in the pooled range": fit("{d}/spike.csv", "{d}/rec.csv", file="rec.csv",
-                                          needles=("the input does not move at the scale of all recordings",)),
-    "constant output": fit("{d}/flat.csv", file="flat.csv",
-                           needles=("the output (column 'y') is constant over all recordings",)),
+    "baseline on an input outlier": fit(
+        "{d}/spike.csv",
+        "--kind",
+        "ri",
+        "--order",
+        "1",
+        "--compare",
+        file="spike.csv",
+        needles=("cannot be fitted: its least-squares problem is singular",),
+    ),
+    "input lost in the pooled range": fit(
+        "{d}/spike.csv",
+        "{d}/rec.csv",
+        file="rec.csv",
+        needles=("the input does not move at the scale of all recordings",),
+    ),
+    "constant output": fit(
+        "{d}/flat.csv", file="flat.csv", needles=("the output (column 'y') is constant over all recordings",)
+    ),
 }
 
 

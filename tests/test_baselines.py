@@ -1,6 +1,7 @@
 """The classical baselines (`fitter.baselines`): each model equals its step-by-step definition (Bouc-Wen: an
 ODE solver), recovers data it generated, fits a Duhem loop; bad recordings are refused by name; the Preisach
 model reaches the issue's figure on the measured piezo triangles."""
+
 import json
 import math
 from pathlib import Path
@@ -10,8 +11,7 @@ import pytest
 from conftest import noisy_recording, sampled_input, sine_input
 from scipy.integrate import solve_ivp
 
-from fitter.baselines import (BASELINES, BaselineError, BoucWen, Preisach, PrandtlIshlinskii,
-                              compare_baselines)
+from fitter.baselines import BASELINES, BaselineError, BoucWen, Preisach, PrandtlIshlinskii, compare_baselines
 from fitter.core import RateIndependentModel
 from fitter.core.errors import DuhemError
 from fitter.data.recordings import Recording, load_recording
@@ -26,8 +26,17 @@ def classical_loop_model(k: float = 2.0, d: float = 0.3) -> RateIndependentModel
     dx/du = -k (x - u - (1/k - d)) rising, dx/du = k (x - u + (1/k - d)) falling: the branches
     approach x = u - d and x = u + d; y = x + u/2.
     """
-    return RateIndependentModel(A_plus=[[-k]], A_minus=[[k]], B_plus=[k], B_minus=[-k], C=[1.0],
-                                E_plus=[1 - k * d], E_minus=[1 - k * d], D=0.5, x0=[0.0])
+    return RateIndependentModel(
+        A_plus=[[-k]],
+        A_minus=[[k]],
+        B_plus=[k],
+        B_minus=[-k],
+        C=[1.0],
+        E_plus=[1 - k * d],
+        E_minus=[1 - k * d],
+        D=0.5,
+        x0=[0.0],
+    )
 
 
 def _input_only(rec: Recording) -> Recording:
@@ -62,9 +71,15 @@ def _play_reference(model: PrandtlIshlinskii, u_n: np.ndarray, history) -> np.nd
     return np.array(out[1:])
 
 
-@pytest.mark.parametrize("cls, reference, history", [
-    (Preisach, _relay_reference, ("below", 0.35)), (Preisach, _relay_reference, ("above", -0.2)),
-    (PrandtlIshlinskii, _play_reference, ("below", 0.35)), (PrandtlIshlinskii, _play_reference, ("above", -0.2))])
+@pytest.mark.parametrize(
+    "cls, reference, history",
+    [
+        (Preisach, _relay_reference, ("below", 0.35)),
+        (Preisach, _relay_reference, ("above", -0.2)),
+        (PrandtlIshlinskii, _play_reference, ("below", 0.35)),
+        (PrandtlIshlinskii, _play_reference, ("above", -0.2)),
+    ],
+)
 def test_vectorised_relays_and_plays_equal_the_step_by_step_definition(cls, reference, history):
     rec = _sampled()
     model = cls(levels=6).fit(rec)
@@ -82,11 +97,11 @@ def test_bouc_wen_integration_agrees_with_solve_ivp_and_converges_when_the_step_
     u = np.sin(2 * np.pi * t) * (1 - 0.2 * t)
     model = BoucWen()
     for zs, q, n, z0 in ((0.5, 1.0, 2.0, 0.1), (1.0, 0.2, 1.0, -0.8), (0.3, 5.0, 4.3, 2.0)):
-        beta, gamma = (1 + q) / (2 * zs ** n), (1 - q) / (2 * zs ** n)
+        beta, gamma = (1 + q) / (2 * zs**n), (1 - q) / (2 * zs**n)
         z_ref = [z0]
         for a, b in zip(u[:-1], u[1:]):
             s = np.sign(b - a)
-            rhs = (lambda _, z, s=s: 1 - np.abs(z) ** n * (beta * s * np.sign(z) + gamma))
+            rhs = lambda _, z, s=s: 1 - np.abs(z) ** n * (beta * s * np.sign(z) + gamma)
             z_ref.append(solve_ivp(rhs, (a, b), [z_ref[-1]], method="DOP853", rtol=1e-12, atol=1e-14).y[0, -1])
         states = []
         for step in (0.01, 0.005):
@@ -169,8 +184,10 @@ def test_each_baseline_fits_a_duhem_loop_to_a_few_percent(name, limit):
 
 def test_compare_baselines_reports_per_recording_and_one_for_all():
     model = classical_loop_model()
-    recs = [noisy_recording(model, *sine_input(2.0, 2, 100, 0.0, a), noise=0.005, seed=s, name=f"amp {a}")
-            for s, a in ((1, 1.0), (2, 0.6))]
+    recs = [
+        noisy_recording(model, *sine_input(2.0, 2, 100, 0.0, a), noise=0.005, seed=s, name=f"amp {a}")
+        for s, a in ((1, 1.0), (2, 0.6))
+    ]
     out = compare_baselines(recs)
     assert set(out) == set(BASELINES)
     for entry in out.values():
@@ -183,14 +200,22 @@ def test_compare_baselines_reports_per_recording_and_one_for_all():
     assert only["prandtl_ishlinskii"]["one_for_all"] == out["prandtl_ishlinskii"]["one_for_all"]
 
 
-@pytest.mark.parametrize("rec, words", [
-    (Recording(np.arange(50.0), np.full(50, 2.0), np.arange(50.0), name="flat input"), "input is constant"),
-    (Recording(np.arange(5.0), np.sin(np.arange(5.0)), np.arange(5.0), name="short"), "too few samples"),
-    (Recording(np.arange(50.0), np.arange(50.0), np.sin(np.arange(50.0)), name="ramp"), "never reverses"),
-    (Recording(np.arange(50.0), np.sin(np.arange(50.0)), np.full(50, 1.0), name="flat output"),
-     "output is constant"),
-    (Recording(np.arange(50.0), np.sin(np.arange(50.0)), np.full(50, np.nan), name="no output"),
-     "no output recorded")])
+@pytest.mark.parametrize(
+    "rec, words",
+    [
+        (Recording(np.arange(50.0), np.full(50, 2.0), np.arange(50.0), name="flat input"), "input is constant"),
+        (Recording(np.arange(5.0), np.sin(np.arange(5.0)), np.arange(5.0), name="short"), "too few samples"),
+        (Recording(np.arange(50.0), np.arange(50.0), np.sin(np.arange(50.0)), name="ramp"), "never reverses"),
+        (
+            Recording(np.arange(50.0), np.sin(np.arange(50.0)), np.full(50, 1.0), name="flat output"),
+            "output is constant",
+        ),
+        (
+            Recording(np.arange(50.0), np.sin(np.arange(50.0)), np.full(50, np.nan), name="no output"),
+            "no output recorded",
+        ),
+    ],
+)
 @pytest.mark.parametrize("cls", list(BASELINES.values()))
 def test_a_recording_that_cannot_be_fitted_is_named_in_a_duhem_error(cls, rec, words):
     assert issubclass(BaselineError, DuhemError)
@@ -212,7 +237,7 @@ def test_an_input_outlier_is_refused_as_singular_by_rank_not_by_rounding(cls):
 
 def test_a_recording_the_duhem_preparation_refuses_is_refused_by_name():
     t = np.linspace(0, 1, 60)
-    half_loop = Recording(t, np.r_[np.linspace(0, 1, 30), np.linspace(1, 0.5, 30)], t ** 2, name="half loop")
+    half_loop = Recording(t, np.r_[np.linspace(0, 1, 30), np.linspace(1, 0.5, 30)], t**2, name="half loop")
     with pytest.raises(DuhemError, match="half loop: too few cycles"):
         Preisach().fit([half_loop])
 
@@ -240,8 +265,9 @@ def test_misuse_is_a_clear_error():
 
 
 # ---------------------------------------------------------------- measured piezo triangles
-@pytest.mark.parametrize("stem", ["slow_T06_triangle_1400V_1Hz", "slow_T01_triangle_1400V_0.1Hz",
-                                  "slow_T02_triangle_1400V_0.01Hz"])
+@pytest.mark.parametrize(
+    "stem", ["slow_T06_triangle_1400V_1Hz", "slow_T01_triangle_1400V_0.1Hz", "slow_T02_triangle_1400V_0.01Hz"]
+)
 def test_preisach_fits_each_measured_piezo_triangle_within_3_percent(stem):
     if not PIEZO.is_dir():
         pytest.skip("shared piezo data absent")
@@ -253,7 +279,7 @@ def test_preisach_fits_each_measured_piezo_triangle_within_3_percent(stem):
 def test_an_input_that_starts_at_its_minimum_fixes_every_element_at_the_first_sample(name):
     """All relays/plays are determined at the first sample (no free history): still fitted, exactly."""
     t = np.linspace(0.0, 3.0, 301)
-    u = -np.cos(2 * np.pi * t)                      # starts at its minimum
+    u = -np.cos(2 * np.pi * t)  # starts at its minimum
     rec = noisy_recording(classical_loop_model(), t, u, noise=0.0, seed=0, name="from the minimum")
     model = BASELINES[name]().fit([rec])
     assert model.score(rec)["nrmse"] < 0.06
@@ -261,12 +287,15 @@ def test_an_input_that_starts_at_its_minimum_fixes_every_element_at_the_first_sa
 
 def test_comparison_scores_the_duhem_model_with_its_initial_state_fitted_per_recording():
     from fitter.baselines import comparison
+
     model = classical_loop_model()
-    recs = [noisy_recording(model.replace(x0=[x0]), *sine_input(2.0, 2, 100), noise=0.0, seed=1, name=f"x0 {x0}")
-            for x0 in (0.0, 0.5)]
+    recs = [
+        noisy_recording(model.replace(x0=[x0]), *sine_input(2.0, 2, 100), noise=0.0, seed=1, name=f"x0 {x0}")
+        for x0 in (0.0, 0.5)
+    ]
     comp = comparison(model, recs)
     assert list(comp["duhem"]) == ["x0 0.0", "x0 0.5"]
-    assert max(comp["duhem"].values()) < 1e-9          # the generating model, each x0 recovered
+    assert max(comp["duhem"].values()) < 1e-9  # the generating model, each x0 recovered
     assert set(comp["baselines"]) == set(BASELINES)
     assert all(math.isfinite(v) for b in comp["baselines"].values() for v in b["one_for_all"].values())
     assert all(len(b["per_recording"]) == 2 for b in comp["baselines"].values())

@@ -3,6 +3,7 @@
 Small generated devices (300 samples, first-order rate-independent fits) keep the module fast; one
 LocalCluster of 2 worker processes serves the whole module, and the worker-kill test has its own.
 """
+
 from __future__ import annotations
 
 import csv
@@ -21,15 +22,30 @@ from click.testing import CliRunner
 
 distributed = pytest.importorskip("distributed")
 
-from fitter.batch import (BatchError, BatchOptions, DeviceTask, flag_outliers, input_hash, process_device,  # noqa: E402
-                          read_manifest, run_batch)
+from fitter.batch import (
+    BatchError,
+    BatchOptions,
+    DeviceTask,
+    flag_outliers,
+    input_hash,
+    process_device,  # noqa: E402
+    read_manifest,
+    run_batch,
+)
 from fitter.cli import main  # noqa: E402
 from fitter.core.kernel import simulate  # noqa: E402
 from fitter.diagnosis.fitting import first_order_ri  # noqa: E402
 
 OPTIONS = BatchOptions(kind="ri", order=1)
-DEVICE_FILES = {"model.json", "fit.json", "model.fmu", "validation.json", "validation.png", "report/index.html",
-                "done.json"}
+DEVICE_FILES = {
+    "model.json",
+    "fit.json",
+    "model.fmu",
+    "validation.json",
+    "validation.png",
+    "report/index.html",
+    "done.json",
+}
 
 
 def device_csv(path: Path, a: float = 3.0, seed: int = 0, samples: int = 300) -> Path:
@@ -67,8 +83,7 @@ def make_batch(directory: Path, rates=(3.0, 3.1, 2.9, 3.05, 2.95), bad: bool = T
 
 def files_of(directory: Path) -> dict[str, float]:
     """Every file under `directory` with its mtime (ns)."""
-    return {str(p.relative_to(directory)): p.stat().st_mtime_ns for p in sorted(directory.rglob("*"))
-            if p.is_file()}
+    return {str(p.relative_to(directory)): p.stat().st_mtime_ns for p in sorted(directory.rglob("*")) if p.is_file()}
 
 
 def no_temporaries(outdir: Path) -> bool:
@@ -77,8 +92,10 @@ def no_temporaries(outdir: Path) -> bool:
 
 @pytest.fixture(scope="module")
 def client():
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                  dashboard_address=":0") as cluster, distributed.Client(cluster) as c:
+    with (
+        distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster,
+        distributed.Client(cluster) as c,
+    ):
         yield c
 
 
@@ -98,6 +115,7 @@ def read_summary(outdir: Path) -> dict[str, dict]:
 
 # --------------------------------------------------------------------------- (a) a batch with a bad device
 
+
 def test_batch_completes_and_reports_the_bad_device(first_run):
     root, _, report = first_run
     out = root / "out"
@@ -105,7 +123,7 @@ def test_batch_completes_and_reports_the_bad_device(first_run):
     assert list(summary) == ["dev1", "dev2", "dev3", "dev4", "broken"]
     assert summary["broken"]["status"] == "failed"
     assert "line 3" in summary["broken"]["reason"] and "'oops'" in summary["broken"]["reason"]
-    assert "data/broken.csv" in summary["broken"]["reason"]          # the manifest's name, not a scratch path
+    assert "data/broken.csv" in summary["broken"]["reason"]  # the manifest's name, not a scratch path
     for d in ("dev1", "dev2", "dev3", "dev4"):
         assert summary[d]["status"] == "ok", summary[d]
         assert summary[d]["kind"] == "ri" and summary[d]["order"] == "1"
@@ -165,14 +183,19 @@ def test_device_task_fits_the_named_effects_with_the_base(tmp_path):
     assert [e["effect"] for e in fit["effects"]["fitted"]] == ["creep"]
     assert fit["effects"]["held"] == {"creep.tau": 7.5}
     assert input_hash(d, data, options) != input_hash(d, data, BatchOptions(kind="ri", order=1, backend="python"))
-    assert input_hash(d, data, options) != input_hash(d, data, BatchOptions(kind="ri", order=1, backend="python",
-                                                                            effects=("creep",)))
+    assert input_hash(d, data, options) != input_hash(
+        d, data, BatchOptions(kind="ri", order=1, backend="python", effects=("creep",))
+    )
 
 
-@pytest.mark.parametrize("options, needle", [({"effects": ("nope",)}, "unknown effect 'nope'"),
-                                             ({"effects": ("creep",), "held": (("creep.tau", -1.0),)},
-                                              "held parameter 'creep.tau' = -1"),
-                                             ({"held": (("creep.tau", 1.0),)}, "not one of the fitted effects")])
+@pytest.mark.parametrize(
+    "options, needle",
+    [
+        ({"effects": ("nope",)}, "unknown effect 'nope'"),
+        ({"effects": ("creep",), "held": (("creep.tau", -1.0),)}, "held parameter 'creep.tau' = -1"),
+        ({"held": (("creep.tau", 1.0),)}, "not one of the fitted effects"),
+    ],
+)
 def test_batch_options_refuse_bad_effects(options, needle):
     with pytest.raises(BatchError, match=needle):
         BatchOptions(**options)
@@ -180,8 +203,9 @@ def test_batch_options_refuse_bad_effects(options, needle):
 
 def test_batch_cli_names_a_bad_held_parameter(tmp_path):
     manifest = make_batch(tmp_path, rates=(3.0,), bad=False)
-    result = CliRunner().invoke(main, ["batch", str(manifest), "-o", str(tmp_path / "out"), "--effects", "creep",
-                                       "--hold", "creep.tau=-1"])
+    result = CliRunner().invoke(
+        main, ["batch", str(manifest), "-o", str(tmp_path / "out"), "--effects", "creep", "--hold", "creep.tau=-1"]
+    )
     assert result.exit_code != 0 and "held parameter 'creep.tau' = -1 must be" in result.output
     assert not (tmp_path / "out").exists()
 
@@ -201,12 +225,14 @@ def test_a_second_batch_into_the_same_outdir_fails_naming_the_first(tmp_path, ho
     out.mkdir()
     pid = holder(out)
     result = CliRunner().invoke(main, ["batch", str(manifest), "-o", str(out)], env={"DUHEM_LOCK_WAIT": "0"})
-    assert result.exit_code == 1 and result.stderr.startswith(f"error: {out}: another process is writing it "
-                                                               f"(pid {pid}: ")
+    assert result.exit_code == 1 and result.stderr.startswith(
+        f"error: {out}: another process is writing it (pid {pid}: "
+    )
     assert len(result.stderr.splitlines()) == 1 and os.listdir(out) == []
 
 
 # --------------------------------------------------------------------------- (e) outliers
+
 
 def test_outlier_flagged(first_run):
     root, _, report = first_run
@@ -218,14 +244,17 @@ def test_outlier_flagged(first_run):
 
 
 def test_outlier_rule():
-    rows = {f"d{i}": {"kind": "ri", "order": 1, "parameters": {"a": {"value": v}, "b": {"value": 1.0}}}
-            for i, v in enumerate([1.0, 1.02, 0.98, 1.01, 0.99, 1.6])}
+    rows = {
+        f"d{i}": {"kind": "ri", "order": 1, "parameters": {"a": {"value": v}, "b": {"value": 1.0}}}
+        for i, v in enumerate([1.0, 1.02, 0.98, 1.01, 0.99, 1.6])
+    }
     flags = flag_outliers(rows)
     assert list(flags) == ["d5"] and flags["d5"][0]["parameter"] == "a" and flags["d5"][0]["z"] > 3.5
-    assert flag_outliers(dict(list(rows.items())[-3:])) == {}     # fewer than MIN_GROUP devices: no rule
+    assert flag_outliers(dict(list(rows.items())[-3:])) == {}  # fewer than MIN_GROUP devices: no rule
 
 
 # --------------------------------------------------------------------------- (b), (c) re-runs
+
 
 def test_second_run_does_no_work(first_run, client, monkeypatch):
     root, manifest, _ = first_run
@@ -236,12 +265,13 @@ def test_second_run_does_no_work(first_run, client, monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("a current device was submitted")
 
-    monkeypatch.setattr(fitter.batch.scheduling, "_run", refuse)              # no cluster, no task
+    monkeypatch.setattr(fitter.batch.scheduling, "_run", refuse)  # no cluster, no task
     report = run_batch(manifest, out, options=OPTIONS, client=client, progress=False)
     assert set(report.actions.values()) == {"skipped: current"}
-    assert files_of(out) == before                                    # no file written, not even the summary
-    result = CliRunner().invoke(main, ["batch", str(manifest), "-o", str(out), "--kind", "ri", "--order", "1",
-                                       "--json"])                     # the same options from the command line
+    assert files_of(out) == before  # no file written, not even the summary
+    result = CliRunner().invoke(
+        main, ["batch", str(manifest), "-o", str(out), "--kind", "ri", "--order", "1", "--json"]
+    )  # the same options from the command line
     assert result.exit_code == 0, result.output
     data = json.loads(result.stdout)
     assert [d["action"] for d in data["devices"]] == ["skipped: current"] * 5
@@ -251,17 +281,19 @@ def test_second_run_does_no_work(first_run, client, monkeypatch):
 
 def test_changed_input_reruns_only_that_device(first_run, client, tmp_path):
     root = tmp_path / "copy"
-    shutil.copytree(first_run[0], root)                              # a copied tree stays current
+    shutil.copytree(first_run[0], root)  # a copied tree stays current
     out = root / "out"
     before = files_of(out)
     device_csv(root / "data" / "dev2.csv", a=3.08, seed=99)
     report = run_batch(root / "manifest.csv", out, options=OPTIONS, client=client, progress=False)
-    assert report.actions == {**{f"dev{i}": "skipped: current" for i in (1, 3, 4)}, "dev2": "done",
-                              "broken": "skipped: current"}
+    assert report.actions == {
+        **{f"dev{i}": "skipped: current" for i in (1, 3, 4)},
+        "dev2": "done",
+        "broken": "skipped: current",
+    }
     after = files_of(out)
     changed = {k for k in before if before[k] != after.get(k)}
-    assert changed and all(k.startswith("dev2/") or k in ("summary.csv", "summary.json", "index.html")
-                           for k in changed)
+    assert changed and all(k.startswith("dev2/") or k in ("summary.csv", "summary.json", "index.html") for k in changed)
     assert no_temporaries(out)
 
 
@@ -280,16 +312,24 @@ def test_input_hash_covers_options_columns_and_contents(tmp_path):
 
 # --------------------------------------------------------------------------- bad manifests, no dask
 
-@pytest.mark.parametrize("rows, needle", [
-    ([{"device": "a", "recording": "data/dev1.csv"}], "unknown column 'recording'"),
-    ([{"device": "a"}], "no column 'recordings'"),
-    ([{"device": "a", "recordings": "data/missing.csv"}], "line 2: device 'a': recording 'data/missing.csv': "
-                                                          "no such file"),
-    ([{"device": "a", "recordings": "data/dev1.csv"}, {"device": "A", "recordings": "data/dev1.csv"}],
-     "line 3: device 'A' appears twice (also on line 2)"),
-    ([{"device": "../x", "recordings": "data/dev1.csv"}], "line 2: device name '../x' is not a safe directory"),
-    ([{"device": "index.html", "recordings": "data/dev1.csv"}], "device name 'index.html' is not a safe"),
-])
+
+@pytest.mark.parametrize(
+    "rows, needle",
+    [
+        ([{"device": "a", "recording": "data/dev1.csv"}], "unknown column 'recording'"),
+        ([{"device": "a"}], "no column 'recordings'"),
+        (
+            [{"device": "a", "recordings": "data/missing.csv"}],
+            "line 2: device 'a': recording 'data/missing.csv': no such file",
+        ),
+        (
+            [{"device": "a", "recordings": "data/dev1.csv"}, {"device": "A", "recordings": "data/dev1.csv"}],
+            "line 3: device 'A' appears twice (also on line 2)",
+        ),
+        ([{"device": "../x", "recordings": "data/dev1.csv"}], "line 2: device name '../x' is not a safe directory"),
+        ([{"device": "index.html", "recordings": "data/dev1.csv"}], "device name 'index.html' is not a safe"),
+    ],
+)
 def test_bad_manifest_is_one_line_and_writes_nothing(tmp_path, rows, needle):
     (tmp_path / "data").mkdir()
     device_csv(tmp_path / "data" / "dev1.csv")
@@ -306,8 +346,20 @@ def test_read_manifest_columns_and_units(tmp_path):
     (tmp_path / "data").mkdir()
     device_csv(tmp_path / "data" / "r1.csv")
     device_csv(tmp_path / "data" / "r2.csv")
-    manifest = write_manifest(tmp_path, [{"device": "d", "recordings": "data/r1.csv; data/r2.csv", "time": "none",
-                                          "input": "1", "output": "", "input_unit": "kV", "output_unit": ""}])
+    manifest = write_manifest(
+        tmp_path,
+        [
+            {
+                "device": "d",
+                "recordings": "data/r1.csv; data/r2.csv",
+                "time": "none",
+                "input": "1",
+                "output": "",
+                "input_unit": "kV",
+                "output_unit": "",
+            }
+        ],
+    )
     (d,) = read_manifest(manifest)
     assert d.recordings == ("data/r1.csv", "data/r2.csv") and d.time is None and d.input == "1"
     assert d.output == "y" and d.input_unit == "kV" and d.output_unit is None
@@ -323,6 +375,7 @@ def test_without_dask_says_what_to_install(tmp_path, monkeypatch):
 
 # --------------------------------------------------------------------------- (d) a worker killed mid-batch
 
+
 def test_worker_killed_during_batch(tmp_path, client):
     """SIGKILL a worker while it runs a device (the last test of the module: the shared cluster's nanny
     starts a new worker); the scheduler runs the task again, every device ends complete, nothing is left."""
@@ -330,16 +383,16 @@ def test_worker_killed_during_batch(tmp_path, client):
     out = tmp_path / "out"
     pids = client.run(os.getpid)
     result, killed = {}, {}
-    thread = threading.Thread(target=lambda: result.update(
-        report=run_batch(manifest, out, options=OPTIONS, client=client, progress=False)))
+    thread = threading.Thread(
+        target=lambda: result.update(report=run_batch(manifest, out, options=OPTIONS, client=client, progress=False))
+    )
     thread.start()
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and not killed:
-        busy = {w: [k for k in keys if str(k).startswith("duhem-batch-")]
-                for w, keys in client.processing().items()}
+        busy = {w: [k for k in keys if str(k).startswith("duhem-batch-")] for w, keys in client.processing().items()}
         busy = {w: keys for w, keys in busy.items() if keys and w in pids}
         if busy:
-            time.sleep(0.5)                                         # the task is under way: kill its worker
+            time.sleep(0.5)  # the task is under way: kill its worker
             worker, keys = next(iter(busy.items()))
             os.kill(pids[worker], signal.SIGKILL)
             killed[worker] = keys
@@ -347,7 +400,7 @@ def test_worker_killed_during_batch(tmp_path, client):
     thread.join(180)
     assert killed, "no device task was seen running"
     assert not thread.is_alive()
-    assert not set(killed) & set(client.run(os.getpid))               # that worker is gone
+    assert not set(killed) & set(client.run(os.getpid))  # that worker is gone
     report = result["report"]
     assert report.actions == {"dev1": "done", "dev2": "done"}
     assert all(report.entries[d]["status"] == "ok" for d in report.devices), report.entries

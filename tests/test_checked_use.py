@@ -14,6 +14,7 @@ The models are the suite's order-1 rate-independent model (A+ = -3, A- = 2) with
 (beta = 2.4), hand-edited in its JSON file as a user or another tool would.  For a scalar model condition (5)
 is exact: rho(e^{b A+} e^{-b A-})^(beta/b) = e^{(A+ - A-) beta} for every sub-span b.
 """
+
 from __future__ import annotations
 
 import json
@@ -29,11 +30,18 @@ from conftest import rd_model, ri_model, sine_input
 from test_cli import assert_clean_failure, invoke, listing, ok, write_csv
 
 from fitter.core import load_model, save_model, simulate
-from fitter.core.checks import (AGREEMENT, MAX_MAGNITUDE, ModelCheckError, check_agreement, check_model,
-                                convergence, too_large, with_convergence)
+from fitter.core.checks import (
+    AGREEMENT,
+    MAX_MAGNITUDE,
+    ModelCheckError,
+    check_agreement,
+    check_model,
+    convergence,
+    too_large,
+    with_convergence,
+)
 from fitter.data.recordings import Recording, load_recording
-from fitter.identification.explained import (EXPLAINED_MIN, NothingToModelError, check_explained,
-                                             explained_variance)
+from fitter.identification.explained import EXPLAINED_MIN, NothingToModelError, check_explained, explained_variance
 
 REPO = Path(__file__).resolve().parents[1]
 BETA = 2.4
@@ -77,7 +85,7 @@ def work(tmp_path_factory, fmu_cache) -> Path:
     data = json.loads((d / "a20.json").read_text())
     del data["fit_info"]
     (d / "a20_no_fit_info.json").write_text(json.dumps(data))
-    _edited(d, "mild.json", A_minus=[[-2.0]], A_plus=[[-1.0]])    # rho = e^{(-1 + 2) 2.4} = 11.02 per cycle
+    _edited(d, "mild.json", A_minus=[[-2.0]], A_plus=[[-1.0]])  # rho = e^{(-1 + 2) 2.4} = 11.02 per cycle
     for name in ("a20", "x0"):
         _with_member(d / "model.fmu", d / f"{name}.fmu", "resources/model.json", (d / f"{name}.json").read_bytes())
     tampered = good_model().to_dict()
@@ -89,6 +97,7 @@ def work(tmp_path_factory, fmu_cache) -> Path:
 
 # --------------------------------------------------------------------------- the checks, from the parameters
 
+
 def test_condition_5_is_computed_from_the_parameters_not_the_flag():
     """Scalar model: the value is e^{(A+ - A-) beta} exactly, whatever fit_info claims."""
     conv = convergence(good_model())
@@ -98,7 +107,7 @@ def test_condition_5_is_computed_from_the_parameters_not_the_flag():
     assert convergence(bad).value == pytest.approx(math.exp(18 * BETA), rel=1e-9)
     with pytest.raises(ModelCheckError, match=r"^m\.json: the convergence condition is violated"):
         check_model(bad, "m.json")
-    assert convergence(good_model().replace(A_plus=[[500.0]])).value == math.inf    # e^{1200} overflows
+    assert convergence(good_model().replace(A_plus=[[500.0]])).value == math.inf  # e^{1200} overflows
 
 
 def test_the_span_of_a_model_without_input_range():
@@ -173,13 +182,16 @@ def test_a_hand_edited_model_is_refused_where_it_is_used(work, command, case):
     assert {p: (work / p).read_bytes() for p in listing(work)} == before
 
 
-@pytest.mark.parametrize("name, needle", [("a20", f"= {math.exp(18 * BETA):.6g}"),
-                                          ("x0", "parameters.x0[0] = 1e+308 is beyond")])
+@pytest.mark.parametrize(
+    "name, needle", [("a20", f"= {math.exp(18 * BETA):.6g}"), ("x0", "parameters.x0[0] = 1e+308 is beyond")]
+)
 def test_validate_and_simulate_check_the_model_an_fmu_carries(work, name, needle):
     fmu = work / f"{name}.fmu"
     before = listing(work)
-    for args in (("validate", fmu, work / "rec.csv", "--plot", work / "out.png"),
-                 ("simulate", fmu, work / "rec.csv", "-o", work / "out.csv")):
+    for args in (
+        ("validate", fmu, work / "rec.csv", "--plot", work / "out.png"),
+        ("simulate", fmu, work / "rec.csv", "-o", work / "out.csv"),
+    ):
         assert_clean_failure(invoke(*args), work, before, f"error: {fmu} (its resources/model.json): ", needle)
     assert (work / "out.csv").read_text() == "old\n"
 
@@ -195,8 +207,12 @@ def test_allow_unstable_is_the_one_way_past_the_condition(work, tmp_path):
     rec = load_recording(str(work / "rec.csv"), "time", "u", "y")
     y = np.loadtxt(tmp_path / "y.csv", delimiter=",", skiprows=1)[:, 2]
     np.testing.assert_allclose(y, simulate(load_model(work / "mild.json"), rec.t, rec.u).y, rtol=1e-12)
-    assert_clean_failure(invoke("simulate", work / "x0.json", work / "rec.csv", "-o", tmp_path / "z.csv",
-                                "--allow-unstable"), tmp_path, {"y.csv"}, "is beyond 1e+100")
+    assert_clean_failure(
+        invoke("simulate", work / "x0.json", work / "rec.csv", "-o", tmp_path / "z.csv", "--allow-unstable"),
+        tmp_path,
+        {"y.csv"},
+        "is beyond 1e+100",
+    )
 
 
 def test_export_with_allow_unstable_says_so_in_the_fmu(work, tmp_path):
@@ -216,9 +232,12 @@ def test_validate_refuses_an_fmu_whose_binary_and_model_disagree(work):
     diff = np.max(np.abs(simulate(tampered, rec.t, rec.u).y - rec.y)) / np.ptp(rec.y)
     assert 0.05 < diff < 1
     before = listing(work)
-    line = assert_clean_failure(invoke("validate", work / "tampered.fmu", work / "rec.csv", "--plot",
-                                       work / "out.png"), work, before,
-                                f"error: {work / 'tampered.fmu'}: its binary and its resources/model.json")
+    line = assert_clean_failure(
+        invoke("validate", work / "tampered.fmu", work / "rec.csv", "--plot", work / "out.png"),
+        work,
+        before,
+        f"error: {work / 'tampered.fmu'}: its binary and its resources/model.json",
+    )
     assert f"disagree on {work / 'rec.csv'}: their outputs differ by up to {diff:.3g} times the output range" in line
     result = json.loads(ok(invoke("validate", work / "model.fmu", work / "rec.csv", "--json")).stdout)
     assert result["recordings"][0]["fmu_vs_in_process_max_abs"] < AGREEMENT * np.ptp(rec.y)
@@ -226,12 +245,14 @@ def test_validate_refuses_an_fmu_whose_binary_and_model_disagree(work):
 
 # --------------------------------------------------------------------------- never overwrite an input
 
+
 def test_fit_onto_its_own_recording_is_refused_and_the_recording_kept(work, tmp_path):
     rec = tmp_path / "REC.csv"
     rec.write_bytes((work / "rec.csv").read_bytes())
     before = rec.read_bytes()
-    assert_clean_failure(invoke("fit", rec, "-o", rec), tmp_path, {"REC.csv"},
-                         f"error: {rec}: is one of this command's inputs")
+    assert_clean_failure(
+        invoke("fit", rec, "-o", rec), tmp_path, {"REC.csv"}, f"error: {rec}: is one of this command's inputs"
+    )
     assert rec.read_bytes() == before
 
 
@@ -242,8 +263,13 @@ def test_simulate_onto_its_input_is_refused_also_through_links(work, tmp_path):
     os.symlink(inp, tmp_path / "soft.csv")
     before = {p: (tmp_path / p).read_bytes() for p in listing(tmp_path)}
     for out in ("in.csv", "hard.csv", "soft.csv", "./in.csv"):
-        assert_clean_failure(invoke("simulate", work / "model.json", inp, "-o", tmp_path / out), tmp_path,
-                             set(before), "is one of this command's inputs (", "write the output to another path")
+        assert_clean_failure(
+            invoke("simulate", work / "model.json", inp, "-o", tmp_path / out),
+            tmp_path,
+            set(before),
+            "is one of this command's inputs (",
+            "write the output to another path",
+        )
     assert {p: (tmp_path / p).read_bytes() for p in listing(tmp_path)} == before
 
 
@@ -252,12 +278,17 @@ def test_a_report_directory_that_holds_an_input_is_refused(work, tmp_path):
     data.mkdir()
     (data / "rec.csv").write_bytes((work / "rec.csv").read_bytes())
     before = listing(tmp_path)
-    assert_clean_failure(invoke("fit", data / "rec.csv", "-o", tmp_path / "m.json", "--report", data), tmp_path,
-                         before, f"error: {data}: is a directory that holds this command's input {data / 'rec.csv'}")
+    assert_clean_failure(
+        invoke("fit", data / "rec.csv", "-o", tmp_path / "m.json", "--report", data),
+        tmp_path,
+        before,
+        f"error: {data}: is a directory that holds this command's input {data / 'rec.csv'}",
+    )
     assert (data / "rec.csv").read_bytes() == (work / "rec.csv").read_bytes()
 
 
 # --------------------------------------------------------------------------- nothing to model
+
 
 def test_explained_variance_of_real_hysteresis_and_of_noise():
     """The demo's truth model on examples/demo.csv explains R^2 > 0.9999; a model on a seeded white-noise
@@ -284,10 +315,14 @@ def test_fit_of_a_noise_output_is_refused_without_a_model(tmp_path):
     rec = _noise_csv(tmp_path / "noise.csv")
     (tmp_path / "m.json").write_text("old model\n")
     before = listing(tmp_path)
-    line = assert_clean_failure(invoke("fit", rec, "-o", tmp_path / "m.json", "--fmu", tmp_path / "m.fmu",
-                                       "--kind", "ri", "--order", "1"), tmp_path, before,
-                                f"error: {rec}: the fitted model explains R^2 = ", "no model written",
-                                "--allow-noise")
+    line = assert_clean_failure(
+        invoke("fit", rec, "-o", tmp_path / "m.json", "--fmu", tmp_path / "m.fmu", "--kind", "ri", "--order", "1"),
+        tmp_path,
+        before,
+        f"error: {rec}: the fitted model explains R^2 = ",
+        "no model written",
+        "--allow-noise",
+    )
     r2 = float(re.search(r"R\^2 = (\S+) of", line).group(1))
     assert -0.1 < r2 < 0.1
     assert (tmp_path / "m.json").read_text() == "old model\n"
@@ -295,8 +330,9 @@ def test_fit_of_a_noise_output_is_refused_without_a_model(tmp_path):
 
 def test_allow_noise_saves_the_model_with_the_numbers(tmp_path):
     rec = _noise_csv(tmp_path / "noise.csv")
-    result = ok(invoke("fit", rec, "-o", tmp_path / "m.json", "--kind", "ri", "--order", "1", "--allow-noise",
-                       "--json"))
+    result = ok(
+        invoke("fit", rec, "-o", tmp_path / "m.json", "--kind", "ri", "--order", "1", "--allow-noise", "--json")
+    )
     (row,) = json.loads(result.stdout)["summary"]["explained"]
     data = load_recording(str(rec), "time", "u", "y")
     y_hat = simulate(load_model(tmp_path / "m.json"), data.t, data.u).y

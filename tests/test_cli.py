@@ -13,6 +13,7 @@ hidden temporary files included, is unchanged).
 Three FMUs are built (module-scoped): the fitted model with each backend, and
 the diagnosed extended model (native).
 """
+
 import dataclasses
 import json
 import os
@@ -44,8 +45,17 @@ NO_CC = {"CC": "no-such-c-compiler-xyz"}
 
 
 def true_model() -> RateIndependentModel:
-    return RateIndependentModel(A_plus=[[-3.0]], A_minus=[[2.0]], B_plus=[3.0], B_minus=[2.0], C=[4.0],
-                                E_plus=[1.0], E_minus=[-1.0], D=0.5, x0=[2.0])
+    return RateIndependentModel(
+        A_plus=[[-3.0]],
+        A_minus=[[2.0]],
+        B_plus=[3.0],
+        B_minus=[2.0],
+        C=[4.0],
+        E_plus=[1.0],
+        E_minus=[-1.0],
+        D=0.5,
+        x0=[2.0],
+    )
 
 
 def write_csv(path: Path, t, u, y, header: str = "time,u,y") -> Path:
@@ -78,7 +88,7 @@ def listing(directory: Path) -> set[str]:
 def assert_clean_failure(result, directory: Path, before: set[str], *needles: str) -> str:
     """Exit 1, one stderr line 'error: ...' containing every needle, no traceback, no new file."""
     assert result.exit_code == 1, (result.output, result.exception)
-    assert isinstance(result.exception, SystemExit), repr(result.exception)   # not an uncaught exception
+    assert isinstance(result.exception, SystemExit), repr(result.exception)  # not an uncaught exception
     lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert len(lines) == 1, result.stderr
     line = lines[0]
@@ -96,6 +106,7 @@ def mode(path: Path) -> int:
 
 # --------------------------------------------------------------------------- fixtures
 
+
 @pytest.fixture(scope="module")
 def work(tmp_path_factory) -> dict:
     """rec.csv (1% noise, 4 periods with a start-up transient), the fitted model and its two FMUs."""
@@ -105,12 +116,19 @@ def work(tmp_path_factory) -> dict:
     y_true = simulate(true_model(), t, u).y
     y = y_true + 0.01 * np.ptp(y_true) * np.random.default_rng(0).standard_normal(len(t))
     rec = write_csv(d / "rec.csv", t, u, y)
-    fit = json.loads(ok(invoke("fit", rec, "-o", d / "model.json", "--kind", "ri", "--order", 1,
-                               "--json")).stdout)
+    fit = json.loads(ok(invoke("fit", rec, "-o", d / "model.json", "--kind", "ri", "--order", 1, "--json")).stdout)
     native = json.loads(ok(invoke("export", d / "model.json", "-o", d / "native.fmu", "--json")).stdout)
     python = ok(invoke("export", d / "model.json", "-o", d / "python.fmu", "--backend", "python"))
-    return {"dir": d, "rec": rec, "t": t, "u": u, "y_true": y_true, "fit": fit, "native": native,
-            "python_stderr": python.stderr}
+    return {
+        "dir": d,
+        "rec": rec,
+        "t": t,
+        "u": u,
+        "y_true": y_true,
+        "fit": fit,
+        "native": native,
+        "python_stderr": python.stderr,
+    }
 
 
 @pytest.fixture(scope="module")
@@ -120,8 +138,7 @@ def creep_run(tmp_path_factory) -> dict:
     recs, truth = synthetic_experiment("creep", seed=0, samples=300)
     files = [write_csv(d / f"{r.name}.csv", r.t, r.u, r.y) for r in recs]
     result = ok(invoke("diagnose", *files, "--json", d / "out.json", "--fmu", d / "extended.fmu"))
-    return {"dir": d, "recs": recs, "truth": truth, "result": result,
-            "data": json.loads((d / "out.json").read_text())}
+    return {"dir": d, "recs": recs, "truth": truth, "result": result, "data": json.loads((d / "out.json").read_text())}
 
 
 @pytest.fixture(scope="module")
@@ -141,15 +158,22 @@ def clean_run(tmp_path_factory) -> dict:
     mp.setattr(fitter.cli.diagnose_command, "run_diagnosis", spy)
     try:
         as_json = ok(invoke("diagnose", *files, "--json", "-"))
-        mp.setattr(fitter.cli.diagnose_command, "run_diagnosis", lambda *a, **k: seen[0])   # the text run: same
+        mp.setattr(fitter.cli.diagnose_command, "run_diagnosis", lambda *a, **k: seen[0])  # the text run: same
         text = ok(invoke("diagnose", *files))
     finally:
         mp.undo()
-    return {"dir": d, "files": files, "truth": truth, "json": json.loads(as_json.stdout), "text": text,
-            "diagnosis": seen[0]}
+    return {
+        "dir": d,
+        "files": files,
+        "truth": truth,
+        "json": json.loads(as_json.stdout),
+        "text": text,
+        "diagnosis": seen[0],
+    }
 
 
 # --------------------------------------------------------------------------- help
+
 
 def test_help_lists_every_command():
     out = ok(invoke("--help")).stdout
@@ -168,6 +192,7 @@ def test_fmu_backends_default_to_native():
 
 # --------------------------------------------------------------------------- fit, export, validate, simulate
 
+
 def test_fit_json_summary_and_model(work):
     out = work["fit"]
     assert {"model", "fmu", "backend", "report", "summary"} <= set(out)
@@ -177,11 +202,11 @@ def test_fit_json_summary_and_model(work):
     assert s["convergence"]["satisfied"] is True
     (row,) = s["recordings"]
     assert row["recording"] == "rec"
-    assert row["nrmse_last_cycle"] < 0.02           # 1% noise
+    assert row["nrmse_last_cycle"] < 0.02  # 1% noise
     assert 0.5 < row["residual_rms"] / row["noise_rms"] < 1.5
     model = load_model(work["dir"] / "model.json")
     y_fit = simulate(model, work["t"], work["u"]).y
-    last = slice(600, 801)                           # the last of 4 periods, past the transient
+    last = slice(600, 801)  # the last of 4 periods, past the transient
     err = np.max(np.abs(y_fit[last] - work["y_true"][last])) / np.ptp(work["y_true"])
     assert err < 0.01
     assert mode(work["dir"] / "model.json") == USUAL_MODE
@@ -263,13 +288,15 @@ def test_fit_reports_each_recordings_own_start(work):
 def test_validate_names_a_recording_whose_start_cannot_be_fitted(work, monkeypatch, tmp_path):
     """--x0 fitted where the start's least squares overflows: one error line naming the file, no plot written (no
     silent fall-back to the stored x0)."""
+
     def overflow(*args, **kwargs):
         raise KernelError("simulation overflowed")
 
     monkeypatch.setattr(fitter.identification.exported, "fitted_initial_state", overflow)
     before = listing(tmp_path)
-    result = invoke("validate", work["dir"] / "native.fmu", work["rec"], "--x0", "fitted", "--plot",
-                    tmp_path / "loops.png")
+    result = invoke(
+        "validate", work["dir"] / "native.fmu", work["rec"], "--x0", "fitted", "--plot", tmp_path / "loops.png"
+    )
     assert_clean_failure(result, tmp_path, before, "rec.csv", "no start state could be fitted", "--x0 stored")
 
 
@@ -296,14 +323,26 @@ def test_no_time_reads_a_file_without_time(work, tmp_path, command):
     result equals the run of the same file with a time column 0, 1, 2, ..."""
     n = len(work["u"])
     column = "u" if command == "simulate" else "y_ref"
-    values = work["u"] if command == "simulate" else simulate(load_model(work["dir"] / "model.json"), np.arange(n),
-                                                              work["u"]).y
+    values = (
+        work["u"]
+        if command == "simulate"
+        else simulate(load_model(work["dir"] / "model.json"), np.arange(n), work["u"]).y
+    )
     np.savetxt(tmp_path / "bare.csv", values[:, None], delimiter=",", header=column, comments="", fmt="%.17g")
-    np.savetxt(tmp_path / "timed.csv", np.c_[np.arange(n), values], delimiter=",", header=f"time,{column}",
-               comments="", fmt="%.17g")
+    np.savetxt(
+        tmp_path / "timed.csv",
+        np.c_[np.arange(n), values],
+        delimiter=",",
+        header=f"time,{column}",
+        comments="",
+        fmt="%.17g",
+    )
     option = ["--input", "u"] if command == "simulate" else []
-    ok(invoke(command, work["dir"] / "model.json", tmp_path / "bare.csv", "-o", tmp_path / "a.csv", "--no-time",
-              *option))
+    ok(
+        invoke(
+            command, work["dir"] / "model.json", tmp_path / "bare.csv", "-o", tmp_path / "a.csv", "--no-time", *option
+        )
+    )
     ok(invoke(command, work["dir"] / "model.json", tmp_path / "timed.csv", "-o", tmp_path / "b.csv", *option))
     assert read_csv(tmp_path / "a.csv")[0] == read_csv(tmp_path / "b.csv")[0]
     np.testing.assert_array_equal(read_csv(tmp_path / "a.csv")[1], read_csv(tmp_path / "b.csv")[1])
@@ -322,15 +361,17 @@ def test_validate_threshold_fails(work):
 
 def test_simulate_model_json_and_fmus_agree(work):
     d = work["dir"]
-    info = json.loads(ok(invoke("simulate", d / "model.json", work["rec"], "-o", d / "in_process.csv",
-                                "--json")).stdout)
+    info = json.loads(
+        ok(invoke("simulate", d / "model.json", work["rec"], "-o", d / "in_process.csv", "--json")).stdout
+    )
     assert info["engine"] == "in-process" and info["samples"] == 801
     header, a = read_csv(d / "in_process.csv")
     assert header == "time,u,y"
     np.testing.assert_array_equal(a[:, 0], work["t"])
     np.testing.assert_array_equal(a[:, 1], work["u"])
-    np.testing.assert_allclose(a[:, 2], simulate(load_model(d / "model.json"), work["t"], work["u"]).y,
-                               rtol=1e-15, atol=0)
+    np.testing.assert_allclose(
+        a[:, 2], simulate(load_model(d / "model.json"), work["t"], work["u"]).y, rtol=1e-15, atol=0
+    )
     for fmu in ("native.fmu", "python.fmu"):
         out = d / f"{fmu}.csv"
         assert "(fmu)" in ok(invoke("simulate", d / fmu, work["rec"], "-o", out)).stdout
@@ -342,6 +383,7 @@ def test_simulate_model_json_and_fmus_agree(work):
 
 
 # --------------------------------------------------------------------------- diagnose
+
 
 def test_diagnose_finds_concealed_creep(creep_run):
     data, d = creep_run["data"], creep_run["dir"]
@@ -390,14 +432,14 @@ def test_diagnose_unexplained_and_base_order(clean_run, monkeypatch):
     assert "nothing missing:" not in out
     assert calls[0]["base_order"] == 3 and calls[0]["model"] is None
     ok(invoke("diagnose", *clean_run["files"]))
-    assert calls[1]["base_order"] is None           # default: the order chosen by BIC, as `duhem fit` does
+    assert calls[1]["base_order"] is None  # default: the order chosen by BIC, as `duhem fit` does
     ok(invoke("diagnose", *clean_run["files"], "--base-order", "1"))
     assert calls[2]["base_order"] == 1
     bad = invoke("diagnose", *clean_run["files"], "--base-order", "5")
     assert bad.exit_code == 1 and bad.stderr.startswith("error: duhem diagnose: --base-order: '5' is not one of")
     ok(invoke("diagnose", *clean_run["files"], "--separate"))
     ok(invoke("diagnose", *clean_run["files"], "--one-clock"))
-    assert [c["separate"] for c in calls] == [None, None, None, True, False]     # None: read from the clocks
+    assert [c["separate"] for c in calls] == [None, None, None, True, False]  # None: read from the clocks
 
 
 def test_diagnose_reads_files_on_their_own_clocks_as_separate_runs(tmp_path):
@@ -405,18 +447,24 @@ def test_diagnose_reads_files_on_their_own_clocks_as_separate_runs(tmp_path):
     naming the overlap and the option."""
     recs, _ = synthetic_experiment(None, seed=1, samples=300)
     files = [write_csv(tmp_path / f"{r.name}.csv", r.t - r.t[0], r.u, r.y) for r in recs[:2]]
-    assert_clean_failure(invoke("diagnose", *files, "--one-clock"), tmp_path, listing(tmp_path),
-                         "starts at t = 0.0 before", "--one-clock")
+    assert_clean_failure(
+        invoke("diagnose", *files, "--one-clock"),
+        tmp_path,
+        listing(tmp_path),
+        "starts at t = 0.0 before",
+        "--one-clock",
+    )
     data = json.loads(ok(invoke("diagnose", *files, "--base-order", "1", "--json", "-")).stdout)
     assert data["separate"] is True and data["verdict"] == "nothing_missing"
     assert data["summary"].startswith("The files are read as separate runs")
     assert set(data["extended"]["heldout_nrmse_per_recording"]) == {r.name for r in recs[:2]}
     text = ok(invoke("diagnose", *files, "--base-order", "1")).stdout
     row = next(line for line in text.splitlines() if recs[1].name in line and "│" in line)
-    assert f"{data['baseline']['references'][recs[1].name]:.4g}" in row      # its reference, fitted
+    assert f"{data['baseline']['references'][recs[1].name]:.4g}" in row  # its reference, fitted
 
 
 # --------------------------------------------------------------------------- errors
+
 
 @pytest.fixture
 def bad(tmp_path) -> Path:
@@ -430,7 +478,7 @@ def bad(tmp_path) -> Path:
     (tmp_path / "nan.csv").write_text("time,u,y\n0,1,2\n1,2,nan\n2,3,4\n")
     (tmp_path / "time.csv").write_text("time,u,y\n0,1,2\n1,2,3\n1,3,4\n3,2,1\n")
     s = np.linspace(0.0, 1.0, 200)
-    write_csv(tmp_path / "ramp.csv", s, s, s ** 2)
+    write_csv(tmp_path / "ramp.csv", s, s, s**2)
     s = np.linspace(0.0, 0.9, 300)
     write_csv(tmp_path / "short.csv", s, np.sin(2 * np.pi * s), np.sin(2 * np.pi * s) + 0.1 * s)
     write_csv(tmp_path / "huge.csv", t, 1e300 * u, y)
@@ -441,55 +489,85 @@ def bad(tmp_path) -> Path:
         z.writestr("modelDescription.xml", "<fmiModelDescription/>")
     (tmp_path / "comma.csv").write_text("time;u;y\n0;0,5;1\n1;1,5;2\n2;2,5;3\n")
     (tmp_path / "noheader.csv").write_text("0,1,2\n1,2,3\n2,3,4\n")
-    (tmp_path / "field.csv").write_text("time,u,y\n0,1,2\n1,\"" + "9" * 140_000 + "\",3\n2,3,4\n")
+    (tmp_path / "field.csv").write_text('time,u,y\n0,1,2\n1,"' + "9" * 140_000 + '",3\n2,3,4\n')
     (tmp_path / "notzip.fmu").write_text("not a zip")
     return tmp_path
 
 
 ERRORS = {
     "missing file": (["fit", "{d}/nothere.csv", "-o", "{d}/out.json"], ["nothere.csv", "no such file"]),
-    "missing column": (["fit", "{d}/volts.csv", "-o", "{d}/out.json"],
-                       ["volts.csv", "input column 'u' not found", "available: 'time', 'v_V', 'y'"]),
-    "non-numeric cell": (["fit", "{d}/text.csv", "-o", "{d}/out.json"],
-                         ["text.csv", "line 3", "column 'u'", "'x' is not a number"]),
+    "missing column": (
+        ["fit", "{d}/volts.csv", "-o", "{d}/out.json"],
+        ["volts.csv", "input column 'u' not found", "available: 'time', 'v_V', 'y'"],
+    ),
+    "non-numeric cell": (
+        ["fit", "{d}/text.csv", "-o", "{d}/out.json"],
+        ["text.csv", "line 3", "column 'u'", "'x' is not a number"],
+    ),
     "NaN": (["fit", "{d}/nan.csv", "-o", "{d}/out.json"], ["nan.csv", "line 3", "column 'y'", "not finite"]),
-    "non-increasing time": (["fit", "{d}/time.csv", "-o", "{d}/out.json"],
-                            ["time.csv", "line 4", "does not increase"]),
+    "non-increasing time": (["fit", "{d}/time.csv", "-o", "{d}/out.json"], ["time.csv", "line 4", "does not increase"]),
     "input never reverses": (["fit", "{d}/ramp.csv", "-o", "{d}/out.json"], ["ramp", "never reverses"]),
     "too few cycles": (["fit", "{d}/short.csv", "-o", "{d}/out.json"], ["short", "too few cycles"]),
-    "diagnose: input never reverses": (["diagnose", "{d}/ramp.csv", "--json", "{d}/out.json"],
-                                       ["ramp.csv", "reverses fewer than twice"]),
-    "simulate: missing column": (["simulate", "{d}/model.json", "{d}/volts.csv", "-o", "{d}/out.csv"],
-                                 ["volts.csv", "'u' not found"]),
+    "diagnose: input never reverses": (
+        ["diagnose", "{d}/ramp.csv", "--json", "{d}/out.json"],
+        ["ramp.csv", "reverses fewer than twice"],
+    ),
+    "simulate: missing column": (
+        ["simulate", "{d}/model.json", "{d}/volts.csv", "-o", "{d}/out.csv"],
+        ["volts.csv", "'u' not found"],
+    ),
     "CSV given as model": (["export", "{d}/rec.csv", "-o", "{d}/out.fmu"], ["rec.csv", "not a JSON model file"]),
     "FMU given as model": (["export", "{d}/other.fmu", "-o", "{d}/out.fmu"], ["other.fmu", "not a model JSON"]),
-    "CSV given as diagnose model": (["diagnose", "{d}/rec.csv", "--model", "{d}/rec.csv"],
-                                    ["rec.csv", "not a JSON model file"]),
-    "unknown schema version": (["simulate", "{d}/v99.json", "{d}/rec.csv", "-o", "{d}/out.csv"],
-                               ["v99.json", "unknown schema_version 99"]),
+    "CSV given as diagnose model": (
+        ["diagnose", "{d}/rec.csv", "--model", "{d}/rec.csv"],
+        ["rec.csv", "not a JSON model file"],
+    ),
+    "unknown schema version": (
+        ["simulate", "{d}/v99.json", "{d}/rec.csv", "-o", "{d}/out.csv"],
+        ["v99.json", "unknown schema_version 99"],
+    ),
     "model JSON given as FMU": (["validate", "{d}/model.json", "{d}/rec.csv"], ["model.json", "not an FMU"]),
-    "output directory missing": (["simulate", "{d}/model.json", "{d}/rec.csv", "-o", "{d}/no/out.csv"],
-                                 ["does not exist"]),
+    "output directory missing": (
+        ["simulate", "{d}/model.json", "{d}/rec.csv", "-o", "{d}/no/out.csv"],
+        ["does not exist"],
+    ),
     "FMU name": (["export", "{d}/model.json", "-o", "{d}/out.zip"], ["out.zip", "must end in .fmu"]),
-    "input of 1e300 scale": (["fit", "{d}/huge.csv", "-o", "{d}/out.json"],
-                             ["huge.csv", "column 'u'", "values up to 3e+300", "rescale the column"]),
-    "output of 1e-120 scale": (["diagnose", "{d}/tiny.csv", "--json", "{d}/out.json"],
-                               ["tiny.csv", "column 'y'", "a span of only", "rescale the column"]),
-    "base order with a model": (["diagnose", "{d}/rec.csv", "--model", "{d}/model.json", "--base-order", "2"],
-                                ["--base-order", "--model"]),
-    "decimal comma": (["fit", "{d}/comma.csv", "-o", "{d}/out.json"],
-                      ["comma.csv: line 2, column 'u': '0,5' is not a number (a decimal comma? write a decimal "
-                       "point: 0.5)"]),
-    "no header": (["fit", "{d}/noheader.csv", "-o", "{d}/out.json"],
-                  ["noheader.csv: line 1: the first row '0,1,2' is numbers, not a header", "header line naming"]),
-    "field over csv's limit": (["simulate", "{d}/model.json", "{d}/field.csv", "-o", "{d}/out.csv"],
-                               ["field.csv: line 3: a field of more than 131072 characters"]),
-    "non-zip FMU to simulate": (["simulate", "{d}/notzip.fmu", "{d}/rec.csv", "-o", "{d}/out.csv"],
-                                ["notzip.fmu: not an FMU (not a zip archive"]),
-    "non-zip FMU to validate": (["validate", "{d}/notzip.fmu", "{d}/rec.csv"],
-                                ["notzip.fmu: not an FMU (not a zip archive)"]),
-    "non-zip FMU to export": (["export", "{d}/notzip.fmu", "-o", "{d}/out.fmu"],
-                              ["notzip.fmu: not an FMU (not a zip archive", "nor a model JSON file"]),
+    "input of 1e300 scale": (
+        ["fit", "{d}/huge.csv", "-o", "{d}/out.json"],
+        ["huge.csv", "column 'u'", "values up to 3e+300", "rescale the column"],
+    ),
+    "output of 1e-120 scale": (
+        ["diagnose", "{d}/tiny.csv", "--json", "{d}/out.json"],
+        ["tiny.csv", "column 'y'", "a span of only", "rescale the column"],
+    ),
+    "base order with a model": (
+        ["diagnose", "{d}/rec.csv", "--model", "{d}/model.json", "--base-order", "2"],
+        ["--base-order", "--model"],
+    ),
+    "decimal comma": (
+        ["fit", "{d}/comma.csv", "-o", "{d}/out.json"],
+        ["comma.csv: line 2, column 'u': '0,5' is not a number (a decimal comma? write a decimal point: 0.5)"],
+    ),
+    "no header": (
+        ["fit", "{d}/noheader.csv", "-o", "{d}/out.json"],
+        ["noheader.csv: line 1: the first row '0,1,2' is numbers, not a header", "header line naming"],
+    ),
+    "field over csv's limit": (
+        ["simulate", "{d}/model.json", "{d}/field.csv", "-o", "{d}/out.csv"],
+        ["field.csv: line 3: a field of more than 131072 characters"],
+    ),
+    "non-zip FMU to simulate": (
+        ["simulate", "{d}/notzip.fmu", "{d}/rec.csv", "-o", "{d}/out.csv"],
+        ["notzip.fmu: not an FMU (not a zip archive"],
+    ),
+    "non-zip FMU to validate": (
+        ["validate", "{d}/notzip.fmu", "{d}/rec.csv"],
+        ["notzip.fmu: not an FMU (not a zip archive)"],
+    ),
+    "non-zip FMU to export": (
+        ["export", "{d}/notzip.fmu", "-o", "{d}/out.fmu"],
+        ["notzip.fmu: not an FMU (not a zip archive", "nor a model JSON file"],
+    ),
 }
 
 
@@ -513,30 +591,51 @@ def test_guid_mismatch_names_both_guids(work, tmp_path):
             z.writestr(name, data)
     rec = write_csv(tmp_path / "rec.csv", work["t"], work["u"], work["y_true"])
     before = listing(tmp_path)
-    for args in (["simulate", tmp_path / "mixed.fmu", rec, "-o", tmp_path / "out.csv"],
-                 ["validate", tmp_path / "mixed.fmu", rec]):
-        assert_clean_failure(invoke(*args), tmp_path, before,
-                             f"mixed.fmu: GUID mismatch: modelDescription.xml gives {edited}, the binary was built "
-                             f"for {built}", "export the FMU again")
+    for args in (
+        ["simulate", tmp_path / "mixed.fmu", rec, "-o", tmp_path / "out.csv"],
+        ["validate", tmp_path / "mixed.fmu", rec],
+    ):
+        assert_clean_failure(
+            invoke(*args),
+            tmp_path,
+            before,
+            f"mixed.fmu: GUID mismatch: modelDescription.xml gives {edited}, the binary was built for {built}",
+            "export the FMU again",
+        )
 
 
 def test_missing_system_compiler_names_the_python_backend(bad):
     before = listing(bad)
-    line = assert_clean_failure(invoke("export", bad / "model.json", "-o", bad / "out.fmu", "--cc", NO_CC["CC"]),
-                                bad, before, "no C compiler found", "--backend python")
+    line = assert_clean_failure(
+        invoke("export", bad / "model.json", "-o", bad / "out.fmu", "--cc", NO_CC["CC"]),
+        bad,
+        before,
+        "no C compiler found",
+        "--backend python",
+    )
     assert NO_CC["CC"] in line
 
 
-@pytest.mark.parametrize("args", [
-    ["export", "{d}/model.json", "-o", "{d}/out.fmu"],
-    ["fit", "{d}/rec.csv", "-o", "{d}/out.json", "--fmu", "{d}/out.fmu"],
-    ["diagnose", "{d}/rec.csv", "--json", "{d}/out.json", "--fmu", "{d}/out.fmu"],
-], ids=["export", "fit", "diagnose"])
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["export", "{d}/model.json", "-o", "{d}/out.fmu"],
+        ["fit", "{d}/rec.csv", "-o", "{d}/out.json", "--fmu", "{d}/out.fmu"],
+        ["diagnose", "{d}/rec.csv", "--json", "{d}/out.json", "--fmu", "{d}/out.fmu"],
+    ],
+    ids=["export", "fit", "diagnose"],
+)
 def test_no_zig_names_the_python_backend(bad, args, monkeypatch):
     monkeypatch.setitem(sys.modules, "ziglang", None)  # find_spec('ziglang') is then None: not installed
     before = listing(bad)
-    assert_clean_failure(invoke(*[a.format(d=bad) for a in args]), bad, before,
-                         "the native FMU backend compiles its C with zig", "'ziglang'", "--backend python")
+    assert_clean_failure(
+        invoke(*[a.format(d=bad) for a in args]),
+        bad,
+        before,
+        "the native FMU backend compiles its C with zig",
+        "'ziglang'",
+        "--backend python",
+    )
 
 
 def test_build_fmu_script_defaults_to_native_without_a_system_compiler(bad, monkeypatch):
@@ -544,54 +643,86 @@ def test_build_fmu_script_defaults_to_native_without_a_system_compiler(bad, monk
     assert build_fmu.main([str(bad / "model.json"), "-o", str(bad / "out.fmu")]) == 0
     with zipfile.ZipFile(bad / "out.fmu") as fmu:
         names = set(fmu.namelist())
-    assert {"binaries/linux64/semilinear_duhem.so", "binaries/win64/semilinear_duhem.dll",
-            "binaries/darwin64/semilinear_duhem.dylib"} <= names
+    assert {
+        "binaries/linux64/semilinear_duhem.so",
+        "binaries/win64/semilinear_duhem.dll",
+        "binaries/darwin64/semilinear_duhem.dylib",
+    } <= names
     assert not any(name.endswith(".py") for name in names)
 
 
 # --------------------------------------------------------------------------- options in the house style
 
 OPTION_ERRORS = {
-    "negative q": (["fit", "{d}/rec.csv", "-o", "{d}/out.json", "--q", "-1"],
-                   "duhem fit: --q: -1 is out of range: give a finite number > 0"),
-    "q not finite": (["fit", "{d}/rec.csv", "-o", "{d}/out.json", "--q", "nan"],
-                     "duhem fit: --q: nan is out of range: give a finite number > 0"),
-    "order 0": (["fit", "{d}/rec.csv", "-o", "{d}/out.json", "--order", "0"],
-                "duhem fit: --order: 0 is out of range: give an integer >= 1 and <= 4"),
+    "negative q": (
+        ["fit", "{d}/rec.csv", "-o", "{d}/out.json", "--q", "-1"],
+        "duhem fit: --q: -1 is out of range: give a finite number > 0",
+    ),
+    "q not finite": (
+        ["fit", "{d}/rec.csv", "-o", "{d}/out.json", "--q", "nan"],
+        "duhem fit: --q: nan is out of range: give a finite number > 0",
+    ),
+    "order 0": (
+        ["fit", "{d}/rec.csv", "-o", "{d}/out.json", "--order", "0"],
+        "duhem fit: --order: 0 is out of range: give an integer >= 1 and <= 4",
+    ),
     "order 5": (["fit", "{d}/rec.csv", "-o", "{d}/out.json", "--order", "5"], "duhem fit: --order: 5 is out of range"),
-    "order 2.5": (["fit", "{d}/rec.csv", "-o", "{d}/out.json", "--order", "2.5"],
-                  "duhem fit: --order: '2.5' is not an integer >= 1 and <= 4"),
-    "threshold 0": (["validate", "{d}/other.fmu", "{d}/rec.csv", "--threshold", "0"],
-                    "duhem validate: --threshold: 0 is out of range: give a finite number > 0"),
-    "u0 infinite": (["compensate", "{d}/model.json", "{d}/rec.csv", "-o", "{d}/out.csv", "--u0", "inf"],
-                    "duhem compensate: --u0: inf is out of range: give a finite number"),
-    "input range not a number": (["compensate", "{d}/model.json", "{d}/rec.csv", "-o", "{d}/out.csv",
-                                  "--input-range", "0", "x"],
-                                 "duhem compensate: --input-range: 'x' is not a finite number"),
-    "input range one value": (["compensate", "{d}/model.json", "{d}/rec.csv", "-o", "{d}/out.csv",
-                               "--input-range", "0"],
-                              "duhem compensate: option '--input-range' requires 2 arguments"),
-    "input range reversed": (["compensate", "{d}/model.json", "{d}/rec.csv", "-o", "{d}/out.csv",
-                              "--input-range", "3", "1"], "duhem compensate: --input-range: 3 1: give LO < HI"),
-    "batch workers 0": (["batch", "{d}/rec.csv", "-o", "{d}/outdir", "--workers", "0"],
-                        "duhem batch: --workers: 0 is out of range: give an integer >= 1"),
-    "batch threshold": (["batch", "{d}/rec.csv", "-o", "{d}/outdir", "--threshold", "-0.1"],
-                        "duhem batch: --threshold: -0.1 is out of range"),
-    "batch order": (["batch", "{d}/rec.csv", "-o", "{d}/outdir", "--order", "9"],
-                    "duhem batch: --order: 9 is out of range: give an integer >= 1 and <= 4"),
+    "order 2.5": (
+        ["fit", "{d}/rec.csv", "-o", "{d}/out.json", "--order", "2.5"],
+        "duhem fit: --order: '2.5' is not an integer >= 1 and <= 4",
+    ),
+    "threshold 0": (
+        ["validate", "{d}/other.fmu", "{d}/rec.csv", "--threshold", "0"],
+        "duhem validate: --threshold: 0 is out of range: give a finite number > 0",
+    ),
+    "u0 infinite": (
+        ["compensate", "{d}/model.json", "{d}/rec.csv", "-o", "{d}/out.csv", "--u0", "inf"],
+        "duhem compensate: --u0: inf is out of range: give a finite number",
+    ),
+    "input range not a number": (
+        ["compensate", "{d}/model.json", "{d}/rec.csv", "-o", "{d}/out.csv", "--input-range", "0", "x"],
+        "duhem compensate: --input-range: 'x' is not a finite number",
+    ),
+    "input range one value": (
+        ["compensate", "{d}/model.json", "{d}/rec.csv", "-o", "{d}/out.csv", "--input-range", "0"],
+        "duhem compensate: option '--input-range' requires 2 arguments",
+    ),
+    "input range reversed": (
+        ["compensate", "{d}/model.json", "{d}/rec.csv", "-o", "{d}/out.csv", "--input-range", "3", "1"],
+        "duhem compensate: --input-range: 3 1: give LO < HI",
+    ),
+    "batch workers 0": (
+        ["batch", "{d}/rec.csv", "-o", "{d}/outdir", "--workers", "0"],
+        "duhem batch: --workers: 0 is out of range: give an integer >= 1",
+    ),
+    "batch threshold": (
+        ["batch", "{d}/rec.csv", "-o", "{d}/outdir", "--threshold", "-0.1"],
+        "duhem batch: --threshold: -0.1 is out of range",
+    ),
+    "batch order": (
+        ["batch", "{d}/rec.csv", "-o", "{d}/outdir", "--order", "9"],
+        "duhem batch: --order: 9 is out of range: give an integer >= 1 and <= 4",
+    ),
     "seeds 0": (["reproduce-paper", "--seeds", "0"], "duhem reproduce-paper: --seeds: 0 is out of range"),
-    "choice": (["diagnose", "{d}/rec.csv", "--base-order", "5"],
-               "duhem diagnose: --base-order: '5' is not one of 'auto', '1', '2', '3', '4'"),
-    "unknown option": (["fit", "{d}/rec.csv", "-o", "{d}/out.json", "--ordr", "2"],
-                       "duhem fit: no such option '--ordr' (did you mean one of: '--hold', "
-                       "'--order'?)"),
-    "unknown command": (["fitt", "{d}/rec.csv"],
-                        "duhem: no such command 'fitt' (did you mean 'fit'?); see 'duhem --help'"),
+    "choice": (
+        ["diagnose", "{d}/rec.csv", "--base-order", "5"],
+        "duhem diagnose: --base-order: '5' is not one of 'auto', '1', '2', '3', '4'",
+    ),
+    "unknown option": (
+        ["fit", "{d}/rec.csv", "-o", "{d}/out.json", "--ordr", "2"],
+        "duhem fit: no such option '--ordr' (did you mean one of: '--hold', '--order'?)",
+    ),
+    "unknown command": (
+        ["fitt", "{d}/rec.csv"],
+        "duhem: no such command 'fitt' (did you mean 'fit'?); see 'duhem --help'",
+    ),
     "missing argument": (["simulate", "{d}/model.json"], "duhem simulate: missing argument 'INPUT_CSV'"),
     "missing option": (["export", "{d}/model.json"], "duhem export: missing option '-o' / '--out'"),
     "missing option value": (["export", "{d}/model.json", "-o"], "duhem export: option '-o' requires an argument"),
-    "option needs another": (["fit", "{d}/rec.csv", "-o", "{d}/out.json", "--effects", "creep", "--x0", "periodic"],
-                             "duhem fit: --effects needs --x0 fitted"),
+    "option needs another": (
+        ["fit", "{d}/rec.csv", "-o", "{d}/out.json", "--effects", "creep", "--x0", "periodic"],
+        "duhem fit: --effects needs --x0 fitted",
+    ),
 }
 
 
@@ -615,12 +746,16 @@ def test_build_fmu_script_usage_error_is_one_line(capsys):
 
 LOCKED = {
     "fit -o": (["fit", "{d}/rec.csv", "-o", "{d}/out.json"], "out.json"),
-    "fit --fmu": (["fit", "{d}/rec.csv", "-o", "{d}/m2.json", "--fmu", "{d}/out.fmu", "--backend", "python"],
-                  "out.fmu"),
+    "fit --fmu": (
+        ["fit", "{d}/rec.csv", "-o", "{d}/m2.json", "--fmu", "{d}/out.fmu", "--backend", "python"],
+        "out.fmu",
+    ),
     "export -o": (["export", "{d}/model.json", "-o", "{d}/out.fmu", "--backend", "python"], "out.fmu"),
     "simulate -o": (["simulate", "{d}/model.json", "{d}/rec.csv", "-o", "{d}/out.csv"], "out.csv"),
-    "compensate -o": (["compensate", "{d}/model.json", "{d}/ref.csv", "-o", "{d}/out.csv", "--input-range", "-1",
-                       "3"], "out.csv"),
+    "compensate -o": (
+        ["compensate", "{d}/model.json", "{d}/ref.csv", "-o", "{d}/out.csv", "--input-range", "-1", "3"],
+        "out.csv",
+    ),
     "diagnose --json": (["diagnose", "{d}/rec.csv", "--json", "{d}/out.json"], "out.json"),
     "diagnose --fmu": (["diagnose", "{d}/rec.csv", "--fmu", "{d}/out.fmu", "--backend", "python"], "out.fmu"),
 }
@@ -636,16 +771,23 @@ def test_a_second_writer_of_an_output_fails_naming_the_first(bad, holder, case):
     pid = holder(bad / name)
     before, inputs = listing(bad), {p: p.read_bytes() for p in bad.iterdir() if p.is_file()}
     result = invoke(*[a.format(d=bad) for a in args], env={"DUHEM_LOCK_WAIT": "0"})
-    assert_clean_failure(result, bad, before, f"error: {bad / name}: another process is writing it (pid {pid}: ",
-                         "waited 0 s", "run again when it has finished, or write to another path")
+    assert_clean_failure(
+        result,
+        bad,
+        before,
+        f"error: {bad / name}: another process is writing it (pid {pid}: ",
+        "waited 0 s",
+        "run again when it has finished, or write to another path",
+    )
     assert {p: p.read_bytes() for p in bad.iterdir() if p.is_file()} == inputs
 
 
 def test_no_build_leftover_doubles_tmp_and_the_next_run_sweeps_them(bad, monkeypatch):
     """What a killed build leaves (here: made up, of a process that is gone) is removed by the next write into
     the directory; while an FMU is built, its only temporary is the command's own (no '.tmp-.tmp-')."""
-    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
-                          text=True).stdout.strip()
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
+    ).stdout.strip()
     left = bad / f".tmp-.tmp-out.fmu.{dead}.abcd1234.fmu.{dead}.efgh5678.fmu"
     left.write_bytes(b"PK half")
     seen = []
@@ -667,12 +809,19 @@ def test_scripts_share_the_click_commands(capsys):
     assert "Usage: build_fmu.py [OPTIONS] MODEL" in text and "-o, --output FILE" in text
     assert "--backend [native|python]" in text and "[default: native]" in text
     result = invoke("reproduce-paper", "--seeds", "0")
-    assert result.exit_code == 1 and result.stderr == ("error: duhem reproduce-paper: --seeds: 0 is out of range: "
-                                                       "give an integer >= 1; see 'duhem reproduce-paper --help'\n")
+    assert result.exit_code == 1 and result.stderr == (
+        "error: duhem reproduce-paper: --seeds: 0 is out of range: "
+        "give an integer >= 1; see 'duhem reproduce-paper --help'\n"
+    )
     assert "[default: 20]" in ok(invoke("reproduce-paper", "--help")).stdout
-    bench = subprocess.run([sys.executable, str(ROOT / "bench" / "reproduce_paper.py"), "--help"],
-                           capture_output=True, text=True, cwd=ROOT, check=True,
-                           env={**os.environ, "PYTHONPATH": str(ROOT)})
+    bench = subprocess.run(
+        [sys.executable, str(ROOT / "bench" / "reproduce_paper.py"), "--help"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        check=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
     assert bench.stdout.startswith("Usage: duhem reproduce-paper [OPTIONS]") and "[default: 20]" in bench.stdout
 
 
@@ -692,8 +841,9 @@ def test_fit_without_a_time_column(tmp_path):
     np.savetxt(csv, np.column_stack([u, y]), delimiter=",", header="u,y", comments="")
     refused = invoke("fit", csv, "-o", tmp_path / "m.json")
     assert refused.exit_code == 1 and "--no-time" in refused.stderr and not (tmp_path / "m.json").exists()
-    out = json.loads(ok(invoke("fit", csv, "--no-time", "-o", tmp_path / "m.json", "--kind", "ri", "--order", "1",
-                               "--json")).stdout)
+    out = json.loads(
+        ok(invoke("fit", csv, "--no-time", "-o", tmp_path / "m.json", "--kind", "ri", "--order", "1", "--json")).stdout
+    )
     assert out["summary"]["recordings"][0]["nrmse"] < 1e-6
 
 
@@ -707,9 +857,9 @@ def test_fit_compare_puts_the_classical_models_beside_the_duhem_fit(tmp_path):
     args = ("fit", csv, "-o", tmp_path / "m.json", "--kind", "ri", "--order", "1", "--compare")
     comp = json.loads(ok(invoke(*args, "--json")).stdout)["summary"]["comparison"]
     assert set(comp["baselines"]) == {"preisach", "prandtl_ishlinskii", "bouc_wen"}
-    assert comp["duhem"]["rec"] < 0.01                            # the generating model class, 1 % noise
+    assert comp["duhem"]["rec"] < 0.01  # the generating model class, 1 % noise
     assert all(0 < b["one_for_all"]["rec"] < 0.2 for b in comp["baselines"].values())
-    assert all(b["per_recording"] is None for b in comp["baselines"].values())   # one recording: one table
+    assert all(b["per_recording"] is None for b in comp["baselines"].values())  # one recording: one table
     text = ok(invoke(*args, "--report", tmp_path / "rep")).stdout
     assert "beside the classical models" in text and "bouc_wen" in text
     assert "Beside the classical models" in (tmp_path / "rep" / "index.html").read_text()
@@ -719,17 +869,22 @@ def test_simulate_refuses_a_non_finite_output_and_writes_nothing(bad):
     """A model that overflows on the input (an unstable branch, no input_range), used with --allow-unstable (else
     the check at use refuses it first): exit 1, the row named, the existing output untouched."""
     from fitter.core import RateIndependentModel
-    save_model(RateIndependentModel(A_plus=[[60.0]], A_minus=[[-60.0]], B_plus=[1.0], B_minus=[1.0], C=[1.0]),
-               bad / "unstable.json")
+
+    save_model(
+        RateIndependentModel(A_plus=[[60.0]], A_minus=[[-60.0]], B_plus=[1.0], B_minus=[1.0], C=[1.0]),
+        bad / "unstable.json",
+    )
     (bad / "out.csv").write_text("old\n")
     before = listing(bad)
-    result = invoke("simulate", str(bad / "unstable.json"), str(bad / "rec.csv"), "-o", str(bad / "out.csv"),
-                    "--allow-unstable")
+    result = invoke(
+        "simulate", str(bad / "unstable.json"), str(bad / "rec.csv"), "-o", str(bad / "out.csv"), "--allow-unstable"
+    )
     assert result.exit_code == 1 and isinstance(result.exception, SystemExit)
     warning, error = result.stderr.splitlines()
     assert warning.startswith("warning: ") and "convergence condition is violated" in warning
-    assert error.startswith("error: ") and all(w in error for w in ("rec.csv", "data row", "the simulated output is",
-                                                                    "nothing written"))
+    assert error.startswith("error: ") and all(
+        w in error for w in ("rec.csv", "data row", "the simulated output is", "nothing written")
+    )
     assert listing(bad) == before
     assert (bad / "out.csv").read_text() == "old\n"
 
@@ -746,13 +901,42 @@ PIEZO_1HZ = ROOT.parent / "shared" / "data" / "piezo-pnzt" / "slow_T06_triangle_
 def test_fit_warns_when_minor_loops_leave_the_recorded_range(tmp_path):
     """The piezo 1 Hz triangle's fit reproduces its loop, but driven by minor loops inside its input range
     its output settles far outside anything recorded: `duhem fit` says so on stderr and in the summary."""
-    result = ok(invoke("fit", PIEZO_1HZ, "--time", "time_s", "--input", "voltage_V", "--output",
-                       "polarization_uC_per_cm2", "--kind", "ri", "-o", tmp_path / "m.json"))
+    result = ok(
+        invoke(
+            "fit",
+            PIEZO_1HZ,
+            "--time",
+            "time_s",
+            "--input",
+            "voltage_V",
+            "--output",
+            "polarization_uC_per_cm2",
+            "--kind",
+            "ri",
+            "-o",
+            tmp_path / "m.json",
+        )
+    )
     assert "warning: on minor loops smaller than the recorded ones" in result.stderr
     assert "minor loops inside the input range: the output leaves the recorded output range by" in result.stdout
-    as_json = ok(invoke("fit", PIEZO_1HZ, "--time", "time_s", "--input", "voltage_V", "--output",
-                        "polarization_uC_per_cm2", "--kind", "ri", "-o", tmp_path / "m2.json", "--json"))
-    assert "warning: on minor loops smaller than the recorded ones" in as_json.stderr    # --json keeps warnings
+    as_json = ok(
+        invoke(
+            "fit",
+            PIEZO_1HZ,
+            "--time",
+            "time_s",
+            "--input",
+            "voltage_V",
+            "--output",
+            "polarization_uC_per_cm2",
+            "--kind",
+            "ri",
+            "-o",
+            tmp_path / "m2.json",
+            "--json",
+        )
+    )
+    assert "warning: on minor loops smaller than the recorded ones" in as_json.stderr  # --json keeps warnings
     summary = json.loads(as_json.stdout)["summary"]["minor_loops"]
     assert summary["faithful"] is False and summary["excursion"] > 10
     # the model file keeps the record, so its compensator says the same
@@ -764,11 +948,18 @@ def test_fit_warns_when_minor_loops_leave_the_recorded_range(tmp_path):
     assert "settles up to" in comp.stderr and "--faithful-minor-loops" in comp.stderr
 
 
-@pytest.mark.parametrize("command", [
-    ("fit", "{rec}", "-o", "{rec}"), ("fit", "{rec}", "-o", "{d}/m.json", "--fmu", "{d}/./rec.csv"),
-    ("simulate", "{model}", "{rec}", "-o", "{rec}"), ("export", "{model}", "-o", "{model}"),
-    ("validate", "{fmu}", "{rec}", "--plot", "{rec}"), ("compensate", "{model}", "{ref}", "-o", "{ref}"),
-    ("diagnose", "{rec}", "--json", "{rec}")])
+@pytest.mark.parametrize(
+    "command",
+    [
+        ("fit", "{rec}", "-o", "{rec}"),
+        ("fit", "{rec}", "-o", "{d}/m.json", "--fmu", "{d}/./rec.csv"),
+        ("simulate", "{model}", "{rec}", "-o", "{rec}"),
+        ("export", "{model}", "-o", "{model}"),
+        ("validate", "{fmu}", "{rec}", "--plot", "{rec}"),
+        ("compensate", "{model}", "{ref}", "-o", "{ref}"),
+        ("diagnose", "{rec}", "--json", "{rec}"),
+    ],
+)
 def test_an_output_that_is_an_input_is_refused_and_the_input_kept(tmp_path, fmu_cache, command):
     """Every command refuses an output path that is one of its inputs (also spelled differently), in one
     line naming it, before anything is written: the input's bytes and the directory stay as they were."""

@@ -17,6 +17,7 @@ backend must then
 Backend-specific behaviour (parameters, refusals, fuzzing, sanitizers,
 metadata) is tested in test_fmu_python.py and test_fmu_native.py.
 """
+
 from __future__ import annotations
 
 import pickle
@@ -90,7 +91,7 @@ def check_output_equals_kernel(open_host, model) -> None:
     host = open_host(u[0])
     y = host.run(t, u)
     host.free()
-    assert np.ptp(ref) > 0.1                         # a real response, not a constant
+    assert np.ptp(ref) > 0.1  # a real response, not a constant
     assert_close(y, ref, "sample-and-step output")
 
 
@@ -98,7 +99,7 @@ def check_x0_is_the_state_at_the_first_input(open_host, model) -> None:
     host = open_host(0.7)
     assert host.y() == pytest.approx(model.C @ model.x0 + model.D * 0.7, abs=1e-15)
     assert host.sample(-0.2) == pytest.approx(model.C @ model.x0 + model.D * -0.2, abs=1e-15)
-    host.step(0.1)                                    # input held since t = 0: still at x0
+    host.step(0.1)  # input held since t = 0: still at x0
     assert host.y() == pytest.approx(model.C @ model.x0 + model.D * -0.2, abs=1e-15)
     host.free()
 
@@ -109,8 +110,8 @@ def check_rereading_and_held_input(open_host) -> None:
         host.sample(np.sin(0.3 * k))
         host.step(0.1)
     y1 = host.sample(0.9)
-    assert host.y() == y1 and host.y() == y1          # reading again changes nothing
-    host.step(0.1)                                    # held input: the state does not move
+    assert host.y() == y1 and host.y() == y1  # reading again changes nothing
+    host.step(0.1)  # held input: the state does not move
     assert host.y() == y1
     assert host.sample(0.5) != y1
     host.free()
@@ -132,7 +133,7 @@ def substep_outputs(open_host, t, u, m: int) -> np.ndarray:
 
 def check_step_size_independence(open_host, model) -> None:
     t = np.arange(41) * 0.1
-    u = np.interp(t, [0, 1.0, 2.5, 4.0], [0.0, 1.2, -0.8, 0.6])   # reversals at samples
+    u = np.interp(t, [0, 1.0, 2.5, 4.0], [0.0, 1.2, -0.8, 0.6])  # reversals at samples
     outputs = [substep_outputs(open_host, t, u, m) for m in (1, 10, 100)]
     assert np.abs(outputs[1] - outputs[0]).max() < 1e-10
     assert np.abs(outputs[2] - outputs[0]).max() < 1e-10

@@ -1,10 +1,19 @@
 """Reversals and cycles (`fitter.data.cycles`) and the first settled cycle of a prepared recording."""
+
 import numpy as np
 import pytest
 
 from fitter.core import RateIndependentModel, simulate
-from fitter.data.cycles import (PreparationError, closing_period, count_reversals, cycle_reversals,
-                                find_reversals, last_full_cycle, period_cycle, split_cycles)
+from fitter.data.cycles import (
+    PreparationError,
+    closing_period,
+    count_reversals,
+    cycle_reversals,
+    find_reversals,
+    last_full_cycle,
+    period_cycle,
+    split_cycles,
+)
 from fitter.data.metrics import compare
 from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording
@@ -13,8 +22,7 @@ from fitter.diagnosis import synthetic_experiment
 
 def wiggle():
     """Up 0 -> 1, back by 0.07 (5.8% of the range 1.2), up to 1.2, down to 0."""
-    return np.r_[np.linspace(0, 1, 50), np.linspace(1, 0.93, 5), np.linspace(0.93, 1.2, 20),
-                 np.linspace(1.2, 0, 60)]
+    return np.r_[np.linspace(0, 1, 50), np.linspace(1, 0.93, 5), np.linspace(0.93, 1.2, 20), np.linspace(1.2, 0, 60)]
 
 
 def test_threshold_policy_and_the_ten_percent_counter():
@@ -38,11 +46,11 @@ def test_ten_percent_counter_on_the_diagnosis_experiments():
 
 def test_last_full_cycle_ends_at_the_last_reversal_whatever_its_kind():
     t = np.linspace(0, 6.5 * np.pi, 651)
-    u = np.cos(t + 0.3)                         # first reversal a minimum, six in all
+    u = np.cos(t + 0.3)  # first reversal a minimum, six in all
     assert list(find_reversals(u)) == [90, 190, 290, 390, 490, 590]
-    assert cycle_reversals(u) == [(90, 190, 290), (290, 390, 490)]      # min -> max -> min
+    assert cycle_reversals(u) == [(90, 190, 290), (290, 390, 490)]  # min -> max -> min
     assert split_cycles(u) == [slice(90, 291), slice(290, 491)]
-    assert last_full_cycle(u) == slice(390, 591)                         # max -> min -> max
+    assert last_full_cycle(u) == slice(390, 591)  # max -> min -> max
     with pytest.raises(PreparationError, match="reverses 1 time"):
         last_full_cycle(u[:150])
 
@@ -63,8 +71,9 @@ def test_one_period_and_one_closing_period():
 
 
 def first_order():
-    return RateIndependentModel(A_plus=[[-0.4]], A_minus=[[0.4]], B_plus=[0], B_minus=[0], E_plus=[0.4],
-                                E_minus=[0.4], C=[1], D=0.5, x0=[1.5])
+    return RateIndependentModel(
+        A_plus=[[-0.4]], A_minus=[[0.4]], B_plus=[0], B_minus=[0], E_plus=[0.4], E_minus=[0.4], C=[1], D=0.5, x0=[1.5]
+    )
 
 
 def test_first_cycle_is_the_first_settled_cycle():
@@ -93,7 +102,7 @@ def test_compare_judges_the_last_full_cycle():
     t = np.linspace(0, 6.5 * np.pi, 651)
     u = np.cos(t + 0.3)
     y = np.sin(t)
-    y_hat = y + np.where(np.arange(651) >= 390, 0.01, 1.0)   # wrong before the last full cycle only
+    y_hat = y + np.where(np.arange(651) >= 390, 0.01, 1.0)  # wrong before the last full cycle only
     c = compare(Recording(t, u, y), y_hat)
     assert c["last_cycle"] == [390, 591]
     assert c["max_error_last_cycle"] == pytest.approx(0.01)

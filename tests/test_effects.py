@@ -3,6 +3,7 @@
 The tests parametrised over `REGISTRY` run every registered effect (at its
 `EffectSpec.example`), so a new effect is tested without editing this file.
 """
+
 import json
 import math
 
@@ -10,37 +11,77 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from fitter.core import (KernelError, ModelFileError, RateDependentModel, RateIndependentModel, Stepper,
-                         TabulatedRate, load_model, model_from_dict, save_model, simulate)
+from fitter.core import (
+    KernelError,
+    ModelFileError,
+    RateDependentModel,
+    RateIndependentModel,
+    Stepper,
+    TabulatedRate,
+    load_model,
+    model_from_dict,
+    save_model,
+    simulate,
+)
 from fitter.core.effects import ORIGINS, REGISTRY, STAGES, Effect, EffectContext
 
 ALL = {name: dict(spec.example) for name, spec in REGISTRY.items()}
 
-ZERO = {"backlash": {"b": 0.0}, "rate_dependence": {"alpha": 0.0}, "creep": {"k": 0.0, "tau": 1.0},
-        "relaxation": {"k": 0.0, "w2": 0.3, "w3": 2.0, "w4": 0.1, "tau_min": 0.1, "tau_max": 10.0},
-        "switching": {"S1": 0.0, "u_up1": 0.5, "u_dn1": -0.5, "width1": 0.1, "q1": 0.4,
-                      "S2": 0.0, "u_up2": 0.9, "u_dn2": -0.7, "width2": 0.3, "q2": -1.0},
-        "viscous": {"c": 0.0}, "thermal_drift": {"kappa": 0.0}, "saturation": {"y_c": 0.1, "beta": 0.0},
-        "sensor_lag": {"tau": 0.0}, "measurement_drift": {"rate": 0.0}}
+ZERO = {
+    "backlash": {"b": 0.0},
+    "rate_dependence": {"alpha": 0.0},
+    "creep": {"k": 0.0, "tau": 1.0},
+    "relaxation": {"k": 0.0, "w2": 0.3, "w3": 2.0, "w4": 0.1, "tau_min": 0.1, "tau_max": 10.0},
+    "switching": {
+        "S1": 0.0,
+        "u_up1": 0.5,
+        "u_dn1": -0.5,
+        "width1": 0.1,
+        "q1": 0.4,
+        "S2": 0.0,
+        "u_up2": 0.9,
+        "u_dn2": -0.7,
+        "width2": 0.3,
+        "q2": -1.0,
+    },
+    "viscous": {"c": 0.0},
+    "thermal_drift": {"kappa": 0.0},
+    "saturation": {"y_c": 0.1, "beta": 0.0},
+    "sensor_lag": {"tau": 0.0},
+    "measurement_drift": {"rate": 0.0},
+}
 
 
 def ri(effects=()):
-    return RateIndependentModel(A_plus=[[-3.0]], A_minus=[[-2.5]], B_plus=[3.0], B_minus=[2.5],
-                                C=[1.0], E_plus=[-1.2], E_minus=[1.0], D=0.1,
-                                effects=[{"effect": k, "parameters": v} for k, v in effects])
+    return RateIndependentModel(
+        A_plus=[[-3.0]],
+        A_minus=[[-2.5]],
+        B_plus=[3.0],
+        B_minus=[2.5],
+        C=[1.0],
+        E_plus=[-1.2],
+        E_minus=[1.0],
+        D=0.1,
+        effects=[{"effect": k, "parameters": v} for k, v in effects],
+    )
 
 
 def rd(effects=()):
-    return RateDependentModel(A=[[-2.0, 0.3], [0.0, -1.0]], B=[2.0, 1.0], C=[1.0, 0.5], E=[0.1, 0.0],
-                              g=TabulatedRate([-2.0, 2.0], [2.0, 2.0]),
-                              effects=[{"effect": k, "parameters": v} for k, v in effects])
+    return RateDependentModel(
+        A=[[-2.0, 0.3], [0.0, -1.0]],
+        B=[2.0, 1.0],
+        C=[1.0, 0.5],
+        E=[0.1, 0.0],
+        g=TabulatedRate([-2.0, 2.0], [2.0, 2.0]),
+        effects=[{"effect": k, "parameters": v} for k, v in effects],
+    )
 
 
 def signal(n=400, seed=0):
     rng = np.random.default_rng(seed)
     t = np.cumsum(rng.uniform(0.01, 0.03, n)) if n > 100 else np.cumsum(rng.uniform(0.05, 0.1, n))
     u = np.sin(2 * np.pi * 0.4 * t) + 0.3 * np.sin(2 * np.pi * 1.3 * t)
-    u[n // 4:n // 3] = u[n // 4]          # a hold
+    u[n // 4 : n // 3] = u[n // 4]  # a hold
     return t, u
 
 
@@ -115,18 +156,33 @@ def _ode_with_creep_lag_rate(model_params, t, u):
     for k0 in range(len(t) - 1):
         yk, yk1 = ys[k0], ys[k0 + 1]
         h = t[k0 + 1] - t[k0]
-        sol = solve_ivp(lambda s, mm: [(yk + (yk1 - yk) * (s - t[k0]) / h - mm[0]) / tau_m],
-                        (t[k0], t[k0 + 1]), [m[-1]], rtol=1e-11, atol=1e-13, method="DOP853")
+        sol = solve_ivp(
+            lambda s, mm: [(yk + (yk1 - yk) * (s - t[k0]) / h - mm[0]) / tau_m],
+            (t[k0], t[k0 + 1]),
+            [m[-1]],
+            rtol=1e-11,
+            atol=1e-13,
+            method="DOP853",
+        )
         m.append(sol.y[0, -1])
     return np.array(m)
 
 
 def test_timed_effects_match_ode_solution():
-    model = RateIndependentModel(A_plus=[[-3.0]], A_minus=[[-2.5]], B_plus=[3.0], B_minus=[2.5], C=[1.0],
-                                 E_plus=[-1.2], E_minus=[1.0],
-                                 effects=[{"effect": "rate_dependence", "parameters": ALL["rate_dependence"]},
-                                          {"effect": "creep", "parameters": {"k": 0.05, "tau": 0.7}},
-                                          {"effect": "sensor_lag", "parameters": {"tau": 0.05}}])
+    model = RateIndependentModel(
+        A_plus=[[-3.0]],
+        A_minus=[[-2.5]],
+        B_plus=[3.0],
+        B_minus=[2.5],
+        C=[1.0],
+        E_plus=[-1.2],
+        E_minus=[1.0],
+        effects=[
+            {"effect": "rate_dependence", "parameters": ALL["rate_dependence"]},
+            {"effect": "creep", "parameters": {"k": 0.05, "tau": 0.7}},
+            {"effect": "sensor_lag", "parameters": {"tau": 0.05}},
+        ],
+    )
     t, u = signal(n=60, seed=3)
     ref = _ode_with_creep_lag_rate(([-3.0, -2.5], [3.0, 2.5], [-1.2, 1.0]), t, u)
     np.testing.assert_allclose(simulate(model, t, u).y, ref, atol=1e-8)
@@ -159,31 +215,55 @@ def test_switching_matches_ode_solution(width):
     assert np.ptp(np.asarray(ref)) > 0.5
 
 
-
 def test_switching_stays_finite_when_it_switches_fully_in_every_interval():
     """A width of 1e-3 input ranges over a swing 1000 widths past both thresholds: each interval's switching
     integral is far beyond e^700. The switched output is then S tanh of the log ratio, +-S where one direction
     dominates, at every sample; it used to overflow the recurrence's cumulative decay into NaN."""
     t = np.linspace(0.0, 40.0, 4001)
     u = np.sin(2 * np.pi * t / 4.0)
-    p = {"S1": 0.7, "u_up1": 0.0, "u_dn1": 0.0, "width1": 1e-3, "q1": -1.0,
-         "S2": 0.0, "u_up2": 0.0, "u_dn2": 0.0, "width2": 1.0, "q2": 0.0}
+    p = {
+        "S1": 0.7,
+        "u_up1": 0.0,
+        "u_dn1": 0.0,
+        "width1": 1e-3,
+        "q1": -1.0,
+        "S2": 0.0,
+        "u_up2": 0.0,
+        "u_dn2": 0.0,
+        "width2": 1.0,
+        "q2": 0.0,
+    }
     s = simulate(ri([("switching", p)]), t, u).y - simulate(ri(), t, u).y
     assert np.isfinite(s).all()
     far = np.abs(u[1:]) > 0.05
     np.testing.assert_allclose(s[1:][far], 0.7 * np.sign(u[1:][far]), atol=1e-12)
+
+
 def test_switching_spread_is_the_mean_of_shares_at_normal_quantiles():
     """A population with spread 0.2 adds exactly the mean of 16 spread-free populations with thresholds
     u_up + 0.2 z_j, u_dn - 0.2 z_j, z_j the normal quantiles at (j + 1/2) / 16; a model saved without spread
     (spread 0, the default) gets spread 0; the state holds 2 x 16 shares."""
     from statistics import NormalDist
+
     t, u = signal()
     base = simulate(ri(), t, u).y
-    one = {"S1": 0.4, "u_up1": 0.3, "u_dn1": -0.2, "width1": 0.05, "q1": -1.0,
-           "S2": 0.0, "u_up2": 0.9, "u_dn2": -0.7, "width2": 0.3, "q2": -1.0}
+    one = {
+        "S1": 0.4,
+        "u_up1": 0.3,
+        "u_dn1": -0.2,
+        "width1": 0.05,
+        "q1": -1.0,
+        "S2": 0.0,
+        "u_up2": 0.9,
+        "u_dn2": -0.7,
+        "width2": 0.3,
+        "q2": -1.0,
+    }
     spread = simulate(ri([("switching", {**one, "spread1": 0.2})]), t, u).y - base
-    shares = [simulate(ri([("switching", {**one, "u_up1": 0.3 + 0.2 * z, "u_dn1": -0.2 - 0.2 * z})]), t, u).y - base
-              for z in (NormalDist().inv_cdf((j + 0.5) / 16) for j in range(16))]
+    shares = [
+        simulate(ri([("switching", {**one, "u_up1": 0.3 + 0.2 * z, "u_dn1": -0.2 - 0.2 * z})]), t, u).y - base
+        for z in (NormalDist().inv_cdf((j + 0.5) / 16) for j in range(16))
+    ]
     np.testing.assert_allclose(spread, np.mean(shares, axis=0), rtol=0, atol=1e-13)
     assert not np.allclose(spread, shares[8], atol=1e-3)
     assert Effect("switching", one).parameters["spread1"] == 0.0
@@ -194,12 +274,12 @@ def test_relaxation_is_four_creeps_on_a_log_grid():
     """relaxation {k, w_i, tau_min, tau_max} adds exactly what four creeps k w_i / sum w with tau_i = 0.2 * 10^i
     add."""
     t, u = signal()
-    ks = [0.02, 0.01, 0.05, 0.02]          # k = 0.1, w = ks / ks[0]
+    ks = [0.02, 0.01, 0.05, 0.02]  # k = 0.1, w = ks / ks[0]
     base = simulate(ri(), t, u).y
-    relax = simulate(ri([("relaxation", {"k": 0.1, "w2": 0.5, "w3": 2.5, "w4": 1.0,
-                                         "tau_min": 0.2, "tau_max": 200.0})]), t, u).y
-    creeps = sum(simulate(ri([("creep", {"k": k, "tau": 0.2 * 10.0 ** i})]), t, u).y - base
-                 for i, k in enumerate(ks))
+    relax = simulate(
+        ri([("relaxation", {"k": 0.1, "w2": 0.5, "w3": 2.5, "w4": 1.0, "tau_min": 0.2, "tau_max": 200.0})]), t, u
+    ).y
+    creeps = sum(simulate(ri([("creep", {"k": k, "tau": 0.2 * 10.0**i})]), t, u).y - base for i, k in enumerate(ks))
     np.testing.assert_allclose(relax - base, creeps, rtol=0, atol=1e-13)
     assert np.ptp(relax - base) > 0.01
 
@@ -210,14 +290,19 @@ def test_play_thermal_saturation_viscous_closed_forms():
     lin = RateIndependentModel(A_plus=[[0.0]], A_minus=[[0.0]], B_plus=[0.0], B_minus=[0.0], C=[1.0], D=1.0)
     y = simulate(RateIndependentModel(**{**_params(lin), "effects": [Effect("backlash", {"b": 0.4})]}), t, u).y
     np.testing.assert_allclose(y, [0.0, 0.8, 0.8, 0.7, 0.7, 1.3])
-    y = simulate(RateIndependentModel(**{**_params(lin), "effects": [Effect("thermal_drift", {"kappa": 0.1})]}),
-                 t, u).y
+    y = simulate(RateIndependentModel(**{**_params(lin), "effects": [Effect("thermal_drift", {"kappa": 0.1})]}), t, u).y
     travel = np.r_[0, np.cumsum(np.abs(np.diff(u)))]
     np.testing.assert_allclose(y, u * (1 - 0.1 * travel))
-    y = simulate(RateIndependentModel(**{**_params(lin), "effects": [Effect("viscous", {"c": 2.0}),
-                                                                   Effect("saturation", {"y_c": 0.5,
-                                                                                         "beta": 2.0})]}),
-                 t, u).y
+    y = simulate(
+        RateIndependentModel(
+            **{
+                **_params(lin),
+                "effects": [Effect("viscous", {"c": 2.0}), Effect("saturation", {"y_c": 0.5, "beta": 2.0})],
+            }
+        ),
+        t,
+        u,
+    ).y
     z = u + 2.0 * np.r_[0, np.diff(u)]
     np.testing.assert_allclose(y, 0.5 + np.tanh(2.0 * (z - 0.5)) / 2.0)
 
@@ -234,25 +319,51 @@ def test_json_round_trip_and_no_effects_key(tmp_path):
     np.testing.assert_array_equal(simulate(back, t, u).y, simulate(model, t, u).y)
     assert [e.effect for e in back.effects] == list(ALL)
     assert "effects" not in ri().to_dict()
-    assert list(REGISTRY) == list(ALL) == ["backlash", "rate_dependence", "creep", "relaxation", "switching", "viscous",
-                                           "thermal_drift", "saturation", "sensor_lag", "measurement_drift"]
+    assert (
+        list(REGISTRY)
+        == list(ALL)
+        == [
+            "backlash",
+            "rate_dependence",
+            "creep",
+            "relaxation",
+            "switching",
+            "viscous",
+            "thermal_drift",
+            "saturation",
+            "sensor_lag",
+            "measurement_drift",
+        ]
+    )
 
 
-@pytest.mark.parametrize("effects, message", [
-    ([{"effect": "magic", "parameters": {}}], "unknown effect 'magic'"),
-    ([{"effect": "creep", "parameters": {"k": 1.0}}], "parameters must be ['k', 'tau']"),
-    ([{"effect": "creep", "parameters": {"k": 1.0, "tau": 0.0}}], "tau = 0.0 must be positive"),
-    ([{"effect": "backlash", "parameters": {"b": -1}}], "b = -1.0 must be >= 0"),
-    ([{"effect": "viscous", "parameters": {"c": "x"}}], "c is not a number"),
-    ([{"effect": "viscous", "parameters": {"c": 1}}] * 2, "listed more than once"),
-    ("creep", "key 'effects': expected a list of effects, got str"),
-    ([{"effect": "creep", "parameters": {"k": 1.0, "tau": 1.0}, "start": {"x": 0.0}}],
-     "start must give the state ['c']"),
-    ([{"effect": "creep", "parameters": {"k": 1.0, "tau": 1.0}, "start": {"c": float("nan")}}],
-     "start c = nan must be finite"),
-    ([{"effect": "creep", "parameters": {"k": 1.0, "tau": 1.0}, "start": {"c": 0.1}},
-      {"effect": "backlash", "parameters": {"b": 0.1}}], "start is given for some effects"),
-])
+@pytest.mark.parametrize(
+    "effects, message",
+    [
+        ([{"effect": "magic", "parameters": {}}], "unknown effect 'magic'"),
+        ([{"effect": "creep", "parameters": {"k": 1.0}}], "parameters must be ['k', 'tau']"),
+        ([{"effect": "creep", "parameters": {"k": 1.0, "tau": 0.0}}], "tau = 0.0 must be positive"),
+        ([{"effect": "backlash", "parameters": {"b": -1}}], "b = -1.0 must be >= 0"),
+        ([{"effect": "viscous", "parameters": {"c": "x"}}], "c is not a number"),
+        ([{"effect": "viscous", "parameters": {"c": 1}}] * 2, "listed more than once"),
+        ("creep", "key 'effects': expected a list of effects, got str"),
+        (
+            [{"effect": "creep", "parameters": {"k": 1.0, "tau": 1.0}, "start": {"x": 0.0}}],
+            "start must give the state ['c']",
+        ),
+        (
+            [{"effect": "creep", "parameters": {"k": 1.0, "tau": 1.0}, "start": {"c": float("nan")}}],
+            "start c = nan must be finite",
+        ),
+        (
+            [
+                {"effect": "creep", "parameters": {"k": 1.0, "tau": 1.0}, "start": {"c": 0.1}},
+                {"effect": "backlash", "parameters": {"b": 0.1}},
+            ],
+            "start is given for some effects",
+        ),
+    ],
+)
 def test_bad_effects(effects, message):
     d = ri().to_dict()
     d["effects"] = effects
@@ -283,8 +394,11 @@ def test_stored_start_is_the_chain_state_at_the_first_sample(make, tmp_path):
         ends.append(run_with_effects(without_lag, t, u, without_lag.x0, fl, ends[-1])[2])
     first = run_with_effects(without_lag, t[:1], u[:1], without_lag.x0, fl)[2]
     steady = [REGISTRY[e].steady for e in ALL if not REGISTRY[e].follows_output for _ in REGISTRY[e].state]
-    np.testing.assert_allclose(settled_state(without_lag, t, u, without_lag.x0, fl),
-                               [a if keep else b for a, b, keep in zip(ends[-1], first, steady)], rtol=1e-13)
+    np.testing.assert_allclose(
+        settled_state(without_lag, t, u, without_lag.x0, fl),
+        [a if keep else b for a, b, keep in zip(ends[-1], first, steady)],
+        rtol=1e-13,
+    )
     started = with_start(model, state)
     assert stored_start(started) == state and stored_start(model) is None
     save_model(started, tmp_path / "m.json")
@@ -304,8 +418,7 @@ def test_additive_effects_keep_the_output_affine_in_x0_with_the_base_coefficient
     with_effect, bare = make([(name, ALL[name])]), make()
     x0 = np.full(bare.order, 0.7)
     shift = simulate(with_effect, t, u, x0=x0).y - simulate(with_effect, t, u, x0=0 * x0).y
-    np.testing.assert_allclose(shift, simulate(bare, t, u, x0=x0).y - simulate(bare, t, u, x0=0 * x0).y,
-                               atol=1e-12)
+    np.testing.assert_allclose(shift, simulate(bare, t, u, x0=x0).y - simulate(bare, t, u, x0=0 * x0).y, atol=1e-12)
     assert np.abs(simulate(with_effect, t, u).y - simulate(bare, t, u).y).max() > 1e-3
     assert REGISTRY[name].stage == "output"
 
@@ -346,9 +459,15 @@ def context(model, t, u) -> EffectContext:
     """The diagnosis' `EffectContext` of one recording (t, u) and the model's output."""
     y = simulate(model, t, u).y
     v95 = float(np.percentile(np.abs(np.diff(u) / np.diff(t)), 95)) or 1.0
-    return EffectContext(dt_min=float(np.median(np.diff(t))), duration=float(np.ptp(t)),
-                         u_span=float(np.ptp(u)), y_min=float(y.min()), y_max=float(y.max()),
-                         y_mean=float(np.mean(y)), v95=v95)
+    return EffectContext(
+        dt_min=float(np.median(np.diff(t))),
+        duration=float(np.ptp(t)),
+        u_span=float(np.ptp(u)),
+        y_min=float(y.min()),
+        y_max=float(y.max()),
+        y_mean=float(np.mean(y)),
+        v95=v95,
+    )
 
 
 def test_registry_is_in_stage_order_and_well_formed():
@@ -360,8 +479,7 @@ def test_registry_is_in_stage_order_and_well_formed():
         assert len(set(names)) == len(names) and list(spec.example) == names
         assert isinstance(spec.state, tuple) and isinstance(spec.timed, bool)
         assert spec.origin in ORIGINS
-    assert [n for n, spec in REGISTRY.items() if spec.origin == "measurement"] == ["sensor_lag",
-                                                                                    "measurement_drift"]
+    assert [n for n, spec in REGISTRY.items() if spec.origin == "measurement"] == ["sensor_lag", "measurement_drift"]
 
 
 def _outside(par) -> list[float]:
@@ -426,8 +544,7 @@ def test_starts_and_null_within_bounds(name):
 
 
 def test_context_values_reproduce_the_diagnosis():
-    ctx = EffectContext(dt_min=0.01, duration=100.0, u_span=2.0, y_min=-1.0, y_max=3.0, y_mean=0.5,
-                        v95=4.0)
+    ctx = EffectContext(dt_min=0.01, duration=100.0, u_span=2.0, y_min=-1.0, y_max=3.0, y_mean=0.5, v95=4.0)
     taus = np.geomspace(0.03, 10.0, 4)
     assert REGISTRY["creep"].starts(ctx) == [{"k": 0.0, "tau": tau} for tau in taus]
     assert REGISTRY["sensor_lag"].starts(ctx) == [{"tau": tau} for tau in taus[:3]]
@@ -461,7 +578,7 @@ def test_serialisation_round_trip_and_stepper(name, make, tmp_path):
     np.testing.assert_array_equal(simulate(back, t, u).y, y)
     st = Stepper(back, t0=t[0], u0=u[0])
     out, saved = stepped(st, t, u, keep=60)
-    assert len(saved[-2]) == len(REGISTRY[name].state)       # (..., s_a, du)
+    assert len(saved[-2]) == len(REGISTRY[name].state)  # (..., s_a, du)
     np.testing.assert_allclose(out, y, rtol=0, atol=1e-12)
     st.set_state(json.loads(json.dumps([list(v) if isinstance(v, (tuple, np.ndarray)) else v for v in saved])))
     assert st.output() == out[60]
@@ -480,4 +597,4 @@ def test_measurement_drift_adds_a_line_in_time_and_carries_it_across_steps():
     np.testing.assert_allclose(y - base, -0.3 * (t - t[0]), rtol=0, atol=1e-12)
     st = Stepper(ri([("measurement_drift", {"rate": -0.3})]), t0=t[0], u0=u[0])
     out, saved = stepped(st, t, u, keep=200)
-    assert saved[-2] == (pytest.approx(-0.3 * (t[199] - t[0]), abs=1e-12),)   # at the anchor, t[199]
+    assert saved[-2] == (pytest.approx(-0.3 * (t[199] - t[0]), abs=1e-12),)  # at the anchor, t[199]

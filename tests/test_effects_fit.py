@@ -1,4 +1,5 @@
 """`duhem fit --effects`: catalogue effects fitted jointly with the base (fitter.identification.effects_fit)."""
+
 import json
 
 import numpy as np
@@ -13,8 +14,18 @@ from fitter.data.recordings import Recording
 from fitter.diagnosis.fitting import first_order_ri
 from fitter.identification.fit import fit_recordings
 
-SWITCHING = {"S1": 0.6, "u_up1": 0.55, "u_dn1": -0.5, "width1": 0.06, "q1": -1.0,
-             "S2": 0.0, "u_up2": 0.9, "u_dn2": -0.9, "width2": 0.2, "q2": 0.0}
+SWITCHING = {
+    "S1": 0.6,
+    "u_up1": 0.55,
+    "u_dn1": -0.5,
+    "width1": 0.06,
+    "q1": -1.0,
+    "S2": 0.0,
+    "u_up2": 0.9,
+    "u_dn2": -0.9,
+    "width2": 0.2,
+    "q2": 0.0,
+}
 
 
 def _truth():
@@ -47,12 +58,14 @@ def _cli_fit(args: list[str]):
     """`duhem fit ARGS` through the CLI, its own `fit_recordings` call watched (run as it is, its FitResult
     kept): the CLI's result and that FitResult."""
     import sys
-    command = sys.modules[main.commands["fit"].callback.__module__]      # where `duhem fit` looks it up
+
+    command = sys.modules[main.commands["fit"].callback.__module__]  # where `duhem fit` looks it up
     results = []
 
     def watched(*args, **kwargs):
         results.append(fit_recordings(*args, **kwargs))
         return results[-1]
+
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(command, "fit_recordings", watched)
         res = CliRunner().invoke(main, ["fit", *args])
@@ -73,16 +86,20 @@ def test_switching_fitted_with_the_base_reaches_the_noise_and_is_saved(tmp_path)
     for rec in recs:
         assert compare(rec, simulate(plain.model, rec.t, rec.u).y)["nrmse"] > 0.02
     out = tmp_path / "m.json"
-    res, extended = _cli_fit([*_csv_files(recs, tmp_path), "--kind", "ri", "--order", "1", "--effects",
-                              "switching", "-o", str(out)])
+    res, extended = _cli_fit(
+        [*_csv_files(recs, tmp_path), "--kind", "ri", "--order", "1", "--effects", "switching", "-o", str(out)]
+    )
     nrmse = [r["nrmse"] for r in extended.summary["recordings"]]
     assert max(nrmse) < 0.0025, nrmse
     fitted = extended.summary["effects"]["fitted"][0]
     assert fitted["effect"] == "switching"
     p = fitted["parameters"]
-    found = [abs(p[f"S{i}"] - SWITCHING["S1"]) < 0.1 * SWITCHING["S1"]
-             and abs(p[f"u_up{i}"] - SWITCHING["u_up1"]) < 0.05 and abs(p[f"u_dn{i}"] - SWITCHING["u_dn1"]) < 0.05
-             for i in (1, 2)]
+    found = [
+        abs(p[f"S{i}"] - SWITCHING["S1"]) < 0.1 * SWITCHING["S1"]
+        and abs(p[f"u_up{i}"] - SWITCHING["u_up1"]) < 0.05
+        and abs(p[f"u_dn{i}"] - SWITCHING["u_dn1"]) < 0.05
+        for i in (1, 2)
+    ]
     assert any(found), p
     assert extended.summary["effects"]["base"] == "ri1" and "extended by switching" in extended.summary["why"]
     assert [e.effect for e in extended.model.effects] == ["switching"]
@@ -103,8 +120,23 @@ def test_cli_fit_effects_with_faithful_minor_loops(tmp_path):
     recs = _recordings()
     paths = _csv_files(recs, tmp_path)
     out = tmp_path / "m.json"
-    res = CliRunner().invoke(main, ["fit", *paths, "--kind", "ri", "--order", "1", "--effects", "switching",
-                                    "--faithful-minor-loops", "-o", str(out), "--json"])
+    res = CliRunner().invoke(
+        main,
+        [
+            "fit",
+            *paths,
+            "--kind",
+            "ri",
+            "--order",
+            "1",
+            "--effects",
+            "switching",
+            "--faithful-minor-loops",
+            "-o",
+            str(out),
+            "--json",
+        ],
+    )
     assert res.exit_code == 0, res.output
     info = json.loads(res.stdout)["summary"]
     assert info["minor_loops"]["constrained"] is True and info["minor_loops"]["faithful"] is True
@@ -112,13 +144,16 @@ def test_cli_fit_effects_with_faithful_minor_loops(tmp_path):
     assert [e.effect for e in load_model(out).effects] == ["switching"]
 
 
-@pytest.mark.parametrize("args,message", [
-    (["--effects", "switching", "--hold", "measurement_drift.rate=0"], "not one of the fitted effects"),
-    (["--effects", "measurement_drift", "--hold", "measurement_drift.speed=0"], "has no parameter 'speed'"),
-    (["--effects", "measurement_drift", "--hold", "measurement_drift.rate"], "not EFFECT.PARAM=VALUE"),
-    (["--effects", "switchin"], "unknown effect 'switchin'"),
-    (["--effects", "switching", "--x0", "periodic"], "--effects needs --x0 fitted"),
-])
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["--effects", "switching", "--hold", "measurement_drift.rate=0"], "not one of the fitted effects"),
+        (["--effects", "measurement_drift", "--hold", "measurement_drift.speed=0"], "has no parameter 'speed'"),
+        (["--effects", "measurement_drift", "--hold", "measurement_drift.rate"], "not EFFECT.PARAM=VALUE"),
+        (["--effects", "switchin"], "unknown effect 'switchin'"),
+        (["--effects", "switching", "--x0", "periodic"], "--effects needs --x0 fitted"),
+    ],
+)
 def test_cli_fit_effects_bad_options(tmp_path, args, message):
     path = tmp_path / "r.csv"
     rec = _recordings()[0]
@@ -144,8 +179,11 @@ def _closed_loops(seed: int = 5) -> list[Recording]:
         u = np.interp((t / period) % 1.0, [0.0, 0.25, 0.75, 1.0], [0.0, 1.0, -1.0, 0.0])
         y = simulate(truth, t, u).y
         last = slice(400, 601)
-        out.append(Recording(t[last] - t[400], u[last],
-                             y[last] + rng.normal(0.0, 0.002 * np.ptp(y[last]), 201), name=f"L{period:g}"))
+        out.append(
+            Recording(
+                t[last] - t[400], u[last], y[last] + rng.normal(0.0, 0.002 * np.ptp(y[last]), 201), name=f"L{period:g}"
+            )
+        )
     return out
 
 
@@ -219,15 +257,46 @@ def test_cli_fit_holds_a_known_parameter(tmp_path):
 
     paths = _csv_files(_referenced(), tmp_path)
     out = tmp_path / "m.json"
-    res = CliRunner().invoke(main, ["fit", *paths, "--kind", "ri", "--order", "1", "--effects", "measurement_drift",
-                                    "--hold", "measurement_drift.rate=0", "-o", str(out), "--json"])
+    res = CliRunner().invoke(
+        main,
+        [
+            "fit",
+            *paths,
+            "--kind",
+            "ri",
+            "--order",
+            "1",
+            "--effects",
+            "measurement_drift",
+            "--hold",
+            "measurement_drift.rate=0",
+            "-o",
+            str(out),
+            "--json",
+        ],
+    )
     assert res.exit_code == 0, res.output
     summary = json.loads(res.output)["summary"]
     assert summary["effects"]["held"] == {"measurement_drift.rate": 0.0}
     assert load_model(out).effects[0].parameters == {"rate": 0.0}
     assert max(r["nrmse_x0_fitted"] for r in summary["recordings"]) < 0.0025
     assert all(len(r["effect_start_fitted"]) == 1 for r in summary["recordings"])
-    text = CliRunner().invoke(main, ["fit", *paths, "--kind", "ri", "--order", "1", "--effects",
-                                     "measurement_drift", "--hold", "measurement_drift.rate=0", "-o", str(out)])
+    text = CliRunner().invoke(
+        main,
+        [
+            "fit",
+            *paths,
+            "--kind",
+            "ri",
+            "--order",
+            "1",
+            "--effects",
+            "measurement_drift",
+            "--hold",
+            "measurement_drift.rate=0",
+            "-o",
+            str(out),
+        ],
+    )
     assert "held, not fitted: measurement_drift.rate = 0" in text.output
     assert "effect measurement_drift fitted with the base: none of its parameters" in text.output

@@ -1,4 +1,5 @@
 """`DuhemEstimator`: fit / predict / score / diagnose / save / export over the package's functions."""
+
 import numpy as np
 import pytest
 from conftest import noisy_recording, ri_model, sine_input
@@ -30,10 +31,9 @@ def test_fit_matches_the_function_and_scores_at_the_noise(fitted, recording):
     assert fitted.summary_ == direct.summary
     y_hat = fitted.predict(recording)
     np.testing.assert_array_equal(y_hat, simulate(fitted.model_, recording.t, recording.u).y)
-    assert fitted.score(recording) == pytest.approx(np.sqrt(np.mean((recording.y - y_hat) ** 2))
-                                                    / np.ptp(recording.y))
+    assert fitted.score(recording) == pytest.approx(np.sqrt(np.mean((recording.y - y_hat) ** 2)) / np.ptp(recording.y))
     assert fitted.score(recording) == pytest.approx(fitted.summary_["recordings"][0]["nrmse"], rel=1e-12)
-    assert fitted.score(recording) < 0.015                   # noise: 1 % of the output range
+    assert fitted.score(recording) < 0.015  # noise: 1 % of the output range
 
 
 def test_save_and_export_carry_the_fitted_model(fitted, recording, tmp_path):
@@ -57,8 +57,20 @@ def test_params_follow_scikit_learn():
     an estimator built from another's parameters has the same."""
     est = DuhemEstimator(kind="ri", order=2, effects=("creep",), held={"creep.tau": 0.5}, fmi_version=3)
     params = est.get_params()
-    assert set(params) == {"kind", "order", "q", "x0", "faithful_minor_loops", "effects", "held", "backend",
-                           "fmi_version", "platforms", "allow_unstable", "progress"}
+    assert set(params) == {
+        "kind",
+        "order",
+        "q",
+        "x0",
+        "faithful_minor_loops",
+        "effects",
+        "held",
+        "backend",
+        "fmi_version",
+        "platforms",
+        "allow_unstable",
+        "progress",
+    }
     assert params["order"] == 2 and params["held"] == {"creep.tau": 0.5} and params["fmi_version"] == 3
     assert DuhemEstimator(**params).get_params() == params
     assert est.set_params(order=3, x0="periodic") is est and est.order == 3 and est.x0 == "periodic"
@@ -72,11 +84,24 @@ def test_every_fit_option_reaches_fit_recordings(recording, monkeypatch):
 
     seen = {}
     monkeypatch.setattr(fitter.estimator, "fit_recordings", lambda recs, **kw: seen.update(kw) or _Fake())
-    DuhemEstimator(kind="rd", order=2, q=0.5, x0="periodic", faithful_minor_loops=True, effects=["viscous"],
-                   held={"viscous.c": 0.1}).fit([recording])
+    DuhemEstimator(
+        kind="rd",
+        order=2,
+        q=0.5,
+        x0="periodic",
+        faithful_minor_loops=True,
+        effects=["viscous"],
+        held={"viscous.c": 0.1},
+    ).fit([recording])
     assert {k: seen[k] for k in ("kind", "order", "q", "x0", "faithful_minor_loops", "effects", "held")} == {
-        "kind": "rd", "order": 2, "q": 0.5, "x0": "periodic", "faithful_minor_loops": True, "effects": ("viscous",),
-        "held": {"viscous.c": 0.1}}
+        "kind": "rd",
+        "order": 2,
+        "q": 0.5,
+        "x0": "periodic",
+        "faithful_minor_loops": True,
+        "effects": ("viscous",),
+        "held": {"viscous.c": 0.1},
+    }
 
 
 class _Fake:
@@ -95,6 +120,7 @@ def test_export_takes_the_estimators_fmi_version_and_platforms(fitted, tmp_path)
     assert read_model_description(path).fmiVersion == "3.0"
     with zipfile.ZipFile(path) as zf:
         assert sorted(n for n in zf.namelist() if n.startswith("binaries/")) == [
-            "binaries/x86_64-linux/semilinear_duhem.so"]
+            "binaries/x86_64-linux/semilinear_duhem.so"
+        ]
     with pytest.raises(ValueError, match="unknown export option"):
         fitted.export(tmp_path / "x.fmu", fmi=3)

@@ -5,6 +5,7 @@ recording of each shared rig (when ../shared/data is present; all of them: bench
 exported FMU, driven by fmpy over all samples of the raw recording, reproduces the fit's reported NRMSE, and
 stays within max(1.5 x, +1 %) of the optimiser's own NRMSE on the prepared samples.
 """
+
 import json
 import math
 from pathlib import Path
@@ -32,6 +33,7 @@ DATA = ROOT.parent / "shared" / "data"
 def _strict_json(text: str):
     def refuse(name):
         raise ValueError(f"non-standard JSON constant {name}")
+
     return json.loads(text, parse_constant=refuse)
 
 
@@ -62,7 +64,7 @@ def test_stored_x0_is_the_fitted_initial_state(transient_fit, tmp_path):
     rec, fit = transient_fit
     assert fit.summary["x0"]["policy"] == "fitted"
     assert fit.model.x0 @ fit.model.C + fit.model.D * rec.u[0] == pytest.approx(rec.y[0], abs=0.05 * np.ptp(rec.y))
-    assert fit.summary["recordings"][0]["nrmse"] < 0.01        # the transient is reproduced, not left out
+    assert fit.summary["recordings"][0]["nrmse"] < 0.01  # the transient is reproduced, not left out
     _reproduces(fit, [rec], tmp_path)
 
 
@@ -104,6 +106,7 @@ def test_unstable_model_is_not_exported_without_the_flag(transient_fit, tmp_path
     assert not (tmp_path / "bad.fmu").exists()
     path = build_fmu(bad, tmp_path / "bad.fmu", backend="native", allow_unstable=True)
     from fmpy import read_model_description
+
     assert "WARNING: exported with --allow-unstable" in read_model_description(path).description
 
 
@@ -120,6 +123,7 @@ def test_no_rate_warning_on_a_recording_the_model_was_fitted_on():
     input ten times faster than both is named."""
     from conftest import rd_model
     from fitter.identification.exported import fitted_range
+
     slow, fast = (Recording(*sine_input(w, 3, 200), np.zeros(601)) for w in (1.0, 10.0))
     model = rd_model(1).replace(fit_info={"fitted_range": fitted_range([slow, fast])})
     assert range_warnings(model, slow.t, slow.u) == [] and range_warnings(model, fast.t, fast.u) == []
@@ -149,17 +153,21 @@ def _demo():
 
 
 def _piezo(name):
-    return [load_recording(DATA / "piezo-pnzt" / f"{name}.csv", time="time_s", input="voltage_V",
-                           output="polarization_uC_per_cm2")]
+    return [
+        load_recording(
+            DATA / "piezo-pnzt" / f"{name}.csv", time="time_s", input="voltage_V", output="polarization_uC_per_cm2"
+        )
+    ]
 
 
 def _friction(bar: int):
     """Friction force F - p A against position (bench/real_data.py), first 15 rows dropped."""
     import csv
+
     with open(DATA / "friction-pneumatic" / f"Circle_{bar}bar.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))[15:]
     t, x, p, f = (np.array([float(r[k]) for r in rows]) for k in ("time_s", "position_mm", "pressure_bar", "force_N"))
-    return [Recording(t, x, f - p * 1e5 * np.pi * 0.0125 ** 2, name=f"{bar} bar")]
+    return [Recording(t, x, f - p * 1e5 * np.pi * 0.0125**2, name=f"{bar} bar")]
 
 
 CASES = {"demo": _demo}
@@ -170,10 +178,10 @@ whose FMU leaves the kernel by 1e-4 of the range).  Every shared recording: `pyt
 (the same checks, one row each)."""
 if (DATA / "piezo-pnzt").is_dir():
     for _name in ("slow_T06_triangle_1400V_1Hz", "creep_T04_trapezoid_1400V_1200V_1400S"):
-        CASES[_name] = (lambda n=_name: _piezo(n))
+        CASES[_name] = lambda n=_name: _piezo(n)
 if (DATA / "friction-pneumatic").is_dir():
     for _bar in (2, 4):
-        CASES[f"friction {_bar} bar"] = (lambda b=_bar: _friction(b))
+        CASES[f"friction {_bar} bar"] = lambda b=_bar: _friction(b)
 
 
 @pytest.mark.parametrize("case", list(CASES))
@@ -186,9 +194,9 @@ def test_exported_fmu_reproduces_the_fit_on_measured_recordings(case, tmp_path):
     assert all(math.isfinite(r["nrmse"]) for r in fit.summary["recordings"])
     assert fit.summary["convergence"]["satisfied"], fit.summary["convergence"]
     _reproduces(fit, recs, tmp_path)
-    if fit.model.kind == "ri":      # condition (5) of every minor loop, on the physical model and its stored range
+    if fit.model.kind == "ri":  # condition (5) of every minor loop, on the physical model and its stored range
         assert minor_loop_rho(fit.model, *fit.model.input_range) < 1
-    minor = fit.summary["minor_loops"]    # the saved model, from its stored x0, off its recorded loops
+    minor = fit.summary["minor_loops"]  # the saved model, from its stored x0, off its recorded loops
     assert minor["excursion"] == pytest.approx(minor_loop_excursion(fit.model, recs), rel=1e-12)
     assert minor["faithful"] is (minor["excursion"] <= MINOR_LOOP_WARNING)
 
@@ -201,8 +209,14 @@ def test_condition_5_on_the_span_does_not_make_minor_loops_converge():
     from fitter.core.models import RateIndependentModel
     from fitter.core.periodic import convergence_rho
     from fitter.identification.parametrisation import RICanonical
-    model = RateIndependentModel(A_plus=[[-5.0, -5.0], [4.0, 3.0]], A_minus=[[3.0, -4.0], [4.0, 1.0]],
-                                 B_plus=[1.0, 0.0], B_minus=[1.0, 0.0], C=[0.0, 1.0])
+
+    model = RateIndependentModel(
+        A_plus=[[-5.0, -5.0], [4.0, 3.0]],
+        A_minus=[[3.0, -4.0], [4.0, 1.0]],
+        B_plus=[1.0, 0.0],
+        B_minus=[1.0, 0.0],
+        C=[0.0, 1.0],
+    )
     assert convergence_rho(model, 0.0, 1.0) == pytest.approx(0.1203, abs=1e-4)
     assert minor_loop_rho(model, 0.0, 1.0, spans=8) == pytest.approx(5.985, abs=1e-3)
     alpha = np.max(np.linalg.eigvals(np.array(model.A_plus) - np.array(model.A_minus)).real)
@@ -213,7 +227,7 @@ def test_condition_5_on_the_span_does_not_make_minor_loops_converge():
     minor = np.tile(np.r_[leg[:-1], leg[:0:-1]], 200)
     full = np.tile(np.r_[np.linspace(0, 1, 21)[:-1], np.linspace(1, 0, 21)[:-1]], 25)
     grow = [np.abs(simulate(model, np.arange(len(u), dtype=float), u).x).max(axis=1) for u in (minor, full)]
-    assert grow[0][-1] > 1e3 * grow[0][40]          # 200 minor cycles = 25 spans of travel: 6^25 / 6^1.25
+    assert grow[0][-1] > 1e3 * grow[0][40]  # 200 minor cycles = 25 spans of travel: 6^25 / 6^1.25
     assert grow[1][-1] < 10 * grow[1][40]
 
 
@@ -225,9 +239,11 @@ def test_minor_loop_rho_finds_an_expanding_loop_between_eighths_of_the_span():
     full-span cycles settle."""
     from scipy.linalg import expm as sp_expm
     from fitter.core.models import RateIndependentModel
+
     A_plus, A_minus = np.array([[-1.0, 7.0], [-10.0, 0.0]]), np.array([[-2.0, -5.0], [10.0, 3.0]])
-    model = RateIndependentModel(A_plus=A_plus.tolist(), A_minus=A_minus.tolist(), B_plus=[1.0, 0.0],
-                                 B_minus=[1.0, 0.0], C=[0.0, 1.0])
+    model = RateIndependentModel(
+        A_plus=A_plus.tolist(), A_minus=A_minus.tolist(), B_plus=[1.0, 0.0], B_minus=[1.0, 0.0], C=[0.0, 1.0]
+    )
     spans = np.arange(1, 4001) / 4000
     radius = np.array([np.max(np.abs(np.linalg.eigvals(sp_expm(b * A_plus) @ sp_expm(-b * A_minus)))) for b in spans])
     assert minor_loop_rho(model, 0.0, 1.0, spans=8) < 0.9
@@ -247,9 +263,16 @@ def test_minor_loop_excursion_separates_a_faithful_model_from_an_expanding_one()
     range; the model of the test above, whose minor loops expand, leaves it by orders of magnitude; each
     judged on its own output to a full-span triangle."""
     from fitter.core.models import RateIndependentModel, load_model
+
     truth = load_model(ROOT / "examples" / "demo_truth.json").replace(input_range=(-5.0, 105.0), x0=[1.0, 1.0])
-    expanding = RateIndependentModel(A_plus=[[-5.0, -5.0], [4.0, 3.0]], A_minus=[[3.0, -4.0], [4.0, 1.0]],
-                                     B_plus=[1.0, 0.0], B_minus=[1.0, 0.0], C=[0.0, 1.0], input_range=(0.0, 1.0))
+    expanding = RateIndependentModel(
+        A_plus=[[-5.0, -5.0], [4.0, 3.0]],
+        A_minus=[[3.0, -4.0], [4.0, 1.0]],
+        B_plus=[1.0, 0.0],
+        B_minus=[1.0, 0.0],
+        C=[0.0, 1.0],
+        input_range=(0.0, 1.0),
+    )
     out = []
     for model in (truth, expanding):
         lo, hi = model.input_range
@@ -267,8 +290,17 @@ def test_minor_loop_excursion_counts_where_slow_loops_settle():
     settle (the fixed points of their period maps), not where 40 cycles got."""
     from fitter.core.models import RateIndependentModel
     from fitter.core.periodic import minor_loop_input
-    model = RateIndependentModel(A_plus=[[-0.0005]], A_minus=[[0.0005]], B_plus=[1.0], B_minus=[1.0], C=[1.0],
-                                 E_plus=[0.05], E_minus=[-0.05], input_range=(0.0, 1.0))
+
+    model = RateIndependentModel(
+        A_plus=[[-0.0005]],
+        A_minus=[[0.0005]],
+        B_plus=[1.0],
+        B_minus=[1.0],
+        C=[1.0],
+        E_plus=[0.05],
+        E_minus=[-0.05],
+        input_range=(0.0, 1.0),
+    )
     u = np.tile(np.r_[np.linspace(0, 1, 41)[:-1], np.linspace(1, 0, 41)[:-1]], 5)
     t = np.arange(len(u), dtype=float)
     rec = Recording(t, u, simulate(model, t, u).y)
@@ -292,9 +324,18 @@ def test_settled_minor_loops_are_the_limit_of_repeated_cycles(held):
     model; also with an input range that the loops cross, where the kernel holds u at its edges."""
     from fitter.core.models import RateIndependentModel
     from fitter.core.periodic import minor_loop_outputs
-    model = RateIndependentModel(A_plus=[[-2.0, 0.5], [0.3, -1.0]], A_minus=[[1.5, -0.4], [0.2, 2.5]],
-                                 B_plus=[1.0, 0.5], B_minus=[-0.5, 1.0], C=[1.0, -0.7], E_plus=[0.2, 0.0],
-                                 E_minus=[0.0, -0.1], D=0.3, input_range=held)
+
+    model = RateIndependentModel(
+        A_plus=[[-2.0, 0.5], [0.3, -1.0]],
+        A_minus=[[1.5, -0.4], [0.2, 2.5]],
+        B_plus=[1.0, 0.5],
+        B_minus=[-0.5, 1.0],
+        C=[1.0, -0.7],
+        E_plus=[0.2, 0.0],
+        E_minus=[0.0, -0.1],
+        D=0.3,
+        input_range=held,
+    )
     fixed = minor_loop_outputs(model, -1.0, 1.0, spans=4, centres=3)
     assert fixed.shape == (3 * 3 + 1, 2)
     row = 0
@@ -315,20 +356,31 @@ def test_minor_loop_extent_is_measured_on_the_fits_normalised_scale():
     from fitter.core.models import RateIndependentModel
     from fitter.identification.parametrisation import RICanonical
     from fitter.identification.scaling import Normalisation
-    normalised = RateIndependentModel(A_plus=[[-2.0, 0.5], [0.3, -1.0]], A_minus=[[1.5, -0.4], [0.2, 2.5]],
-                                      B_plus=[1.0, 0.5], B_minus=[-0.5, 1.0], C=[1.0, -0.7], E_plus=[0.2, 0.0],
-                                      E_minus=[0.0, -0.1], D=0.3)
+
+    normalised = RateIndependentModel(
+        A_plus=[[-2.0, 0.5], [0.3, -1.0]],
+        A_minus=[[1.5, -0.4], [0.2, 2.5]],
+        B_plus=[1.0, 0.5],
+        B_minus=[-0.5, 1.0],
+        C=[1.0, -0.7],
+        E_plus=[0.2, 0.0],
+        E_minus=[0.0, -0.1],
+        D=0.3,
+    )
     scale = Normalisation(u_c=50.0, u_s=20.0, y_c=-3.0, y_s=40.0)
     physical = scale.to_physical(normalised).replace(
-        effects=[{"effect": "switching", "parameters": {"S1": 30.0, "u_up1": 60.0, "u_dn1": 40.0, "width1": 2.0,
-                                                        "q1": -1.0}}])
+        effects=[
+            {"effect": "switching", "parameters": {"S1": 30.0, "u_up1": 60.0, "u_dn1": 40.0, "width1": 2.0, "q1": -1.0}}
+        ]
+    )
     expected = RICanonical.minor_loop_extent(normalised, -1.0, 1.0)
     assert 0.3 < expected < 10.0
     assert RICanonical.minor_loop_extent(physical, 30.0, 70.0, (-3.0, 40.0)) == pytest.approx(expected, rel=1e-9)
     assert RICanonical.minor_loop_extent(physical, 30.0, 70.0) > 20 * expected
     faithful = RICanonical(2, faithful_minor_loops=True)
     assert faithful.excesses(physical, 30.0, 70.0, (-3.0, 40.0))[2] == pytest.approx(
-        expected / RICanonical.EXTENT_BOUND - 1.0, rel=1e-9)
+        expected / RICanonical.EXTENT_BOUND - 1.0, rel=1e-9
+    )
 
 
 def test_faithful_minor_loops_keep_the_demo_fit_near_its_data():
@@ -342,8 +394,9 @@ def test_faithful_minor_loops_keep_the_demo_fit_near_its_data():
 
 def test_rates_spread_over_1_9x_are_not_chained_into_one_level():
     from fitter.identification.fit_data import rate_levels
+
     recs = []
-    for k, w in enumerate(np.geomspace(1.0, 1.9, 5)):       # consecutive ratios 1.17 < 1.5, span 1.9
+    for k, w in enumerate(np.geomspace(1.0, 1.9, 5)):  # consecutive ratios 1.17 < 1.5, span 1.9
         t, u = sine_input(w, 2, 200, 0.0, 1.0)
         recs.append(Recording(t, u, np.sin(u), f"r{k}"))
     levels = rate_levels(recs)
@@ -353,6 +406,7 @@ def test_rates_spread_over_1_9x_are_not_chained_into_one_level():
 def test_a_dropped_transient_is_stated_with_its_share_of_the_samples():
     from fitter.data.preparation import prepare
     from fitter.core import RateIndependentModel, simulate as run
+
     slow = RateIndependentModel(A_plus=[[-0.1]], A_minus=[[0.1]], B_plus=[0.1], B_minus=[0.1], C=[1.0], x0=[6.0])
     t, u = sine_input(1.0, 6, 200, 0.0, 1.0)
     prep = prepare(Recording(t, u, run(slow, t, u).y, "slow"), min_cycles=0)
@@ -364,7 +418,7 @@ def test_a_dropped_transient_is_stated_with_its_share_of_the_samples():
 def test_a_single_loop_is_fitted_and_exported(tmp_path):
     """One settled loop from the input's minimum to its maximum and back (a B-H or magnetometer loop)."""
     t = np.linspace(0.0, 2.0, 801)
-    u = -np.cos(np.pi * t)                                      # -1 -> 1 -> -1
+    u = -np.cos(np.pi * t)  # -1 -> 1 -> -1
     truth = ri_model(1)
     truth = truth.replace(x0=periodic_response(truth, t, u).x_periodic)
     rec = noisy_recording(truth, t, u, noise=0.003, seed=2, name="one loop")
@@ -377,10 +431,11 @@ def test_a_single_loop_that_does_not_close_is_fitted():
     """One loop that ends 2.4 % of the span above its start (a recording stopped early): its falling branch
     is shorter than its rising one, and the loop is averaged on the range both cover."""
     t = np.linspace(0.0, 1.9, 761)
-    u = -np.cos(np.pi * t)                                      # -1 -> 1 -> -0.951
+    u = -np.cos(np.pi * t)  # -1 -> 1 -> -0.951
     truth = ri_model(1)
-    truth = truth.replace(x0=periodic_response(truth, np.linspace(0.0, 2.0, 801),
-                                               -np.cos(np.pi * np.linspace(0.0, 2.0, 801))).x_periodic)
+    truth = truth.replace(
+        x0=periodic_response(truth, np.linspace(0.0, 2.0, 801), -np.cos(np.pi * np.linspace(0.0, 2.0, 801))).x_periodic
+    )
     rec = noisy_recording(truth, t, u, noise=0.003, seed=2, name="open loop")
     fit = fit_recordings([rec], kind="ri", order=1)
     assert fit.summary["recordings"][0]["nrmse"] < 0.01
@@ -389,6 +444,7 @@ def test_a_single_loop_that_does_not_close_is_fitted():
 def test_dead_band_is_shared_when_only_some_recordings_have_a_noisy_input():
     """A clean and a noisy-input recording fitted together: one dead band, stated for the noisy one."""
     from fitter.identification.fit_data import prepare_for_fit
+
     t, u = sine_input(1.0, 4, 200, 0.0, 1.0)
     clean = noisy_recording(ri_model(1), t, u, noise=0.002, seed=1)
     rng = np.random.default_rng(2)
@@ -415,7 +471,7 @@ def test_a_random_input_is_fitted_as_a_general_input_on_every_sample(tmp_path):
     row = fit.summary["recordings"][0]
     assert row["transient_end"] == 0 and row["samples"] == len(u)
     assert any("general input" in n for n in fit.summary["preparation"][0]["notes"])
-    assert row["nrmse"] < 0.02                                  # 1 % noise, a first-order truth
+    assert row["nrmse"] < 0.02  # 1 % noise, a first-order truth
     _reproduces(fit, [rec], tmp_path)
 
 
@@ -439,24 +495,26 @@ def test_raw_input_rho_is_that_of_the_closed_cycle():
     map expands.  The check closes the cycle: the repeated input converges."""
     from fitter.core.models import RateIndependentModel
     from fitter.data.cycles import last_full_cycle
+
     model = RateIndependentModel(A_plus=[[39.0]], A_minus=[[40.0]], B_plus=[1.0], B_minus=[1.0], C=[1.0])
     t = np.arange(0.0, 4.0, 0.01)
     rec = Recording(t, np.sin(2 * np.pi * t) + 0.15 * t, np.zeros_like(t), name="open")
     s = last_full_cycle(rec.u)
-    assert abs(rec.u[s][-1] - rec.u[s][0]) > 0.01                      # the cycle is open
-    assert periodic_fixed_point(model, rec.t[s], rec.u[s])[1] > 1      # and its open map expands
+    assert abs(rec.u[s][-1] - rec.u[s][0]) > 0.01  # the cycle is open
+    assert periodic_fixed_point(model, rec.t[s], rec.u[s])[1] > 1  # and its open map expands
     (rho,) = raw_input_rho(model, [rec])
     assert rho < 0.3
     n = len(rec.u[s])
     repeated = np.tile(rec.u[s], 20)
-    ends = simulate(model, np.arange(len(repeated), dtype=float), repeated).y[n - 1::n]
-    assert np.abs(ends[-1] - ends[-2]) < 1e-6 * max(1.0, np.abs(ends[-1]))   # settled onto a periodic loop
+    ends = simulate(model, np.arange(len(repeated), dtype=float), repeated).y[n - 1 :: n]
+    assert np.abs(ends[-1] - ends[-2]) < 1e-6 * max(1.0, np.abs(ends[-1]))  # settled onto a periodic loop
 
 
 def test_branch_amplification_is_the_largest_growth_along_one_branch():
     """log growth over the span: rising e^{beta A+}, falling e^{-beta A-}; the fit bounds it by 1e6."""
     from fitter.core.models import RateIndependentModel
     from fitter.identification.parametrisation import RICanonical
+
     rising = RateIndependentModel(A_plus=[[2.0]], A_minus=[[3.0]], B_plus=[1.0], B_minus=[1.0], C=[1.0])
     falling = rising.replace(A_plus=[[-1.0]], A_minus=[[-2.5]])
     both_contract = rising.replace(A_plus=[[-1.0]], A_minus=[[1.0]])
@@ -465,4 +523,3 @@ def test_branch_amplification_is_the_largest_growth_along_one_branch():
     assert RICanonical.amplification(both_contract, -1.0, 1.0) == 0.0
     excess = RICanonical(1).excesses(rising.replace(A_plus=[[10.0]], A_minus=[[11.0]]), -1.0, 1.0)[1]
     assert excess == pytest.approx(20.0 / math.log(1e6) - 1.0)
-

@@ -1,4 +1,5 @@
 """Atomic output files and directories, and strict JSON (`fitter.core.files`)."""
+
 import json
 import os
 import subprocess
@@ -10,8 +11,18 @@ import pytest
 
 
 import fitter.core.files as files
-from fitter.core.files import (atomic_directory, atomic_file, atomic_pair, file_digest, json_text, jsonable,
-                               recover_pair, sweep_leftovers, usual_mode, write_json)
+from fitter.core.files import (
+    atomic_directory,
+    atomic_file,
+    atomic_pair,
+    file_digest,
+    json_text,
+    jsonable,
+    recover_pair,
+    sweep_leftovers,
+    usual_mode,
+    write_json,
+)
 
 UMASK = 0o027
 
@@ -66,9 +77,9 @@ def test_atomic_directory_creates_and_replaces_as_a_whole(tmp_path, umask):
     assert target.stat().st_mode & 0o777 == 0o750 == usual_mode(directory=True)
     with atomic_directory(target) as tmp:
         (tmp / "index.html").write_text("two")
-        assert (target / "index.html").read_text() == "one"      # the old report until the end
+        assert (target / "index.html").read_text() == "one"  # the old report until the end
     assert names(target) == ["index.html"] and (target / "index.html").read_text() == "two"
-    assert names(tmp_path) == ["report"]                           # no temporary or old directory left
+    assert names(tmp_path) == ["report"]  # no temporary or old directory left
 
 
 def test_atomic_directory_keeps_the_old_one_on_failure(tmp_path):
@@ -95,11 +106,25 @@ def test_atomic_directory_refuses_a_file_and_a_missing_parent(tmp_path):
 
 
 def test_jsonable_cleans_numpy_and_non_finite_values():
-    data = {1: np.float64("nan"), "a": np.array([1.5, np.inf, -np.inf]), "b": (np.int64(3), np.bool_(True)),
-            "c": [np.float32(0.25), {"d": Path("x") / "y"}], "e": "text", "f": None, "g": 2}
+    data = {
+        1: np.float64("nan"),
+        "a": np.array([1.5, np.inf, -np.inf]),
+        "b": (np.int64(3), np.bool_(True)),
+        "c": [np.float32(0.25), {"d": Path("x") / "y"}],
+        "e": "text",
+        "f": None,
+        "g": 2,
+    }
     out = jsonable(data)
-    assert out == {"1": None, "a": [1.5, None, None], "b": [3, True], "c": [0.25, {"d": "x/y"}], "e": "text",
-                   "f": None, "g": 2}
+    assert out == {
+        "1": None,
+        "a": [1.5, None, None],
+        "b": [3, True],
+        "c": [0.25, {"d": "x/y"}],
+        "e": "text",
+        "f": None,
+        "g": 2,
+    }
     assert type(out["b"][0]) is int and type(out["b"][1]) is bool and type(out["c"][0]) is float
     text = json_text(data)
     assert "NaN" not in text and "Infinity" not in text
@@ -123,14 +148,17 @@ def test_leftovers_of_killed_writers_are_removed_by_the_next_write(tmp_path):
     """Any target's leftovers in the directory, a nested build leftover (.tmp-.tmp-) too; a running writer's stay,
     also when a number in the target's name is a running pid."""
     dead, target = _dead_pid(), tmp_path / "out.csv"
-    left = [tmp_path / f".tmp-out.csv.{dead}.abc.csv", tmp_path / f".old-out.csv.{dead}.ff",
-            tmp_path / f".tmp-other.csv.{dead}.abc.csv",                          # another target's
-            tmp_path / f".tmp-.tmp-m.fmu.{dead}.a1b2c3d4.fmu.{dead}.e5f6g7h8.fmu"]  # a killed FMU build's
+    left = [
+        tmp_path / f".tmp-out.csv.{dead}.abc.csv",
+        tmp_path / f".old-out.csv.{dead}.ff",
+        tmp_path / f".tmp-other.csv.{dead}.abc.csv",  # another target's
+        tmp_path / f".tmp-.tmp-m.fmu.{dead}.a1b2c3d4.fmu.{dead}.e5f6g7h8.fmu",
+    ]  # a killed FMU build's
     for path in left:
         path.write_text("half")
     left[1].unlink()
     left[1].mkdir()
-    alive = tmp_path / f".tmp-out.csv.{os.getppid()}.xyz.csv"      # a running writer's temporary stays
+    alive = tmp_path / f".tmp-out.csv.{os.getppid()}.xyz.csv"  # a running writer's temporary stays
     ambiguous = tmp_path / f".tmp-run.{os.getppid()}.csv.{dead}.abc.csv"
     alive.write_text("busy")
     ambiguous.write_text("busy?")
@@ -180,8 +208,10 @@ def test_the_lock_is_reentrant_and_leaves_no_file(tmp_path, holder, monkeypatch)
         pass
     assert names(tmp_path) == [".lock-out", "out"] and names(target) == ["a"]
     monkeypatch.setenv("DUHEM_LOCK_WAIT", "soon")
-    with pytest.raises(files.OutputBusyError, match="DUHEM_LOCK_WAIT=soon: not a number of seconds"), \
-            atomic_file(tmp_path / "x"):
+    with (
+        pytest.raises(files.OutputBusyError, match="DUHEM_LOCK_WAIT=soon: not a number of seconds"),
+        atomic_file(tmp_path / "x"),
+    ):
         pass
 
 
@@ -191,9 +221,11 @@ def _digest_in(record: Path) -> str | None:
 
 def _publish(record: Path, companion: Path, content: str, stop_before: Path | None = None) -> None:
     """Publish the pair (companion `content`, record naming its digest); raise just before renaming `stop_before`."""
+
     def hook(target):
         if target == stop_before:
             raise KeyboardInterrupt("interrupted")
+
     files.PUBLISH_HOOK = hook
     try:
         with atomic_pair(record, companion, _digest_in) as (rec_tmp, comp_tmp):
@@ -228,7 +260,7 @@ def test_recover_pair_puts_back_the_old_companion_of_a_run_killed_between_the_re
     os.replace(tmp_path / "new", companion)
     recover_pair(record, companion, _digest_in)
     assert companion.read_text() == "old" and names(tmp_path) == ["m.fmu", "m.json"]
-    os.link(companion, tmp_path / f".pair-m.fmu.{dead}")            # killed after the commit: the link goes
+    os.link(companion, tmp_path / f".pair-m.fmu.{dead}")  # killed after the commit: the link goes
     recover_pair(record, companion, _digest_in)
     assert companion.read_text() == "old" and names(tmp_path) == ["m.fmu", "m.json"]
 
@@ -237,7 +269,7 @@ def test_scratch_directories_of_killed_processes_are_swept(tmp_path, monkeypatch
     monkeypatch.setattr(files.tempfile, "tempdir", str(tmp_path))
     dead = _dead_pid()
     (tmp_path / f"duhem_native.{dead}.abc").mkdir()
-    (tmp_path / f"duhem_native.{os.getppid()}.abc").mkdir()       # a running build stays
+    (tmp_path / f"duhem_native.{os.getppid()}.abc").mkdir()  # a running build stays
     with files.scratch_directory("duhem_native") as work:
         assert work.name.startswith(f"duhem_native.{os.getpid()}.") and work.is_dir()
     assert names(tmp_path) == [f"duhem_native.{os.getppid()}.abc"]

@@ -5,6 +5,7 @@ a start-up transient (x0 far from the periodic state), seeded Gaussian output
 noise.  The true and the fitted models are compared on their limiting
 periodic responses (Theorem 1), which is what "the loop" means here.
 """
+
 import json
 from pathlib import Path
 
@@ -26,8 +27,10 @@ def sine_recordings(model, seed: int, noise: float = 0.01, periods: int = 4, per
 
     The three recordings draw their noise from one stream seeded with `seed`."""
     rng = np.random.default_rng(seed)
-    return [noisy_recording(model, *sine_input(w, periods, per, 1.0, 2.0), noise=noise, seed=rng,
-                            name=f"w{w}") for w in OMEGAS]
+    return [
+        noisy_recording(model, *sine_input(w, periods, per, 1.0, 2.0), noise=noise, seed=rng, name=f"w{w}")
+        for w in OMEGAS
+    ]
 
 
 def loop_errors(true, fitted) -> list[float]:
@@ -80,8 +83,7 @@ def test_fitted_model_round_trips_json(rd_fit):
     m = model_from_dict(json.loads(json.dumps(rd_fit.model.to_dict())))
     t = np.linspace(0, 10, 501)
     u = 1 + 2 * np.sin(2 * t)
-    np.testing.assert_allclose(simulate(m, t, u).y, simulate(rd_fit.model, t, u).y, rtol=1e-12,
-                               atol=1e-12)
+    np.testing.assert_allclose(simulate(m, t, u).y, simulate(rd_fit.model, t, u).y, rtol=1e-12, atol=1e-12)
     assert m.signals.input.name == "u" and m.experiment.stop_time > 0
 
 
@@ -148,13 +150,13 @@ def test_report_writes_html_and_figures(ri_fit, tmp_path):
 
 def _piezo(names):
     import csv
+
     recs = []
     for name in names:
         path = DATA / "piezo-pnzt" / f"{name}.csv"
         with open(path) as fh:
             rows = list(csv.DictReader(fh))
-        a = np.array([[float(r["time_s"]), float(r["voltage_V"]), float(r["polarization_uC_per_cm2"])]
-                      for r in rows])
+        a = np.array([[float(r["time_s"]), float(r["voltage_V"]), float(r["polarization_uC_per_cm2"])] for r in rows])
         recs.append(Recording(a[:, 0], a[:, 1], a[:, 2], name=name))
     return recs
 
@@ -165,12 +167,12 @@ def test_piezo_rate_dependent_beats_rate_independent_on_each_rate():
     lower-order fit, the rate-independent fit's branch) are each refined in full: a race of three evaluations
     picked the one that ended worse (rd3 at BIC -5779 instead of -5901; 7.1 % instead of 2.8 % at 1 Hz)."""
     from fitter.baselines import duhem_nrmse
-    recs = _piezo(["slow_T06_triangle_1400V_1Hz", "slow_T01_triangle_1400V_0.1Hz",
-                   "slow_T02_triangle_1400V_0.01Hz"])
+
+    recs = _piezo(["slow_T06_triangle_1400V_1Hz", "slow_T01_triangle_1400V_0.1Hz", "slow_T02_triangle_1400V_0.01Hz"])
     rd = fit_recordings(recs)
     ri = fit_recordings(recs, kind="ri", order=1)
     assert rd.model.kind == "rd"
-    scores = [duhem_nrmse(rd.model, rec) for rec in recs]     # x0 fitted per record, as the baselines
+    scores = [duhem_nrmse(rd.model, rec) for rec in recs]  # x0 fitted per record, as the baselines
     assert all(s < limit for s, limit in zip(scores, (0.035, 0.045, 0.055))), scores
     assert rd.summary["convergence"]["satisfied"] is True
     assert rd.model.to_dict()["g"]["type"] == "table"
@@ -189,10 +191,12 @@ def test_rate_dependent_fit_keeps_every_mode_damped():
     """The barrier keeps the damping ratio of every mode of A >= RDCanonical.DAMPING: a nearly undamped
     oscillation would fit by cancellation and blow up at other rates (piezo, rate held out: 2000 %)."""
     from fitter.identification.parametrisation import RDCanonical
+
     recs = _piezo(["slow_T06_triangle_1400V_1Hz", "slow_T01_triangle_1400V_0.1Hz"])
     rd = fit_recordings(recs, kind="rd", order=3)
     conv = rd.summary["convergence"]
     assert conv["min_damping_ratio"] >= RDCanonical.DAMPING - 1e-3
     held = _piezo(["slow_T02_triangle_1400V_0.01Hz"])[0]
     from fitter.baselines import duhem_nrmse
+
     assert duhem_nrmse(rd.model, held) < 0.2

@@ -4,6 +4,7 @@ Each identified model is exported with both backends, loaded with fmpy, and
 driven sample by sample: the FMU's closed curve must equal the in-process
 kernel to 1e-9 and match the data within the fit's own error.
 """
+
 import numpy as np
 import pytest
 from conftest import noisy_recording, ri_model, sine_input

@@ -6,6 +6,7 @@ generated recording (`ri_model(3)`, with E and D), and Example 1 with effect
 extensions.  The stepping contract shared with the kernel and the native FMU
 is in test_contract.py; FMUs come from the session's `fmu_cache`.
 """
+
 import json
 import zipfile
 from xml.etree import ElementTree as ET
@@ -29,9 +30,11 @@ from fitter.paper.example3 import g_true as g3
 
 def example1_with_effects():
     d = example1().to_dict()
-    d["effects"] = [{"effect": "backlash", "parameters": {"b": 0.1}},
-                    {"effect": "creep", "parameters": {"k": 0.2, "tau": 0.5}},
-                    {"effect": "sensor_lag", "parameters": {"tau": 0.05}}]
+    d["effects"] = [
+        {"effect": "backlash", "parameters": {"b": 0.1}},
+        {"effect": "creep", "parameters": {"k": 0.2, "tau": 0.5}},
+        {"effect": "sensor_lag", "parameters": {"tau": 0.05}},
+    ]
     return model_from_dict(d)
 
 
@@ -40,9 +43,13 @@ def periodic_input(cycles=4, per_cycle=250, period=3.0):
     return t, 1.5 * np.sin(2 * np.pi * t / period) + 0.4 * np.sin(6 * np.pi * t / period)
 
 
-MODELS = {"example1": example1, "example3": lambda: rd_model(2), "noisy": lambda: ri_model(3),
-          "effects": example1_with_effects,
-          "held": lambda: example1_with_effects().replace(input_range=(-1.0, 1.2))}
+MODELS = {
+    "example1": example1,
+    "example3": lambda: rd_model(2),
+    "noisy": lambda: ri_model(3),
+    "effects": example1_with_effects,
+    "held": lambda: example1_with_effects().replace(input_range=(-1.0, 1.2)),
+}
 
 
 @pytest.fixture(scope="module")
@@ -60,13 +67,13 @@ def test_validate_fmu_has_no_findings(fmus, name):
     assert validate_fmu_file(fmus[name]) == []
 
 
-@pytest.mark.parametrize("name", ["example1", "effects", "held"])   # example3, noisy: test_contract.py
+@pytest.mark.parametrize("name", ["example1", "effects", "held"])  # example3, noisy: test_contract.py
 def test_closed_curve_matches_in_process_kernel(fmus, name):
     t, u = periodic_input()
     y_fmu = simulate_fmu(fmus[name], t, u)
     ref = simulate(MODELS[name](), t, u).y
     assert np.abs(y_fmu - ref).max() < 1e-9
-    assert np.ptp(ref[-250:]) > 0.1          # a real loop, not a constant
+    assert np.ptp(ref[-250:]) > 0.1  # a real loop, not a constant
 
 
 def test_noisy_recording_is_matched_within_its_noise(fmus):
@@ -88,14 +95,18 @@ def test_model_description_interface(fmus):
     assert float(var["A_minus[2,1]"].start) == model.A_minus[1, 0]
     assert float(var["E_plus[3]"].start) == model.E_plus[2]
     assert float(var["D"].start) == model.D
-    assert all(var[f"x0[{i + 1}]"].causality == "parameter" and var[f"x0[{i + 1}]"].variability
-               == "fixed" for i in range(3))
+    assert all(
+        var[f"x0[{i + 1}]"].causality == "parameter" and var[f"x0[{i + 1}]"].variability == "fixed" for i in range(3)
+    )
     (out,) = md.outputs
     assert out.variable.name == "y" and [d.name for d in out.dependencies] == ["u"]
     assert md.coSimulation.canGetAndSetFMUstate and md.coSimulation.canSerializeFMUstate
     assert md.coSimulation.canHandleVariableCommunicationStepSize
-    assert (md.defaultExperiment.startTime, md.defaultExperiment.stopTime,
-            md.defaultExperiment.stepSize) == ("0.0", "12.0", "0.01")
+    assert (md.defaultExperiment.startTime, md.defaultExperiment.stopTime, md.defaultExperiment.stepSize) == (
+        "0.0",
+        "12.0",
+        "0.01",
+    )
     assert "straight line" in md.description and md.generationTool.startswith("semilinear-duhem")
     rd = {v.name for v in read_model_description(fmus["example3"]).modelVariables}
     assert {"A[2,1]", "g_v[1]", "g_g[20]"} <= rd and "g_v[21]" not in rd
@@ -173,12 +184,13 @@ def test_fixed_parameter_is_rejected_after_initialisation(unzipped):
 def test_structural_parameter_change_is_rejected(unzipped):
     md, unzipdir = unzipped["example1"]
     vr = {v.name: v.valueReference for v in md.modelVariables}
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="s")
+    fmu = FMU2Slave(
+        guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier, instanceName="s"
+    )
     log = []
     callbacks = collecting_callbacks(log)
     fmu.instantiate(callbacks=callbacks, loggingOn=True)
-    fmu.setInteger([vr["order"]], [2])              # its own value is accepted
+    fmu.setInteger([vr["order"]], [2])  # its own value is accepted
     with pytest.raises(FMICallException):
         fmu.setInteger([vr["order"]], [3])
     assert any("order is structural" in line for line in log)
@@ -215,8 +227,13 @@ def test_command_line_builds_from_json(tmp_path, capsys):
 
 
 def test_native_capabilities_and_source_files():
-    xml = model_description_xml(example1(), model_identifier="duhem_native", guid="{0}",
-                                backend="native", source_files=["sources/fmi2.c", "sources/model.c"])
+    xml = model_description_xml(
+        example1(),
+        model_identifier="duhem_native",
+        guid="{0}",
+        backend="native",
+        source_files=["sources/fmi2.c", "sources/model.c"],
+    )
     root = ET.fromstring(xml)
     cosim = root.find("CoSimulation")
     assert cosim.get("needsExecutionTool") == "false" and cosim.get("modelIdentifier") == "duhem_native"
@@ -234,8 +251,11 @@ def test_bad_steps_and_steps_after_terminate_are_refused_and_change_nothing(unzi
     inst.set("u", 0.5)
     inst.step(0.1)
     y = inst.y()
-    for t, h, why in ((inst.t, -0.1, "must be positive and finite"), (inst.t, float("nan"), "positive and finite"),
-                      (inst.t + 5.0, 0.1, "but the FMU is at t")):
+    for t, h, why in (
+        (inst.t, -0.1, "must be positive and finite"),
+        (inst.t, float("nan"), "positive and finite"),
+        (inst.t + 5.0, 0.1, "but the FMU is at t"),
+    ):
         with pytest.raises(FMICallException) as exc:
             inst.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
         assert exc.value.status == 2 and why in inst.log[-1]

@@ -5,6 +5,7 @@ leaves no temporary behind.
 The kill points: by a hook in the writer (`fitter.core.files.PUBLISH_HOOK`) just before the FMU is renamed into
 place and just before the JSON is (between the two renames), and at several moments of a run by the clock.
 """
+
 import json
 import os
 import signal
@@ -46,10 +47,28 @@ def _csv(path: Path, amplitude: float, seed: int) -> Path:
 
 def _fit(tmp: Path, data: Path, kill_before: str = "-", after: float | None = None) -> int:
     """Run the fit in a subprocess; SIGKILL it before renaming `kill_before`, or `after` seconds."""
-    args = [sys.executable, "-c", DRIVER, kill_before, "fit", str(data), "-o", str(tmp / "m.json"),
-            "--fmu", str(tmp / "m.fmu"), "--kind", "ri", "--order", "1"]
-    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[1])})
+    args = [
+        sys.executable,
+        "-c",
+        DRIVER,
+        kill_before,
+        "fit",
+        str(data),
+        "-o",
+        str(tmp / "m.json"),
+        "--fmu",
+        str(tmp / "m.fmu"),
+        "--kind",
+        "ri",
+        "--order",
+        "1",
+    ]
+    proc = subprocess.Popen(
+        args,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[1])},
+    )
     if after is not None:
         time.sleep(after)
         proc.send_signal(signal.SIGKILL)
@@ -91,9 +110,9 @@ def _old_pair(tmp: Path, pairs) -> str:
 def test_a_fit_killed_at_either_rename_leaves_the_old_pair_and_the_next_run_cleans_up(tmp_path, pairs, point):
     old = _old_pair(tmp_path, pairs)
     assert _fit(tmp_path, pairs["b"], kill_before=point) == -signal.SIGKILL
-    assert len(list(tmp_path.glob(".*"))) >= 1       # the killed run left its temporaries
-    assert _pair(tmp_path) == old                    # killed before the JSON's rename: the old pair stands
-    assert _fit(tmp_path, pairs["b"]) == 0           # the next run on the same outputs completes and cleans up
+    assert len(list(tmp_path.glob(".*"))) >= 1  # the killed run left its temporaries
+    assert _pair(tmp_path) == old  # killed before the JSON's rename: the old pair stands
+    assert _fit(tmp_path, pairs["b"]) == 0  # the next run on the same outputs completes and cleans up
     assert _pair(tmp_path) == pairs["new"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.fmu", "m.json"]
 

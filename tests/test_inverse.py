@@ -7,6 +7,7 @@ own response, so an input that reaches it exists); rate-independent and rate-dep
 The monotone models here (dy/du > 0 on every branch, checked) also give back the input that made the
 reference.  Bad references are clamped and reported, never NaN; NaN is an error naming the sample.
 """
+
 from __future__ import annotations
 
 import math
@@ -18,8 +19,18 @@ from click.testing import CliRunner
 
 from fitter.baselines import PrandtlIshlinskii
 from fitter.cli import main
-from fitter.core import (Compensator, InverseError, KernelError, RateDependentModel, RateIndependentModel,
-                         TabulatedRate, compensate, invert, save_model, simulate)
+from fitter.core import (
+    Compensator,
+    InverseError,
+    KernelError,
+    RateDependentModel,
+    RateIndependentModel,
+    TabulatedRate,
+    compensate,
+    invert,
+    save_model,
+    simulate,
+)
 from fitter.core.effects import Effect
 from fitter.core.inverse import MEASUREMENT_EFFECTS, SUPPORTED_EFFECTS
 from fitter.data.recordings import Recording
@@ -29,24 +40,52 @@ TOL = 1e-6
 
 def ri1(effects=()) -> RateIndependentModel:
     """First-order rate-independent model with a counter-clockwise loop, dy/du > 0 on both branches."""
-    return RateIndependentModel(A_plus=[[-2.0]], A_minus=[[2.0]], B_plus=[2.0], B_minus=[-2.0], C=[1.0],
-                                E_plus=[-1.0], E_minus=[-1.0], D=5.0, x0=[0.0], input_range=(-3.0, 5.0),
-                                effects=list(effects))
+    return RateIndependentModel(
+        A_plus=[[-2.0]],
+        A_minus=[[2.0]],
+        B_plus=[2.0],
+        B_minus=[-2.0],
+        C=[1.0],
+        E_plus=[-1.0],
+        E_minus=[-1.0],
+        D=5.0,
+        x0=[0.0],
+        input_range=(-3.0, 5.0),
+        effects=list(effects),
+    )
 
 
 def ri2(effects=()) -> RateIndependentModel:
     """Second order: two relaxations of different speed on each branch, dy/du > 0."""
-    return RateIndependentModel(A_plus=np.diag([-2.0, -6.0]), A_minus=np.diag([2.0, 6.0]), B_plus=[2.0, 6.0],
-                                B_minus=[-2.0, -6.0], E_plus=[-1.0, -0.6], E_minus=[-1.0, -0.6], C=[0.6, 0.8],
-                                D=4.0, x0=[0.2, -0.1], input_range=(-3.0, 5.0), effects=list(effects))
+    return RateIndependentModel(
+        A_plus=np.diag([-2.0, -6.0]),
+        A_minus=np.diag([2.0, 6.0]),
+        B_plus=[2.0, 6.0],
+        B_minus=[-2.0, -6.0],
+        E_plus=[-1.0, -0.6],
+        E_minus=[-1.0, -0.6],
+        C=[0.6, 0.8],
+        D=4.0,
+        x0=[0.2, -0.1],
+        input_range=(-3.0, 5.0),
+        effects=list(effects),
+    )
 
 
 def rd1(effects=()) -> RateDependentModel:
     v = np.logspace(-3, 3, 61)
     g = v / (1 + v / 2)
-    return RateDependentModel(A=[[-1.0]], B=[1.0], C=[1.0], E=[0.2], D=1.5, x0=[0.5],
-                              g=TabulatedRate(np.r_[-v[::-1], v], np.r_[g[::-1], g]), input_range=(-3.0, 5.0),
-                              effects=list(effects))
+    return RateDependentModel(
+        A=[[-1.0]],
+        B=[1.0],
+        C=[1.0],
+        E=[0.2],
+        D=1.5,
+        x0=[0.5],
+        g=TabulatedRate(np.r_[-v[::-1], v], np.r_[g[::-1], g]),
+        input_range=(-3.0, 5.0),
+        effects=list(effects),
+    )
 
 
 def cascade_error(model, t, y_ref, result) -> float:
@@ -71,6 +110,7 @@ def start_output(model, t0: float, u0: float) -> float:
 
 # ----------------------------------------------------------------------------- cascades
 
+
 @pytest.mark.parametrize("make", [ri1, ri2], ids=["ri1", "ri2"])
 @pytest.mark.parametrize("amplitude,freq,n", [(0.5, 0.2, 301), (3.0, 0.5, 601), (8.0, 1.3, 1201)])
 def test_cascade_sines_of_the_output(make, amplitude, freq, n):
@@ -81,7 +121,7 @@ def test_cascade_sines_of_the_output(make, amplitude, freq, n):
     res = compensate(model, t, y_ref, u0=1.0)
     assert res.n_clamped == 0
     assert cascade_error(model, t, y_ref, res) < TOL
-    assert np.max(np.abs(res.y - y_ref)) / np.ptp(y_ref) < TOL        # the predicted output is the cascade's
+    assert np.max(np.abs(res.y - y_ref)) / np.ptp(y_ref) < TOL  # the predicted output is the cascade's
     lo, hi = model.input_range
     assert lo <= res.u.min() and res.u.max() <= hi
 
@@ -98,21 +138,59 @@ def test_cascade_triangle(make):
     assert cascade_error(model, t, y_ref, res) < TOL
 
 
-@pytest.mark.parametrize("make,effects", [
-    (ri1, ()),
-    (ri2, ()),
-    (ri2, [Effect("backlash", {"b": 0.3})]),
-    (ri1, [Effect("backlash", {"b": 0.2}), Effect("saturation", {"y_c": 5.0, "beta": 0.05}),
-           Effect("thermal_drift", {"kappa": 0.002})]),
-    (ri1, [Effect("creep", {"k": 0.5, "tau": 0.7}), Effect("viscous", {"c": 0.05})]),
-    (ri2, [Effect("rate_dependence", {"alpha": 0.3})]),
-    (rd1, ()),
-    (rd1, [Effect("creep", {"k": 0.3, "tau": 2.0}), Effect("backlash", {"b": 0.1})]),
-    (ri2, [Effect("relaxation", {"k": 0.4, "w2": 0.3, "w3": 2.0, "w4": 0.4, "tau_min": 0.05, "tau_max": 5.0})]),
-    (ri2, [Effect("switching", {"S1": 0.8, "u_up1": 2.0, "u_dn1": -0.5, "width1": 0.3, "q1": -1.0,
-                                         "S2": 0.3, "u_up2": 3.0, "u_dn2": -1.0, "width2": 0.1, "q2": 0.5})]),
-], ids=["ri1", "ri2", "ri2+backlash", "ri1+backlash+saturation+thermal", "ri1+creep+viscous",
-        "ri2+rate_dependence", "rd1", "rd1+creep+backlash", "ri2+relaxation", "ri2+switching"])
+@pytest.mark.parametrize(
+    "make,effects",
+    [
+        (ri1, ()),
+        (ri2, ()),
+        (ri2, [Effect("backlash", {"b": 0.3})]),
+        (
+            ri1,
+            [
+                Effect("backlash", {"b": 0.2}),
+                Effect("saturation", {"y_c": 5.0, "beta": 0.05}),
+                Effect("thermal_drift", {"kappa": 0.002}),
+            ],
+        ),
+        (ri1, [Effect("creep", {"k": 0.5, "tau": 0.7}), Effect("viscous", {"c": 0.05})]),
+        (ri2, [Effect("rate_dependence", {"alpha": 0.3})]),
+        (rd1, ()),
+        (rd1, [Effect("creep", {"k": 0.3, "tau": 2.0}), Effect("backlash", {"b": 0.1})]),
+        (ri2, [Effect("relaxation", {"k": 0.4, "w2": 0.3, "w3": 2.0, "w4": 0.4, "tau_min": 0.05, "tau_max": 5.0})]),
+        (
+            ri2,
+            [
+                Effect(
+                    "switching",
+                    {
+                        "S1": 0.8,
+                        "u_up1": 2.0,
+                        "u_dn1": -0.5,
+                        "width1": 0.3,
+                        "q1": -1.0,
+                        "S2": 0.3,
+                        "u_up2": 3.0,
+                        "u_dn2": -1.0,
+                        "width2": 0.1,
+                        "q2": 0.5,
+                    },
+                )
+            ],
+        ),
+    ],
+    ids=[
+        "ri1",
+        "ri2",
+        "ri2+backlash",
+        "ri1+backlash+saturation+thermal",
+        "ri1+creep+viscous",
+        "ri2+rate_dependence",
+        "rd1",
+        "rd1+creep+backlash",
+        "ri2+relaxation",
+        "ri2+switching",
+    ],
+)
 @pytest.mark.parametrize("seed", [3, 11])
 def test_cascade_random_reversals_with_minor_loops(make, effects, seed):
     model = make(effects)
@@ -122,9 +200,9 @@ def test_cascade_random_reversals_with_minor_loops(make, effects, seed):
     res = compensate(model, t, y_ref, u0=u_true[0])
     assert res.n_clamped == 0
     assert cascade_error(model, t, y_ref, res) < TOL
-    if not any(e.effect == "backlash" for e in model.effects):     # within the dead band, u is not unique
+    if not any(e.effect == "backlash" for e in model.effects):  # within the dead band, u is not unique
         du, dy = np.diff(u_true), np.diff(y_ref)
-        if np.all(du * dy >= 0):                                  # a monotone model: the input comes back
+        if np.all(du * dy >= 0):  # a monotone model: the input comes back
             assert np.max(np.abs(res.u - u_true)) < 1e-6 * np.ptp(u_true)
 
 
@@ -148,17 +226,18 @@ def test_cascade_with_measurement_effects_inverted_or_dropped():
 
 # ----------------------------------------------------------------------------- bad references
 
+
 def test_beyond_the_reachable_range_is_clamped_and_reported():
     model = ri1()
     t = np.linspace(0.0, 4.0, 401)
     y0 = start_output(model, 0.0, 1.0)
-    y_ref = y0 + 40.0 * np.sin(2 * np.pi * 0.5 * t)          # far beyond what u in [-3, 5] reaches
+    y_ref = y0 + 40.0 * np.sin(2 * np.pi * 0.5 * t)  # far beyond what u in [-3, 5] reaches
     res = compensate(model, t, y_ref, u0=1.0)
     assert 50 < res.n_clamped < len(t)
     assert np.all(np.isfinite(res.u)) and np.all(np.isfinite(res.y))
     lo, hi = model.input_range
-    assert res.u.min() == lo and res.u.max() == hi            # clamped at the edges of the input range
-    assert cascade_error(model, t, res.y, res) < 1e-9          # the predicted output is what the plant does
+    assert res.u.min() == lo and res.u.max() == hi  # clamped at the edges of the input range
+    assert cascade_error(model, t, res.y, res) < 1e-9  # the predicted output is what the plant does
     exact = ~res.clamped
     assert np.max(np.abs(res.y[exact] - y_ref[exact])) < TOL * np.ptp(y_ref)
     # the shortfall of a clamped sample is the distance to the output at the edge of the input range
@@ -174,12 +253,12 @@ def test_steps_are_solved_exactly_or_clamped():
     model = ri1()
     t = np.arange(60) * 0.1
     y0 = start_output(model, 0.0, 1.0)
-    y_ref = np.where(t < 2.0, y0, y0 + 7.0)                  # a reachable jump: exact in one interval
-    y_ref = np.where(t < 4.0, y_ref, y0 - 3.0)               # and back down past the start
+    y_ref = np.where(t < 2.0, y0, y0 + 7.0)  # a reachable jump: exact in one interval
+    y_ref = np.where(t < 4.0, y_ref, y0 - 3.0)  # and back down past the start
     res = compensate(model, t, y_ref, u0=1.0)
     assert res.n_clamped == 0
     assert cascade_error(model, t, y_ref, res) < TOL
-    jump = np.where(t < 2.0, y0, y0 + 100.0)                 # unreachable jump: clamped at the top edge
+    jump = np.where(t < 2.0, y0, y0 + 100.0)  # unreachable jump: clamped at the top edge
     res = compensate(model, t, jump, u0=1.0)
     assert res.n_clamped == np.count_nonzero(t >= 2.0)
     assert np.all(res.u[t >= 2.0] == model.input_range[1])
@@ -187,8 +266,18 @@ def test_steps_are_solved_exactly_or_clamped():
 
 def test_non_monotone_branch_is_clamped_never_nan():
     # this model's output falls for a while after some reversals (dy/du < 0 on part of its branches)
-    model = RateIndependentModel(A_plus=[[-3.0]], A_minus=[[2.0]], B_plus=[3.0], B_minus=[2.0], C=[4.0],
-                                 E_plus=[1.0], E_minus=[-1.0], D=0.5, x0=[2.0], input_range=(-3.0, 5.0))
+    model = RateIndependentModel(
+        A_plus=[[-3.0]],
+        A_minus=[[2.0]],
+        B_plus=[3.0],
+        B_minus=[2.0],
+        C=[4.0],
+        E_plus=[1.0],
+        E_minus=[-1.0],
+        D=0.5,
+        x0=[2.0],
+        input_range=(-3.0, 5.0),
+    )
     t = np.linspace(0.0, 10.0, 1001)
     y_ref = start_output(model, 0.0, 1.0) + 4.0 * np.sin(2 * np.pi * 0.4 * t) + 10.0 * np.sin(2 * np.pi * 0.05 * t)
     res = compensate(model, t, y_ref, u0=1.0)
@@ -221,6 +310,7 @@ def test_refusals():
 
 
 # ----------------------------------------------------------------------------- stepping
+
 
 def test_step_by_step_equals_compensate_and_state_rolls_back():
     model = ri2([Effect("backlash", {"b": 0.2}), Effect("creep", {"k": 0.2, "tau": 0.5})])
@@ -266,18 +356,29 @@ def test_which_root_the_held_input_is_kept_and_the_nearest_root_taken():
 
     # dy/du = 4 (-3 x + 3 u + 1) + 0.5 = -103.5 rising, 4 (2 x + 2 u - 1) + 0.5 = 84.5 falling at x = 10, u = 1:
     # y_ref a little below the held output has a root on both sides, the rising one nearer
-    model = RateIndependentModel(A_plus=[[-3.0]], A_minus=[[2.0]], B_plus=[3.0], B_minus=[2.0], C=[4.0],
-                                 E_plus=[1.0], E_minus=[-1.0], D=0.5, x0=[2.0], input_range=(-3.0, 5.0))
+    model = RateIndependentModel(
+        A_plus=[[-3.0]],
+        A_minus=[[2.0]],
+        B_plus=[3.0],
+        B_minus=[2.0],
+        C=[4.0],
+        E_plus=[1.0],
+        E_minus=[-1.0],
+        D=0.5,
+        x0=[2.0],
+        input_range=(-3.0, 5.0),
+    )
     comp = Compensator(model, t0=0.0, u0=1.0, x0=[10.0])
     y_held = start_output(model.replace(x0=[10.0]), 0.0, 1.0)
     assert comp.step(0.0, y_held) == 1.0
     u = comp.step(0.1, y_held - 0.01)
     assert not comp.last_clamped and u > 1.0
     below = simulate(model.replace(x0=[10.0]), [0.0, 0.1], [1.0, 1.0 - (u - 1.0)]).y[1]
-    assert below > y_held - 0.01          # no root below within the same distance
+    assert below > y_held - 0.01  # no root below within the same distance
 
 
 # ----------------------------------------------------------------------------- Prandtl-Ishlinskii inverse
+
 
 def test_prandtl_ishlinskii_inverse_round_trip():
     model = ri1()
@@ -292,6 +393,7 @@ def test_prandtl_ishlinskii_inverse_round_trip():
 
 
 # ----------------------------------------------------------------------------- CLI
+
 
 def _write(path: Path, header: str, *cols) -> Path:
     np.savetxt(path, np.column_stack(cols), delimiter=",", header=header, comments="", fmt="%.17g")

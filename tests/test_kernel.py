@@ -1,13 +1,27 @@
 """The simulation kernel against scipy's solve_ivp, the stepper against the kernel."""
+
 import json
 
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from fitter.core import (ConvergenceError, KernelError, ModelFileError, RateDependentModel,
-                         RateIndependentModel, Stepper, TabulatedRate, convergence_rho,
-                         limiting_loop, load_model, model_from_dict, periodic_response, save_model, simulate)
+from fitter.core import (
+    ConvergenceError,
+    KernelError,
+    ModelFileError,
+    RateDependentModel,
+    RateIndependentModel,
+    Stepper,
+    TabulatedRate,
+    convergence_rho,
+    limiting_loop,
+    load_model,
+    model_from_dict,
+    periodic_response,
+    save_model,
+    simulate,
+)
 from fitter.core.kernel import AffineFlow, expm
 
 A1 = np.array([[-1.0, 4.0], [-4.0, -1.0]])
@@ -15,8 +29,7 @@ B1 = np.array([0.0, 1.0])
 
 
 def example1_model():
-    return RateIndependentModel(A_plus=A1, A_minus=-A1, B_plus=B1, B_minus=-B1, C=[0, 1],
-                                x0=[0.15, 0.15])
+    return RateIndependentModel(A_plus=A1, A_minus=-A1, B_plus=B1, B_minus=-B1, C=[0, 1], x0=[0.15, 0.15])
 
 
 def g3(v):
@@ -33,6 +46,7 @@ def piecewise_linear(t, u):
         k = min(max(np.searchsorted(t, tt, "right") - 1, 0), len(t) - 2)
         v = (u[k + 1] - u[k]) / (t[k + 1] - t[k])
         return u[k] + v * (tt - t[k]), v
+
     return at
 
 
@@ -43,12 +57,21 @@ def reference(model, t, u):
         uu, v = at(tt)
         if model.kind == "ri":
             Ap, Am = model.A_plus, model.A_minus
-            return max(v, 0) * (Ap @ x + model.B_plus * uu + model.E_plus) + \
-                min(v, 0) * (Am @ x + model.B_minus * uu + model.E_minus)
+            return max(v, 0) * (Ap @ x + model.B_plus * uu + model.E_plus) + min(v, 0) * (
+                Am @ x + model.B_minus * uu + model.E_minus
+            )
         return float(model.g(np.array(v))) * (model.A @ x + model.B * uu + model.E)
 
-    sol = solve_ivp(rhs, (t[0], t[-1]), model.x0, t_eval=t, rtol=1e-12, atol=1e-14,
-                    max_step=float(np.min(np.diff(t))) / 2, method="DOP853")
+    sol = solve_ivp(
+        rhs,
+        (t[0], t[-1]),
+        model.x0,
+        t_eval=t,
+        rtol=1e-12,
+        atol=1e-14,
+        max_step=float(np.min(np.diff(t))) / 2,
+        method="DOP853",
+    )
     return sol.y.T
 
 
@@ -86,19 +109,16 @@ def test_defective_matrix_uses_fallback_and_is_exact():
     A = np.array([[-2.0, 1.0], [0.0, -2.0]])
     flow = AffineFlow(A, np.array([0.3, 1.0]), np.array([0.1, 0.0]))
     assert not flow.modal
-    x = flow.run(np.array([1.0, -1.0]), np.array([0.5, 0.7]), np.array([1.0, 1.0]),
-                 np.array([0.2, 0.3]))
+    x = flow.run(np.array([1.0, -1.0]), np.array([0.5, 0.7]), np.array([1.0, 1.0]), np.array([0.2, 0.3]))
     ref = AffineFlow(A + np.diag([0, 1e-3]), flow.B, flow.E)  # near-defective still modal
     assert ref.modal
-    x_ref = ref.run(np.array([1.0, -1.0]), np.array([0.5, 0.7]), np.array([1.0, 1.0]),
-                    np.array([0.2, 0.3]))
+    x_ref = ref.run(np.array([1.0, -1.0]), np.array([0.5, 0.7]), np.array([1.0, 1.0]), np.array([0.2, 0.3]))
     assert np.abs(x - x_ref).max() < 1e-3
     assert np.abs(expm(A) - np.exp(-2) * np.array([[1, 1], [0, 1]])).max() < 1e-14
 
 
 def test_long_run_no_overflow():
-    model = RateIndependentModel(A_plus=[[-50.0]], A_minus=[[50.0]], B_plus=[50.0],
-                                 B_minus=[-50.0], C=[1.0])
+    model = RateIndependentModel(A_plus=[[-50.0]], A_minus=[[50.0]], B_plus=[50.0], B_minus=[-50.0], C=[1.0])
     u = np.sin(np.linspace(0, 2000, 200001))
     y = simulate(model, None, u).y
     assert np.all(np.isfinite(y))
@@ -147,35 +167,54 @@ def test_json_round_trip(tmp_path):
     assert np.array_equal(load_model(path).A_minus, m1.A_minus)
 
 
-@pytest.mark.parametrize("edit, message", [
-    (lambda d: d.update(schema_version=99), "unknown schema_version 99"),
-    (lambda d: d["parameters"].pop("C"), r"key 'parameters.C' is missing \(a 'ri' model has A_plus, "),
-    (lambda d: d["parameters"].update(A_plus=[[1, 2, 3]]),
-     r"key 'parameters.A_plus': expected a 2x2 matrix of numbers, got a 1x3 matrix$"),
-    (lambda d: d["parameters"].update(A_plus=[[1, 2], [3]]),
-     r"key 'parameters.A_plus': expected a 2x2 matrix of numbers, got a ragged list$"),
-    (lambda d: d["parameters"].update(B_minus=[1, "2"]),
-     r"key 'parameters.B_minus': expected a list of 2 numbers, got a list containing the string '2'$"),
-    (lambda d: d["parameters"].update(D=None), r"key 'parameters.D': expected a finite number, got null$"),
-    (lambda d: d["parameters"].update(x0=[True, 1]), r"key 'parameters.x0': expected .*, got a list containing true$"),
-    (lambda d: d["parameters"].update(A=[[1]]), r"key 'parameters.A': not a parameter of a 'ri' model"),
-    (lambda d: d.update(kind="xx"), r"key 'kind': expected 'ri' or 'rd', got the string 'xx'$"),
-    (lambda d: d.update(order=3), r"key 'order': expected 2 \(the length of parameters.C\), got 3$"),
-    (lambda d: d.update(effect=[]), r"key 'effect': not a key of a 'ri' model file"),
-    (lambda d: d.update(fit_info=[1]), r"key 'fit_info': expected an object, got a list of 1 number$"),
-    (lambda d: d.update(input_range=[1.0, -1.0]), r"key 'input_range': expected \[lo, hi\] .*, got \[1, -1\]$"),
-    (lambda d: d.update(input_range="wide"), r"key 'input_range': expected \[lo, hi\] .*, got the string 'wide'$"),
-    (lambda d: d.update(signals={"input": {"nom": "u"}}), r"key 'signals.input': expected an object with keys 'name' "
-                                                          r"\(required\), 'unit' and 'description', got an object "
-                                                          r"with keys 'nom'$"),
-    (lambda d: d.update(signals={"input": {"name": 3}}), r"key 'signals.input.name': expected a string, got 3$"),
-    (lambda d: d.update(signals=[1, 2]), r"key 'signals': expected an object with keys"),
-    (lambda d: d.update(experiment={"start_time": 0, "stop_time": "x", "step_size": 0.1}),
-     r"key 'experiment.stop_time': expected a finite number, got the string 'x'$"),
-    (lambda d: d.update(experiment={"start": 0}), r"key 'experiment': expected an object with keys"),
-    (lambda d: d.update(experiment={"start_time": 2.0, "stop_time": 1.0, "step_size": 0.1}),
-     r"key 'experiment': expected start_time < stop_time and step_size > 0, got 2, 1, 0.1$"),
-])
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda d: d.update(schema_version=99), "unknown schema_version 99"),
+        (lambda d: d["parameters"].pop("C"), r"key 'parameters.C' is missing \(a 'ri' model has A_plus, "),
+        (
+            lambda d: d["parameters"].update(A_plus=[[1, 2, 3]]),
+            r"key 'parameters.A_plus': expected a 2x2 matrix of numbers, got a 1x3 matrix$",
+        ),
+        (
+            lambda d: d["parameters"].update(A_plus=[[1, 2], [3]]),
+            r"key 'parameters.A_plus': expected a 2x2 matrix of numbers, got a ragged list$",
+        ),
+        (
+            lambda d: d["parameters"].update(B_minus=[1, "2"]),
+            r"key 'parameters.B_minus': expected a list of 2 numbers, got a list containing the string '2'$",
+        ),
+        (lambda d: d["parameters"].update(D=None), r"key 'parameters.D': expected a finite number, got null$"),
+        (
+            lambda d: d["parameters"].update(x0=[True, 1]),
+            r"key 'parameters.x0': expected .*, got a list containing true$",
+        ),
+        (lambda d: d["parameters"].update(A=[[1]]), r"key 'parameters.A': not a parameter of a 'ri' model"),
+        (lambda d: d.update(kind="xx"), r"key 'kind': expected 'ri' or 'rd', got the string 'xx'$"),
+        (lambda d: d.update(order=3), r"key 'order': expected 2 \(the length of parameters.C\), got 3$"),
+        (lambda d: d.update(effect=[]), r"key 'effect': not a key of a 'ri' model file"),
+        (lambda d: d.update(fit_info=[1]), r"key 'fit_info': expected an object, got a list of 1 number$"),
+        (lambda d: d.update(input_range=[1.0, -1.0]), r"key 'input_range': expected \[lo, hi\] .*, got \[1, -1\]$"),
+        (lambda d: d.update(input_range="wide"), r"key 'input_range': expected \[lo, hi\] .*, got the string 'wide'$"),
+        (
+            lambda d: d.update(signals={"input": {"nom": "u"}}),
+            r"key 'signals.input': expected an object with keys 'name' "
+            r"\(required\), 'unit' and 'description', got an object "
+            r"with keys 'nom'$",
+        ),
+        (lambda d: d.update(signals={"input": {"name": 3}}), r"key 'signals.input.name': expected a string, got 3$"),
+        (lambda d: d.update(signals=[1, 2]), r"key 'signals': expected an object with keys"),
+        (
+            lambda d: d.update(experiment={"start_time": 0, "stop_time": "x", "step_size": 0.1}),
+            r"key 'experiment.stop_time': expected a finite number, got the string 'x'$",
+        ),
+        (lambda d: d.update(experiment={"start": 0}), r"key 'experiment': expected an object with keys"),
+        (
+            lambda d: d.update(experiment={"start_time": 2.0, "stop_time": 1.0, "step_size": 0.1}),
+            r"key 'experiment': expected start_time < stop_time and step_size > 0, got 2, 1, 0.1$",
+        ),
+    ],
+)
 def test_bad_model_files(tmp_path, edit, message):
     d = example1_model().to_dict()
     edit(d)
@@ -186,14 +225,22 @@ def test_bad_model_files(tmp_path, edit, message):
     assert str(info.value).startswith(f"{path}: ")
 
 
-@pytest.mark.parametrize("g, message", [
-    (None, r"key 'g' is missing \(expected an object \{\"type\": \"table\""),
-    ({"type": "spline", "v": [1], "g": [1]},
-     r"key 'g': expected an object .*, got an object with keys 'type', 'v', 'g'$"),
-    ({"type": "table", "v": [1, "x"], "g": [1, 2]}, r"key 'g.v': expected a list of numbers, got a list containing "
-                                                   r"the string 'x'$"),
-    ({"type": "table", "v": [1, 1], "g": [1, 2]}, r"key 'g': rate table: duplicate slopes in v$"),
-])
+@pytest.mark.parametrize(
+    "g, message",
+    [
+        (None, r"key 'g' is missing \(expected an object \{\"type\": \"table\""),
+        (
+            {"type": "spline", "v": [1], "g": [1]},
+            r"key 'g': expected an object .*, got an object with keys 'type', 'v', 'g'$",
+        ),
+        (
+            {"type": "table", "v": [1, "x"], "g": [1, 2]},
+            r"key 'g.v': expected a list of numbers, got a list containing "
+            r"the string 'x'$",
+        ),
+        ({"type": "table", "v": [1, 1], "g": [1, 2]}, r"key 'g': rate table: duplicate slopes in v$"),
+    ],
+)
 def test_bad_rate_tables(g, message):
     d = example3_model().replace(g=TabulatedRate.from_function(g3, [-1, 1])).to_dict()
     d["g"] = g
@@ -225,6 +272,7 @@ def test_tabulated_rate_rule():
 def _stepwise(model, t, u, x0):
     """Reference: one `AffineFlow.step` per interval (what the stepper and the native FMU do)."""
     from fitter.core.kernel import flows, interval_coefficients
+
     fl = flows(model)
     branch, p, r, S = interval_coefficients(model, t, u)
     X = [np.asarray(x0, dtype=float)]
@@ -233,18 +281,28 @@ def _stepwise(model, t, u, x0):
     return np.array(X)
 
 
-_DEFECTIVE = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, -3.0, -3.0]])   # (s + 1)^3: a Jordan block
+_DEFECTIVE = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, -3.0, -3.0]])  # (s + 1)^3: a Jordan block
 
 
-@pytest.mark.parametrize("A_plus", [np.diag([-1.0, -3.0, -7.0]), _DEFECTIVE,
-                                    np.array([[-1.0, 4.0, 0.0], [-4.0, -1.0, 0.0], [0.0, 0.0, -2.0]])],
-                         ids=["real modal", "defective (block exponential)", "complex modal"])
+@pytest.mark.parametrize(
+    "A_plus",
+    [np.diag([-1.0, -3.0, -7.0]), _DEFECTIVE, np.array([[-1.0, 4.0, 0.0], [-4.0, -1.0, 0.0], [0.0, 0.0, -2.0]])],
+    ids=["real modal", "defective (block exponential)", "complex modal"],
+)
 def test_kernel_paths_match_the_per_interval_flow_over_many_noisy_reversals(A_plus):
     """Modal (real or complex arithmetic, segments summed in closed form) and block-exponential paths
     against one exact step per interval, on 20 000 samples with noise reversals at every few samples."""
-    model = RateIndependentModel(A_plus=A_plus, A_minus=-0.8 * A_plus.T, B_plus=[1.0, 0.5, 0.2],
-                                 B_minus=[0.3, 1.0, 0.1], C=[1.0, 0.0, 0.0], E_plus=[0.1, 0.0, 0.0],
-                                 E_minus=[0.0, 0.2, 0.0], D=0.3, x0=[0.1, 0.2, 0.3])
+    model = RateIndependentModel(
+        A_plus=A_plus,
+        A_minus=-0.8 * A_plus.T,
+        B_plus=[1.0, 0.5, 0.2],
+        B_minus=[0.3, 1.0, 0.1],
+        C=[1.0, 0.0, 0.0],
+        E_plus=[0.1, 0.0, 0.0],
+        E_minus=[0.0, 0.2, 0.0],
+        D=0.3,
+        x0=[0.1, 0.2, 0.3],
+    )
     t = np.linspace(0, 40, 20001)
     u = 3 * np.sin(t) + 0.01 * np.random.default_rng(1).standard_normal(len(t))
     ref = _stepwise(model, t, u, model.x0)
@@ -256,9 +314,16 @@ def test_kernel_paths_match_the_per_interval_flow_over_many_noisy_reversals(A_pl
 def test_one_pass_with_many_initial_states_and_forcings_equals_separate_simulations(A_plus):
     """`integrate` with m columns (x0, B, E per column and branch) = m separate simulations."""
     from fitter.core.kernel import flows, integrate, interval_coefficients
+
     rng = np.random.default_rng(3)
-    model = RateIndependentModel(A_plus=A_plus, A_minus=-0.8 * A_plus.T, B_plus=[1.0, 0.5, 0.2],
-                                 B_minus=[0.3, 1.0, 0.1], C=[1.0, 0.0, 0.0], D=0.3)
+    model = RateIndependentModel(
+        A_plus=A_plus,
+        A_minus=-0.8 * A_plus.T,
+        B_plus=[1.0, 0.5, 0.2],
+        B_minus=[0.3, 1.0, 0.1],
+        C=[1.0, 0.0, 0.0],
+        D=0.3,
+    )
     t = np.linspace(0, 4, 2001)
     u = 3 * np.sin(t) + 0.01 * rng.standard_normal(len(t))
     Bp, Bm, Ep, Em, X0 = (rng.standard_normal((3, 5)) for _ in range(5))
@@ -284,16 +349,17 @@ def test_phi_blocks_are_the_blocks_of_the_augmented_exponential():
     over scales that need 1 to 10 squarings, zero patterns (triangular, sparse) and a non-finite entry;
     for n = 1 against the scalar phi-functions."""
     from fitter.core.flow import phi1, phi2, phi_blocks
+
     rng = np.random.default_rng(8)
     for n in (1, 2, 3, 4, 6):
         AS = rng.standard_normal((40, n, n)) * np.geomspace(1e-4, 40.0, 40)[:, None, None]
         AS[::3] = np.triu(AS[::3])
         AS[1::5][np.abs(AS[1::5]) < 0.5 * np.abs(AS[1::5]).max(axis=(1, 2), keepdims=True)] = 0.0
         G = np.zeros((len(AS), 3 * n, 3 * n))
-        G[:, :n, :n], G[:, :n, n:2 * n], G[:, n:2 * n, 2 * n:] = AS, np.eye(n), np.eye(n)
+        G[:, :n, :n], G[:, :n, n : 2 * n], G[:, n : 2 * n, 2 * n :] = AS, np.eye(n), np.eye(n)
         Z = expm(G)
         for k, F in enumerate(phi_blocks(AS)):
-            ref = Z[:, :n, k * n:(k + 1) * n]
+            ref = Z[:, :n, k * n : (k + 1) * n]
             scale = np.abs(Z[:, :n]).max(axis=(1, 2))[:, None, None]
             assert np.all(np.abs(F - ref) <= 1e-12 * scale)
     z = np.array([-30.0, -2.0, -0.3, 1e-9, 0.0, 0.7, 5.0])
@@ -324,10 +390,10 @@ def test_input_range_holds_the_input_at_its_edges_and_bounds_an_unstable_branch(
     assert np.allclose(y_held, simulate(free, t, np.clip(u_out, -1.0, 1.0)).y, rtol=0, atol=1e-12)
     assert np.abs(y_held).max() < 5.0
     beyond = u_out > 1.0
-    assert np.ptp(y_held[beyond & (t < 0.5)]) < 1e-12       # the state does not move beyond the edge
+    assert np.ptp(y_held[beyond & (t < 0.5)]) < 1e-12  # the state does not move beyond the edge
     ys, st = stepped(held, t, u_out)
     assert np.abs(ys - y_held).max() < 1e-12
-    assert st.u == u_out[-1]                                  # the input keeps the value set
+    assert st.u == u_out[-1]  # the input keeps the value set
 
 
 def test_stepper_with_input_derivatives_steps_before_the_input_is_set():
@@ -363,12 +429,20 @@ def test_integration_in_pieces_equals_one_pass(monkeypatch, A_plus):
     from fitter.core import flow
     from fitter.core.kernel import state_blocks, state_response
     from fitter.core.periodic import affine_response, period_map
-    model = RateIndependentModel(A_plus=A_plus, A_minus=-0.8 * A_plus.T, B_plus=[1.0, 0.5, 0.2],
-                                 B_minus=[0.3, 1.0, 0.1], C=[1.0, 0.0, 0.0], E_plus=[0.1, 0.0, 0.0], D=0.3,
-                                 x0=[0.1, 0.2, 0.3])
+
+    model = RateIndependentModel(
+        A_plus=A_plus,
+        A_minus=-0.8 * A_plus.T,
+        B_plus=[1.0, 0.5, 0.2],
+        B_minus=[0.3, 1.0, 0.1],
+        C=[1.0, 0.0, 0.0],
+        E_plus=[0.1, 0.0, 0.0],
+        D=0.3,
+        x0=[0.1, 0.2, 0.3],
+    )
     t = np.linspace(0, 40, 5001)
     u = 3 * np.sin(t) + 0.01 * np.random.default_rng(2).standard_normal(len(t))
-    u[100:110] = u[100]                                  # held samples keep the branch across a piece boundary
+    u[100:110] = u[100]  # held samples keep the branch across a piece boundary
     X0 = np.random.default_rng(4).standard_normal((3, 4))
     whole, states = simulate(model, t, u), state_response(model, t, u, X0)
     monkeypatch.setattr(flow, "_BLOCK", 103)

@@ -1,4 +1,5 @@
 """The output-error engine: every initial-state mode, bounds, masks, covariance, parametrisations."""
+
 import numpy as np
 import pytest
 
@@ -7,8 +8,15 @@ from fitter.core.effects import EffectContext
 from fitter.data.recordings import Recording
 from fitter.identification.output_error import Recordings
 from fitter.identification.refine import Options, effective_samples, refine
-from fitter.identification.parametrisation import (Parametrisation, RDCanonical, RICanonical, StateSpace,
-                                                   WithEffects, hurwitz_poly, hurwitz_theta)
+from fitter.identification.parametrisation import (
+    Parametrisation,
+    RDCanonical,
+    RICanonical,
+    StateSpace,
+    WithEffects,
+    hurwitz_poly,
+    hurwitz_theta,
+)
 
 TRUE = np.array([-3.0, 2.5, 1.0, 1.2, 0.3])
 
@@ -22,8 +30,9 @@ class _Five(Parametrisation):
         return ["A_plus", "A_minus", "B_plus", "B_minus", "D"]
 
     def build(self, th):
-        return RateIndependentModel(A_plus=[[th[0]]], A_minus=[[th[1]]], B_plus=[th[2]], B_minus=[th[3]],
-                                    C=[1.0], D=th[4])
+        return RateIndependentModel(
+            A_plus=[[th[0]]], A_minus=[[th[1]]], B_plus=[th[2]], B_minus=[th[3]], C=[1.0], D=th[4]
+        )
 
 
 def _recording(x0: float, seed: int = 0, cycles: float = 10.0, noise: float = 0.01) -> Recording:
@@ -75,8 +84,9 @@ def test_bounds_hold_and_masked_samples_do_not_count():
     bad = Recording(rec.t, rec.u, y)
     w = np.ones(len(y))
     w[100:200] = 0
-    param = StateSpace(_Five().build(TRUE).replace(x0=[0.0]),
-                       lower=[-10, 0, -10, -10, -10, -10, -1], upper=[0, 10, 10, 10, 10, 10, 1])
+    param = StateSpace(
+        _Five().build(TRUE).replace(x0=[0.0]), lower=[-10, 0, -10, -10, -10, -10, -1], upper=[0, 10, 10, 10, 10, 10, 1]
+    )
     start = param.theta(_Five().build(START))
     res = refine(param, start, Recordings([bad], x0="model", weights=[w]), Options(normalise=True))
     lo, hi = param.bounds()
@@ -112,7 +122,7 @@ def test_canonical_parametrisations_round_trip():
     th = np.r_[np.log([1.0, 2.0, 1.0]), 0.1 * np.arange(3 * 3 - 2 + 1 + rd.n_c)]
     m = rd.build(th)
     assert np.max(np.linalg.eigvals(m.A).real) < 0
-    np.testing.assert_allclose(rd.theta(m, th[-1 - rd.n_c:]), th, atol=1e-10)
+    np.testing.assert_allclose(rd.theta(m, th[-1 - rd.n_c :]), th, atol=1e-10)
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 4, 5])
@@ -126,7 +136,7 @@ def test_hurwitz_parametrisation_is_onto_the_stable_polynomials_of_any_order(n):
         np.testing.assert_allclose(hurwitz_poly(hurwitz_theta(lam)), p, rtol=1e-8)
     rd = RDCanonical(n, 1.0, np.log([0.5, 1.0, 2.0]))
     th = np.r_[rng.normal(size=n), 0.1 * np.arange(2 * n + 2 + rd.n_c)]
-    np.testing.assert_allclose(rd.build(rd.theta(rd.build(th), th[-1 - rd.n_c:])).A, rd.build(th).A, atol=1e-9)
+    np.testing.assert_allclose(rd.build(rd.theta(rd.build(th), th[-1 - rd.n_c :])).A, rd.build(th).A, atol=1e-9)
 
 
 def test_with_effects_log_parameters_and_null_model():
@@ -134,7 +144,7 @@ def test_with_effects_log_parameters_and_null_model():
     ctx = EffectContext(dt_min=0.01, duration=10.0, u_span=2.0, y_min=-1.0, y_max=1.0, y_mean=0.0, v95=1.0)
     param = WithEffects(base, ["creep"], ctx)
     lo, hi = param.bounds()
-    np.testing.assert_allclose([lo[-1], hi[-1]], np.log([0.05 * 0.01, 10.0]))   # [0.05 dt_min, duration]
+    np.testing.assert_allclose([lo[-1], hi[-1]], np.log([0.05 * 0.01, 10.0]))  # [0.05 dt_min, duration]
     theta = np.r_[base.theta(base.template), param.encode([{"k": 0.2, "tau": 0.5}])]
     m = param.build(theta)
     assert m.effects[0].parameters == {"k": 0.2, "tau": pytest.approx(0.5)}
@@ -147,13 +157,14 @@ def test_with_effects_holds_named_parameters_and_refinements():
     base = StateSpace(_Five().build(TRUE))
     ctx = EffectContext(dt_min=0.01, duration=10.0, u_span=2.0, y_min=-1.0, y_max=1.0, y_mean=0.0, v95=1.0)
     free = WithEffects(base, ["creep", "measurement_drift"], ctx)
-    held = WithEffects(base, ["creep", "measurement_drift"], ctx, held={"creep.tau": 0.25,
-                                                                       "measurement_drift.rate": 0.0})
+    held = WithEffects(
+        base, ["creep", "measurement_drift"], ctx, held={"creep.tau": 0.25, "measurement_drift.rate": 0.0}
+    )
     assert free.size - held.size == 2 and held.names()[-1] == "creep.k"
     m = held.build(np.r_[base.theta(base.template), 0.2])
     assert [e.parameters for e in m.effects] == [{"k": 0.2, "tau": 0.25}, {"rate": 0.0}]
     basic = WithEffects(base, ["switching"], ctx, refinements=False, held={"switching.S2": 0.1})
-    assert [n.split(".")[1] for n in basic.names()[base.size:]] == ["S1", "u_up1", "u_dn1", "width1", "q1"]
+    assert [n.split(".")[1] for n in basic.names()[base.size :]] == ["S1", "u_up1", "u_dn1", "width1", "q1"]
     built = basic.effect_list(np.zeros(basic.size))[0].parameters
     assert built["S2"] == 0.1 and built["spread1"] == 0.0
 
@@ -164,18 +175,20 @@ def test_variable_projection_finds_the_linear_parameters_and_matches_the_plain_r
     start with wrong linear parameters reaches the truth's A+- and its output (the linear part is
     identifiable only up to D: z = x + D u is a state of the same model), and the projected
     residuals at the optimum are the plain `residuals` of the returned theta."""
-    truth = RateIndependentModel(A_plus=[[-3.0]], A_minus=[[2.5]], B_plus=[1.0], B_minus=[1.2], C=[1.0],
-                                 E_plus=[0.2], E_minus=[-0.1], D=0.3)
+    truth = RateIndependentModel(
+        A_plus=[[-3.0]], A_minus=[[2.5]], B_plus=[1.0], B_minus=[1.2], C=[1.0], E_plus=[0.2], E_minus=[-0.1], D=0.3
+    )
     param = RICanonical(1)
     t = np.linspace(0, 2 * np.pi * 8, 4001)
     u = np.sin(t)
     y = simulate(truth, t, u, x0=[0.7]).y + 0.005 * np.random.default_rng(1).standard_normal(len(t))
     problem = Recordings([Recording(t, u, y)], x0=mode)
-    start = param.theta(truth.replace(A_plus=[[-1.0]], A_minus=[[1.0]], B_plus=[0.0], B_minus=[0.0],
-                                      E_plus=[0.0], E_minus=[0.0], D=0.0))
+    start = param.theta(
+        truth.replace(A_plus=[[-1.0]], A_minus=[[1.0]], B_plus=[0.0], B_minus=[0.0], E_plus=[0.0], E_minus=[0.0], D=0.0)
+    )
     res = refine(param, start, problem, Options(eliminate=True))
     np.testing.assert_allclose(res.theta[:2], [-3.0, 2.5], atol=0.03)
-    assert np.sqrt(np.mean(res.weighted ** 2)) == pytest.approx(0.005, rel=0.05)
+    assert np.sqrt(np.mean(res.weighted**2)) == pytest.approx(0.005, rel=0.05)
     projected = problem.projected(param, res.theta)[0]
     assert np.abs(projected - res.weighted).max() < 1e-9
     assert res.stderr().shape == (param.size,) and np.all(res.stderr() > 0)
@@ -186,6 +199,7 @@ def test_covariance_does_not_depend_on_the_units_of_the_parameters():
     problem divided by each column's scale (the pseudo-inverse of the raw J^T J dropped the small column's
     direction, giving it a zero error)."""
     from fitter.identification.refine import RefineResult
+
     rng = np.random.default_rng(0)
     X = rng.standard_normal((200, 2))
     X[:, 1] += 0.9 * X[:, 0]
@@ -193,8 +207,9 @@ def test_covariance_does_not_depend_on_the_units_of_the_parameters():
     scale = np.array([1e4, 1e-4])
 
     def result(J):
-        return RefineResult(theta=np.zeros(2), model=None, residuals=[residual], weighted=residual, jac=J,
-                            nfev=1, success=True)
+        return RefineResult(
+            theta=np.zeros(2), model=None, residuals=[residual], weighted=residual, jac=J, nfev=1, success=True
+        )
 
     plain = result(X).stderr()
     assert plain == pytest.approx(np.sqrt(np.diag(np.linalg.inv(X.T @ X))) * result(X).sigma, rel=1e-12)
@@ -202,6 +217,7 @@ def test_covariance_does_not_depend_on_the_units_of_the_parameters():
 
 
 # --------------------------------------------------------------------- decimation of long recordings
+
 
 def _many_short_loops(n: int, segments: int, seed: int = 0) -> tuple[Recording, RateIndependentModel]:
     """An order-2 rate-independent truth driven through `segments` straight runs between random turning points
@@ -226,7 +242,7 @@ def test_decimation_keeps_every_turn_and_scores_evenly():
     rec, truth = _many_short_loops(30_000, 1000)
     keep, scored = _keep_indices(rec.u, 3000, None)
     turns = _turning_points(rec.u)
-    strict_extrema = np.flatnonzero(np.diff(rec.u)[1:] * np.diff(rec.u)[:-1] < 0) + 1   # the input has no flats
+    strict_extrema = np.flatnonzero(np.diff(rec.u)[1:] * np.diff(rec.u)[:-1] < 0) + 1  # the input has no flats
     assert len(turns) > 600 and np.array_equal(turns, strict_extrema) and np.isin(turns, keep).all()
     assert np.array_equal(keep[scored][:-1], np.arange(0, 30_000, 10))
     full = simulate(truth, rec.t, rec.u).y[keep]
@@ -257,6 +273,6 @@ def test_a_recording_held_out_of_the_fit_has_its_reference_fitted():
     weights = [np.zeros(len(recs[0].t)), None, None]
     residual = Recordings(recs, x0="fit", weights=weights, references=True).residuals(_Five(), TRUE)[2]
     held = residual[0][2]
-    assert np.sqrt(np.mean(held ** 2)) < 0.012
+    assert np.sqrt(np.mean(held**2)) < 0.012
     plain = Recordings(recs, x0="fit", references=True).residuals(_Five(), TRUE)[2]
-    assert np.sqrt(np.mean(plain[0][2] ** 2)) > 0.5            # all weighted: the first owns the reference
+    assert np.sqrt(np.mean(plain[0][2] ** 2)) > 0.5  # all weighted: the first owns the reference

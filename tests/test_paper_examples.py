@@ -3,6 +3,7 @@
 Example 2 with noise uses the median over NOISY_SEEDS = 5 seeds (0..4) here; the
 benchmark uses 20.  Each record is one period of the steady-state response.
 """
+
 import json
 
 import numpy as np
@@ -56,6 +57,7 @@ def bench(tmp_path_factory):
 
 
 # ----------------------------------------------------------------------------- Example 2
+
 
 def test_example2_records_follow_the_paper_settings():
     clean = example2.records(noise_pp=0.0)
@@ -115,14 +117,15 @@ def test_example2_identified_model_reproduces_sine_loops(ex2_clean):
 
 # ----------------------------------------------------------------------------- Example 3
 
+
 def test_example3_improved_g_within_done_when_limit(ex3):
     fit = ex3["improved"]
     assert len(fit.slopes) == 28
     assert g_error_ex3(fit) <= 0.005
     g1 = float(example3.g_true(0.25))
     # the normalised canonical form of the true model: alpha = (g1, 3 g1^2), beta = (g1, -2 g1^2)
-    np.testing.assert_allclose(fit.A_hat, [[-g1, 1.0], [-3 * g1 ** 2, 0.0]], rtol=1e-3, atol=1e-9)
-    np.testing.assert_allclose(fit.B_hat, [g1, -2 * g1 ** 2], rtol=1e-3)
+    np.testing.assert_allclose(fit.A_hat, [[-g1, 1.0], [-3 * g1**2, 0.0]], rtol=1e-3, atol=1e-9)
+    np.testing.assert_allclose(fit.B_hat, [g1, -2 * g1**2], rtol=1e-3)
 
 
 def test_example3_literal_g_is_worse(ex3):
@@ -142,8 +145,9 @@ def test_example3_straight_line_g_is_not_good_enough_at_low_omega(ex3):
     fit = ex3["improved"]
     v, g = np.r_[fit.slopes, 0.0], np.r_[fit.g_hat, 0.0]
     order = np.argsort(v)
-    linear = RateDependentModel(A=fit.A_hat, B=fit.B_hat, C=fit.C_hat,
-                                g=CallableRate(lambda s: np.interp(s, v[order], g[order])))
+    linear = RateDependentModel(
+        A=fit.A_hat, B=fit.B_hat, C=fit.C_hat, g=CallableRate(lambda s: np.interp(s, v[order], g[order]))
+    )
     e_linear = example3.loop_errors(example3.true_model(), linear, (0.5,))["0.5"]
     e_pchip = example3.loop_errors(example3.true_model(), fit.model, (0.5,))["0.5"]
     assert e_linear > 0.01
@@ -151,6 +155,7 @@ def test_example3_straight_line_g_is_not_good_enough_at_low_omega(ex3):
 
 
 # ----------------------------------------------------------------------------- benchmark report
+
 
 def test_report_run_has_every_example_and_check(bench):
     assert set(bench) >= {"example1", "example2", "example3", "figures", "run_time_s", "checks"}
@@ -169,8 +174,13 @@ def test_report_run_has_every_example_and_check(bench):
 
 def test_report_figures_are_written(bench):
     names = sorted(p.rsplit("/", 1)[-1] for p in bench["figures"])
-    assert names == ["fig1_example1.png", "fig3_example2_g.png", "fig4_example2_loops.png",
-                     "fig5_example3_g.png", "fig6_example3_loops.png"]
+    assert names == [
+        "fig1_example1.png",
+        "fig3_example2_g.png",
+        "fig4_example2_loops.png",
+        "fig5_example3_g.png",
+        "fig6_example3_loops.png",
+    ]
     for p in bench["figures"]:
         with open(p, "rb") as f:
             assert f.read(8) == b"\x89PNG\r\n\x1a\n"
@@ -207,8 +217,9 @@ def test_main_json_prints_valid_json(capsys):
 
 def test_main_rejects_zero_seeds(capsys):
     assert report.main(["--seeds", "0"]) == 1
-    assert capsys.readouterr().err.startswith("error: reproduce-paper: --seeds: 0 is out of range: give an integer "
-                                              ">= 1")
+    assert capsys.readouterr().err.startswith(
+        "error: reproduce-paper: --seeds: 0 is out of range: give an integer >= 1"
+    )
 
 
 def test_run_example2_rejects_zero_seeds():

@@ -1,4 +1,5 @@
 """Preparation (reversals, cycles, settling, drift, holds, resampling) and metric definitions."""
+
 import json
 from pathlib import Path
 
@@ -18,8 +19,9 @@ DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 def duhem_first_order(a=0.4, x0=1.5):
     """dx/du = a (1 - x) rising, a (1 + x) falling: loops in [-1, 1]; a transient from x0 that
     shrinks by exp(-2 a beta) per cycle of input range beta."""
-    return RateIndependentModel(A_plus=[[-a]], A_minus=[[a]], B_plus=[0], B_minus=[0], E_plus=[a],
-                                E_minus=[a], C=[1], D=0.5, x0=[x0])
+    return RateIndependentModel(
+        A_plus=[[-a]], A_minus=[[a]], B_plus=[0], B_minus=[0], E_plus=[a], E_minus=[a], C=[1], D=0.5, x0=[x0]
+    )
 
 
 def sine_recording(periods=10, n=6000, noise=0.0, u_noise=0.0, quantum=0.0, seed=0, drift=0.0):
@@ -81,7 +83,7 @@ def test_settled_start_on_generated_transient():
     a, b = p.cycles[0], p.cycles[-1]
     n = min(a.stop - a.start, b.stop - b.start)
     y = p.recording.y
-    assert np.max(np.abs(y[a.start:a.start + n] - y[b.start:b.start + n])) < 0.01
+    assert np.max(np.abs(y[a.start : a.start + n] - y[b.start : b.start + n])) < 0.01
 
 
 def test_settled_start_without_transient_keeps_first_cycle():
@@ -103,7 +105,7 @@ def test_drift_is_reported_and_not_taken_for_a_transient():
 
 def test_too_few_cycles():
     t = np.linspace(0, 1, 100)
-    rec = Recording(t, t, t ** 2, name="ramp")
+    rec = Recording(t, t, t**2, name="ramp")
     with pytest.raises(PreparationError, match="ramp: too few cycles: the input has 0 full cycle"):
         prepare(rec)
 
@@ -134,11 +136,11 @@ def test_branch_on_grid_accuracy():
 
 def test_resample_time_uniform():
     t = np.cumsum(np.r_[0, np.full(50, 0.01), np.full(50, 0.03)])
-    rec = Recording(t, 2 * t, t ** 2)
+    rec = Recording(t, 2 * t, t**2)
     r = resample_time(rec, 0.005)
     assert np.allclose(np.diff(r.t), 0.005) and r.t[-1] == pytest.approx(t[-1])
     np.testing.assert_allclose(r.u, 2 * r.t, atol=1e-12)
-    assert np.max(np.abs(r.y - r.t ** 2)) <= 0.03 ** 2 / 4 + 1e-12
+    assert np.max(np.abs(r.y - r.t**2)) <= 0.03**2 / 4 + 1e-12
 
 
 def test_nrmse_and_max_error_definitions():
@@ -182,8 +184,7 @@ def test_last_full_cycle_and_compare():
 
 @pytest.mark.skipif(not (DATA / "piezo-pnzt").exists(), reason="shared piezo data absent")
 def test_piezo_triangle_prepares():
-    rec = load_recording(DATA / "piezo-pnzt" / "slow_T01_triangle_1400V_0.1Hz.csv", "time", "voltage",
-                         "polarization")
+    rec = load_recording(DATA / "piezo-pnzt" / "slow_T01_triangle_1400V_0.1Hz.csv", "time", "voltage", "polarization")
     p = prepare(rec)
     # one period from +79 V up to 1467 V, down to -1322 V and back to +72 V: two reversals,
     # and the whole record is the one full cycle

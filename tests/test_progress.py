@@ -1,4 +1,5 @@
 """The one progress protocol (`fitter.progress`): progress(message, fraction or None)."""
+
 import io
 import re
 
@@ -25,8 +26,9 @@ def test_stderr_progress_is_silent_without_a_terminal(capsys):
 def shown(display, monkeypatch) -> str:
     """What `display("work")` writes to a 100-column terminal for three reports."""
     out = io.StringIO()
-    monkeypatch.setattr("rich.console.Console", lambda stderr=True: Console(
-        file=out, force_terminal=True, color_system=None, width=100))
+    monkeypatch.setattr(
+        "rich.console.Console", lambda stderr=True: Console(file=out, force_terminal=True, color_system=None, width=100)
+    )
     with display("work") as progress:
         progress("first step")
         progress("second step", None)
@@ -40,4 +42,4 @@ def test_status_line_shows_message_and_percentage(monkeypatch):
 
 def test_rich_progress_bar_fills_to_the_fraction(monkeypatch):
     last = re.search(r"work: third step (━+) +0:00", shown(rich_progress, monkeypatch))
-    assert len(last.group(1)) == 30                # 75% of the 40-column bar
+    assert len(last.group(1)) == 30  # 75% of the 40-column bar

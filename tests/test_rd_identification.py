@@ -1,4 +1,5 @@
 """Rate-dependent identification from triangle waves (Sections IV-V): waves, transforms, estimators, bad input."""
+
 import json
 
 import numpy as np
@@ -6,8 +7,12 @@ import pytest
 
 from fitter.core import CallableRate, RateDependentModel, load_model, save_model, simulate
 from fitter.identification.rd_triangles import ESTIMATORS, bilinear_d2c, identify_rd_triangles
-from fitter.identification.triangle_waves import (TriangleWave, periodic_triangle_output, triangle_response,
-                                                  triangle_wave)
+from fitter.identification.triangle_waves import (
+    TriangleWave,
+    periodic_triangle_output,
+    triangle_response,
+    triangle_wave,
+)
 
 # A first-order model with an asymmetric g (g(b) != g(a)), so the falling-branch
 # normalisation of eq (50) matters; sampled coarsely (delta = 0.3).
@@ -41,6 +46,7 @@ def asym_fits(asym_records):
 
 # ----------------------------------------------------------------------------- triangle waves
 
+
 def test_triangle_wave_follows_eq20():
     a, b, Ta, Tb = 0.5, -1.0, 4.0, 2.0  # a Ta = -b Tb = 2, T = 6
     t, u = triangle_wave(a, b, Ta, Tb, periods=2, delta=0.5)
@@ -51,15 +57,18 @@ def test_triangle_wave_follows_eq20():
     assert u[0] == pytest.approx(-1.0) and u.max() == pytest.approx(1.0) and u.min() == pytest.approx(-1.0)
 
 
-@pytest.mark.parametrize("args, message", [
-    ((0.0, -1.0, 4.0, 4.0, 1, 0.1), "needs a > 0, b < 0"),
-    ((1.0, 1.0, 4.0, 4.0, 1, 0.1), "needs a > 0, b < 0"),
-    ((1.0, -1.0, 4.0, 3.0, 1, 0.1), "continuous only when a\\*Ta = -b\\*Tb"),
-    ((1.0, -1.0, 4.0, 4.0, 0, 0.1), "periods must be a positive integer"),
-    ((1.0, -1.0, 4.0, 4.0, 1.5, 0.1), "periods must be a positive integer"),
-    ((1.0, -1.0, 4.0, 4.0, 1, 0.0), "sampling period delta must be > 0"),
-    ((1.0, -1.0, 4.0, 4.0, 1, float("nan")), "sampling period delta must be > 0"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        ((0.0, -1.0, 4.0, 4.0, 1, 0.1), "needs a > 0, b < 0"),
+        ((1.0, 1.0, 4.0, 4.0, 1, 0.1), "needs a > 0, b < 0"),
+        ((1.0, -1.0, 4.0, 3.0, 1, 0.1), "continuous only when a\\*Ta = -b\\*Tb"),
+        ((1.0, -1.0, 4.0, 4.0, 0, 0.1), "periods must be a positive integer"),
+        ((1.0, -1.0, 4.0, 4.0, 1.5, 0.1), "periods must be a positive integer"),
+        ((1.0, -1.0, 4.0, 4.0, 1, 0.0), "sampling period delta must be > 0"),
+        ((1.0, -1.0, 4.0, 4.0, 1, float("nan")), "sampling period delta must be > 0"),
+    ],
+)
 def test_triangle_wave_rejects_bad_parameters(args, message):
     with pytest.raises(ValueError, match=message):
         triangle_wave(*args)
@@ -89,6 +98,7 @@ def test_periodic_triangle_output_is_the_limit_of_a_long_simulation():
 
 # ----------------------------------------------------------------------------- bilinear transform (35)-(36)
 
+
 def test_bilinear_d2c_first_order_closed_form():
     # H(z) = beta/(z + alpha), z = (2 + s d)/(2 - s d): monic denominator s + 2(1+alpha)/(d(1-alpha)),
     # numerator s^0 coefficient 2 beta/(d(1-alpha)) (its s^1 term dropped, as (35) has none).
@@ -108,6 +118,7 @@ def test_bilinear_d2c_maps_poles_by_tustin():
 
 
 # ----------------------------------------------------------------------------- estimators
+
 
 def test_default_estimator_is_improved(asym_records):
     fit = identify_rd_triangles(asym_records[:2])
@@ -154,6 +165,7 @@ def test_identified_model_round_trips_through_json(asym_fits, tmp_path):
 
 # ----------------------------------------------------------------------------- bad input
 
+
 def _replace(rec, **arrays):
     t, u, y = (np.array(a, dtype=float) for a in rec)
     out = {"t": t, "u": u, "y": y}
@@ -167,6 +179,7 @@ def _set(k, value):
         a = a.copy()
         a[k] = value
         return a
+
     return fn
 
 
@@ -178,24 +191,27 @@ def _dip_in_rising_branch():
     return t, u, np.zeros_like(u)
 
 
-@pytest.mark.parametrize("case, message", [
-    ("nan_y", r"record 1: y\[5\] is nan \(NaN or infinite\)"),
-    ("inf_u", r"record 1: u\[7\] is inf"),
-    ("too_few", r"record 1: 5 samples are too few for order 1 \(need at least 6\)"),
-    ("kink", r"record 1: branch not monotone or not a ramp near samples"),
-    ("dip", r"record 1: branch not monotone: the corner at t = 3 has u = -0.5 but the wave's maximum"),
-    ("short_branches", r"record 1: the falling branch .* order 2 needs at least 4 per branch .*branches too short"),
-    ("one_wave", r"need at least 2 triangle-wave records .* got 1"),
-    ("same_slope", r"records 0 and 1 have the same rising slope 0.25; eq \(50\) needs one wave per slope"),
-    ("same_falling_slope", r"records 0 and 1 have the same falling slope -0.25; eq \(50\) needs one"),
-    ("undersampled", r"record 1: branch not monotone or not a ramp .*or the branches are too short"),
-    ("length", r"record 1: t, u, y differ in length \(124, 124, 123\)"),
-    ("non_uniform", r"record 1: sampling is not uniform"),
-    ("time_back", r"record 1: time must increase: t\[10\]"),
-    ("constant_u", r"record 1: the input never rises"),
-    ("order", r"order must be a positive integer, got 0"),
-    ("estimator", r"estimator must be one of \('literal', 'improved'\), got 'foo'"),
-])
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("nan_y", r"record 1: y\[5\] is nan \(NaN or infinite\)"),
+        ("inf_u", r"record 1: u\[7\] is inf"),
+        ("too_few", r"record 1: 5 samples are too few for order 1 \(need at least 6\)"),
+        ("kink", r"record 1: branch not monotone or not a ramp near samples"),
+        ("dip", r"record 1: branch not monotone: the corner at t = 3 has u = -0.5 but the wave's maximum"),
+        ("short_branches", r"record 1: the falling branch .* order 2 needs at least 4 per branch .*branches too short"),
+        ("one_wave", r"need at least 2 triangle-wave records .* got 1"),
+        ("same_slope", r"records 0 and 1 have the same rising slope 0.25; eq \(50\) needs one wave per slope"),
+        ("same_falling_slope", r"records 0 and 1 have the same falling slope -0.25; eq \(50\) needs one"),
+        ("undersampled", r"record 1: branch not monotone or not a ramp .*or the branches are too short"),
+        ("length", r"record 1: t, u, y differ in length \(124, 124, 123\)"),
+        ("non_uniform", r"record 1: sampling is not uniform"),
+        ("time_back", r"record 1: time must increase: t\[10\]"),
+        ("constant_u", r"record 1: the input never rises"),
+        ("order", r"order must be a positive integer, got 0"),
+        ("estimator", r"estimator must be one of \('literal', 'improved'\), got 'foo'"),
+    ],
+)
 def test_bad_input_raises_clear_error(case, message):
     model = RateDependentModel(A=[[-1.0]], B=[1.0], C=[1.0], g=CallableRate(lambda v: np.minimum(np.abs(v), 1)))
     r0 = wave_record(model, 0.25, delta=0.13)

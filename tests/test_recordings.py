@@ -1,9 +1,9 @@
 """CSV loading: column choice, unit parsing, and one clear error per malformed file."""
+
 import numpy as np
 import pytest
 
-from fitter.data.recordings import (Recording, RecordingError, check_samples, load_recording, load_recordings,
-                                    split_unit)
+from fitter.data.recordings import Recording, RecordingError, check_samples, load_recording, load_recordings, split_unit
 
 
 def write(tmp_path, text, name="rec.csv"):
@@ -24,18 +24,21 @@ def test_loads_default_columns(tmp_path):
     assert rec.name == "rec" and rec.source.endswith("rec.csv")
 
 
-@pytest.mark.parametrize("header,expected", [
-    ("voltage_V", ("voltage", "V")),
-    ("polarization_uC_per_cm2", ("polarization", "uC/cm2")),
-    ("position_mm", ("position", "mm")),
-    ("pressure_bar", ("pressure", "bar")),
-    ("x_increasing_mm_per_s", ("x_increasing", "mm/s")),
-    ("Force [N]", ("Force", "N")),
-    ("speed (m/s)", ("speed", "m/s")),
-    ("u_min", ("u_min", "")),
-    ("y", ("y", "")),
-    ("force_x", ("force_x", "")),
-])
+@pytest.mark.parametrize(
+    "header,expected",
+    [
+        ("voltage_V", ("voltage", "V")),
+        ("polarization_uC_per_cm2", ("polarization", "uC/cm2")),
+        ("position_mm", ("position", "mm")),
+        ("pressure_bar", ("pressure", "bar")),
+        ("x_increasing_mm_per_s", ("x_increasing", "mm/s")),
+        ("Force [N]", ("Force", "N")),
+        ("speed (m/s)", ("speed", "m/s")),
+        ("u_min", ("u_min", "")),
+        ("y", ("y", "")),
+        ("force_x", ("force_x", "")),
+    ],
+)
 def test_unit_rule(header, expected):
     assert split_unit(header) == expected
 
@@ -81,24 +84,29 @@ def test_skips_comment_lines_among_the_data_and_keeps_line_numbers(tmp_path):
 
 def test_a_file_without_header_is_refused(tmp_path):
     msg = error_of(tmp_path, "# rig 3\n0,1,2\n1,2,3\n2,3,4\n")
-    assert "rec.csv: line 2: the first row '0,1,2' is numbers, not a header: a header line naming the columns is " \
-           "needed" in msg
+    assert (
+        "rec.csv: line 2: the first row '0,1,2' is numbers, not a header: a header line naming the columns is "
+        "needed" in msg
+    )
 
 
 def test_decimal_commas_get_a_hint(tmp_path):
     msg = error_of(tmp_path, "time;u;y\n0;0,5;1\n1;1,5;2\n2;2,5;3\n")
     assert msg.endswith("line 2, column 'u': '0,5' is not a number (a decimal comma? write a decimal point: 0.5)")
     msg = error_of(tmp_path, "time,u,y\n0,0,5,1\n1,1,5,2\n2,2,5,3\n")
-    assert msg.endswith("line 2 has 4 fields but the header has 3 (decimal commas? write decimal points, or "
-                        "separate the columns by ';')")
-    assert error_of(tmp_path, "time;u;y\n0;x;1\n1;1;2\n2;2;3\n").endswith("'x' is not a number")   # no hint
+    assert msg.endswith(
+        "line 2 has 4 fields but the header has 3 (decimal commas? write decimal points, or "
+        "separate the columns by ';')"
+    )
+    assert error_of(tmp_path, "time;u;y\n0;x;1\n1;1;2\n2;2;3\n").endswith("'x' is not a number")  # no hint
 
 
 def test_a_field_over_the_csv_limit_names_its_line(tmp_path):
-    msg = error_of(tmp_path, "time,u,y\n0,1,2\n1,\"" + "1" * 200_000 + "\",3\n2,3,4\n")
-    assert msg.startswith(str(tmp_path / "rec.csv") + ": line 3: a field of more than 131072 characters (csv's "
-                          "field size limit)")
-    msg = error_of(tmp_path, "time,\"" + "u" * 200_000 + "\",y\n0,1,2\n")
+    msg = error_of(tmp_path, 'time,u,y\n0,1,2\n1,"' + "1" * 200_000 + '",3\n2,3,4\n')
+    assert msg.startswith(
+        str(tmp_path / "rec.csv") + ": line 3: a field of more than 131072 characters (csv's field size limit)"
+    )
+    msg = error_of(tmp_path, 'time,"' + "u" * 200_000 + '",y\n0,1,2\n')
     assert ": line 1: a field of more than 131072 characters" in msg
 
 
@@ -179,10 +187,14 @@ def test_load_recordings_checks_same_signals(tmp_path):
 
 # --------------------------------------------------------------------------- samples checked at construction
 
+
 def test_recording_checks_time_finite_values_and_length():
     t = np.array([0.0, 1.0, 1.0, 2.0])
-    with pytest.raises(RecordingError, match=r"^r: row 2, column 't': time 1\.0 does not increase "
-                                             r"\(row 1 has 1\.0\)$"):
+    with pytest.raises(
+        RecordingError,
+        match=r"^r: row 2, column 't': time 1\.0 does not increase "
+        r"\(row 1 has 1\.0\)$",
+    ):
         Recording(t, np.zeros(4), np.zeros(4), name="r")
     with pytest.raises(RecordingError, match=r"^data\.csv: row 3, column 'u': value nan is not finite"):
         Recording(np.arange(5.0), [0, 1, 2, np.nan, 4], np.zeros(5), name="r", source="data.csv")
@@ -190,8 +202,9 @@ def test_recording_checks_time_finite_values_and_length():
         Recording(np.arange(3.0), np.zeros(3), [-np.inf, 0, np.nan])
     with pytest.raises(RecordingError, match=r"too few samples: 1, at least 2 needed"):
         Recording([0.0], [1.0], [2.0])
-    with pytest.raises(RecordingError,
-                       match=r"t, u, y must be 1-D arrays of equal length \(shapes \(3,\), \(3,\), \(2,\)\)"):
+    with pytest.raises(
+        RecordingError, match=r"t, u, y must be 1-D arrays of equal length \(shapes \(3,\), \(3,\), \(2,\)\)"
+    ):
         Recording(np.arange(3.0), np.zeros(3), np.zeros(2))
 
 
@@ -205,8 +218,11 @@ def test_input_only_recording_has_all_nan_output(tmp_path):
 def test_check_samples_names_file_lines_and_columns():
     t, u, y = check_samples([0, 1, 2], [3, 4, 5], source="x")
     assert t.dtype == float and u.tolist() == [3.0, 4.0, 5.0] and y is None
-    with pytest.raises(RecordingError, match=r"^f\.csv: line 4, column 'time_s': time 0\.5 does not increase "
-                                             r"\(line 3 has 2\.0\)$"):
+    with pytest.raises(
+        RecordingError,
+        match=r"^f\.csv: line 4, column 'time_s': time 0\.5 does not increase "
+        r"\(line 3 has 2\.0\)$",
+    ):
         check_samples([1, 2, 0.5], [0, 1, 2], source="f.csv", names=("time_s", "u_V"), rows=[2, 3, 4])
     with pytest.raises(RecordingError, match=r"too few samples: 2 data rows, at least 3 needed"):
         check_samples([0, 1], [0, 1], source="f.csv", rows=[2, 3], min_samples=3)
@@ -214,16 +230,18 @@ def test_check_samples_names_file_lines_and_columns():
 
 # --------------------------------------------------------------------------- large files: read and written in blocks
 
+
 def test_blocks_read_as_one(tmp_path, monkeypatch):
     """The reader takes the file a block of lines at a time (a block of simple lines at once, any other
     row by row): tiny blocks give the values, line numbers and messages of one block."""
     from fitter.data import recordings
+
     rows = ["%.10g,%.17g,%.6g" % (0.1 * k, np.sin(k), np.cos(k)) for k in range(60)]
-    rows[7] = ""                                                    # a blank line
-    rows[20] = '"2",2,3'                                             # a quoted cell: read row by row
+    rows[7] = ""  # a blank line
+    rows[20] = '"2",2,3'  # a quoted cell: read row by row
     rows[30] = "  "
     good = "time,u,y\r\n" + "\r\n".join(rows) + "\r\n"
-    bad = good.replace(rows[45], rows[45].replace(",", ",x", 1))   # a non-number in u
+    bad = good.replace(rows[45], rows[45].replace(",", ",x", 1))  # a non-number in u
     ragged = good.replace(rows[50], rows[50] + ",1")
     cases = [("good.csv", good), ("bad.csv", bad), ("ragged.csv", ragged)]
     outcomes = {}
@@ -246,11 +264,14 @@ def test_blocks_read_as_one(tmp_path, monkeypatch):
 
 def test_save_columns_writes_the_text_of_savetxt(tmp_path):
     from fitter.data.recordings import save_columns
+
     rng = np.random.default_rng(0)
-    cols = [np.linspace(0, 2, 1001), rng.standard_normal(1001) * 1e-300, np.r_[rng.standard_normal(998), -0.0,
-                                                                                 np.nan, 5e-324]]
-    np.savetxt(tmp_path / "a.csv", np.column_stack(cols), delimiter=",", fmt="%.17g", header="time,u,y",
-               comments="")
+    cols = [
+        np.linspace(0, 2, 1001),
+        rng.standard_normal(1001) * 1e-300,
+        np.r_[rng.standard_normal(998), -0.0, np.nan, 5e-324],
+    ]
+    np.savetxt(tmp_path / "a.csv", np.column_stack(cols), delimiter=",", fmt="%.17g", header="time,u,y", comments="")
     save_columns(tmp_path / "b.csv", ["time", "u", "y"], cols, block=64)
     assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
     rec = load_recording(tmp_path / "b.csv", output="u")

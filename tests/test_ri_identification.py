@@ -1,14 +1,13 @@
 """Rate-independent identification (Section III) and the paper's Example 1."""
+
 import json
 
 import numpy as np
 import pytest
 
-from fitter.core import (RateIndependentModel, limiting_loop, load_model, save_model,
-                         simulate)
+from fitter.core import RateIndependentModel, limiting_loop, load_model, save_model, simulate
 from fitter.paper.example1 import PAPER, plot_example1, run_example1, true_model
-from fitter.identification.ri_loop import (bilinear_to_continuous, flip_and_concatenate,
-                                      identify_ri_loop, nmss_states)
+from fitter.identification.ri_loop import bilinear_to_continuous, flip_and_concatenate, identify_ri_loop, nmss_states
 
 
 def loop_error(model, grid, yr, yf):
@@ -46,7 +45,7 @@ def test_example1_improved_estimator_is_near_exact(example1):
     imp, lit = example1["improved_runs"]["q=7"], example1["runs"]["q=7"]
     assert imp["max_abs_loop_error"] < 1e-5
     assert imp["max_abs_loop_error"] < 0.05 * lit["max_abs_loop_error"]
-    assert imp["cost"] < 1e-10     # no switch-crossing column: the ARX fit is exact
+    assert imp["cost"] < 1e-10  # no switch-crossing column: the ARX fit is exact
     assert example1["improved_runs"]["q=1"]["constraint_active"] is True
 
 
@@ -76,10 +75,10 @@ def test_nmss_states_reading():
     y_bar = np.array([5.0, 6, 7, 8, 9, 10])
     X = nmss_states(u_bar, y_bar, 2)
     assert X.shape == (6, 3)
-    np.testing.assert_array_equal(X[3], [8, 7, 2])          # [y_k, y_{k-1}, u_{k-1}]
-    np.testing.assert_array_equal(X[0], [5, 10, 1])         # closed periodically
+    np.testing.assert_array_equal(X[3], [8, 7, 2])  # [y_k, y_{k-1}, u_{k-1}]
+    np.testing.assert_array_equal(X[0], [5, 10, 1])  # closed periodically
     X3 = nmss_states(u_bar, y_bar, 3)
-    np.testing.assert_array_equal(X3[4], [9, 8, 7, 3, 2])   # order 2m - 1 = 5
+    np.testing.assert_array_equal(X3[4], [9, 8, 7, 3, 2])  # order 2m - 1 = 5
 
 
 def test_bilinear_keeps_ramp_gain_and_inverts_cayley():
@@ -88,11 +87,9 @@ def test_bilinear_keeps_ramp_gain_and_inverts_cayley():
     Bd = rng.standard_normal(3)
     delta = 0.05
     Ac, Bc = bilinear_to_continuous(Ad, Bd, delta)
-    np.testing.assert_allclose(-np.linalg.solve(Ac, Bc), np.linalg.solve(np.eye(3) - Ad, Bd),
-                               rtol=1e-10)
+    np.testing.assert_allclose(-np.linalg.solve(Ac, Bc), np.linalg.solve(np.eye(3) - Ad, Bd), rtol=1e-10)
     I = np.eye(3)
-    np.testing.assert_allclose(np.linalg.solve(I - Ac * delta / 2, I + Ac * delta / 2), Ad,
-                               atol=1e-12)
+    np.testing.assert_allclose(np.linalg.solve(I - Ac * delta / 2, I + Ac * delta / 2), Ad, atol=1e-12)
 
 
 def test_bilinear_rejects_eigenvalue_minus_one():
@@ -102,9 +99,13 @@ def test_bilinear_rejects_eigenvalue_minus_one():
 
 def general_model():
     """A+ and A- unrelated (A- != -A+): checks the falling-branch sign flip."""
-    return RateIndependentModel(A_plus=[[-2.0, 1.0], [-1.0, -1.5]],
-                                A_minus=[[1.0, 0.5], [-0.8, 2.0]],
-                                B_plus=[1.0, 0.5], B_minus=[0.3, -1.0], C=[1.0, 0.4])
+    return RateIndependentModel(
+        A_plus=[[-2.0, 1.0], [-1.0, -1.5]],
+        A_minus=[[1.0, 0.5], [-0.8, 2.0]],
+        B_plus=[1.0, 0.5],
+        B_minus=[0.3, -1.0],
+        C=[1.0, 0.4],
+    )
 
 
 def test_general_loop_identified_with_falling_sign_flip():
@@ -208,20 +209,23 @@ GRID = np.linspace(-1, 1, 21)
 Y = np.sin(GRID)
 
 
-@pytest.mark.parametrize("args, kwargs, message", [
-    ((GRID, np.r_[Y[:-1], np.nan], Y), {}, r"y_rising\[20\] is nan"),
-    ((GRID, Y, np.r_[np.inf, Y[1:]]), {}, r"y_falling\[0\] is inf"),
-    ((GRID, Y[:-1], Y), {}, "lengths differ"),
-    ((GRID[::-1], Y, Y), {}, "increase strictly"),
-    ((np.r_[GRID[:10], GRID[10:] + 0.01], Y, Y), {}, "uniform"),
-    ((GRID, Y, Y), {"q": 0.0}, "q must be"),
-    ((GRID, Y, Y), {"q": -1.0}, "q must be"),
-    ((GRID, Y, Y), {"q": float("nan")}, "q must be"),
-    ((GRID, Y, Y), {"m": 0}, "m must be"),
-    ((GRID, Y, Y), {"method": "exact"}, "method must be"),
-    ((GRID[:5], Y[:5], Y[:5]), {}, "too few samples for m = 2"),
-    ((GRID, Y, Y), {"m": 7}, "too few samples for m = 7"),
-])
+@pytest.mark.parametrize(
+    "args, kwargs, message",
+    [
+        ((GRID, np.r_[Y[:-1], np.nan], Y), {}, r"y_rising\[20\] is nan"),
+        ((GRID, Y, np.r_[np.inf, Y[1:]]), {}, r"y_falling\[0\] is inf"),
+        ((GRID, Y[:-1], Y), {}, "lengths differ"),
+        ((GRID[::-1], Y, Y), {}, "increase strictly"),
+        ((np.r_[GRID[:10], GRID[10:] + 0.01], Y, Y), {}, "uniform"),
+        ((GRID, Y, Y), {"q": 0.0}, "q must be"),
+        ((GRID, Y, Y), {"q": -1.0}, "q must be"),
+        ((GRID, Y, Y), {"q": float("nan")}, "q must be"),
+        ((GRID, Y, Y), {"m": 0}, "m must be"),
+        ((GRID, Y, Y), {"method": "exact"}, "method must be"),
+        ((GRID[:5], Y[:5], Y[:5]), {}, "too few samples for m = 2"),
+        ((GRID, Y, Y), {"m": 7}, "too few samples for m = 7"),
+    ],
+)
 def test_bad_input_raises_clear_error(args, kwargs, message):
     with pytest.raises(ValueError, match=message):
         identify_ri_loop(*args, **kwargs)
@@ -229,8 +233,8 @@ def test_bad_input_raises_clear_error(args, kwargs, message):
 
 def test_non_convergent_model_falls_back_to_data_state_and_reports_it():
     from fitter.identification.ri_loop import _continuous_rho, _initial_state, _loop_error
-    model = RateIndependentModel(A_plus=[[1.0]], A_minus=[[-1.0]], B_plus=[1.0], B_minus=[1.0],
-                                 C=[1.0])
+
+    model = RateIndependentModel(A_plus=[[1.0]], A_minus=[[-1.0]], B_plus=[1.0], B_minus=[1.0], C=[1.0])
     grid = np.linspace(0, 1, 11)
     rho = _continuous_rho(model, 0.0, 1.0)
     assert rho == pytest.approx(np.exp(2.0))
@@ -240,9 +244,10 @@ def test_non_convergent_model_falls_back_to_data_state_and_reports_it():
 
 def test_discrete_rho_survives_overflow_and_underflow():
     from fitter.identification.ri_loop import _spectral_radius_of_powers
+
     big, small = 10 * np.eye(2), 0.5 * np.eye(2)
     assert _spectral_radius_of_powers([(big, 400), (big, 400)]) == float("inf")
-    assert _spectral_radius_of_powers([(small, 400), (small, 400)]) == pytest.approx(0.5 ** 800)
+    assert _spectral_radius_of_powers([(small, 400), (small, 400)]) == pytest.approx(0.5**800)
     assert _spectral_radius_of_powers([(big, 3), (small, 2)]) == pytest.approx(250.0)
 
 
@@ -251,11 +256,13 @@ def test_an_unobservable_lower_order_start_is_skipped_not_a_crash():
     that start is left out with the reason recorded, and the other starts are made (it used to raise
     LinAlgError out of `fit_recordings`)."""
     from fitter.identification.starts import ri_starts
+
     m = true_model()
     grid = np.linspace(-1.0, 1.0, 41)
     g, yr, yf, rho = limiting_loop(m, -1.0, 1.0, len(grid))
-    lower = RateIndependentModel(A_plus=[[-2.0]], A_minus=[[2.0]], B_plus=[1.0], B_minus=[-1.0], C=[0.0],
-                                 E_plus=[0.0], E_minus=[0.0])
+    lower = RateIndependentModel(
+        A_plus=[[-2.0]], A_minus=[[2.0]], B_plus=[1.0], B_minus=[-1.0], C=[0.0], E_plus=[0.0], E_minus=[0.0]
+    )
     starts, info = ri_starts(g, yr, yf, 2, None, lower=lower)
     assert len(starts) >= 1 and all(np.all(np.isfinite(s)) for s in starts)
     assert any("embedded" in e and "Singular" in e for e in info["ri_identification_errors"])

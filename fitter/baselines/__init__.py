@@ -45,16 +45,28 @@ linear hysteron models' shared least squares and input history), `preisach`,
 `prandtl_ishlinskii`, `bouc_wen`, and `comparison` (`BASELINES`,
 `compare_baselines`, `comparison`, `duhem_nrmse`).
 """
+
 from fitter.baselines.base import MIN_SAMPLES, Baseline, BaselineError, check_recordings
 from fitter.baselines.bouc_wen import BoucWen
 from fitter.baselines.comparison import (
-           BASELINES,
-           compare_baselines,
-           comparison,
-           duhem_nrmse,
+    BASELINES,
+    compare_baselines,
+    comparison,
+    duhem_nrmse,
 )
 from fitter.baselines.prandtl_ishlinskii import PrandtlIshlinskii
 from fitter.baselines.preisach import Preisach
 
-__all__ = ["BaselineError", "Baseline", "Preisach", "PrandtlIshlinskii", "BoucWen", "BASELINES", "MIN_SAMPLES",
-           "check_recordings", "compare_baselines", "comparison", "duhem_nrmse"]
+__all__ = [
+    "BaselineError",
+    "Baseline",
+    "Preisach",
+    "PrandtlIshlinskii",
+    "BoucWen",
+    "BASELINES",
+    "MIN_SAMPLES",
+    "check_recordings",
+    "compare_baselines",
+    "comparison",
+    "duhem_nrmse",
+]

@@ -2,6 +2,7 @@
 the conventions they follow (samples and preparation, units, initial state, score) are the `fitter.baselines`
 docstring's.
 """
+
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
@@ -50,14 +51,17 @@ def check_recordings(recordings: Sequence[Recording] | Recording) -> list[Record
         if not np.all(np.isfinite(rec.y)):
             raise BaselineError(f"{rec.label}: no output recorded (y is not finite): nothing to fit")
         if np.ptp(rec.u) == 0:
-            raise BaselineError(f"{rec.label}: the input is constant ({rec.u[0]:g}): a hysteresis model "
-                                f"needs an input that goes up and down")
+            raise BaselineError(
+                f"{rec.label}: the input is constant ({rec.u[0]:g}): a hysteresis model "
+                f"needs an input that goes up and down"
+            )
         if np.ptp(rec.y) == 0:
-            raise BaselineError(f"{rec.label}: the output is constant: the NRMSE (error / output range) is "
-                                f"undefined")
+            raise BaselineError(f"{rec.label}: the output is constant: the NRMSE (error / output range) is undefined")
         if find_reversals(rec.u).size == 0:
-            raise BaselineError(f"{rec.label}: the input never reverses (it must go up and down at least "
-                                f"once: a single loop, or periodically)")
+            raise BaselineError(
+                f"{rec.label}: the input never reverses (it must go up and down at least "
+                f"once: a single loop, or periodically)"
+            )
     return recs
 
 
@@ -133,8 +137,10 @@ class Baseline(ABC):
         try:
             self._fit([self.scale_.u(u) for u in us], [self.scale_.y(y) for y in ys])
         except np.linalg.LinAlgError:
-            raise BaselineError(f"{', '.join(r.label for r in recs)}: baseline {self.name!r} cannot be fitted: its "
-                                f"least-squares problem is singular on these recordings") from None
+            raise BaselineError(
+                f"{', '.join(r.label for r in recs)}: baseline {self.name!r} cannot be fitted: its "
+                f"least-squares problem is singular on these recordings"
+            ) from None
         return self
 
     def _input(self, rec: Recording) -> np.ndarray:
@@ -161,9 +167,16 @@ class Baseline(ABC):
     def to_dict(self) -> dict:
         """JSON-able description: name, number of parameters, settings, normalisation, fitted values."""
         scale = self._scale()
-        return {"name": self.name, "parameters": self.parameters, "recordings": self.n_recordings_,
-                "settings": self._settings(), "initial_state": self.initial_state,
-                "input_deadband": self.deadband_, "normalisation": scale.to_dict(), "fitted": self._fitted()}
+        return {
+            "name": self.name,
+            "parameters": self.parameters,
+            "recordings": self.n_recordings_,
+            "settings": self._settings(),
+            "initial_state": self.initial_state,
+            "input_deadband": self.deadband_,
+            "normalisation": scale.to_dict(),
+            "fitted": self._fitted(),
+        }
 
     def _scale(self) -> _Scale:
         if self.scale_ is None:

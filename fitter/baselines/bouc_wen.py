@@ -6,6 +6,7 @@ Output error on the samples (decimated, `BoucWen`), parameters by
 the output-error engine (`refine`) from deterministic starts; the state is
 integrated along u exactly up to a tabulated quadrature (`BoucWen`).
 """
+
 from __future__ import annotations
 
 import math
@@ -34,8 +35,12 @@ def _hermite(x: np.ndarray, xs: np.ndarray, ys: np.ndarray, ms: np.ndarray) -> n
     h = xs[k + 1] - xs[k]
     s = (x - xs[k]) / h
     s2, s3 = s * s, s * s * s
-    return ((2 * s3 - 3 * s2 + 1) * ys[k] + (s3 - 2 * s2 + s) * h * ms[k] + (3 * s2 - 2 * s3) * ys[k + 1]
-            + (s3 - s2) * h * ms[k + 1])
+    return (
+        (2 * s3 - 3 * s2 + 1) * ys[k]
+        + (s3 - 2 * s2 + s) * h * ms[k]
+        + (3 * s2 - 2 * s3) * ys[k + 1]
+        + (s3 - s2) * h * ms[k + 1]
+    )
 
 
 def _hermite1(x: float, xs: np.ndarray, ys: np.ndarray, ms: np.ndarray) -> float:
@@ -49,8 +54,12 @@ def _hermite1(x: float, xs: np.ndarray, ys: np.ndarray, ms: np.ndarray) -> float
     h = x1 - x0
     s = (x - x0) / h
     s2, s3 = s * s, s * s * s
-    return ((2 * s3 - 3 * s2 + 1) * y0 + (s3 - 2 * s2 + s) * h * ms.item(k) + (3 * s2 - 2 * s3) * y1
-            + (s3 - s2) * h * ms.item(k + 1))
+    return (
+        (2 * s3 - 3 * s2 + 1) * y0
+        + (s3 - 2 * s2 + s) * h * ms.item(k)
+        + (3 * s2 - 2 * s3) * y1
+        + (s3 - s2) * h * ms.item(k + 1)
+    )
 
 
 def _cumulative_simpson(f: np.ndarray, h: float) -> np.ndarray:
@@ -109,7 +118,7 @@ class _Flow:
         else:
             pieces = [(w_sat, w_top, _WIDEST - _LOG_GAP)]
         ws, ts, fs, t_top = [], [], [], 0.0
-        for a, b, longest in reversed(pieces):              # each smooth piece, from the top down
+        for a, b, longest in reversed(pieces):  # each smooth piece, from the top down
             w, dw = np.linspace(a, b, int(math.ceil(longest / step)) + 1, retstep=True)
             f = _Flow._integrand(np.exp(w), zs, q, n, side)
             below = _cumulative_simpson(f, dw)
@@ -126,8 +135,9 @@ class _Flow:
         """x / |g(zeta)| at zeta = zs + side x (-dT/dw with x = e^w)."""
         with np.errstate(divide="ignore"):
             if side < 0:
-                g = np.where(x <= zs, -np.expm1(n * np.log1p(-np.minimum(x / zs, 1.0))),
-                             1 + q * np.abs(x / zs - 1) ** n)
+                g = np.where(
+                    x <= zs, -np.expm1(n * np.log1p(-np.minimum(x / zs, 1.0))), 1 + q * np.abs(x / zs - 1) ** n
+                )
             else:
                 g = -np.expm1(n * np.log1p(x / zs))
         return x / np.abs(g)
@@ -242,8 +252,7 @@ class BoucWen(Baseline):
     _GRID = {"z_s": (0.1, 0.3, 1.0, 3.0), "q": (0.2, 1.0, 5.0), "n": (1.0, 2.0, 4.0), "z0": (-0.5, 0.0, 0.5)}
     """Starting grid (z0 as a fraction of z_s)."""
 
-    def __init__(self, max_samples: int = 6000, step: float = 0.01, starts: int = 3,
-                 deadband: bool = True) -> None:
+    def __init__(self, max_samples: int = 6000, step: float = 0.01, starts: int = 3, deadband: bool = True) -> None:
         super().__init__(deadband)
         self.max_samples, self.step, self.starts = int(max_samples), float(step), int(starts)
         self.zs_ = self.q_ = self.n_ = math.nan
@@ -299,13 +308,18 @@ class BoucWen(Baseline):
         lower = [math.log(self.ZS_BOUNDS[0]), 0.0, self.N_BOUNDS[0]] + [-self.Z0_BOUND] * r
         upper = [math.log(self.ZS_BOUNDS[1]), self.Q_MAX, self.N_BOUNDS[1]] + [self.Z0_BOUND] * r
         problem = _BWProblem(self, data, np.array(upper))
-        grid = [np.r_[math.log(zs), q, n, [z0 * zs] * r] for zs in self._GRID["z_s"] for q in self._GRID["q"]
-                for n in self._GRID["n"] for z0 in self._GRID["z0"]]
+        grid = [
+            np.r_[math.log(zs), q, n, [z0 * zs] * r]
+            for zs in self._GRID["z_s"]
+            for q in self._GRID["q"]
+            for n in self._GRID["n"]
+            for z0 in self._GRID["z0"]
+        ]
         costs = [float(np.sum(problem.residual(th) ** 2)) for th in grid]
         param = _BWParameters(np.array(lower), np.array(upper))
         options = Options(ftol=1e-8, xtol=1e-8, gtol=1e-8, max_nfev=100 * (3 + r), max_samples=None)
         best = None
-        for k in np.argsort(costs, kind="stable")[:self.starts]:
+        for k in np.argsort(costs, kind="stable")[: self.starts]:
             sol = refine(param, grid[k], problem, options, jac=problem.jacobian)
             if best is None or sol.cost < best.cost:
                 best = sol
@@ -330,8 +344,12 @@ class BoucWen(Baseline):
         scan = np.linspace(-self.Z0_BOUND, self.Z0_BOUND, 41)
         errors = [sse(z) for z in scan]
         k = int(np.argmin(errors))
-        best = minimize_scalar(sse, bounds=(scan[max(k - 1, 0)], scan[min(k + 1, len(scan) - 1)]),
-                               method="bounded", options={"xatol": 1e-9})
+        best = minimize_scalar(
+            sse,
+            bounds=(scan[max(k - 1, 0)], scan[min(k + 1, len(scan) - 1)]),
+            method="bounded",
+            options={"xatol": 1e-9},
+        )
         return output(float(best.x) if best.fun <= errors[k] else float(scan[k]))
 
     @property
@@ -342,20 +360,34 @@ class BoucWen(Baseline):
     @property
     def beta(self) -> float:
         """beta of the model equation (normalised units, A = 1)."""
-        return (1 + self.q_) / (2 * self.zs_ ** self.n_)
+        return (1 + self.q_) / (2 * self.zs_**self.n_)
 
     @property
     def gamma(self) -> float:
         """gamma of the model equation (normalised units, A = 1)."""
-        return (1 - self.q_) / (2 * self.zs_ ** self.n_)
+        return (1 - self.q_) / (2 * self.zs_**self.n_)
 
     def _settings(self) -> dict:
-        return {"max_samples": self.max_samples, "step": self.step, "starts": self.starts, "A": 1.0,
-                "deadband": self.deadband}
+        return {
+            "max_samples": self.max_samples,
+            "step": self.step,
+            "starts": self.starts,
+            "A": 1.0,
+            "deadband": self.deadband,
+        }
 
     def _fitted(self) -> dict:
-        return {"z_s": self.zs_, "q": self.q_, "n": self.n_, "beta": self.beta, "gamma": self.gamma,
-                "k_u": self.k_u_, "k_z": self.k_z_, "c": self.c_, "z0": list(self.z0_)}
+        return {
+            "z_s": self.zs_,
+            "q": self.q_,
+            "n": self.n_,
+            "beta": self.beta,
+            "gamma": self.gamma,
+            "k_u": self.k_u_,
+            "k_z": self.k_z_,
+            "c": self.c_,
+            "z0": list(self.z0_),
+        }
 
 
 @dataclass(frozen=True)
@@ -428,7 +460,7 @@ class _BWProblem:
             if j < 3:
                 zs = self.states(moved)
             else:
-                zs = base[:j - 3] + [self.model._states(flow, self.data[j - 3].runs, moved[j])] + base[j - 2:]
+                zs = base[: j - 3] + [self.model._states(flow, self.data[j - 3].runs, moved[j])] + base[j - 2 :]
             jac[:, j] = (self._project(zs) - r0) / h
         self.states(theta)
         return jac

@@ -1,5 +1,5 @@
-"""The baselines by name (`BASELINES`) and the side-by-side comparison with a Duhem model.
-"""
+"""The baselines by name (`BASELINES`) and the side-by-side comparison with a Duhem model."""
+
 from __future__ import annotations
 
 import time
@@ -17,8 +17,9 @@ BASELINES: dict[str, type[Baseline]] = {cls.name: cls for cls in (Preisach, Pran
 """The baselines by name."""
 
 
-def compare_baselines(recordings: Sequence[Recording], *, per_recording: bool = True,
-                      names: Sequence[str] | None = None) -> dict:
+def compare_baselines(
+    recordings: Sequence[Recording], *, per_recording: bool = True, names: Sequence[str] | None = None
+) -> dict:
     """NRMSE of each baseline on each recording, fitted per recording and once for all.
 
     Returns
@@ -69,9 +70,11 @@ def comparison(model, recordings: Sequence[Recording]) -> dict:
     ``{"duhem": {rec.name: nrmse}, "baselines": compare_baselines(...)}``; each baseline is fitted
     once for all recordings and, when there are several, to each recording alone."""
     recs = check_recordings(recordings)
-    return {"duhem": {rec.name: duhem_nrmse(model, rec) for rec in recs},
-            "baselines": compare_baselines(recs, per_recording=len(recs) > 1),
-            "measure": "RMS error / output range over all samples, initial state fitted per recording"}
+    return {
+        "duhem": {rec.name: duhem_nrmse(model, rec) for rec in recs},
+        "baselines": compare_baselines(recs, per_recording=len(recs) > 1),
+        "measure": "RMS error / output range over all samples, initial state fitted per recording",
+    }
 
 
 def _timed_fit(cls: type[Baseline], recs: list[Recording]) -> tuple[Baseline, float]:

@@ -54,6 +54,7 @@ u_0)), each recording's history steps to its neighbours on the cycle, the
 weights refitted at every step, as long as the squared error falls.  This
 is a local search: the best history of the family is not guaranteed.
 """
+
 from __future__ import annotations
 
 from abc import abstractmethod
@@ -142,8 +143,11 @@ class _Normal:
 
     def __call__(self, k: int) -> np.ndarray:
         if k not in self._cache:
-            self._cache[k] = self._constant(k) if self.constant else \
-                self.tail + _gram(self.p, range(0, self.p.t_star), self.p.s0[k], self.y)
+            self._cache[k] = (
+                self._constant(k)
+                if self.constant
+                else self.tail + _gram(self.p, range(0, self.p.t_star), self.p.s0[k], self.y)
+            )
         return self._cache[k]
 
     def _constant(self, k: int) -> np.ndarray:
@@ -157,7 +161,8 @@ class _Normal:
             g[cols, :] += cross
             g[:, cols] += cross.T
             g[np.ix_(cols, cols)] += np.outer(e[changed], e[changed]) * np.minimum.outer(
-                self.tau[changed], self.tau[changed])
+                self.tau[changed], self.tau[changed]
+            )
         return g
 
 
@@ -218,8 +223,10 @@ def _solve_normal(g: np.ndarray, nonnegative: bool, n_free: int = 2) -> tuple[np
 class HysteronBaseline(Baseline):
     """y_n = c + d u_n + sigma sum_j w_j h_j[u_n], w_j >= 0 (module docstring, "Linear hysteron models")."""
 
-    initial_state = ("the input history before the first sample, fitted per recording: a staircase from "
-                     "saturation (below or above) through a turning point m to u_0")
+    initial_state = (
+        "the input history before the first sample, fitted per recording: a staircase from "
+        "saturation (below or above) through a turning point m to u_0"
+    )
     _constant_prefix = False
     """Whether an element keeps its initial state until its paths from -inf and +inf merge (`_Normal`)."""
     _linear_nonnegative = False
@@ -260,8 +267,11 @@ class HysteronBaseline(Baseline):
         differ = np.flatnonzero(np.any(lo != hi, axis=1))
         t_star = int(differ[-1]) + 1 if differ.size else 0
         merged = lo[:t_star] == hi[:t_star]
-        tau = (np.where(merged.any(axis=0), merged.argmax(axis=0), t_star) if t_star
-               else np.zeros(lo.shape[1], dtype=np.int64))
+        tau = (
+            np.where(merged.any(axis=0), merged.argmax(axis=0), t_star)
+            if t_star
+            else np.zeros(lo.shape[1], dtype=np.int64)
+        )
         steps = self._step * np.arange(self.levels + 1)
         histories = [("below", float(u[0] + s)) for s in steps] + [("above", float(u[0] - s)) for s in steps]
         s0 = np.array([self._after(side, m) for side, m in histories])
@@ -292,7 +302,7 @@ class HysteronBaseline(Baseline):
         flip = np.ones(len(normals[0].tail))
         flip[-1] = sign
         g = sum(normal(k) for normal, k in zip(normals, choice)) * np.outer(flip, flip)
-        if self._linear_nonnegative:    # the linear term d >= 0 too: only c is free
+        if self._linear_nonnegative:  # the linear term d >= 0 too: only c is free
             w, f, rss = _solve_normal(g, self.nonnegative, n_free=1)
             return w[1:], np.r_[f, w[0]], rss
         return _solve_normal(g, self.nonnegative)
@@ -300,7 +310,7 @@ class HysteronBaseline(Baseline):
     def _alternate(self, paths, ys, normals, sign: float, choice: list[int]):
         """Weights and histories by alternation from `choice` (module docstring);
         returns (sign, w, f, choice, rss)."""
-        for _ in range(100):    # the squared error falls at every change: ends within a few rounds
+        for _ in range(100):  # the squared error falls at every change: ends within a few rounds
             w, f, rss = self._solve(normals, sign, choice)
             new = [self._best_history(p, sign * y, w, f, k) for p, y, k in zip(paths, ys, choice)]
             if new == choice:
@@ -344,8 +354,8 @@ class HysteronBaseline(Baseline):
         residual = np.clip(p.s0[0, used], lo, hi) @ w[used] + base
         steps = np.zeros((len(p.s0), p.t_star + 1))
         np.add.at(steps.T, p.tau[used], ((first - first[0]) * w[used]).T)
-        shift = steps.sum(axis=1, keepdims=True) - np.cumsum(steps, axis=1)      # sum over tau_j > t
-        return np.sum((residual + shift[:, :p.t_star]) ** 2, axis=1)
+        shift = steps.sum(axis=1, keepdims=True) - np.cumsum(steps, axis=1)  # sum over tau_j > t
+        return np.sum((residual + shift[:, : p.t_star]) ** 2, axis=1)
 
     def _best_history(self, p: _Paths, y: np.ndarray, w: np.ndarray, f: np.ndarray, current: int) -> int:
         """The candidate with the least error; the current one unless another is strictly better."""
@@ -374,7 +384,11 @@ class HysteronBaseline(Baseline):
         return len(self.weights_) + 2 + self.n_recordings_
 
     def _fitted(self) -> dict:
-        return {"offset": self.offset_, "slope": self.slope_, "orientation": self.orientation_,
-                "weights": [float(x) for x in self.weights_],
-                "grid": [float(x) for x in self.edges_],
-                "histories": [{"side": s, "turning_point": m} for s, m in self.histories_]}
+        return {
+            "offset": self.offset_,
+            "slope": self.slope_,
+            "orientation": self.orientation_,
+            "weights": [float(x) for x in self.weights_],
+            "grid": [float(x) for x in self.edges_],
+            "histories": [{"side": s, "turning_point": m} for s, m in self.histories_],
+        }

@@ -1,5 +1,5 @@
-"""The Prandtl-Ishlinskii model (weighted play operators), a `HysteronBaseline`.
-"""
+"""The Prandtl-Ishlinskii model (weighted play operators), a `HysteronBaseline`."""
+
 from __future__ import annotations
 
 import math
@@ -42,8 +42,14 @@ class PrandtlIshlinskii(HysteronBaseline):
 
     name = "prandtl_ishlinskii"
 
-    def __init__(self, levels: int = 24, nonnegative: bool = True, deadband: bool = True, invertible: bool = False,
-                 min_slope: float = 0.05) -> None:
+    def __init__(
+        self,
+        levels: int = 24,
+        nonnegative: bool = True,
+        deadband: bool = True,
+        invertible: bool = False,
+        min_slope: float = 0.05,
+    ) -> None:
         super().__init__(levels, nonnegative, deadband)
         self.invertible = bool(invertible)
         self.min_slope = float(min_slope)
@@ -55,7 +61,7 @@ class PrandtlIshlinskii(HysteronBaseline):
         if not self.invertible:
             super()._fit(us, ys)
             return
-        super()._fit(us, [y - self.min_slope * u for u, y in zip(us, ys)])    # a_0 = min_slope + d, d >= 0
+        super()._fit(us, [y - self.min_slope * u for u, y in zip(us, ys)])  # a_0 = min_slope + d, d >= 0
         self.slope_ += self.min_slope
 
     def _configure(self, lo: float, hi: float) -> None:
@@ -70,10 +76,18 @@ class PrandtlIshlinskii(HysteronBaseline):
         return m - self.radii_ if side == "below" else m + self.radii_
 
     def _settings(self) -> dict:
-        return {"levels": self.levels, "plays": self.levels,
-                "linear_term": (f"the radius-0 play, weight >= {self.min_slope:g}" if self.invertible
-                                else "the radius-0 play, weight free"),
-                "nonnegative": self.nonnegative, "deadband": self.deadband, "invertible": self.invertible}
+        return {
+            "levels": self.levels,
+            "plays": self.levels,
+            "linear_term": (
+                f"the radius-0 play, weight >= {self.min_slope:g}"
+                if self.invertible
+                else "the radius-0 play, weight free"
+            ),
+            "nonnegative": self.nonnegative,
+            "deadband": self.deadband,
+            "invertible": self.invertible,
+        }
 
     def invert(self, y: np.ndarray) -> np.ndarray:
         """The input that makes the fitted model output y: the analytic inverse PI operator.
@@ -93,19 +107,23 @@ class PrandtlIshlinskii(HysteronBaseline):
         """
         scale = self._scale()
         if self.deadband_ > 0:
-            raise BaselineError("this Prandtl-Ishlinskii model runs on the input through a dead band, which has no "
-                                "inverse: fit it with deadband=False to invert it")
+            raise BaselineError(
+                "this Prandtl-Ishlinskii model runs on the input through a dead band, which has no "
+                "inverse: fit it with deadband=False to invert it"
+            )
         a = np.r_[self.slope_, self.orientation_ * self.weights_]
         r = np.r_[0.0, self.radii_]
         s = np.cumsum(a)
         if np.any(s <= 0):
-            raise BaselineError("the Prandtl-Ishlinskii model is not invertible: its loop slope "
-                                f"a_0 + sum a_i falls to {s.min():.3g} <= 0")
-        r_inv = np.array([np.sum(a[:i + 1] * (r[i] - r[:i + 1])) for i in range(len(a))])
+            raise BaselineError(
+                "the Prandtl-Ishlinskii model is not invertible: its loop slope "
+                f"a_0 + sum a_i falls to {s.min():.3g} <= 0"
+            )
+        r_inv = np.array([np.sum(a[: i + 1] * (r[i] - r[: i + 1])) for i in range(len(a))])
         a_inv = np.r_[1.0 / a[0], -a[1:] / (s[1:] * s[:-1])]
         side, m = self.histories_[0]
         z = np.r_[m, self._after(side, m)]
-        tail = np.r_[np.cumsum((a * z)[::-1])[::-1][1:], 0.0]        # sum_{j>i} a_j z_j
+        tail = np.r_[np.cumsum((a * z)[::-1])[::-1][1:], 0.0]  # sum_{j>i} a_j z_j
         z_inv = s * z + tail
         v = scale.y(np.asarray(y, dtype=float)) - self.offset_
         u_n = a_inv[0] * v

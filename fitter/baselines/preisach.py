@@ -1,5 +1,5 @@
-"""The discrete Preisach model (relays on a triangular grid), a `HysteronBaseline`.
-"""
+"""The discrete Preisach model (relays on a triangular grid), a `HysteronBaseline`."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -74,5 +74,10 @@ class Preisach(HysteronBaseline):
         return np.where(self.beta_ >= m, -1, 1).astype(np.int8)
 
     def _settings(self) -> dict:
-        return {"levels": self.levels, "relays": self.levels * (self.levels + 1) // 2, "linear_term": True,
-                "nonnegative": self.nonnegative, "deadband": self.deadband}
+        return {
+            "levels": self.levels,
+            "relays": self.levels * (self.levels + 1) // 2,
+            "linear_term": True,
+            "nonnegative": self.nonnegative,
+            "deadband": self.deadband,
+        }

@@ -101,12 +101,27 @@ that was killed) are removed; one writer at a time may write into an OUTDIR
 (`fitter.core.files.output_lock` of OUTDIR: a second batch, or a report
 written there, waits a bounded time, then fails naming the first).
 """
+
 from fitter.batch.config import BATCH_FORMAT, DASK_MISSING, MIN_GROUP, OUTLIER_Z, RETRIES, BatchError
 from fitter.batch.device import DeviceTask, process_device
 from fitter.batch.manifest import BatchOptions, DeviceSpec, input_hash, read_manifest
 from fitter.batch.scheduling import run_batch
 from fitter.batch.summary import BatchReport, flag_outliers
 
-__all__ = ["BatchError", "BatchOptions", "DeviceSpec", "DeviceTask", "BatchReport", "read_manifest", "run_batch",
-           "process_device", "flag_outliers", "input_hash", "BATCH_FORMAT", "OUTLIER_Z", "MIN_GROUP", "RETRIES",
-           "DASK_MISSING"]
+__all__ = [
+    "BatchError",
+    "BatchOptions",
+    "DeviceSpec",
+    "DeviceTask",
+    "BatchReport",
+    "read_manifest",
+    "run_batch",
+    "process_device",
+    "flag_outliers",
+    "input_hash",
+    "BATCH_FORMAT",
+    "OUTLIER_Z",
+    "MIN_GROUP",
+    "RETRIES",
+    "DASK_MISSING",
+]

@@ -1,5 +1,5 @@
-"""The batch's constants and its error (the `fitter.batch` docstring says what each means).
-"""
+"""The batch's constants and its error (the `fitter.batch` docstring says what each means)."""
+
 from __future__ import annotations
 
 import re
@@ -14,8 +14,10 @@ MIN_GROUP = 4
 """Fewest devices of one kind and order among which outliers are looked for."""
 RETRIES = 2
 """Dask ``retries=`` of a device task (an unexpected exception; a dead worker is the scheduler's affair)."""
-DASK_MISSING = ("duhem batch needs dask.distributed, which is not installed: "
-                "pip install 'semilinear-duhem[batch]' (or: pip install 'dask[distributed]')")
+DASK_MISSING = (
+    "duhem batch needs dask.distributed, which is not installed: "
+    "pip install 'semilinear-duhem[batch]' (or: pip install 'dask[distributed]')"
+)
 
 REQUIRED = ("device", "recordings")
 OPTIONAL = ("time", "input", "output", "input_unit", "output_unit")

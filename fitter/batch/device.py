@@ -1,5 +1,5 @@
-"""The per-device work a worker runs: load, fit, export, validate, report, diagnose (`process_device`).
-"""
+"""The per-device work a worker runs: load, fit, export, validate, report, diagnose (`process_device`)."""
+
 from __future__ import annotations
 
 import os
@@ -29,6 +29,7 @@ from fitter.reports.validation_plot import write_validation_plot
 
 # --------------------------------------------------------------------------- the device task
 
+
 @dataclass
 class DeviceTask:
     """What a worker gets: the device, its recordings' bytes, the options."""
@@ -43,6 +44,7 @@ def _scratch_parent() -> str | None:
     """The Dask worker's local directory (cleaned by Dask when a worker dies), else the system default."""
     try:
         from distributed import get_worker
+
         return get_worker().local_directory
     except (ImportError, ValueError):
         return None
@@ -78,10 +80,14 @@ def _validate(fmu: Path, recs: list[Recording], model, threshold: float) -> tupl
     for rec in recs:
         y = simulate_fmu(fmu, rec.t, rec.u)
         m = compare(rec, y)
-        m.update(recording=rec.name, source=rec.source, passed=bool(m["nrmse"] <= threshold),
-                 judged_on="all samples",
-                 fmu_vs_in_process_max_abs=float(np.max(np.abs(y - simulate_model(model, rec.t, rec.u).y))),
-                 warnings=range_warnings(model, rec.t, rec.u))
+        m.update(
+            recording=rec.name,
+            source=rec.source,
+            passed=bool(m["nrmse"] <= threshold),
+            judged_on="all samples",
+            fmu_vs_in_process_max_abs=float(np.max(np.abs(y - simulate_model(model, rec.t, rec.u).y))),
+            warnings=range_warnings(model, rec.t, rec.u),
+        )
         rows.append(m)
         outputs.append(y)
     return rows, outputs
@@ -92,8 +98,15 @@ def _files(directory: Path) -> dict[str, bytes]:
 
 
 def _failed(task: DeviceTask, reason: str, seconds: float) -> dict:
-    return {"device": task.device.name, "status": "failed", "reason": reason, "hash": task.hash,
-            "seconds": seconds, "row": {}, "files": {}}
+    return {
+        "device": task.device.name,
+        "status": "failed",
+        "reason": reason,
+        "hash": task.hash,
+        "seconds": seconds,
+        "row": {},
+        "files": {},
+    }
 
 
 def _cpu() -> float:
@@ -118,8 +131,7 @@ def process_device(task: DeviceTask) -> dict:
 
     start, cpu0 = time.perf_counter(), _cpu()
     opts = task.options
-    with tempfile.TemporaryDirectory(prefix="duhem-batch-", dir=_scratch_parent()) as tmp, \
-            warnings.catch_warnings():
+    with tempfile.TemporaryDirectory(prefix="duhem-batch-", dir=_scratch_parent()) as tmp, warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         scratch = Path(tmp)
         out = scratch / "out"
@@ -134,9 +146,14 @@ def process_device(task: DeviceTask) -> dict:
 
         try:
             recs = _load(task, scratch)
-            result = fit_recordings(recs, kind=opts.kind, order=opts.order,
-                                    faithful_minor_loops=opts.faithful_minor_loops, effects=opts.effects,
-                                    held=dict(opts.held))
+            result = fit_recordings(
+                recs,
+                kind=opts.kind,
+                order=opts.order,
+                faithful_minor_loops=opts.faithful_minor_loops,
+                effects=opts.effects,
+                held=dict(opts.held),
+            )
             lap("fit")
             model = result.model
             save_model(model, out / "model.json")
@@ -144,8 +161,9 @@ def process_device(task: DeviceTask) -> dict:
             build_fmu(model, out / "model.fmu", backend=opts.backend)
             lap("fmu")
             rows, outputs = _validate(out / "model.fmu", recs, model, opts.threshold)
-            (out / "validation.json").write_text(json_text({"threshold": opts.threshold, "recordings": rows}),
-                                                 encoding="utf-8")
+            (out / "validation.json").write_text(
+                json_text({"threshold": opts.threshold, "recordings": rows}), encoding="utf-8"
+            )
             write_validation_plot(out / "validation.png", recs, outputs, [r["nrmse"] for r in rows])
             lap("validation")
             (out / "report").mkdir()
@@ -162,16 +180,36 @@ def process_device(task: DeviceTask) -> dict:
             return _failed(task, one_line(exc), time.perf_counter() - start)
         passed = all(r["passed"] for r in rows)
         worst = max(rows, key=lambda r: r["nrmse"])
-        row = {"kind": model.kind, "order": model.order, "recordings": len(recs),
-               "nrmse": worst["nrmse"], "nrmse_recording": worst["recording"], "validated": passed,
-               "parameters": result.summary.get("parameters_normalised", {}),
-               "convergence": bool((result.summary.get("convergence") or {}).get("satisfied")),
-               "model_effects": [e.effect for e in model.effects],
-               "diagnosis": None if diag is None else
-               {"verdict": diag.verdict, "effects": [f["effect"] for f in diag.findings]},
-               "timings": timings, "cpu_seconds": _cpu() - cpu0}
-        reason = "" if passed else (f"validation: NRMSE {worst['nrmse']:.4g} of the FMU on {worst['recording']} "
-                                    f"exceeds the threshold {opts.threshold:g}")
-        return {"device": task.device.name, "status": "ok" if passed else "invalid", "reason": reason,
-                "hash": task.hash, "seconds": time.perf_counter() - start, "row": jsonable(row),
-                "files": _files(out)}
+        row = {
+            "kind": model.kind,
+            "order": model.order,
+            "recordings": len(recs),
+            "nrmse": worst["nrmse"],
+            "nrmse_recording": worst["recording"],
+            "validated": passed,
+            "parameters": result.summary.get("parameters_normalised", {}),
+            "convergence": bool((result.summary.get("convergence") or {}).get("satisfied")),
+            "model_effects": [e.effect for e in model.effects],
+            "diagnosis": None
+            if diag is None
+            else {"verdict": diag.verdict, "effects": [f["effect"] for f in diag.findings]},
+            "timings": timings,
+            "cpu_seconds": _cpu() - cpu0,
+        }
+        reason = (
+            ""
+            if passed
+            else (
+                f"validation: NRMSE {worst['nrmse']:.4g} of the FMU on {worst['recording']} "
+                f"exceeds the threshold {opts.threshold:g}"
+            )
+        )
+        return {
+            "device": task.device.name,
+            "status": "ok" if passed else "invalid",
+            "reason": reason,
+            "hash": task.hash,
+            "seconds": time.perf_counter() - start,
+            "row": jsonable(row),
+            "files": _files(out),
+        }

@@ -1,6 +1,7 @@
 """The manifest (`read_manifest`: one `DeviceSpec` per row), the options (`BatchOptions`) and the input hash
 that decides whether a device is done (the `fitter.batch` docstring).
 """
+
 from __future__ import annotations
 
 import csv
@@ -21,14 +22,15 @@ from fitter.identification.effects_fit import check_held
 
 # --------------------------------------------------------------------------- manifest
 
+
 @dataclass(frozen=True)
 class DeviceSpec:
     """One row of the manifest: the device, its recording files and column choices."""
 
     name: str
     row: int
-    recordings: tuple[str, ...]          # as written in the manifest
-    paths: tuple[str, ...]               # resolved
+    recordings: tuple[str, ...]  # as written in the manifest
+    paths: tuple[str, ...]  # resolved
     time: str | None = "time"
     input: str = "u"
     output: str = "y"
@@ -36,8 +38,13 @@ class DeviceSpec:
     output_unit: str | None = None
 
     def columns(self) -> dict:
-        return {"time": self.time, "input": self.input, "output": self.output,
-                "input_unit": self.input_unit, "output_unit": self.output_unit}
+        return {
+            "time": self.time,
+            "input": self.input,
+            "output": self.output,
+            "input_unit": self.input_unit,
+            "output_unit": self.output_unit,
+        }
 
 
 def read_manifest(path: str | os.PathLike) -> list[DeviceSpec]:
@@ -51,11 +58,9 @@ def read_manifest(path: str | os.PathLike) -> list[DeviceSpec]:
         raise BatchError(f"{path}: is a directory, not a manifest file") from None
     except UnicodeDecodeError as exc:
         raise BatchError(f"{path}: not a UTF-8 text file ({exc.reason})") from None
-    rows = [(i, r) for i, r in enumerate(csv.reader(io.StringIO(text)), start=1)
-            if any(c.strip() for c in r)]
+    rows = [(i, r) for i, r in enumerate(csv.reader(io.StringIO(text)), start=1) if any(c.strip() for c in r)]
     if not rows:
-        raise BatchError(f"{path}: empty manifest (expected a header line with columns "
-                         f"{', '.join(REQUIRED)})")
+        raise BatchError(f"{path}: empty manifest (expected a header line with columns {', '.join(REQUIRED)})")
     _, header = rows[0]
     header = [h.strip() for h in header]
     for h in header:
@@ -63,8 +68,9 @@ def read_manifest(path: str | os.PathLike) -> list[DeviceSpec]:
             raise BatchError(f"{path}: line 1: unknown column {h!r} (allowed: {', '.join(REQUIRED + OPTIONAL)})")
     for h in REQUIRED:
         if h not in header:
-            raise BatchError(f"{path}: line 1: no column {h!r} (columns: {', '.join(header)}; required: "
-                             f"{', '.join(REQUIRED)})")
+            raise BatchError(
+                f"{path}: line 1: no column {h!r} (columns: {', '.join(header)}; required: {', '.join(REQUIRED)})"
+            )
     dup = next((h for i, h in enumerate(header) if h in header[:i]), None)
     if dup:
         raise BatchError(f"{path}: line 1: column {dup!r} appears twice")
@@ -81,9 +87,11 @@ def read_manifest(path: str | os.PathLike) -> list[DeviceSpec]:
         if not name:
             raise BatchError(f"{where}: empty device name")
         if not SAFE_NAME.match(name) or name.lower() in RESERVED or name.endswith("."):
-            raise BatchError(f"{where}: device name {name!r} is not a safe directory name (letters, digits, "
-                             "'-', '_', '.', not starting with '.' or '-', at most 100 characters, not "
-                             f"{', '.join(sorted(RESERVED))})")
+            raise BatchError(
+                f"{where}: device name {name!r} is not a safe directory name (letters, digits, "
+                "'-', '_', '.', not starting with '.' or '-', at most 100 characters, not "
+                f"{', '.join(sorted(RESERVED))})"
+            )
         if name.lower() in seen:
             raise BatchError(f"{where}: device {name!r} appears twice (also on line {seen[name.lower()]})")
         seen[name.lower()] = line
@@ -94,19 +102,33 @@ def read_manifest(path: str | os.PathLike) -> list[DeviceSpec]:
         for rec in recs:
             p = Path(rec) if Path(rec).is_absolute() else base / rec
             if not p.is_file():
-                raise BatchError(f"{where}: device {name!r}: recording {rec!r}: "
-                                 f"{'is a directory' if p.is_dir() else 'no such file'} ({p})")
+                raise BatchError(
+                    f"{where}: device {name!r}: recording {rec!r}: "
+                    f"{'is a directory' if p.is_dir() else 'no such file'} ({p})"
+                )
             paths.append(str(p))
         if len(set(paths)) != len(paths):
             raise BatchError(f"{where}: device {name!r}: the same recording file is listed twice")
         cols = {k: cell.get(k) or DEFAULT_COLUMNS[k] for k in DEFAULT_COLUMNS}
         time_col = None if cols["time"].lower() == "none" else cols["time"]
-        devices.append(DeviceSpec(name, line, recs, tuple(paths), time_col, cols["input"], cols["output"],
-                                  cell.get("input_unit") or None, cell.get("output_unit") or None))
+        devices.append(
+            DeviceSpec(
+                name,
+                line,
+                recs,
+                tuple(paths),
+                time_col,
+                cols["input"],
+                cols["output"],
+                cell.get("input_unit") or None,
+                cell.get("output_unit") or None,
+            )
+        )
     return devices
 
 
 # --------------------------------------------------------------------------- options and hash
+
 
 @dataclass(frozen=True)
 class BatchOptions:
@@ -143,8 +165,13 @@ class BatchOptions:
 def input_hash(device: DeviceSpec, contents: Sequence[bytes], options: BatchOptions) -> str:
     """SHA-256 of everything a device's outputs depend on (module docstring)."""
     h = hashlib.sha256()
-    head = {"package": package_version(), "format": BATCH_FORMAT, "options": dataclasses.asdict(options),
-            "columns": device.columns(), "recordings": list(device.recordings)}
+    head = {
+        "package": package_version(),
+        "format": BATCH_FORMAT,
+        "options": dataclasses.asdict(options),
+        "columns": device.columns(),
+        "recordings": list(device.recordings),
+    }
     h.update(json.dumps(head, sort_keys=True).encode())
     for data in contents:
         h.update(len(data).to_bytes(8, "little"))

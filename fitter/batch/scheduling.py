@@ -1,6 +1,7 @@
 """Running the manifest on Dask (`run_batch`): what is done already, the client, retries, the devices'
 outputs written on the client.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -20,6 +21,7 @@ from fitter.core.files import atomic_directory, json_text, output_lock
 from fitter.fmu.model_description import package_version
 
 # --------------------------------------------------------------------------- outputs on the client
+
 
 def _done_path(outdir: Path, name: str) -> Path:
     return outdir / name / "done.json"
@@ -46,8 +48,12 @@ def _write_device(outdir: Path, result: dict) -> dict:
     """The device's directory, written whole (`atomic_directory`); returns its ``done.json`` content."""
     name = result["device"]
     done = {k: result[k] for k in ("device", "status", "reason", "hash", "seconds", "row")}
-    done.update(files={rel: len(data) for rel, data in result["files"].items()}, package=package_version(),
-                format=BATCH_FORMAT, written=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+    done.update(
+        files={rel: len(data) for rel, data in result["files"].items()},
+        package=package_version(),
+        format=BATCH_FORMAT,
+        written=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    )
     with atomic_directory(outdir / name) as tmp:
         for rel, data in result["files"].items():
             p = tmp / rel
@@ -68,6 +74,7 @@ def _clean_leftovers(outdir: Path) -> list[str]:
 
 
 # --------------------------------------------------------------------------- Dask
+
 
 def _require_dask():
     try:
@@ -93,8 +100,10 @@ def _client(client, scheduler: str | None, workers: int | None) -> Iterator[tupl
             yield c, _dashboard(c)
         return
     n = workers or os.cpu_count() or 1
-    with distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True) as cluster, \
-            distributed.Client(cluster) as c:
+    with (
+        distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True) as cluster,
+        distributed.Client(cluster) as c,
+    ):
         link = _dashboard(c)
         if link and importlib.util.find_spec("bokeh") is None:
             link += " (the local dashboard needs bokeh: pip install bokeh)"
@@ -104,7 +113,7 @@ def _client(client, scheduler: str | None, workers: int | None) -> Iterator[tupl
 def _dashboard(client) -> str | None:
     try:
         services = client.scheduler_info().get("services", {})
-    except Exception:   # noqa: BLE001 - an old or remote scheduler: no link
+    except Exception:  # noqa: BLE001 - an old or remote scheduler: no link
         return None
     return client.dashboard_link if "dashboard" in services else None
 
@@ -119,8 +128,14 @@ def _progress_bar(total: int, show: bool) -> Iterator[Callable[[str], None]]:
         return
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=console, transient=True) as bar:
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console,
+        transient=True,
+    ) as bar:
         task = bar.add_task("duhem batch", total=total)
 
         def advance(text: str) -> None:
@@ -129,9 +144,18 @@ def _progress_bar(total: int, show: bool) -> Iterator[Callable[[str], None]]:
         yield advance
 
 
-def run_batch(manifest: str | os.PathLike, outdir: str | os.PathLike, *, options: BatchOptions | None = None,
-              workers: int | None = None, scheduler: str | None = None, client=None, retry_failed: bool = False,
-              progress: bool = True, say: Callable[[str], None] | None = None) -> BatchReport:
+def run_batch(
+    manifest: str | os.PathLike,
+    outdir: str | os.PathLike,
+    *,
+    options: BatchOptions | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    client=None,
+    retry_failed: bool = False,
+    progress: bool = True,
+    say: Callable[[str], None] | None = None,
+) -> BatchReport:
     """Run the batch of `manifest` into `outdir` (module docstring); returns the `BatchReport`.
 
     `client`: an existing ``distributed.Client`` (tests, notebooks); else `scheduler` (an address) or a
@@ -167,15 +191,26 @@ def run_batch(manifest: str | os.PathLike, outdir: str | os.PathLike, *, options
         if todo:
             _run(report, todo, contents, hashes, options, workers, scheduler, client, progress, say)
         _clean_leftovers(outdir)
-        report.outliers = flag_outliers({d: report.entries[d].get("row") or {} for d in report.devices
-                                         if report.entries[d]["status"] != "failed"})
+        report.outliers = flag_outliers(
+            {d: report.entries[d].get("row") or {} for d in report.devices if report.entries[d]["status"] != "failed"}
+        )
         report.seconds = time.perf_counter() - started
         write_summary(report)
     return report
 
 
-def _run(report: BatchReport, todo: list[DeviceSpec], contents, hashes, options, workers, scheduler, client,
-         progress: bool, say) -> None:
+def _run(
+    report: BatchReport,
+    todo: list[DeviceSpec],
+    contents,
+    hashes,
+    options,
+    workers,
+    scheduler,
+    client,
+    progress: bool,
+    say,
+) -> None:
     distributed = _require_dask()
     with _client(client, scheduler, workers) as (c, dashboard):
         report.dashboard = dashboard
@@ -184,17 +219,17 @@ def _run(report: BatchReport, todo: list[DeviceSpec], contents, hashes, options,
         futures = {}
         for d in todo:
             task = DeviceTask(d, contents[d.name], options, hashes[d.name])
-            fut = c.submit(process_device, task, key=f"duhem-batch-{d.name}-{hashes[d.name][:16]}",
-                           retries=RETRIES, pure=False)
+            fut = c.submit(
+                process_device, task, key=f"duhem-batch-{d.name}-{hashes[d.name][:16]}", retries=RETRIES, pure=False
+            )
             futures[fut] = d.name
         with _progress_bar(len(futures), progress) as advance:
             for fut in distributed.as_completed(list(futures)):
                 name = futures[fut]
                 try:
                     result = fut.result()
-                except Exception as exc:   # noqa: BLE001 - a lost worker or an unexpected error: reported
-                    report.entries[name] = {"status": "failed", "reason": _lost(exc), "row": {},
-                                            "hash": hashes[name]}
+                except Exception as exc:  # noqa: BLE001 - a lost worker or an unexpected error: reported
+                    report.entries[name] = {"status": "failed", "reason": _lost(exc), "row": {}, "hash": hashes[name]}
                     report.actions[name] = "lost"
                     advance(f"{name} failed")
                     continue
@@ -207,6 +242,8 @@ def _lost(exc: BaseException) -> str:
     """The summary's reason for a task that gave no result (nothing was written for it)."""
     if type(exc).__name__ == "KilledWorker":
         tries = exc.args[2] + 1 if len(exc.args) > 2 and isinstance(exc.args[2], int) else "several"
-        return (f"the worker running it died on each of {tries} tries (killed, or out of memory?); "
-                "nothing written, the next run tries again")
+        return (
+            f"the worker running it died on each of {tries} tries (killed, or out of memory?); "
+            "nothing written, the next run tries again"
+        )
     return f"{one_line(exc)} (after {RETRIES} retries; nothing written, the next run tries again)"

@@ -1,5 +1,5 @@
-"""Outliers across devices (`flag_outliers`) and the batch summary: CSV, JSON and HTML (`BatchReport`).
-"""
+"""Outliers across devices (`flag_outliers`) and the batch summary: CSV, JSON and HTML (`BatchReport`)."""
+
 from __future__ import annotations
 
 import csv
@@ -15,6 +15,7 @@ from fitter.batch.config import MIN_GROUP, OUTLIER_Z
 from fitter.core.files import atomic_file, json_text, jsonable
 
 # --------------------------------------------------------------------------- outliers
+
 
 def _robust_z(values: np.ndarray) -> np.ndarray | None:
     med = np.median(values)
@@ -42,8 +43,7 @@ def flag_outliers(rows: dict[str, dict], *, z_limit: float = OUTLIER_Z, min_grou
     for members in groups.values():
         if len(members) < min_group:
             continue
-        names = [k for k in rows[members[0]]["parameters"]
-                 if all(k in rows[m]["parameters"] for m in members)]
+        names = [k for k in rows[members[0]]["parameters"] if all(k in rows[m]["parameters"] for m in members)]
         for k in names:
             vals = np.array([rows[m]["parameters"][k]["value"] for m in members], dtype=float)
             if not np.all(np.isfinite(vals)):
@@ -54,12 +54,12 @@ def flag_outliers(rows: dict[str, dict], *, z_limit: float = OUTLIER_Z, min_grou
             med = float(np.median(vals))
             for m, v, zi in zip(members, vals, z):
                 if abs(zi) > z_limit:
-                    flags.setdefault(m, []).append({"parameter": k, "value": float(v), "median": med,
-                                                    "z": float(zi)})
+                    flags.setdefault(m, []).append({"parameter": k, "value": float(v), "median": med, "z": float(zi)})
     return flags
 
 
 # --------------------------------------------------------------------------- summary
+
 
 @dataclass
 class BatchReport:
@@ -67,8 +67,8 @@ class BatchReport:
 
     outdir: Path
     devices: list[str]
-    entries: dict[str, dict]            # device -> status, reason, row, hash (done.json) or a failure
-    actions: dict[str, str]             # device -> "done", "skipped: current", "failed", "lost"
+    entries: dict[str, dict]  # device -> status, reason, row, hash (done.json) or a failure
+    actions: dict[str, str]  # device -> "done", "skipped: current", "failed", "lost"
     outliers: dict[str, list] = field(default_factory=dict)
     dashboard: str | None = None
     seconds: float = 0.0
@@ -81,35 +81,54 @@ class BatchReport:
         return out
 
     def to_json(self) -> dict:
-        return jsonable({"outdir": self.outdir, "seconds": self.seconds, "dashboard": self.dashboard,
-                         "counts": self.counts(), "outlier_rule": OUTLIER_RULE,
-                         "devices": [self.summary_row(d) | {"parameters": (self.entries[d].get("row") or {})
-                                                            .get("parameters", {})} for d in self.devices]})
+        return jsonable(
+            {
+                "outdir": self.outdir,
+                "seconds": self.seconds,
+                "dashboard": self.dashboard,
+                "counts": self.counts(),
+                "outlier_rule": OUTLIER_RULE,
+                "devices": [
+                    self.summary_row(d) | {"parameters": (self.entries[d].get("row") or {}).get("parameters", {})}
+                    for d in self.devices
+                ],
+            }
+        )
 
     def summary_row(self, d: str) -> dict:
         e = self.entries[d]
         row = e.get("row") or {}
         diag = row.get("diagnosis")
         flags = self.outliers.get(d, [])
-        return {"device": d, "status": e["status"], "reason": e.get("reason", ""), "action": self.actions[d],
-                "kind": row.get("kind"), "order": row.get("order"), "nrmse": row.get("nrmse"),
-                "nrmse_recording": row.get("nrmse_recording"), "validated": row.get("validated"),
-                "convergence": row.get("convergence"),
-                "diagnosis": None if diag is None else diag["verdict"],
-                "effects": None if diag is None else ";".join(diag["effects"]),
-                "model_effects": ";".join(row.get("model_effects", [])),
-                "outliers": ";".join(f"{f['parameter']} (z {f['z']:+.1f})" for f in flags)}
+        return {
+            "device": d,
+            "status": e["status"],
+            "reason": e.get("reason", ""),
+            "action": self.actions[d],
+            "kind": row.get("kind"),
+            "order": row.get("order"),
+            "nrmse": row.get("nrmse"),
+            "nrmse_recording": row.get("nrmse_recording"),
+            "validated": row.get("validated"),
+            "convergence": row.get("convergence"),
+            "diagnosis": None if diag is None else diag["verdict"],
+            "effects": None if diag is None else ";".join(diag["effects"]),
+            "model_effects": ";".join(row.get("model_effects", [])),
+            "outliers": ";".join(f"{f['parameter']} (z {f['z']:+.1f})" for f in flags),
+        }
 
 
-OUTLIER_RULE = (f"robust z-score 0.6745 (p - median) / MAD of each fitted parameter (canonical form, units "
-                f"normalised by the device's own input and output ranges) among the devices of the same kind and "
-                f"order (at least {MIN_GROUP}); flagged when |z| > {OUTLIER_Z}")
+OUTLIER_RULE = (
+    f"robust z-score 0.6745 (p - median) / MAD of each fitted parameter (canonical form, units "
+    f"normalised by the device's own input and output ranges) among the devices of the same kind and "
+    f"order (at least {MIN_GROUP}); flagged when |z| > {OUTLIER_Z}"
+)
 
 
 def _param_names(report: BatchReport) -> list[str]:
     names: list[str] = []
     for d in report.devices:
-        for k in ((report.entries[d].get("row") or {}).get("parameters") or {}):
+        for k in (report.entries[d].get("row") or {}).get("parameters") or {}:
             if k not in names:
                 names.append(k)
     return names
@@ -128,7 +147,7 @@ def _csv_value(v) -> str:
 def summary_csv(report: BatchReport) -> str:
     """``summary.csv``: one row per device, the parameters and their standard errors last."""
     params = _param_names(report)
-    base = [c for c in report.summary_row(report.devices[0]) if c != "action"]     # what this run did: not kept
+    base = [c for c in report.summary_row(report.devices[0]) if c != "action"]  # what this run did: not kept
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(base + [c for k in params for c in (k, f"{k} stderr")])
@@ -147,24 +166,38 @@ def _h(v) -> str:
 def summary_html(report: BatchReport) -> str:
     """``index.html``: the summary table with links to each device's report, the outliers marked."""
     params = _param_names(report)
-    head = ("<tr><th>device</th><th>status</th><th>kind</th><th>order</th><th>NRMSE (worst)</th>"
-            "<th>validated</th><th>diagnosis</th><th>effects found</th><th>outliers</th>"
-            + "".join(f"<th>{html.escape(k)}</th>" for k in params) + "<th>reason</th></tr>")
+    head = (
+        "<tr><th>device</th><th>status</th><th>kind</th><th>order</th><th>NRMSE (worst)</th>"
+        "<th>validated</th><th>diagnosis</th><th>effects found</th><th>outliers</th>"
+        + "".join(f"<th>{html.escape(k)}</th>" for k in params)
+        + "<th>reason</th></tr>"
+    )
     body = []
     for d in report.devices:
         r = report.summary_row(d)
         e = report.entries[d]
         p = (e.get("row") or {}).get("parameters") or {}
         flagged = {f["parameter"] for f in report.outliers.get(d, [])}
-        link = (f"<a href='{html.escape(d)}/report/index.html'>{html.escape(d)}</a>"
-                if e["status"] != "failed" else html.escape(d))
+        link = (
+            f"<a href='{html.escape(d)}/report/index.html'>{html.escape(d)}</a>"
+            if e["status"] != "failed"
+            else html.escape(d)
+        )
         if e["status"] != "failed" and r["diagnosis"] is not None:
             diag = f"<a href='{html.escape(d)}/diagnosis/index.html'>{_h(r['diagnosis'])}</a>"
         else:
             diag = _h(r["diagnosis"] or "-")
-        cells = [link, f"<span class='{e['status']}'>{_h(e['status'])}</span>", _h(r["kind"]), _h(r["order"]),
-                 "" if r["nrmse"] is None else f"{100 * r['nrmse']:.3g} %", _h(r["validated"]), diag,
-                 _h(r["effects"]), _h(r["outliers"])]
+        cells = [
+            link,
+            f"<span class='{e['status']}'>{_h(e['status'])}</span>",
+            _h(r["kind"]),
+            _h(r["order"]),
+            "" if r["nrmse"] is None else f"{100 * r['nrmse']:.3g} %",
+            _h(r["validated"]),
+            diag,
+            _h(r["effects"]),
+            _h(r["outliers"]),
+        ]
         for k in params:
             if k in p:
                 cls = " class='outlier'" if k in flagged else ""
@@ -185,7 +218,7 @@ td,th{{border:1px solid #ccc;padding:3px 6px;text-align:right}}td:first-child{{t
 the worst recording of the device. Parameters: the fit's canonical parameters ± standard error.
 Outliers: {html.escape(OUTLIER_RULE)}. Machine-readable: <a href="summary.csv">summary.csv</a>,
 <a href="summary.json">summary.json</a>.</p>
-<table>{head}{''.join(body)}</table></body></html>"""
+<table>{head}{"".join(body)}</table></body></html>"""
 
 
 def _write_if_changed(path: Path, text: str) -> None:

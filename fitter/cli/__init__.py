@@ -26,6 +26,7 @@ Conventions shared by every command
   (no C compiler needed at export, but the simulator must provide Python
   with numpy).
 """
+
 from __future__ import annotations
 
 import click

@@ -1,5 +1,5 @@
-"""What every `duhem` command shares: defaults, console output, model and FMU files, column options.
-"""
+"""What every `duhem` command shares: defaults, console output, model and FMU files, column options."""
+
 from __future__ import annotations
 
 import os
@@ -29,6 +29,7 @@ EXIT_VALIDATION_FAILED = 3
 
 # --------------------------------------------------------------------------- console output
 
+
 def emit_json(data) -> None:
     click.echo(json_text(data))
 
@@ -43,8 +44,12 @@ def table(title: str, columns: list[str], rows: list[list]) -> None:
     cells = [[fmt(v) for v in row] for row in rows]
     table = Table(title=title)
     for i, c in enumerate(columns):
-        table.add_column(c, justify="left" if i == 0 else "right", overflow="fold",
-                         min_width=max((len(row[i]) for row in cells), default=1))
+        table.add_column(
+            c,
+            justify="left" if i == 0 else "right",
+            overflow="fold",
+            min_width=max((len(row[i]) for row in cells), default=1),
+        )
     for row in cells:
         table.add_row(*row)
     console = Console(file=sys.stdout, soft_wrap=True)
@@ -67,6 +72,7 @@ def fmt_list(values) -> str:
 
 # --------------------------------------------------------------------------- model files and names
 
+
 def is_zip(path: str) -> bool:
     try:
         with open(path, "rb") as fh:
@@ -80,8 +86,9 @@ def is_zip(path: str) -> bool:
 def load_model_json(path: str):
     """A model from a JSON file written by `duhem fit`; an FMU or a CSV is a clear error."""
     if is_zip(path):
-        raise CliError(f"{path}: is an FMU or zip archive, not a model JSON file "
-                       f"(give the JSON written by 'duhem fit')")
+        raise CliError(
+            f"{path}: is an FMU or zip archive, not a model JSON file (give the JSON written by 'duhem fit')"
+        )
     if Path(path).suffix.lower() == ".fmu":
         raise CliError(f"{path}: not an FMU (not a zip archive: damaged or unfinished), nor a model JSON file")
     model = load_model(path)
@@ -111,8 +118,11 @@ def refuse_overwrite(inputs, *outputs) -> None:
         same = next((p for r, p in known.items() if r == real or _same_file(str(out), p)), None)
         inside = next((p for r, p in known.items() if r.startswith(real + os.sep)), None)
         if same is not None or inside is not None:
-            what = f"is one of this command's inputs ({same})" if same is not None else \
-                f"is a directory that holds this command's input {inside} (it would be replaced as a whole)"
+            what = (
+                f"is one of this command's inputs ({same})"
+                if same is not None
+                else f"is a directory that holds this command's input {inside} (it would be replaced as a whole)"
+            )
             raise CliError(f"{out}: {what}; write the output to another path (the input is left untouched)")
 
 
@@ -144,6 +154,7 @@ def platforms(ctx: click.Context, param: click.Parameter, value: str | None) -> 
 
 # --------------------------------------------------------------------------- shared options
 
+
 def _no_time(ctx: click.Context, param: click.Parameter, value: bool) -> None:
     ctx.meta["no_time"] = value
 
@@ -155,30 +166,45 @@ def time_column(time_col: str) -> str | None:
 
 def no_time_option(func: Callable) -> Callable:
     """``--no-time``: the file has no time column (`time_column` then gives None)."""
-    return click.option("--no-time", is_flag=True, expose_value=False, callback=_no_time,
-                        help="the file has no time column: use the sample index as time (rate-independent "
-                             "models only depend on the input's path)")(func)
+    return click.option(
+        "--no-time",
+        is_flag=True,
+        expose_value=False,
+        callback=_no_time,
+        help="the file has no time column: use the sample index as time (rate-independent "
+        "models only depend on the input's path)",
+    )(func)
 
 
 def column_options(func: Callable) -> Callable:
     func = no_time_option(func)
-    for name, default, role in (("output", "y", "output"), ("input", "u", "input"),
-                                ("time", "time", "time")):
-        func = click.option(f"--{name}", f"{name}_col", default=default, show_default=True, metavar="COL",
-                            help=f"{role} column: header name, name without unit suffix, or 0-based index")(func)
+    for name, default, role in (("output", "y", "output"), ("input", "u", "input"), ("time", "time", "time")):
+        func = click.option(
+            f"--{name}",
+            f"{name}_col",
+            default=default,
+            show_default=True,
+            metavar="COL",
+            help=f"{role} column: header name, name without unit suffix, or 0-based index",
+        )(func)
     return func
 
 
 def allow_unstable_option(func: Callable) -> Callable:
-    return click.option("--allow-unstable", is_flag=True,
-                        help="export even when the fit recorded a violated convergence condition "
-                             "(the FMU's description then says so)")(func)
+    return click.option(
+        "--allow-unstable",
+        is_flag=True,
+        help="export even when the fit recorded a violated convergence condition (the FMU's description then says so)",
+    )(func)
 
 
 def use_unstable_option(func: Callable) -> Callable:
-    return click.option("--allow-unstable", is_flag=True,
-                        help="use the model even when its convergence condition, checked from its parameters, "
-                             "is violated (a warning says so; a non-finite output is still refused)")(func)
+    return click.option(
+        "--allow-unstable",
+        is_flag=True,
+        help="use the model even when its convergence condition, checked from its parameters, "
+        "is violated (a warning says so; a non-finite output is still refused)",
+    )(func)
 
 
 def checked(model, source: str, allow_unstable: bool, *inputs):
@@ -188,8 +214,10 @@ def checked(model, source: str, allow_unstable: bool, *inputs):
     span = (float(min(v.min() for v in values)), float(max(v.max() for v in values))) if values else None
     conv = check_model(model, source, span=span, allow_unstable=allow_unstable)
     if not conv.satisfied:
-        click.echo(f"warning: {source}: the convergence condition is violated ({conv.text()}); used anyway "
-                   "(--allow-unstable)", err=True)
+        click.echo(
+            f"warning: {source}: the convergence condition is violated ({conv.text()}); used anyway (--allow-unstable)",
+            err=True,
+        )
     return conv
 
 
@@ -231,5 +259,7 @@ def finite_output(y: np.ndarray, rec, what: str) -> None:
     """A one-line error naming the recording's first data row where `y` (`what`) is not finite."""
     bad = np.flatnonzero(~np.isfinite(y))
     if bad.size:
-        raise CliError(f"{rec.source}: data row {bad[0] + 1} (t = {rec.t[bad[0]]:.6g}): {what} is {y[bad[0]]} "
-                       "(the model overflows on this input); nothing written")
+        raise CliError(
+            f"{rec.source}: data row {bad[0] + 1} (t = {rec.t[bad[0]]:.6g}): {what} is {y[bad[0]]} "
+            "(the model overflows on this input); nothing written"
+        )

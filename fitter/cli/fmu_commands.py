@@ -1,5 +1,5 @@
-"""`duhem export` and `duhem validate`: a model's FMU, and the FMU checked against recordings.
-"""
+"""`duhem export` and `duhem validate`: a model's FMU, and the FMU checked against recordings."""
+
 from __future__ import annotations
 
 import sys
@@ -8,10 +8,25 @@ from pathlib import Path
 import click
 import numpy as np
 
-from fitter.cli.common import (DEFAULT_THRESHOLD, EXIT_VALIDATION_FAILED, allow_unstable_option, check_fmu_name,
-                               checked, column_options, emit_json, finite_output, load_model_json, open_fmu, platforms,
-                               python_host_note, refuse_overwrite, table, time_column, use_unstable_option,
-                               warn_minor_loops)
+from fitter.cli.common import (
+    DEFAULT_THRESHOLD,
+    EXIT_VALIDATION_FAILED,
+    allow_unstable_option,
+    check_fmu_name,
+    checked,
+    column_options,
+    emit_json,
+    finite_output,
+    load_model_json,
+    open_fmu,
+    platforms,
+    python_host_note,
+    refuse_overwrite,
+    table,
+    time_column,
+    use_unstable_option,
+    warn_minor_loops,
+)
 from fitter.cli_support import CliError, FilePath, Number, backend_option, fmi_version_option
 from fitter.core.checks import check_agreement, with_convergence
 from fitter.core.files import atomic_file
@@ -34,18 +49,35 @@ from fitter.reports.validation_plot import write_validation_plot
 @backend_option
 @fmi_version_option
 @allow_unstable_option
-@click.option("--inverse", is_flag=True,
-              help="export the model's feedforward compensator instead (input y_ref, output u: the input that "
-                   "makes the model's output follow y_ref; see 'duhem compensate')")
-@click.option("--measurement", type=click.Choice(MEASUREMENT_CHOICES), default="refuse", show_default=True,
-              help="with --inverse, a model with measurement effects (sensor_lag, measurement_drift): drop them "
-                   "(the device output follows y_ref) or invert them (the measured output follows y_ref)")
-@click.option("--platforms", default=None, metavar="LIST", callback=platforms,
-              help=f"native backend: the binaries, a comma list of {', '.join(PLATFORMS)} (or linux, windows, "
-                   "darwin, host); default all, compiled with zig (package ziglang), no system compiler needed")
-@click.option("--cc", default=None, metavar="COMPILER",
-              help="native backend: compile this machine's binary with this system C compiler instead of zig "
-                   "(the other platforms' still with zig)")
+@click.option(
+    "--inverse",
+    is_flag=True,
+    help="export the model's feedforward compensator instead (input y_ref, output u: the input that "
+    "makes the model's output follow y_ref; see 'duhem compensate')",
+)
+@click.option(
+    "--measurement",
+    type=click.Choice(MEASUREMENT_CHOICES),
+    default="refuse",
+    show_default=True,
+    help="with --inverse, a model with measurement effects (sensor_lag, measurement_drift): drop them "
+    "(the device output follows y_ref) or invert them (the measured output follows y_ref)",
+)
+@click.option(
+    "--platforms",
+    default=None,
+    metavar="LIST",
+    callback=platforms,
+    help=f"native backend: the binaries, a comma list of {', '.join(PLATFORMS)} (or linux, windows, "
+    "darwin, host); default all, compiled with zig (package ziglang), no system compiler needed",
+)
+@click.option(
+    "--cc",
+    default=None,
+    metavar="COMPILER",
+    help="native backend: compile this machine's binary with this system C compiler instead of zig "
+    "(the other platforms' still with zig)",
+)
 @click.option("--json", "as_json", is_flag=True, help="print the result as JSON")
 def export(model, out, backend, fmi_version, allow_unstable, inverse, measurement, platforms, cc, as_json):
     """Export a model JSON as an FMI 2.0 (or, --fmi-version 3, FMI 3.0) Co-Simulation FMU.
@@ -61,8 +93,9 @@ def export(model, out, backend, fmi_version, allow_unstable, inverse, measuremen
     if measurement != "refuse" and not inverse:
         raise CliError("--measurement applies to the compensator: add --inverse")
     if backend != "native" and (platforms or cc):
-        raise CliError("--platforms and --cc apply to the native backend (a python-backend FMU runs where "
-                       "its host's Python does)")
+        raise CliError(
+            "--platforms and --cc apply to the native backend (a python-backend FMU runs where its host's Python does)"
+        )
     m = load_model_json(model)
     refuse_overwrite([model], out)
     check_fmu_name(out)
@@ -71,17 +104,36 @@ def export(model, out, backend, fmi_version, allow_unstable, inverse, measuremen
     with stderr_progress("duhem export") as say, atomic_file(out, suffix=".fmu") as tmp:
         say(f"building the {backend} FMI {fmi_version}.0 {what}FMU", None)
         native = {"platforms": platforms, "cc": cc} if backend == "native" else {}
-        build_fmu(m, tmp, backend=backend, allow_unstable=allow_unstable, fmi_version=fmi_version,
-                  inverse=inverse, measurement=measurement, **native)
+        build_fmu(
+            m,
+            tmp,
+            backend=backend,
+            allow_unstable=allow_unstable,
+            fmi_version=fmi_version,
+            inverse=inverse,
+            measurement=measurement,
+            **native,
+        )
     if as_json:
-        emit_json({"model": model, "fmu": out, "backend": backend, "fmi_version": f"{fmi_version}.0",
-                    "kind": m.kind, "order": m.order, "inverse": inverse,
-                    "platforms": list(platforms or PLATFORMS) if backend == "native" else None})
+        emit_json(
+            {
+                "model": model,
+                "fmu": out,
+                "backend": backend,
+                "fmi_version": f"{fmi_version}.0",
+                "kind": m.kind,
+                "order": m.order,
+                "inverse": inverse,
+                "platforms": list(platforms or PLATFORMS) if backend == "native" else None,
+            }
+        )
     else:
-        click.echo(f"{m.kind} model of order {m.order} exported to {out} ({backend} backend, "
-                   f"FMI {fmi_version}.0)" if not inverse else
-                   f"compensator of the {m.kind} model of order {m.order} exported to {out} (input y_ref, output "
-                   f"u; {backend} backend, FMI {fmi_version}.0)")
+        click.echo(
+            f"{m.kind} model of order {m.order} exported to {out} ({backend} backend, FMI {fmi_version}.0)"
+            if not inverse
+            else f"compensator of the {m.kind} model of order {m.order} exported to {out} (input y_ref, output "
+            f"u; {backend} backend, FMI {fmi_version}.0)"
+        )
     if inverse:
         warn_minor_loops(m)
     python_host_note(out, backend)
@@ -92,13 +144,25 @@ def _validation_row(rec, y_fmu: np.ndarray, model, threshold: float, x0_rule: st
     must be within `fitter.core.checks.AGREEMENT` of the output range, and the verdict."""
     y_model = simulate_model(model, rec.t, rec.u).y
     finite_output(y_fmu, rec, f"the output of {fmu}")
-    check_agreement(y_fmu, y_model, float(np.ptp(rec.y)), f"{fmu}: its binary", "its resources/model.json (run "
-                    "by the in-process kernel)", rec.source)
+    check_agreement(
+        y_fmu,
+        y_model,
+        float(np.ptp(rec.y)),
+        f"{fmu}: its binary",
+        "its resources/model.json (run by the in-process kernel)",
+        rec.source,
+    )
     m = compare(rec, y_fmu)
     m["fmu_vs_in_process_max_abs"] = float(np.max(np.abs(y_fmu - y_model)))
-    m.update(recording=rec.name, source=rec.source, passed=bool(m["nrmse"] <= threshold), judged_on="all samples",
-             x0=x0_rule, x0_value=np.asarray(model.x0, dtype=float).tolist(),
-             warnings=range_warnings(model, rec.t, rec.u))
+    m.update(
+        recording=rec.name,
+        source=rec.source,
+        passed=bool(m["nrmse"] <= threshold),
+        judged_on="all samples",
+        x0=x0_rule,
+        x0_value=np.asarray(model.x0, dtype=float).tolist(),
+        warnings=range_warnings(model, rec.t, rec.u),
+    )
     return m
 
 
@@ -111,8 +175,10 @@ def _validation_start(model, rec, x0_rule: str):
         return model
     start = own_start(model, rec)
     if start is None:
-        raise CliError(f"{rec.source}: no start state could be fitted to this recording (the simulation "
-                       "overflowed); validate it from the stored x0 (--x0 stored)")
+        raise CliError(
+            f"{rec.source}: no start state could be fitted to this recording (the simulation "
+            "overflowed); validate it from the stored x0 (--x0 stored)"
+        )
     return started(model, start)
 
 
@@ -123,12 +189,23 @@ def _judged(row: dict) -> float:
 @click.command()
 @click.argument("fmu", type=FilePath())
 @click.argument("recordings", nargs=-1, required=True, type=FilePath())
-@click.option("--threshold", type=Number(low=0, open_low=True), default=DEFAULT_THRESHOLD, show_default=True,
-              help="fail (exit code 3) when the NRMSE over all samples of a recording exceeds this")
+@click.option(
+    "--threshold",
+    type=Number(low=0, open_low=True),
+    default=DEFAULT_THRESHOLD,
+    show_default=True,
+    help="fail (exit code 3) when the NRMSE over all samples of a recording exceeds this",
+)
 @click.option("--plot", type=FilePath(), help="write a PNG overlay of the loops")
-@click.option("--x0", "x0_rule", type=click.Choice(["stored", "fitted"]), default="stored", show_default=True,
-              help="the FMU's start state: as stored, or fitted to each recording (set through the FMU's x0 "
-                   "parameters; the figure `duhem fit` reports as 'NRMSE own x0')")
+@click.option(
+    "--x0",
+    "x0_rule",
+    type=click.Choice(["stored", "fitted"]),
+    default="stored",
+    show_default=True,
+    help="the FMU's start state: as stored, or fitted to each recording (set through the FMU's x0 "
+    "parameters; the figure `duhem fit` reports as 'NRMSE own x0')",
+)
 @use_unstable_option
 @column_options
 @click.option("--json", "as_json", is_flag=True, help="print the comparison as JSON")
@@ -164,18 +241,39 @@ def validate(fmu, recordings, threshold, plot, x0_rule, allow_unstable, time_col
     if as_json:
         emit_json({"fmu": fmu, "threshold": threshold, "passed": passed, "plot": plot, "recordings": rows})
     else:
-        table(f"validation of {fmu} (threshold NRMSE {threshold:g} over all samples; "
-               f"{'stored x0' if x0_rule == 'stored' else 'x0 fitted to each recording'})",
-               ["recording", "NRMSE all", "NRMSE last cycle", "max err last cycle", "loop area err",
-                "FMU vs in-process", "pass"],
-               [[r["recording"], r["nrmse"], r["nrmse_last_cycle"], r["max_error_last_cycle"],
-                 r["loop_area_error"], r["fmu_vs_in_process_max_abs"], "yes" if r["passed"] else "NO"]
-                for r in rows])
+        table(
+            f"validation of {fmu} (threshold NRMSE {threshold:g} over all samples; "
+            f"{'stored x0' if x0_rule == 'stored' else 'x0 fitted to each recording'})",
+            [
+                "recording",
+                "NRMSE all",
+                "NRMSE last cycle",
+                "max err last cycle",
+                "loop area err",
+                "FMU vs in-process",
+                "pass",
+            ],
+            [
+                [
+                    r["recording"],
+                    r["nrmse"],
+                    r["nrmse_last_cycle"],
+                    r["max_error_last_cycle"],
+                    r["loop_area_error"],
+                    r["fmu_vs_in_process_max_abs"],
+                    "yes" if r["passed"] else "NO",
+                ]
+                for r in rows
+            ],
+        )
     for r in rows:
         for w in r["warnings"]:
             click.echo(f"warning: {r['source']}: {w}", err=True)
     if not passed:
         worst = max(rows, key=_judged)
-        click.echo(f"error: {worst['source']}: NRMSE {_judged(worst):.4g} over {worst['judged_on']} "
-                   f"exceeds the threshold {threshold:g}", err=True)
+        click.echo(
+            f"error: {worst['source']}: NRMSE {_judged(worst):.4g} over {worst['judged_on']} "
+            f"exceeds the threshold {threshold:g}",
+            err=True,
+        )
         sys.exit(EXIT_VALIDATION_FAILED)

@@ -1,5 +1,5 @@
-"""`duhem simulate` and `duhem compensate`: a model (or its inverse) run on an input file.
-"""
+"""`duhem simulate` and `duhem compensate`: a model (or its inverse) run on an input file."""
+
 from __future__ import annotations
 
 import contextlib
@@ -8,8 +8,19 @@ from pathlib import Path
 import click
 import numpy as np
 
-from fitter.cli.common import (checked, emit_json, finite_output, is_zip, load_model_json, no_time_option, open_fmu,
-                               refuse_overwrite, time_column, use_unstable_option, warn_minor_loops)
+from fitter.cli.common import (
+    checked,
+    emit_json,
+    finite_output,
+    is_zip,
+    load_model_json,
+    no_time_option,
+    open_fmu,
+    refuse_overwrite,
+    time_column,
+    use_unstable_option,
+    warn_minor_loops,
+)
 from fitter.cli_support import CliError, FilePath, Number, ordered_pair
 from fitter.core.files import atomic_file
 from fitter.core.inverse import MEASUREMENT_CHOICES, Compensator, linear_gain
@@ -24,8 +35,7 @@ from fitter.reports.compensation_plot import write_compensation_plot
 @click.command()
 @click.argument("model", type=FilePath())
 @click.argument("input_csv", type=FilePath())
-@click.option("-o", "--out", "out", required=True, type=FilePath(),
-              help="CSV file to write (columns time,u,y)")
+@click.option("-o", "--out", "out", required=True, type=FilePath(), help="CSV file to write (columns time,u,y)")
 @click.option("--time", "time_col", default="time", show_default=True, metavar="COL", help="time column")
 @no_time_option
 @click.option("--input", "input_col", default="u", show_default=True, metavar="COL", help="input column")
@@ -54,8 +64,16 @@ def simulate(model, input_csv, out, time_col, input_col, allow_unstable, as_json
         finite_output(y, rec, "the simulated output")
         warnings = range_warnings(stored, rec.t, rec.u)
         save_columns(tmp, ["time", "u", "y"], [rec.t, rec.u, y])
-    info = {"model": model, "input": input_csv, "out": out, "engine": engine, "samples": len(rec),
-            "y_min": float(np.min(y)), "y_max": float(np.max(y)), "warnings": warnings}
+    info = {
+        "model": model,
+        "input": input_csv,
+        "out": out,
+        "engine": engine,
+        "samples": len(rec),
+        "y_min": float(np.min(y)),
+        "y_max": float(np.max(y)),
+        "warnings": warnings,
+    }
     for w in warnings:
         click.echo(f"warning: {input_csv}: {w}", err=True)
     if as_json:
@@ -67,23 +85,36 @@ def simulate(model, input_csv, out, time_col, input_col, allow_unstable, as_json
 @click.command()
 @click.argument("model", type=FilePath())
 @click.argument("reference", type=FilePath())
-@click.option("-o", "--out", "out", required=True, type=FilePath(),
-              help="CSV file to write (columns time,u,y_predicted)")
-@click.option("--plot", type=FilePath(),
-              help="write a PNG: y_ref, the plant without compensation (linear gain) and with it")
+@click.option(
+    "-o", "--out", "out", required=True, type=FilePath(), help="CSV file to write (columns time,u,y_predicted)"
+)
+@click.option(
+    "--plot", type=FilePath(), help="write a PNG: y_ref, the plant without compensation (linear gain) and with it"
+)
 @click.option("--time", "time_col", default="time", show_default=True, metavar="COL", help="time column")
 @no_time_option
 @click.option("--ref", "ref_col", default="y_ref", show_default=True, metavar="COL", help="reference column")
 @click.option("--u0", type=Number(), help="the plant's input before the first sample (default: mid input range)")
-@click.option("--input-range", "input_range", type=Number(), nargs=2, metavar="LO HI", callback=ordered_pair,
-              help="inputs the compensator may use (default: the model's input_range)")
-@click.option("--measurement", type=click.Choice(MEASUREMENT_CHOICES), default="refuse", show_default=True,
-              help="a model with measurement effects (sensor_lag, measurement_drift): drop them (the device "
-                   "output follows y_ref) or invert them (the measured output follows y_ref)")
+@click.option(
+    "--input-range",
+    "input_range",
+    type=Number(),
+    nargs=2,
+    metavar="LO HI",
+    callback=ordered_pair,
+    help="inputs the compensator may use (default: the model's input_range)",
+)
+@click.option(
+    "--measurement",
+    type=click.Choice(MEASUREMENT_CHOICES),
+    default="refuse",
+    show_default=True,
+    help="a model with measurement effects (sensor_lag, measurement_drift): drop them (the device "
+    "output follows y_ref) or invert them (the measured output follows y_ref)",
+)
 @use_unstable_option
 @click.option("--json", "as_json", is_flag=True, help="print a summary as JSON")
-def compensate(model, reference, out, plot, time_col, ref_col, u0, input_range, measurement, allow_unstable,
-               as_json):
+def compensate(model, reference, out, plot, time_col, ref_col, u0, input_range, measurement, allow_unstable, as_json):
     """The input that makes a model's output follow a reference (the inverse model, a feedforward compensator).
 
     Exact wherever some input in the model's input range reaches y_ref (the
@@ -105,35 +136,60 @@ def compensate(model, reference, out, plot, time_col, ref_col, u0, input_range, 
         say(f"compensating {len(rec)} samples", None)
         result = comp.run(rec.t, rec.u)
         save_columns(csv_tmp, ["time", "u", "y_predicted"], [result.t, result.u, result.y])
-        info = {"model": model, "reference": reference, "out": out, "plot": plot, "measurement": measurement,
-                **result.summary()}
+        info = {
+            "model": model,
+            "reference": reference,
+            "out": out,
+            "plot": plot,
+            "measurement": measurement,
+            **result.summary(),
+        }
         if plot_tmp:
             say("plotting", None)
             y0, gain = linear_gain(result.u, result.y)
             lo, hi = result.input_range
             u_linear = np.clip((result.y_ref - y0) / gain, lo, hi)
-            u_linear[0] = result.u[0]       # the plant starts where the compensated run starts
+            u_linear[0] = result.u[0]  # the plant starts where the compensated run starts
             y_linear = simulate_model(comp.plant, result.t, u_linear).y
-            info["linear_gain"] = {"y0": y0, "gain": gain,
-                                   "tracking_error": float(np.sqrt(np.mean((y_linear - result.y_ref) ** 2))
-                                                           / (np.ptp(result.y_ref) or 1.0))}
-            write_compensation_plot(plot_tmp, result.t, result.y_ref, y_linear, result.y, result.clamped,
-                                    output_label=_axis_name(m.signals.output),
-                                    title=f"{Path(reference).name}: compensation of {Path(model).name}")
+            info["linear_gain"] = {
+                "y0": y0,
+                "gain": gain,
+                "tracking_error": float(
+                    np.sqrt(np.mean((y_linear - result.y_ref) ** 2)) / (np.ptp(result.y_ref) or 1.0)
+                ),
+            }
+            write_compensation_plot(
+                plot_tmp,
+                result.t,
+                result.y_ref,
+                y_linear,
+                result.y,
+                result.clamped,
+                output_label=_axis_name(m.signals.output),
+                title=f"{Path(reference).name}: compensation of {Path(model).name}",
+            )
     warn_minor_loops(m)
     lo, hi = result.input_range
     if u0 is not None and not lo <= u0 <= hi:
-        click.echo(f"warning: --u0 {u0:g} is outside the input range [{lo:.6g}, {hi:.6g}]: the plant holds its "
-                   f"input at the nearest edge there", err=True)
+        click.echo(
+            f"warning: --u0 {u0:g} is outside the input range [{lo:.6g}, {hi:.6g}]: the plant holds its "
+            f"input at the nearest edge there",
+            err=True,
+        )
     if result.n_clamped:
-        click.echo(f"warning: {reference}: {result.n_clamped} of {len(rec)} samples clamped (no input in "
-                   f"[{result.input_range[0]:.6g}, {result.input_range[1]:.6g}] reaches y_ref); largest shortfall "
-                   f"{result.max_shortfall:.4g} at t = {info['max_shortfall_time']:.6g}", err=True)
+        click.echo(
+            f"warning: {reference}: {result.n_clamped} of {len(rec)} samples clamped (no input in "
+            f"[{result.input_range[0]:.6g}, {result.input_range[1]:.6g}] reaches y_ref); largest shortfall "
+            f"{result.max_shortfall:.4g} at t = {info['max_shortfall_time']:.6g}",
+            err=True,
+        )
     if as_json:
         emit_json(info)
     else:
-        click.echo(f"{len(rec)} samples compensated and written to {out} ({result.n_clamped} clamped, tracking "
-                   f"error {100 * result.tracking_error():.3g}% of the reference range)")
+        click.echo(
+            f"{len(rec)} samples compensated and written to {out} ({result.n_clamped} clamped, tracking "
+            f"error {100 * result.tracking_error():.3g}% of the reference range)"
+        )
 
 
 def _axis_name(signal) -> str:

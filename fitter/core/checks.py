@@ -34,6 +34,7 @@ parameters themselves, each time a command is about to run or export a model:
 
 A failed check raises a `ModelCheckError` whose message starts with the file.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -44,8 +45,18 @@ import numpy as np
 from .errors import DuhemError
 from .periodic import minor_loop_rho
 
-__all__ = ["MAX_MAGNITUDE", "AGREEMENT", "ModelCheckError", "Convergence", "too_large", "spectral_abscissa",
-           "convergence", "check_model", "with_convergence", "check_agreement"]
+__all__ = [
+    "MAX_MAGNITUDE",
+    "AGREEMENT",
+    "ModelCheckError",
+    "Convergence",
+    "too_large",
+    "spectral_abscissa",
+    "convergence",
+    "check_model",
+    "with_convergence",
+    "check_agreement",
+]
 
 MAX_MAGNITUDE = 1e100
 """Largest |value| of a stored number of a model (module docstring)."""
@@ -112,15 +123,22 @@ def spectral_abscissa(A) -> float:
 def _ri_convergence(model, span: tuple[float, float] | None) -> Convergence:
     span = model.input_range if model.input_range is not None else span
     if span is None or not span[1] > span[0]:
-        return Convergence("alpha(A+ - A-), condition (5) on small loops (no input_range, no input span)",
-                           spectral_abscissa(model.A_plus - model.A_minus), 0.0)
+        return Convergence(
+            "alpha(A+ - A-), condition (5) on small loops (no input_range, no input span)",
+            spectral_abscissa(model.A_plus - model.A_minus),
+            0.0,
+        )
     with np.errstate(all="ignore"):
         try:
             rho = minor_loop_rho(model, float(span[0]), float(span[1]))
         except (ValueError, np.linalg.LinAlgError):
             rho = float("inf")
-    return Convergence("condition (5) on every loop, max over sub-spans b of rho(e^{b A+} e^{-b A-})^(span/b)",
-                       rho if np.isfinite(rho) else float("inf"), 1.0, (float(span[0]), float(span[1])))
+    return Convergence(
+        "condition (5) on every loop, max over sub-spans b of rho(e^{b A+} e^{-b A-})^(span/b)",
+        rho if np.isfinite(rho) else float("inf"),
+        1.0,
+        (float(span[0]), float(span[1])),
+    )
 
 
 def _rd_convergence(model) -> Convergence:
@@ -136,8 +154,9 @@ def convergence(model, span: tuple[float, float] | None = None) -> Convergence:
     return _rd_convergence(model) if model.kind == "rd" else _ri_convergence(model, span)
 
 
-def check_model(model, source: str, *, span: tuple[float, float] | None = None,
-                allow_unstable: bool = False) -> Convergence:
+def check_model(
+    model, source: str, *, span: tuple[float, float] | None = None, allow_unstable: bool = False
+) -> Convergence:
     """Check `model` (read from `source`) before it is used: finite, within `MAX_MAGNITUDE`, convergent.
 
     Parameters
@@ -160,13 +179,17 @@ def check_model(model, source: str, *, span: tuple[float, float] | None = None,
     """
     bad = too_large(model)
     if bad is not None:
-        raise ModelCheckError(f"{source}: {bad[0]} = {bad[1]:.6g} is beyond {MAX_MAGNITUDE:g} in magnitude (a model "
-                              "this large overflows the simulation); correct it or fit the model again")
+        raise ModelCheckError(
+            f"{source}: {bad[0]} = {bad[1]:.6g} is beyond {MAX_MAGNITUDE:g} in magnitude (a model "
+            "this large overflows the simulation); correct it or fit the model again"
+        )
     conv = convergence(model, span)
     if not conv.satisfied and not allow_unstable:
-        raise ModelCheckError(f"{source}: the convergence condition is violated, checked from the parameters: "
-                              f"{conv.text()}, so a wrong initial state need not die out and the output may grow "
-                              "without bound; fit the model again, or pass --allow-unstable to use it anyway")
+        raise ModelCheckError(
+            f"{source}: the convergence condition is violated, checked from the parameters: "
+            f"{conv.text()}, so a wrong initial state need not die out and the output may grow "
+            "without bound; fit the model again, or pass --allow-unstable to use it anyway"
+        )
     return conv
 
 
@@ -176,9 +199,13 @@ def with_convergence(model, conv: Convergence):
     if conv.satisfied:
         return model
     old = model.fit_info.get("convergence")
-    record = {**(old if isinstance(old, dict) else {}), "satisfied": False, "quantity": conv.quantity,
-              "value": conv.value if np.isfinite(conv.value) else None,
-              "checked": "from the parameters where the model was used"}
+    record = {
+        **(old if isinstance(old, dict) else {}),
+        "satisfied": False,
+        "quantity": conv.quantity,
+        "value": conv.value if np.isfinite(conv.value) else None,
+        "checked": "from the parameters where the model was used",
+    }
     return model.replace(fit_info={**model.fit_info, "convergence": record})
 
 
@@ -201,8 +228,10 @@ def check_agreement(y, y_ref, output_range: float, what: str, ref: str, where: s
     with np.errstate(all="ignore"):
         diff = float(np.max(np.abs(np.asarray(y, dtype=float) - np.asarray(y_ref, dtype=float)))) / scale
     if not diff <= AGREEMENT:
-        raise ModelCheckError(f"{what} and {ref} disagree on {where}: their outputs differ by up to {diff:.3g} "
-                              f"times the output range (the limit is {AGREEMENT:g}): the FMU does not run the "
-                              "model it carries (altered after export, or a model whose branches amplify rounding); "
-                              "export the FMU again from the model JSON (duhem export)")
+        raise ModelCheckError(
+            f"{what} and {ref} disagree on {where}: their outputs differ by up to {diff:.3g} "
+            f"times the output range (the limit is {AGREEMENT:g}): the FMU does not run the "
+            "model it carries (altered after export, or a model whose branches amplify rounding); "
+            "export the FMU again from the model JSON (duhem export)"
+        )
     return diff

@@ -5,6 +5,7 @@
 stderr and a non-zero exit; anything else is a bug.  This module needs only
 the standard library: it is shipped inside the FMUs with the rest of `core`.
 """
+
 from __future__ import annotations
 
 __all__ = ["DuhemError", "KernelError", "ModelFileError", "EffectError", "ConvergenceError"]

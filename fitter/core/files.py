@@ -48,6 +48,7 @@ has no NaN).
 Standard library only: this module is shipped inside the FMUs with the rest
 of `fitter.core` (numpy objects are recognised by their ``tolist`` method).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -64,9 +65,23 @@ import uuid
 from pathlib import Path, PurePath
 from typing import Any, Callable, Iterator
 
-__all__ = ["atomic_file", "atomic_directory", "atomic_pair", "recover_pair", "file_digest", "sweep_leftovers",
-           "scratch_directory", "write_json", "json_text", "jsonable", "usual_mode", "output_lock", "OutputBusyError",
-           "LOCK_WAIT", "PUBLISH_HOOK"]
+__all__ = [
+    "atomic_file",
+    "atomic_directory",
+    "atomic_pair",
+    "recover_pair",
+    "file_digest",
+    "sweep_leftovers",
+    "scratch_directory",
+    "write_json",
+    "json_text",
+    "jsonable",
+    "usual_mode",
+    "output_lock",
+    "OutputBusyError",
+    "LOCK_WAIT",
+    "PUBLISH_HOOK",
+]
 
 PUBLISH_HOOK: Callable[[Path], None] | None = None
 """Called with the target just before an output is renamed into place (tests interrupt a run there)."""
@@ -122,7 +137,7 @@ def atomic_file(path: str | os.PathLike, *, suffix: str | None = None) -> Iterat
         The directory of `path` does not exist (before the block runs).
     """
     target = Path(path)
-    if os.path.realpath(target) in _LIVE:       # a temporary of ours: already private, written in place
+    if os.path.realpath(target) in _LIVE:  # a temporary of ours: already private, written in place
         yield target
         return
     ending = target.suffix if suffix is None else suffix
@@ -188,8 +203,7 @@ def _creating(target: Path) -> Iterator[None]:
     try:
         yield
     except OSError as exc:
-        raise type(exc)(exc.errno, f"cannot write in directory {target.parent} ({exc.strerror})",
-                        str(target)) from None
+        raise type(exc)(exc.errno, f"cannot write in directory {target.parent} ({exc.strerror})", str(target)) from None
 
 
 def _swap_in(new: Path, target: Path) -> None:
@@ -234,7 +248,7 @@ def _stale(target: Path, kinds: tuple[str, ...]) -> Iterator[Path]:
     for entry in target.parent.iterdir() if target.parent.is_dir() else ():
         for kind in kinds:
             head = f"{kind}{target.name}."
-            pid = entry.name[len(head):].split(".", 1)[0] if entry.name.startswith(head) else ""
+            pid = entry.name[len(head) :].split(".", 1)[0] if entry.name.startswith(head) else ""
             if pid.isdigit() and int(pid) != os.getpid() and not _running(int(pid)):
                 yield entry
 
@@ -291,7 +305,7 @@ def output_lock(path: str | os.PathLike, *, wait: float | None = None) -> Iterat
     finally:
         del _HELD[key]
         with contextlib.suppress(FileNotFoundError):
-            os.unlink(lock)         # under the lock: a waiter on this file sees it gone and opens a new one
+            os.unlink(lock)  # under the lock: a waiter on this file sees it gone and opens a new one
         os.close(fd)
 
 
@@ -320,15 +334,17 @@ def _acquire(lock: Path, target: Path, wait: float) -> int:
             holder = _holder(fd)
             os.close(fd)
             if time.monotonic() >= deadline:
-                raise OutputBusyError(f"{target}: another process is writing it ({holder}); waited {wait:g} s: "
-                                      "run again when it has finished, or write to another path") from None
+                raise OutputBusyError(
+                    f"{target}: another process is writing it ({holder}); waited {wait:g} s: "
+                    "run again when it has finished, or write to another path"
+                ) from None
             time.sleep(min(0.05, max(deadline - time.monotonic(), 0.0)))
             continue
         try:
             same = os.path.samestat(os.fstat(fd), os.stat(lock))
         except FileNotFoundError:
             same = False
-        if same:        # not removed by the holder we waited for
+        if same:  # not removed by the holder we waited for
             command = " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]) if sys.argv and sys.argv[0] else "python"
             os.ftruncate(fd, 0)
             os.write(fd, f"pid {os.getpid()}: {command[:300]}".encode("utf-8", "replace"))
@@ -365,8 +381,9 @@ def file_digest(path: str | os.PathLike) -> str:
     return h.hexdigest()
 
 
-def recover_pair(record: str | os.PathLike, companion: str | os.PathLike,
-                 recorded: Callable[[Path], str | None]) -> None:
+def recover_pair(
+    record: str | os.PathLike, companion: str | os.PathLike, recorded: Callable[[Path], str | None]
+) -> None:
     """Finish or undo a pair publication that a killed process left half done (module docstring).
 
     A kept old companion (``.pair-<name>.<pid>`` of a process that no longer
@@ -392,8 +409,9 @@ def _put_back(kept: Path, companion: Path) -> None:
 
 
 @contextlib.contextmanager
-def atomic_pair(record: str | os.PathLike, companion: str | os.PathLike,
-                recorded: Callable[[Path], str | None]) -> Iterator[tuple[Path, Path]]:
+def atomic_pair(
+    record: str | os.PathLike, companion: str | os.PathLike, recorded: Callable[[Path], str | None]
+) -> Iterator[tuple[Path, Path]]:
     """Yield temporary paths (record, companion); publish them as a pair when the block succeeds.
 
     Write the companion first and record its `file_digest` in the record.  On

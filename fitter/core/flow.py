@@ -37,6 +37,7 @@ both run on these functions; `check_finite` and `check_increasing` are the
 one place where samples are checked.  This module needs only numpy: it is
 shipped inside the FMUs.
 """
+
 from __future__ import annotations
 
 import math
@@ -46,9 +47,22 @@ import numpy as np
 
 from .errors import KernelError
 
-__all__ = ["AffineFlow", "branches", "check_finite", "check_increasing", "expm", "flows", "integrate",
-           "integrate_blocks", "interval_coefficients", "linear_recurrence", "one_interval", "phi1", "phi2",
-           "phi_blocks"]
+__all__ = [
+    "AffineFlow",
+    "branches",
+    "check_finite",
+    "check_increasing",
+    "expm",
+    "flows",
+    "integrate",
+    "integrate_blocks",
+    "interval_coefficients",
+    "linear_recurrence",
+    "one_interval",
+    "phi1",
+    "phi2",
+    "phi_blocks",
+]
 
 _COND_LIMIT = 1e6
 _CHUNK_SPAN = 300.0
@@ -135,7 +149,7 @@ def _product(L: np.ndarray, R: np.ndarray) -> np.ndarray:
         return np.add.accumulate(L[:, :, None] * R[None], axis=1)[:, -1]
     P = L[:, :1] * R[:1]
     for j in range(1, L.shape[1]):
-        P += L[:, j:j + 1] * R[j:j + 1]
+        P += L[:, j : j + 1] * R[j : j + 1]
     return P
 
 
@@ -189,8 +203,8 @@ def phi_blocks(AS: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     F[0] += np.eye(n)[:, :, None]
     for k in range(2, 19):
         P = _product(T[0], a)
-        T[1:] = T[:2] * c / k       # T2 = (c T1) / k, T1 = (c T0) / k, from the previous T0, T1
-        np.divide(P, k, out=T[0])   # T0 = (T0 a) / k
+        T[1:] = T[:2] * c / k  # T2 = (c T1) / k, T1 = (c T0) / k, from the previous T0, T1
+        np.divide(P, k, out=T[0])  # T0 = (T0 a) / k
         F += T
     F0, F1, F2 = F
     counts = np.searchsorted(-s, -np.arange(1, int(s.max(initial=0)) + 1), side="right")
@@ -247,16 +261,16 @@ class AffineFlow:
         z = self.lam * S
         if abs(S) * self._lam_max < 0.5:
             # the Taylor series of `phi2`, summed as (c_k lambda^k) S^k, c_k lambda^k precomputed
-            p2 = self._phi2_terms @ (S ** _PHI2_POWERS)
+            p2 = self._phi2_terms @ (S**_PHI2_POWERS)
             p1 = 1.0 + z * p2
         else:
             p1, p2 = phi1(z), phi2(z)
-        w = np.exp(z) * (self.Vinv @ x) + (S * p1) * (self.beta * p + self.eps) \
-            + (S * S * r) * p2 * self.beta
+        w = np.exp(z) * (self.Vinv @ x) + (S * p1) * (self.beta * p + self.eps) + (S * S * r) * p2 * self.beta
         return (self.V @ w).real
 
-    def modal_terms(self, p: np.ndarray, r: np.ndarray, S: np.ndarray,
-                    forcing: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def modal_terms(
+        self, p: np.ndarray, r: np.ndarray, S: np.ndarray, forcing: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Per interval, in modal coordinates w = V^-1 x: exponents z = lambda S (N, n) and forcing
         f with w(S) = e^z w(0) + f (module docstring), (N, n); with `forcing` = (B, E), m forcing
         columns of shape (n, m) in place of the flow's own, f is (N, n, m)."""
@@ -267,8 +281,9 @@ class AffineFlow:
         beta, eps = self.Vinv @ forcing[0], self.Vinv @ forcing[1]
         return z, (c1 * p[:, None] + c2 * r[:, None])[:, :, None] * beta + c1[:, :, None] * eps
 
-    def affine_maps(self, p: np.ndarray, r: np.ndarray, S: np.ndarray,
-                    forcing: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def affine_maps(
+        self, p: np.ndarray, r: np.ndarray, S: np.ndarray, forcing: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Per interval, x(S) = M x(0) + g with M = e^{A S}, g = S K1 (B p + E) + S^2 K2 B r, where
         [[M, K1, K2], ...] = expm([[A S, I, 0], [0, 0, I], [0, 0, 0]]), computed on the n x n
         blocks by `phi_blocks` (all intervals at once).
@@ -281,13 +296,19 @@ class AffineFlow:
         """
         M, K1, K2 = phi_blocks(self.A * S[:, None, None])
         K1 = K1 * S[:, None, None]
-        K2 = K2 * (S ** 2)[:, None, None]
+        K2 = K2 * (S**2)[:, None, None]
         if forcing is None:
-            return M, (np.einsum("kij,j->ki", K1, self.B) * p[:, None] + K1 @ self.E
-                       + np.einsum("kij,j->ki", K2, self.B) * r[:, None])
+            return M, (
+                np.einsum("kij,j->ki", K1, self.B) * p[:, None]
+                + K1 @ self.E
+                + np.einsum("kij,j->ki", K2, self.B) * r[:, None]
+            )
         B, E = forcing
-        g = (np.einsum("kij,jm->kim", K1, B) * p[:, None, None] + np.einsum("kij,jm->kim", K1, E)
-             + np.einsum("kij,jm->kim", K2, B) * r[:, None, None])
+        g = (
+            np.einsum("kij,jm->kim", K1, B) * p[:, None, None]
+            + np.einsum("kij,jm->kim", K1, E)
+            + np.einsum("kij,jm->kim", K2, B) * r[:, None, None]
+        )
         return M, g
 
     def run(self, x0: np.ndarray, p: np.ndarray, r: np.ndarray, S: np.ndarray) -> np.ndarray:
@@ -317,9 +338,9 @@ def linear_recurrence(w0: np.ndarray, z: np.ndarray, a: np.ndarray, f: np.ndarra
         w = a[s0] * w + f[s0]
         W[s0] = w
         if s1 - s0 > 1:
-            L = np.cumsum(z[s0 + 1:s1], axis=0)
+            L = np.cumsum(z[s0 + 1 : s1], axis=0)
             P = np.exp(L)
-            W[s0 + 1:s1] = P * (w + np.cumsum(f[s0 + 1:s1] * np.exp(-L), axis=0))
+            W[s0 + 1 : s1] = P * (w + np.cumsum(f[s0 + 1 : s1] * np.exp(-L), axis=0))
             w = W[s1 - 1]
     return W
 
@@ -337,8 +358,7 @@ def check_increasing(t: np.ndarray) -> None:
     """KernelError at the first k where t_{k+1} > t_k fails (time must increase strictly)."""
     bad = np.flatnonzero(~(np.diff(t) > 0))
     if bad.size:
-        raise KernelError(f"time must increase: t[{bad[0] + 1}] = {t[bad[0] + 1]} "
-                          f"after t[{bad[0]}] = {t[bad[0]]}")
+        raise KernelError(f"time must increase: t[{bad[0] + 1}] = {t[bad[0] + 1]} after t[{bad[0]}] = {t[bad[0]]}")
 
 
 def branches(du: np.ndarray) -> np.ndarray:
@@ -398,14 +418,23 @@ def one_interval(model, t_a: float, t: float, u_a: float, u: float) -> tuple:
 def flows(model) -> dict:
     """The AffineFlow objects of a model, keyed by branch (+1 / -1)."""
     if model.kind == "ri":
-        return {1.0: AffineFlow(model.A_plus, model.B_plus, model.E_plus),
-                -1.0: AffineFlow(model.A_minus, model.B_minus, model.E_minus)}
+        return {
+            1.0: AffineFlow(model.A_plus, model.B_plus, model.E_plus),
+            -1.0: AffineFlow(model.A_minus, model.B_minus, model.E_minus),
+        }
     f = AffineFlow(model.A, model.B, model.E)
     return {1.0: f, -1.0: f}
 
 
-def integrate(fl: dict, x0: np.ndarray, branch: np.ndarray, p: np.ndarray, r: np.ndarray,
-              S: np.ndarray, forcing: dict | None = None) -> np.ndarray:
+def integrate(
+    fl: dict,
+    x0: np.ndarray,
+    branch: np.ndarray,
+    p: np.ndarray,
+    r: np.ndarray,
+    S: np.ndarray,
+    forcing: dict | None = None,
+) -> np.ndarray:
     """States at the samples given the N intervals' (branch, p, r, S) of (K).
 
     x0 is one initial state (n,) or m of them as the columns of an (n, m)
@@ -420,13 +449,20 @@ def integrate(fl: dict, x0: np.ndarray, branch: np.ndarray, p: np.ndarray, r: np
     out[0] = X0
     k = 1
     for X in integrate_blocks(fl, X0, branch, p, r, S, forcing):
-        out[k:k + len(X)] = X
+        out[k : k + len(X)] = X
         k += len(X)
     return out
 
 
-def integrate_blocks(fl: dict, x0: np.ndarray, branch: np.ndarray, p: np.ndarray, r: np.ndarray,
-                     S: np.ndarray, forcing: dict | None = None) -> Iterator[np.ndarray]:
+def integrate_blocks(
+    fl: dict,
+    x0: np.ndarray,
+    branch: np.ndarray,
+    p: np.ndarray,
+    r: np.ndarray,
+    S: np.ndarray,
+    forcing: dict | None = None,
+) -> Iterator[np.ndarray]:
     """The states after each interval of `integrate` (x_1 ... x_N), in consecutive pieces of at most
     `_BLOCK` intervals: (k, n) or (k, n, m) arrays.
 

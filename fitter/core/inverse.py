@@ -130,6 +130,7 @@ so an FMU can wrap it as `fmu_src/duhem_slave.py` wraps `Stepper`.
 
 This module needs only numpy: it is shipped inside the FMUs.
 """
+
 from __future__ import annotations
 
 import math
@@ -142,8 +143,17 @@ from .errors import DuhemError, KernelError
 from .flow import check_finite, check_increasing
 from .stepper import Stepper
 
-__all__ = ["InverseError", "Compensator", "Compensation", "invert", "compensate", "linear_gain",
-           "MEASUREMENT_CHOICES", "SUPPORTED_EFFECTS", "MEASUREMENT_EFFECTS"]
+__all__ = [
+    "InverseError",
+    "Compensator",
+    "Compensation",
+    "invert",
+    "compensate",
+    "linear_gain",
+    "MEASUREMENT_CHOICES",
+    "SUPPORTED_EFFECTS",
+    "MEASUREMENT_EFFECTS",
+]
 
 MEASUREMENT_CHOICES = ("refuse", "drop", "invert")
 """What the compensator does with a model's measurement effects (module docstring)."""
@@ -177,14 +187,17 @@ def _plant(model, measurement: str):
     raise InverseError(
         f"the model has the measurement effect(s) {', '.join(present)}: they describe the sensor, not the "
         f"actuator, so say what to compensate: measurement='drop' (CLI --measurement drop) makes the device "
-        f"output follow y_ref, measurement='invert' (--measurement invert) makes the measured output follow it")
+        f"output follow y_ref, measurement='invert' (--measurement invert) makes the measured output follow it"
+    )
 
 
 def _search_range(model, input_range) -> tuple[float, float]:
     rng = input_range if input_range is not None else model.input_range
     if rng is None:
-        raise InverseError("the compensator needs a finite input range to search: the model has no "
-                           "'input_range' (a fitted model has one); give input_range=(lo, hi) (CLI --input-range)")
+        raise InverseError(
+            "the compensator needs a finite input range to search: the model has no "
+            "'input_range' (a fitted model has one); give input_range=(lo, hi) (CLI --input-range)"
+        )
     try:
         lo, hi = (float(v) for v in rng)
     except (TypeError, ValueError):
@@ -194,8 +207,17 @@ def _search_range(model, input_range) -> tuple[float, float]:
     return lo, hi
 
 
-def _brent(f, a: float, b: float, fa: float, fb: float, xtol: float, ftol: float = math.inf, xfloor: float = 0.0,
-           maxiter: int = 200):
+def _brent(
+    f,
+    a: float,
+    b: float,
+    fa: float,
+    fb: float,
+    xtol: float,
+    ftol: float = math.inf,
+    xfloor: float = 0.0,
+    maxiter: int = 200,
+):
     """A root of f in [a, b] with fa, fb of opposite signs (Brent 1973, as scipy's brentq); returns (x, f(x)).
 
     It stops when the bracket is below xtol, as scipy's brentq, if then |f(x)| <= ftol; else it goes on with
@@ -216,7 +238,7 @@ def _brent(f, a: float, b: float, fa: float, fb: float, xtol: float, ftol: float
         if fcur == 0 or abs(sbis) < delta:
             if fcur == 0 or abs(fcur) <= ftol or xtol <= xfloor:
                 return xcur, fcur
-            xtol = xfloor           # polish: from here on the finer bracket tolerance
+            xtol = xfloor  # polish: from here on the finer bracket tolerance
             delta = (xtol + rtol * abs(xcur)) / 2
             if abs(sbis) < delta:
                 return xcur, fcur
@@ -260,8 +282,17 @@ class Compensator:
         No search range, or measurement effects with ``measurement="refuse"``.
     """
 
-    def __init__(self, model, t0: float = 0.0, u0: float | None = None, x0=None, *,
-                 measurement: str = "refuse", input_range=None, orientation: float | None = None):
+    def __init__(
+        self,
+        model,
+        t0: float = 0.0,
+        u0: float | None = None,
+        x0=None,
+        *,
+        measurement: str = "refuse",
+        input_range=None,
+        orientation: float | None = None,
+    ):
         if orientation not in (None, 1, -1):
             raise InverseError(f"orientation must be +1, -1 or None (automatic), got {orientation!r}")
         self._given_orientation = None if orientation is None else float(orientation)
@@ -302,8 +333,19 @@ class Compensator:
         samples, clamped, max_shortfall, last_clamped); `set_state` restores exactly the same future."""
         a = self._anchor
         anchor = a[:2] + (np.array(a[2], dtype=float),) + a[3:]
-        return (anchor, self.started, self.u, self.y, self.slope, self.scale, self.orientation, self.samples,
-                self.clamped, self.max_shortfall, self.last_clamped)
+        return (
+            anchor,
+            self.started,
+            self.u,
+            self.y,
+            self.slope,
+            self.scale,
+            self.orientation,
+            self.samples,
+            self.clamped,
+            self.max_shortfall,
+            self.last_clamped,
+        )
 
     def set_state(self, state: tuple) -> None:
         anchor, started, u, y, slope, scale, orientation, samples, clamped, shortfall, last = state
@@ -319,7 +361,7 @@ class Compensator:
     def _trial(self, t: float, u: float) -> float:
         """The plant's output at time t for the input linear from the anchor's to u (the anchor unchanged)."""
         a = self._anchor
-        if t == a[0]:   # the first sample: re-anchor the input, the state does not move (`Stepper`)
+        if t == a[0]:  # the first sample: re-anchor the input, the state does not move (`Stepper`)
             trial = (a[0], u, a[2], a[0], u) + a[5:]
         else:
             trial = a[:3] + (t, u) + a[5:]
@@ -352,7 +394,7 @@ class Compensator:
 
     def _commit(self, t: float, u: float) -> None:
         self._trial(t, u)
-        self._stepper.do_step(1.0)     # the current point becomes the anchor (the step size is overwritten later)
+        self._stepper.do_step(1.0)  # the current point becomes the anchor (the step size is overwritten later)
         self._anchor = self._stepper.get_state()
 
     def _solve(self, t: float, y_ref: float) -> tuple[float, float, bool]:
@@ -363,17 +405,17 @@ class Compensator:
         def f(u: float) -> float:
             return self._trial(t, u) - y_ref
 
-        if t == self._anchor[0]:          # the first sample: its own span (feedthrough only), not kept
+        if t == self._anchor[0]:  # the first sample: its own span (feedthrough only), not kept
             scale = self._span_at(f)
         else:
-            if math.isnan(self.scale):    # the first interval step: the output scale, and the orientation
+            if math.isnan(self.scale):  # the first interval step: the output scale, and the orientation
                 self._calibrate(f)
             scale = self.scale
         tol = _YTOL * scale
         r0 = f(u_a)
         if not math.isfinite(r0):
             raise KernelError(f"the model's output is not finite at t = {t:.6g} for the held input u = {u_a:.6g}")
-        if abs(r0) <= tol:               # the held input still gives y_ref: kept
+        if abs(r0) <= tol:  # the held input still gives y_ref: kept
             return u_a, r0 + y_ref, True
         # first distance: the last step's slope predicts it, else a thousandth of the range
         guess = abs(r0 / self.slope) * 1.5 if self.slope and math.isfinite(self.slope) else 1e-3 * self._span
@@ -383,7 +425,7 @@ class Compensator:
         found = None
         for s in (preferred, -preferred):
             reach = (hi - u_a) if s > 0 else (u_a - lo)
-            if found is not None:         # the other side: only a strictly nearer root replaces it
+            if found is not None:  # the other side: only a strictly nearer root replaces it
                 reach = min(reach, abs(found[0] - u_a))
             other = self._search(f, u_a, r0, s, reach, guess, seen, tol / 2)
             if other is not None and (found is None or abs(other[0] - u_a) < abs(found[0] - u_a)):
@@ -419,7 +461,7 @@ class Compensator:
             dist = min(d, reach)
             u = u_a + s * dist
             r = f(u)
-            if not math.isfinite(r):     # the model overflows this far out: search no further on this side
+            if not math.isfinite(r):  # the model overflows this far out: search no further on this side
                 return None
             seen.append((u, r))
             if r == 0:
@@ -436,7 +478,7 @@ class Compensator:
         pts = sorted(seen)
         i = min(range(len(pts)), key=lambda k: abs(pts[k][1]))
         best = (abs(pts[i][1]), pts[i][0], pts[i][1])
-        if 0 < i < len(pts) - 1:         # an interior extremum: golden-section search between the neighbours
+        if 0 < i < len(pts) - 1:  # an interior extremum: golden-section search between the neighbours
             a, b = pts[i - 1][0], pts[i + 1][0]
             for _ in range(80):
                 if abs(b - a) <= self._xtol:
@@ -460,8 +502,9 @@ class Compensator:
             raise KernelError(f"t and y_ref differ in length ({len(t)} and {len(y_ref)})")
         bad = np.flatnonzero(~np.isfinite(y_ref))
         if bad.size:
-            raise KernelError(f"y_ref[{bad[0]}] (sample {bad[0]}, t = {t[bad[0]]:.6g}) is {y_ref[bad[0]]} "
-                              f"(NaN or infinite)")
+            raise KernelError(
+                f"y_ref[{bad[0]}] (sample {bad[0]}, t = {t[bad[0]]:.6g}) is {y_ref[bad[0]]} (NaN or infinite)"
+            )
         check_increasing(t)
         u, y, clamped = np.empty(len(t)), np.empty(len(t)), np.zeros(len(t), dtype=bool)
         for k, (tk, yk) in enumerate(zip(t, y_ref)):
@@ -504,11 +547,17 @@ class Compensation:
 
     def summary(self) -> dict:
         k = int(np.argmax(self.shortfall)) if self.n_clamped else None
-        return {"samples": len(self.t), "clamped": self.n_clamped, "max_shortfall": self.max_shortfall,
-                "max_shortfall_time": None if k is None else float(self.t[k]),
-                "first_clamped_time": float(self.t[np.argmax(self.clamped)]) if self.n_clamped else None,
-                "tracking_error": self.tracking_error(), "input_range": list(self.input_range),
-                "u_min": float(self.u.min()), "u_max": float(self.u.max())}
+        return {
+            "samples": len(self.t),
+            "clamped": self.n_clamped,
+            "max_shortfall": self.max_shortfall,
+            "max_shortfall_time": None if k is None else float(self.t[k]),
+            "first_clamped_time": float(self.t[np.argmax(self.clamped)]) if self.n_clamped else None,
+            "tracking_error": self.tracking_error(),
+            "input_range": list(self.input_range),
+            "u_min": float(self.u.min()),
+            "u_max": float(self.u.max()),
+        }
 
 
 def invert(model, **options) -> Compensator:
@@ -516,8 +565,17 @@ def invert(model, **options) -> Compensator:
     return Compensator(model, **options)
 
 
-def compensate(model, t, y_ref, *, u0: float | None = None, x0=None, measurement: str = "refuse",
-               input_range=None, orientation: float | None = None) -> Compensation:
+def compensate(
+    model,
+    t,
+    y_ref,
+    *,
+    u0: float | None = None,
+    x0=None,
+    measurement: str = "refuse",
+    input_range=None,
+    orientation: float | None = None,
+) -> Compensation:
     """The input that makes `model` follow y_ref at the samples t (None: t_k = k); see the module docstring.
 
     The first sample is t[0] (the plant's state there is x0, as in `simulate`), so
@@ -534,8 +592,9 @@ def compensate(model, t, y_ref, *, u0: float | None = None, x0=None, measurement
     t = np.arange(len(y_ref), dtype=float) if t is None else check_finite("t", t)
     if len(y_ref) == 0:
         raise KernelError("empty reference")
-    comp = Compensator(model, t0=float(t[0]), u0=u0, x0=x0, measurement=measurement, input_range=input_range,
-                       orientation=orientation)
+    comp = Compensator(
+        model, t0=float(t[0]), u0=u0, x0=x0, measurement=measurement, input_range=input_range, orientation=orientation
+    )
     return comp.run(t, y_ref)
 
 

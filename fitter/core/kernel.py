@@ -9,6 +9,7 @@ same flow.  The numerics of `fitter.core.flow` are re-exported here, so
 
 This module needs only numpy: it is shipped inside the FMUs.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -18,12 +19,38 @@ import numpy as np
 
 from .effects import run_with_effects
 from .errors import KernelError
-from .flow import (AffineFlow, check_finite, check_increasing, expm, flows, integrate, integrate_blocks,
-                   interval_coefficients, one_interval, phi1, phi2)
+from .flow import (
+    AffineFlow,
+    check_finite,
+    check_increasing,
+    expm,
+    flows,
+    integrate,
+    integrate_blocks,
+    interval_coefficients,
+    one_interval,
+    phi1,
+    phi2,
+)
 
-__all__ = ["AffineFlow", "check_finite", "check_increasing", "expm", "flows", "integrate", "integrate_blocks",
-           "interval_coefficients", "one_interval", "phi1", "phi2", "simulate", "state_blocks", "state_response",
-           "Simulation", "KernelError"]
+__all__ = [
+    "AffineFlow",
+    "check_finite",
+    "check_increasing",
+    "expm",
+    "flows",
+    "integrate",
+    "integrate_blocks",
+    "interval_coefficients",
+    "one_interval",
+    "phi1",
+    "phi2",
+    "simulate",
+    "state_blocks",
+    "state_response",
+    "Simulation",
+    "KernelError",
+]
 
 
 @dataclass
@@ -87,14 +114,13 @@ def state_response(model, t, u, X0, flow_cache: dict | None = None, forcing: dic
     k = 0
     for X in state_blocks(model, t, u, X0, flow_cache, forcing):
         if out is None:
-            out = np.empty((1 + max(len(u) - 1, 0),) + X.shape[1:])     # x_0 and one state per interval
-        out[k:k + len(X)] = X
+            out = np.empty((1 + max(len(u) - 1, 0),) + X.shape[1:])  # x_0 and one state per interval
+        out[k : k + len(X)] = X
         k += len(X)
     return out
 
 
-def state_blocks(model, t, u, X0, flow_cache: dict | None = None,
-                 forcing: dict | None = None) -> Iterator[np.ndarray]:
+def state_blocks(model, t, u, X0, flow_cache: dict | None = None, forcing: dict | None = None) -> Iterator[np.ndarray]:
     """The states of `state_response` in consecutive pieces along the samples ((k, n, m) arrays, the
     first starting with x_0), so that a caller reducing them as they come (an output, the last state)
     holds one piece at a time (`flow.integrate_blocks`; a model with effects gives one piece)."""

@@ -45,6 +45,7 @@ matrix of numbers, got a ragged list``).
 
 This module needs only numpy: it is shipped inside the FMUs.
 """
+
 from __future__ import annotations
 
 import json
@@ -61,17 +62,27 @@ from .errors import EffectError, ModelFileError
 from .files import atomic_file
 from .rates import RateFunction, TabulatedRate, as_rate
 
-__all__ = ["INPUT_MARGIN", "ModelFileError", "Signal", "Signals", "Experiment", "RateIndependentModel",
-           "RateDependentModel", "load_model", "save_model", "model_from_dict", "model_from_json", "SCHEMA",
-           "SCHEMA_VERSION"]
+__all__ = [
+    "INPUT_MARGIN",
+    "ModelFileError",
+    "Signal",
+    "Signals",
+    "Experiment",
+    "RateIndependentModel",
+    "RateDependentModel",
+    "load_model",
+    "save_model",
+    "model_from_dict",
+    "model_from_json",
+    "SCHEMA",
+    "SCHEMA_VERSION",
+]
 
 SCHEMA = "duhem-model"
 SCHEMA_VERSION = 1
 
 INPUT_MARGIN = 0.05
 """Share of the fitted input span added on each side of the stored `input_range` (module docstring)."""
-
-
 
 
 @dataclass
@@ -378,8 +389,18 @@ class RateDependentModel(_ModelBase):
 Model = RateIndependentModel | RateDependentModel
 
 
-_COMMON_KEYS = ("schema", "schema_version", "kind", "order", "signals", "experiment", "fit_info", "parameters",
-                "effects", "input_range")
+_COMMON_KEYS = (
+    "schema",
+    "schema_version",
+    "kind",
+    "order",
+    "signals",
+    "experiment",
+    "fit_info",
+    "parameters",
+    "effects",
+    "input_range",
+)
 """Top-level keys of every model file; a rate-dependent one also has "g"."""
 
 
@@ -390,11 +411,10 @@ def model_from_dict(d: dict, source: str = "model") -> Model:
     (or ``<source>: not a duhem model file`` / ``unknown schema_version``).
     """
     if not isinstance(d, dict) or d.get("schema") != SCHEMA:
-        raise ModelFileError(f"{source}: not a duhem model file (missing \"schema\": \"{SCHEMA}\")")
+        raise ModelFileError(f'{source}: not a duhem model file (missing "schema": "{SCHEMA}")')
     version = d.get("schema_version")
     if version != SCHEMA_VERSION:
-        raise ModelFileError(f"{source}: unknown schema_version {version!r} "
-                             f"(this version reads {SCHEMA_VERSION})")
+        raise ModelFileError(f"{source}: unknown schema_version {version!r} (this version reads {SCHEMA_VERSION})")
     try:
         return _model_of_schema(d)
     except ModelFileError as exc:
@@ -414,9 +434,14 @@ def _model_of_schema(d: dict) -> Model:
     kwargs = _parameters(d.get("parameters"), cls)
     if cls is RateDependentModel:
         kwargs["g"] = _rate_from_dict(d.get("g"))
-    model = cls(signals=_signals_from_dict(d.get("signals", {})), experiment=_experiment_from_dict(
-                d.get("experiment", {})), fit_info=d.get("fit_info", {}), effects=d.get("effects", []),
-                input_range=d.get("input_range"), **kwargs)
+    model = cls(
+        signals=_signals_from_dict(d.get("signals", {})),
+        experiment=_experiment_from_dict(d.get("experiment", {})),
+        fit_info=d.get("fit_info", {}),
+        effects=d.get("effects", []),
+        input_range=d.get("input_range"),
+        **kwargs,
+    )
     order = d.get("order")
     if order is not None and order != model.order:
         raise _key_error("order", f"{model.order} (the length of parameters.C)", _describe(order))
@@ -430,8 +455,9 @@ def _parameters(params: Any, cls: type) -> dict:
         raise _key_error("parameters", f"an object with keys {names}", _describe(params))
     for name in params:
         if name not in cls.PARAMS:
-            raise ModelFileError(f"key 'parameters.{name}': not a parameter of a {cls.kind!r} model (its "
-                                 f"parameters: {names})")
+            raise ModelFileError(
+                f"key 'parameters.{name}': not a parameter of a {cls.kind!r} model (its parameters: {names})"
+            )
     for name in cls.PARAMS:
         if name not in params:
             raise ModelFileError(f"key 'parameters.{name}' is missing (a {cls.kind!r} model has {names})")
@@ -459,8 +485,9 @@ def _signals_from_dict(sig: Any) -> Signals:
     out = {}
     for key, value in sig.items():
         if not isinstance(value, dict) or "name" not in value or set(value) - {"name", "unit", "description"}:
-            raise _key_error(f"signals.{key}", "an object with keys 'name' (required), 'unit' and 'description'",
-                             _describe(value))
+            raise _key_error(
+                f"signals.{key}", "an object with keys 'name' (required), 'unit' and 'description'", _describe(value)
+            )
         for name, text in value.items():
             if not isinstance(text, str):
                 raise _key_error(f"signals.{key}.{name}", "a string", _describe(text))
@@ -475,8 +502,11 @@ def _experiment_from_dict(exp: Any) -> Experiment:
         raise _key_error("experiment", f"an object with keys {', '.join(names)}", _describe(exp))
     out = Experiment(**{key: _number(f"experiment.{key}", value) for key, value in exp.items()})
     if not (out.start_time < out.stop_time and out.step_size > 0):
-        raise _key_error("experiment", "start_time < stop_time and step_size > 0",
-                         f"{out.start_time:g}, {out.stop_time:g}, {out.step_size:g}")
+        raise _key_error(
+            "experiment",
+            "start_time < stop_time and step_size > 0",
+            f"{out.start_time:g}, {out.stop_time:g}, {out.step_size:g}",
+        )
     return out
 
 
@@ -486,8 +516,10 @@ def model_from_json(text: str | bytes, source: str) -> Model:
     try:
         d = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise ModelFileError(f"{source}: not a JSON model file (invalid JSON at line {exc.lineno}, column "
-                             f"{exc.colno}: {exc.msg[0].lower()}{exc.msg[1:]})") from None
+        raise ModelFileError(
+            f"{source}: not a JSON model file (invalid JSON at line {exc.lineno}, column "
+            f"{exc.colno}: {exc.msg[0].lower()}{exc.msg[1:]})"
+        ) from None
     except UnicodeDecodeError:
         raise ModelFileError(f"{source}: not a JSON model file (not UTF-8 text)") from None
     return model_from_dict(d, source=source)

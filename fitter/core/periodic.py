@@ -9,6 +9,7 @@ one maximum and one minimum per period, Phi is similar to
 e^{beta A+} e^{-beta A-} (beta = u_max - u_min), so rho(Phi) is the quantity
 of condition (5).
 """
+
 from __future__ import annotations
 
 from collections import deque
@@ -21,9 +22,20 @@ import numpy as np
 from .errors import ConvergenceError, KernelError
 from .kernel import Simulation, expm, flows, simulate, state_blocks
 
-__all__ = ["ConvergenceError", "PeriodicResponse", "periodic_response", "convergence_rho", "minor_loop_rho",
-           "minor_loop_outputs", "minor_loop_input", "limiting_loop", "affine_blocks", "affine_response",
-           "period_map", "fixed_point"]
+__all__ = [
+    "ConvergenceError",
+    "PeriodicResponse",
+    "periodic_response",
+    "convergence_rho",
+    "minor_loop_rho",
+    "minor_loop_outputs",
+    "minor_loop_input",
+    "limiting_loop",
+    "affine_blocks",
+    "affine_response",
+    "period_map",
+    "fixed_point",
+]
 
 
 def affine_blocks(model, t, u, cache: dict | None = None) -> Iterator[tuple[np.ndarray, np.ndarray]]:
@@ -46,7 +58,7 @@ def affine_response(model, t, u, cache: dict | None = None) -> tuple[np.ndarray,
 def period_map(model, t, u, cache: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(Phi, c) of the affine map x_N = Phi x_0 + c over the given samples (one period): the last
     state of `affine_blocks`, only the last piece kept."""
-    (c, Phi), = deque(affine_blocks(model, t, u, cache), maxlen=1)
+    ((c, Phi),) = deque(affine_blocks(model, t, u, cache), maxlen=1)
     return Phi[-1], c[-1]
 
 
@@ -92,10 +104,11 @@ def periodic_response(model, t, u) -> PeriodicResponse:
     cache = flows(model)
     xs, rho = fixed_point(model, t, u, cache)
     if xs is None:
-        raise ConvergenceError(f"no limiting periodic map: spectral radius of the period map "
-                               f"is {rho:.6g} >= 1 (condition (5) of Theorem 1 fails)")
-    return PeriodicResponse(sim=simulate(model, t, u, x0=xs, flow_cache=cache), rho=rho,
-                            x_periodic=xs)
+        raise ConvergenceError(
+            f"no limiting periodic map: spectral radius of the period map "
+            f"is {rho:.6g} >= 1 (condition (5) of Theorem 1 fails)"
+        )
+    return PeriodicResponse(sim=simulate(model, t, u, x0=xs, flow_cache=cache), rho=rho, x_periodic=xs)
 
 
 def _span_rho(model, b: float) -> float:
@@ -167,8 +180,9 @@ MINOR_CENTRES = 5
 """Centres at which `minor_loop_outputs` places each sub-span's loop, evenly from the lowest to the highest."""
 
 
-def minor_loop_outputs(model, u_min: float, u_max: float, spans: int = MINOR_SPANS,
-                       centres: int = MINOR_CENTRES) -> np.ndarray:
+def minor_loop_outputs(
+    model, u_min: float, u_max: float, spans: int = MINOR_SPANS, centres: int = MINOR_CENTRES
+) -> np.ndarray:
     """Outputs at the two turning points of every settled minor loop, shape (spans * centres, 2).
 
     A loop of span b = beta k / spans (k = 1..spans, beta = u_max - u_min) between u_lo and u_lo + b, with
@@ -217,8 +231,9 @@ def _branch_maps(A: np.ndarray, B: np.ndarray, E: np.ndarray, du: np.ndarray) ->
     return F[:, :n, :n], F[:, :n, n], F[:, :n, n + 1]
 
 
-def minor_loop_input(u_min: float, u_max: float, cycles: int = 40, points: int = 20,
-                     spans: int = MINOR_SPANS, start: float | None = None) -> np.ndarray:
+def minor_loop_input(
+    u_min: float, u_max: float, cycles: int = 40, points: int = 20, spans: int = MINOR_SPANS, start: float | None = None
+) -> np.ndarray:
     """The sub-spans of `minor_loop_rho` as an input: from the middle of [u_min, u_max], `cycles` triangle
     cycles between two levels b apart around the middle, for b = beta k / spans, k = 1..spans in turn
     (`points` samples per leg).  A model whose `minor_loop_rho` is below 1 stays bounded on it.  `start`: the
@@ -246,4 +261,4 @@ def limiting_loop(model, u_min: float, u_max: float, points: int = 201):
     t = np.arange(len(u), dtype=float)
     pr = periodic_response(model, t, u)
     y = pr.sim.y
-    return grid, y[:points], y[points - 1:][::-1], pr.rho
+    return grid, y[:points], y[points - 1 :][::-1], pr.rho

@@ -14,6 +14,7 @@ project stores g as a table and evaluates it with a documented rule:
 
 This module needs only numpy: it is shipped inside the FMUs.
 """
+
 from __future__ import annotations
 
 import bisect
@@ -32,8 +33,8 @@ class RateFunction:
 
     def to_dict(self) -> dict:
         raise TypeError(
-            f"{type(self).__name__} cannot be saved to JSON; tabulate it first "
-            "(TabulatedRate.from_function)")
+            f"{type(self).__name__} cannot be saved to JSON; tabulate it first (TabulatedRate.from_function)"
+        )
 
 
 def _pchip_slopes(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -150,8 +151,12 @@ class TabulatedRate(RateFunction):
         return out
 
     def to_dict(self) -> dict:
-        return {"type": "table", "interpolation": "pchip-through-origin, constant beyond ends",
-                "v": self.v.tolist(), "g": self.g.tolist()}
+        return {
+            "type": "table",
+            "interpolation": "pchip-through-origin, constant beyond ends",
+            "v": self.v.tolist(),
+            "g": self.g.tolist(),
+        }
 
 
 class CallableRate(RateFunction):

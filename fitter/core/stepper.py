@@ -36,6 +36,7 @@ Semantics (the FMUs implement exactly this; the README documents it):
   (`models._ModelBase.model_input`): u and u_a are kept as set, the model
   acts on the held values.
 """
+
 from __future__ import annotations
 
 import math

@@ -36,6 +36,7 @@ Cycles
   output: its first sample lies on the loop it repeats, a steady cycle (an
   experiment that starts from rest or from a virgin state does not close).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -44,9 +45,22 @@ from fitter.core.errors import DuhemError
 from fitter.data.noise import noise_or_zero
 from fitter.data.recordings import Recording
 
-__all__ = ["PreparationError", "REVERSAL_FRACTION", "REVERSAL_NOISE_FACTOR", "reversal_threshold",
-           "find_reversals", "count_reversals", "cycle_reversals", "period_cycle", "closing_period",
-           "single_loop", "split_cycles", "last_full_cycle", "closed_last_cycle", "closed_loop"]
+__all__ = [
+    "PreparationError",
+    "REVERSAL_FRACTION",
+    "REVERSAL_NOISE_FACTOR",
+    "reversal_threshold",
+    "find_reversals",
+    "count_reversals",
+    "cycle_reversals",
+    "period_cycle",
+    "closing_period",
+    "single_loop",
+    "split_cycles",
+    "last_full_cycle",
+    "closed_last_cycle",
+    "closed_loop",
+]
 
 REVERSAL_FRACTION = 0.05
 REVERSAL_NOISE_FACTOR = 6.0
@@ -119,8 +133,9 @@ def count_reversals(u, *, threshold: float | None = None) -> int:
     return int(find_reversals(u, threshold=threshold).size)
 
 
-def cycle_reversals(rec_or_u, *, threshold: float | None = None,
-                    reversals: np.ndarray | None = None) -> list[tuple[int, int, int]]:
+def cycle_reversals(
+    rec_or_u, *, threshold: float | None = None, reversals: np.ndarray | None = None
+) -> list[tuple[int, int, int]]:
     """Full cycles as (start, middle, end) reversal indices (see the module docstring)."""
     u = _as_u(rec_or_u)
     r = find_reversals(u, threshold=threshold) if reversals is None else np.asarray(reversals)
@@ -149,7 +164,7 @@ def period_cycle(u, reversals: np.ndarray) -> slice | None:
     if len(r) != 2:
         return None
     rising = u[r[0]] > u[r[1]]
-    back = np.flatnonzero(u[r[1]:] >= u[0] if rising else u[r[1]:] <= u[0])
+    back = np.flatnonzero(u[r[1] :] >= u[0] if rising else u[r[1] :] <= u[0])
     if back.size:
         return slice(0, int(r[1] + back[0]) + 1)
     if abs(u[-1] - u[0]) <= PERIOD_CLOSURE * float(np.ptp(u)):
@@ -165,8 +180,11 @@ def closing_period(u, reversals: np.ndarray) -> slice | None:
     sign(u[-1] - u[-2])``; or a `single_loop`.
     """
     u = np.asarray(u, dtype=float)
-    if len(reversals) >= 2 and abs(u[-1] - u[0]) < LOOSE_CLOSURE * np.ptp(u) \
-            and np.sign(u[1] - u[0]) == np.sign(u[-1] - u[-2]):
+    if (
+        len(reversals) >= 2
+        and abs(u[-1] - u[0]) < LOOSE_CLOSURE * np.ptp(u)
+        and np.sign(u[1] - u[0]) == np.sign(u[-1] - u[-2])
+    ):
         return slice(0, u.size)
     return single_loop(u, reversals)
 
@@ -227,8 +245,9 @@ def last_full_cycle(u, *, threshold: float | None = None) -> slice:
         return slice(int(r[-3]), int(r[-1]) + 1)
     whole = period_cycle(u, r)
     if whole is None:
-        raise PreparationError(f"no full input cycle: the input reverses {len(r)} time(s) and does not "
-                               f"cover a whole period")
+        raise PreparationError(
+            f"no full input cycle: the input reverses {len(r)} time(s) and does not cover a whole period"
+        )
     return whole
 
 

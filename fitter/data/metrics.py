@@ -15,6 +15,7 @@ Definitions (all on sampled signals, samples weighted equally)
   (`fitter.data.noise`); ``last_full_cycle``: the samples of the last full
   input cycle (`fitter.data.cycles`).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -79,18 +80,31 @@ def compare(rec, y_hat) -> dict:
     output range.
     """
     y, y_hat = _pair(rec.y, y_hat)
-    out = {"samples": int(y.size), "nrmse": nrmse(y, y_hat), "max_error": max_error(y, y_hat),
-           "residual_rms": rms(y - y_hat),
-           "noise_rms": noise_rms(y) if y.size >= 2 * NOISE_WINDOW else None,
-           "last_cycle": None, "nrmse_last_cycle": None, "max_error_last_cycle": None,
-           "loop_area": None, "loop_area_model": None, "loop_area_error": None}
+    out = {
+        "samples": int(y.size),
+        "nrmse": nrmse(y, y_hat),
+        "max_error": max_error(y, y_hat),
+        "residual_rms": rms(y - y_hat),
+        "noise_rms": noise_rms(y) if y.size >= 2 * NOISE_WINDOW else None,
+        "last_cycle": None,
+        "nrmse_last_cycle": None,
+        "max_error_last_cycle": None,
+        "loop_area": None,
+        "loop_area_model": None,
+        "loop_area_error": None,
+    }
     try:
         s = last_full_cycle(rec.u)
     except PreparationError:
         return out
     u = rec.u[s]
     a_data, a_model = loop_area(u, y[s]), loop_area(u, y_hat[s])
-    out.update(last_cycle=[s.start, s.stop], nrmse_last_cycle=nrmse(y[s], y_hat[s]),
-               max_error_last_cycle=max_error(y[s], y_hat[s]), loop_area=a_data, loop_area_model=a_model,
-               loop_area_error=(a_model - a_data) / abs(a_data) if a_data != 0 else None)
+    out.update(
+        last_cycle=[s.start, s.stop],
+        nrmse_last_cycle=nrmse(y[s], y_hat[s]),
+        max_error_last_cycle=max_error(y[s], y_hat[s]),
+        loop_area=a_data,
+        loop_area_model=a_model,
+        loop_area_error=(a_model - a_data) / abs(a_data) if a_data != 0 else None,
+    )
     return out

@@ -12,6 +12,7 @@ does not fit the signal).  Assumes the noise-free signal is locally smooth on
 the 7-sample scale; for quantised data it estimates the quantisation noise
 (step / sqrt(12)).
 """
+
 from __future__ import annotations
 
 import numpy as np

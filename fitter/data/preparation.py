@@ -29,6 +29,7 @@ Steps of `prepare` (each result is kept in the returned `Prepared`):
 All indices in `Prepared` refer to the trimmed recording except
 `transient_end`, the index in the original recording where it starts.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -36,13 +37,18 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
-from fitter.data.cycles import (PreparationError, closing_period, cycle_reversals, find_reversals,
-                                period_cycle, reversal_threshold)
+from fitter.data.cycles import (
+    PreparationError,
+    closing_period,
+    cycle_reversals,
+    find_reversals,
+    period_cycle,
+    reversal_threshold,
+)
 from fitter.data.noise import noise_or_zero
 from fitter.data.recordings import Recording
 
-__all__ = ["Prepared", "settled_start", "cycle_differences", "find_holds", "branch_on_grid", "resample_time",
-           "prepare"]
+__all__ = ["Prepared", "settled_start", "cycle_differences", "find_holds", "branch_on_grid", "resample_time", "prepare"]
 
 SETTLE_FRACTION = 0.002
 SETTLE_BINS = 32
@@ -60,7 +66,7 @@ def _bin_stats(u: np.ndarray, v: np.ndarray, edges: np.ndarray) -> tuple[np.ndar
     s2 = np.bincount(idx[ok], weights=v[ok] ** 2, minlength=len(edges) - 1)
     use = n >= 2
     mean = s1[use] / n[use]
-    var = np.maximum(s2[use] / n[use] - mean ** 2, 0.0) * n[use] / (n[use] - 1)
+    var = np.maximum(s2[use] / n[use] - mean**2, 0.0) * n[use] / (n[use] - 1)
     return mean, var / n[use]
 
 
@@ -107,10 +113,10 @@ def _settling(u, y, cycles) -> tuple[int, np.ndarray, float, float]:
     if not diffs:
         return 0, np.zeros(0), 0.0, tol
     means = np.array([d.mean() if d.size else 0.0 for d in diffs])
-    drift = float(np.median(means[len(means) // 2:]))
+    drift = float(np.median(means[len(means) // 2 :]))
     r = np.array([np.sqrt(np.mean((d - drift) ** 2)) if d.size else np.inf for d in diffs])
     tol = max(tol, 3.0 * float(np.max(noise)))
-    floor = max(tol, 3.0 * float(np.median(r[len(r) // 2:])))
+    floor = max(tol, 3.0 * float(np.median(r[len(r) // 2 :])))
     above = np.flatnonzero(r > floor)
     first = int(above[-1]) + 1 if above.size else 0
     return min(first, len(cycles) - 1), r, drift, tol
@@ -141,8 +147,8 @@ def find_holds(t, u, *, min_samples: int = HOLD_MIN_SAMPLES, band: float | None 
         return []
     spread = maximum_filter1d(u, L) - minimum_filter1d(u, L)
     centre = spread <= band
-    centre[:L // 2] = False
-    centre[u.size - L // 2:] = False
+    centre[: L // 2] = False
+    centre[u.size - L // 2 :] = False
     mask = maximum_filter1d(centre.astype(np.uint8), L).astype(bool)
     edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
     return [(int(a), int(b)) for a, b in zip(edges[0::2], edges[1::2])]
@@ -169,8 +175,10 @@ def branch_on_grid(u, y, grid) -> np.ndarray:
     means = np.bincount(inverse, weights=y) / np.bincount(inverse)
     slack = 1e-9 * (levels[-1] - levels[0])
     if grid.min() < levels[0] - slack or grid.max() > levels[-1] + slack:
-        raise PreparationError(f"grid [{grid.min():.6g}, {grid.max():.6g}] leaves the branch's input "
-                               f"range [{levels[0]:.6g}, {levels[-1]:.6g}]")
+        raise PreparationError(
+            f"grid [{grid.min():.6g}, {grid.max():.6g}] leaves the branch's input "
+            f"range [{levels[0]:.6g}, {levels[-1]:.6g}]"
+        )
     return np.interp(grid, levels, means)
 
 
@@ -184,8 +192,9 @@ def resample_time(rec: Recording, dt: float | None = None) -> Recording:
     if not step > 0:
         raise PreparationError(f"{rec.label}: time step must be positive, got {step}")
     t = rec.t[0] + step * np.arange(int(np.floor((rec.t[-1] - rec.t[0]) / step + 1e-9)) + 1)
-    return Recording(t, np.interp(t, rec.t, rec.u), np.interp(t, rec.t, rec.y), rec.name, rec.input,
-                     rec.output, rec.source)
+    return Recording(
+        t, np.interp(t, rec.t, rec.u), np.interp(t, rec.t, rec.y), rec.name, rec.input, rec.output, rec.source
+    )
 
 
 @dataclass
@@ -224,30 +233,48 @@ class Prepared:
         """
         s = self.cycles[0] if self.cycles else closing_period(self.recording.u, self.reversals)
         if s is None:
-            raise PreparationError(f"{self.recording.label}: too few cycles: no full input cycle "
-                                   f"({len(self.reversals)} reversals) and the recording is not one "
-                                   f"closing period")
+            raise PreparationError(
+                f"{self.recording.label}: too few cycles: no full input cycle "
+                f"({len(self.reversals)} reversals) and the recording is not one "
+                f"closing period"
+            )
         return s.start, s.stop - 1
 
     def to_dict(self) -> dict:
         """JSON-able summary (indices refer to the trimmed recording)."""
         r = self.recording
         return {
-            "recording": r.name, "source": r.source, "samples": len(self.original),
-            "samples_used": len(r), "transient_end": self.transient_end,
+            "recording": r.name,
+            "source": r.source,
+            "samples": len(self.original),
+            "samples_used": len(r),
+            "transient_end": self.transient_end,
             "transient_time": float(self.original.t[self.transient_end] - self.original.t[0]),
-            "reversal_threshold": self.threshold, "reversals": [int(i) for i in self.reversals],
-            "cycles": [[s.start, s.stop] for s in self.cycles], "n_cycles": self.n_cycles,
-            "holds": [{"start": a, "stop": b, "t_start": float(r.t[a]), "t_stop": float(r.t[b - 1]),
-                       "input": float(np.mean(r.u[a:b]))} for a, b in self.holds],
-            "drift_per_cycle": self.drift_per_cycle, "noise_rms": self.noise_rms,
-            "input_noise_rms": self.input_noise_rms, "cycle_difference": self.cycle_difference,
+            "reversal_threshold": self.threshold,
+            "reversals": [int(i) for i in self.reversals],
+            "cycles": [[s.start, s.stop] for s in self.cycles],
+            "n_cycles": self.n_cycles,
+            "holds": [
+                {
+                    "start": a,
+                    "stop": b,
+                    "t_start": float(r.t[a]),
+                    "t_stop": float(r.t[b - 1]),
+                    "input": float(np.mean(r.u[a:b])),
+                }
+                for a, b in self.holds
+            ],
+            "drift_per_cycle": self.drift_per_cycle,
+            "noise_rms": self.noise_rms,
+            "input_noise_rms": self.input_noise_rms,
+            "cycle_difference": self.cycle_difference,
             "notes": list(self.notes),
         }
 
 
-def prepare(rec: Recording, *, min_cycles: int = 1, threshold: float | None = None,
-            drop_transient: bool = True) -> Prepared:
+def prepare(
+    rec: Recording, *, min_cycles: int = 1, threshold: float | None = None, drop_transient: bool = True
+) -> Prepared:
     """Find reversals, cycles, holds, the settled part and the drift of `rec`.
 
     Raises `PreparationError` ("too few cycles") when fewer than
@@ -260,8 +287,10 @@ def prepare(rec: Recording, *, min_cycles: int = 1, threshold: float | None = No
     whole = period_cycle(rec.u, r) if not cycles else None
     n_cycles = len(cycles) + (whole is not None)
     if n_cycles < min_cycles:
-        raise PreparationError(f"{label}: too few cycles: the input has {n_cycles} full cycle(s) "
-                               f"({len(r)} reversals by more than {thr:.4g}), at least {min_cycles} needed")
+        raise PreparationError(
+            f"{label}: too few cycles: the input has {n_cycles} full cycle(s) "
+            f"({len(r)} reversals by more than {thr:.4g}), at least {min_cycles} needed"
+        )
     sigma, sigma_u = noise_or_zero(rec.y), noise_or_zero(rec.u)
     notes = [f"{len(r)} input reversals (threshold {thr:.4g}), {n_cycles} full cycle(s)"]
     first, d, drift, tol = _settling(rec.u, rec.y, cycles) if cycles else (0, np.zeros(0), 0.0, 0.0)
@@ -269,16 +298,22 @@ def prepare(rec: Recording, *, min_cycles: int = 1, threshold: float | None = No
     if len(cycles) == 1:
         drift = _closure(rec, cycles[0])
     if start:
-        notes.append(f"dropped the start-up transient before the first settled cycle: samples "
-                     f"0-{start - 1} (t < {rec.t[start]:.6g}, {100 * start / len(rec.u):.0f}% of the samples), "
-                     f"{first} unsettled full cycle(s)")
+        notes.append(
+            f"dropped the start-up transient before the first settled cycle: samples "
+            f"0-{start - 1} (t < {rec.t[start]:.6g}, {100 * start / len(rec.u):.0f}% of the samples), "
+            f"{first} unsettled full cycle(s)"
+        )
     if d.size and np.isfinite(d[-1]) and d[-1] > tol:
-        notes.append(f"successive cycles still differ by {d[-1]:.3g} RMS beyond the drift "
-                     f"({100 * d[-1] / np.ptp(rec.y):.2g}% of the output range) at the end: "
-                     f"cycle-to-cycle variation, or not fully settled")
+        notes.append(
+            f"successive cycles still differ by {d[-1]:.3g} RMS beyond the drift "
+            f"({100 * d[-1] / np.ptp(rec.y):.2g}% of the output range) at the end: "
+            f"cycle-to-cycle variation, or not fully settled"
+        )
     if cycles and abs(drift) > tol:
-        notes.append(f"the loops do not close: the output drifts by {drift:.3g} per cycle "
-                     f"({100 * drift / np.ptp(rec.y):.2g}% of the output range)")
+        notes.append(
+            f"the loops do not close: the output drifts by {drift:.3g} per cycle "
+            f"({100 * drift / np.ptp(rec.y):.2g}% of the output range)"
+        )
     if n_cycles == 1:
         notes.append("only one full cycle: settling could not be checked")
     trimmed = rec.slice(slice(start, None))
@@ -288,15 +323,25 @@ def prepare(rec: Recording, *, min_cycles: int = 1, threshold: float | None = No
     if holds:
         total = sum(trimmed.t[b - 1] - trimmed.t[a] for a, b in holds)
         notes.append(f"{len(holds)} input hold(s), {total:.4g} time units in all")
-    return Prepared(recording=trimmed, original=rec, reversals=rev,
-                    cycles=[whole] if whole is not None else
-                    [slice(a - start, c - start + 1) for a, _, c in cycles[first if drop_transient else 0:]],
-                    transient_end=int(start), holds=holds, drift_per_cycle=drift, threshold=thr,
-                    noise_rms=sigma, input_noise_rms=sigma_u,
-                    cycle_difference=[float(x) for x in d], notes=notes)
+    return Prepared(
+        recording=trimmed,
+        original=rec,
+        reversals=rev,
+        cycles=[whole]
+        if whole is not None
+        else [slice(a - start, c - start + 1) for a, _, c in cycles[first if drop_transient else 0 :]],
+        transient_end=int(start),
+        holds=holds,
+        drift_per_cycle=drift,
+        threshold=thr,
+        noise_rms=sigma,
+        input_noise_rms=sigma_u,
+        cycle_difference=[float(x) for x in d],
+        notes=notes,
+    )
 
 
 def _closure(rec: Recording, cycle: tuple[int, int, int]) -> float:
     """Closure y(end) - y(start) of a single cycle (5-sample means about its end reversals)."""
     a, _, c = cycle
-    return float(np.mean(rec.y[max(c - 2, 0):c + 3]) - np.mean(rec.y[max(a - 2, 0):a + 3]))
+    return float(np.mean(rec.y[max(c - 2, 0) : c + 3]) - np.mean(rec.y[max(a - 2, 0) : a + 3]))

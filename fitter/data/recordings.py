@@ -30,6 +30,7 @@ is taken: ``x_increasing_mm_per_s`` -> name ``x_increasing``, unit ``mm/s``;
 ``u_min`` has no unit.  A time column in ``ms``, ``us`` or ``ns`` is converted
 to seconds.
 """
+
 from __future__ import annotations
 
 import csv
@@ -45,15 +46,53 @@ import numpy as np
 from fitter.core.errors import DuhemError
 from fitter.core.models import Signal
 
-__all__ = ["Recording", "RecordingError", "SCALE_LIMIT", "check_samples", "check_scale", "load_recording",
-           "load_recordings", "save_columns", "split_unit", "MIN_SAMPLES"]
+__all__ = [
+    "Recording",
+    "RecordingError",
+    "SCALE_LIMIT",
+    "check_samples",
+    "check_scale",
+    "load_recording",
+    "load_recordings",
+    "save_columns",
+    "split_unit",
+    "MIN_SAMPLES",
+]
 
 MIN_SAMPLES = 3
 """Fewest data rows `load_recording` accepts by default."""
 
 _PREFIXES = ("da", "Y", "Z", "E", "P", "T", "G", "M", "k", "h", "d", "c", "m", "u", "µ", "n", "p", "f", "a", "")
-_UNITS = ("m", "s", "g", "V", "A", "W", "J", "N", "Pa", "bar", "Hz", "C", "F", "H", "Ohm", "ohm", "K",
-          "degC", "rad", "deg", "T", "S", "Wb", "mol", "cd", "L", "l", "percent")
+_UNITS = (
+    "m",
+    "s",
+    "g",
+    "V",
+    "A",
+    "W",
+    "J",
+    "N",
+    "Pa",
+    "bar",
+    "Hz",
+    "C",
+    "F",
+    "H",
+    "Ohm",
+    "ohm",
+    "K",
+    "degC",
+    "rad",
+    "deg",
+    "T",
+    "S",
+    "Wb",
+    "mol",
+    "cd",
+    "L",
+    "l",
+    "percent",
+)
 _UNIT_TOKEN = re.compile("^(?:%s)(?:%s)-?[0-9]?$" % ("|".join(_PREFIXES), "|".join(_UNITS)))
 _BRACKET = re.compile(r"^(.*?)\s*[\[(]\s*([^\])]+?)\s*[\])]\s*$")
 _TIME_SCALE = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9}
@@ -63,9 +102,16 @@ class RecordingError(DuhemError):
     """A recording file or column that cannot be used; the message names file, column, line, value."""
 
 
-def check_samples(t, u, y=None, *, source: str, names: Sequence[str] = ("t", "u", "y"),
-                  rows: Sequence[int] | None = None,
-                  min_samples: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def check_samples(
+    t,
+    u,
+    y=None,
+    *,
+    source: str,
+    names: Sequence[str] = ("t", "u", "y"),
+    rows: Sequence[int] | None = None,
+    min_samples: int = 2,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Check the samples of one experiment; return t, u, y as float arrays (y None if not given).
 
     In this order: t, u (and y) are 1-D and of equal length; there are at
@@ -89,8 +135,10 @@ def check_samples(t, u, y=None, *, source: str, names: Sequence[str] = ("t", "u"
     """
     arrays = [np.asarray(a, dtype=float) for a in ((t, u) if y is None else (t, u, y))]
     if any(a.ndim != 1 for a in arrays) or len({a.size for a in arrays}) != 1:
-        raise RecordingError(f"{source}: {', '.join(names[:len(arrays)])} must be 1-D arrays of equal "
-                             f"length (shapes {', '.join(str(a.shape) for a in arrays)})")
+        raise RecordingError(
+            f"{source}: {', '.join(names[: len(arrays)])} must be 1-D arrays of equal "
+            f"length (shapes {', '.join(str(a.shape) for a in arrays)})"
+        )
     if arrays[0].size < min_samples:
         count = f"{arrays[0].size} data rows" if rows is not None else f"{arrays[0].size}"
         raise RecordingError(f"{source}: too few samples: {count}, at least {min_samples} needed")
@@ -98,8 +146,10 @@ def check_samples(t, u, y=None, *, source: str, names: Sequence[str] = ("t", "u"
     for i, (name, a) in enumerate(zip(names, arrays)):
         bad = np.flatnonzero(~np.isfinite(a))
         if bad.size and not (i == 2 and np.isnan(a).all()):
-            raise RecordingError(f"{source}: {where(bad[0])}, column {name!r}: value {float(a[bad[0]])!r} "
-                                 f"is not finite (NaN or infinity)")
+            raise RecordingError(
+                f"{source}: {where(bad[0])}, column {name!r}: value {float(a[bad[0]])!r} "
+                f"is not finite (NaN or infinity)"
+            )
     _check_increasing(arrays[0], source, names[0], where)
     return arrays[0], arrays[1], arrays[2] if y is not None else None
 
@@ -117,8 +167,11 @@ def check_scale(recordings: Sequence["Recording"]) -> None:
     NaN.  The remedy is a change of unit, which the message names.
     """
     for rec in recordings:
-        for name, values, unit in (("time", rec.t, "s"), (rec.input.name, rec.u, rec.input.unit),
-                                   (rec.output.name, rec.y, rec.output.unit)):
+        for name, values, unit in (
+            ("time", rec.t, "s"),
+            (rec.input.name, rec.u, rec.input.unit),
+            (rec.output.name, rec.y, rec.output.unit),
+        ):
             finite = values[np.isfinite(values)]
             if finite.size == 0:
                 continue
@@ -128,7 +181,8 @@ def check_scale(recordings: Sequence["Recording"]) -> None:
                 raise RecordingError(
                     f"{rec.label}: column {name!r}{f' ({unit})' if unit else ''} has {what}: beyond what the "
                     f"identification can represent in double precision (magnitudes up to {SCALE_LIMIT:.0e}, spans "
-                    f"from {1 / SCALE_LIMIT:.0e}); rescale the column (another unit) so that its span is near 1")
+                    f"from {1 / SCALE_LIMIT:.0e}); rescale the column (another unit) so that its span is near 1"
+                )
 
 
 def _check_increasing(t: np.ndarray, source: str, name: str, where) -> None:
@@ -136,8 +190,10 @@ def _check_increasing(t: np.ndarray, source: str, name: str, where) -> None:
     back = np.flatnonzero(np.diff(t) <= 0)
     if back.size:
         k = int(back[0]) + 1
-        raise RecordingError(f"{source}: {where(k)}, column {name!r}: time {float(t[k])!r} does not increase "
-                             f"({where(k - 1)} has {float(t[k - 1])!r})")
+        raise RecordingError(
+            f"{source}: {where(k)}, column {name!r}: time {float(t[k])!r} does not increase "
+            f"({where(k - 1)} has {float(t[k - 1])!r})"
+        )
 
 
 @dataclass
@@ -173,8 +229,7 @@ class Recording:
 
     def slice(self, s: slice, name: str | None = None) -> "Recording":
         """The samples `s` of this recording as a new `Recording` (times unchanged)."""
-        return Recording(self.t[s], self.u[s], self.y[s], name or self.name, self.input, self.output,
-                         self.source)
+        return Recording(self.t[s], self.u[s], self.y[s], name or self.name, self.input, self.output, self.source)
 
 
 def split_unit(header: str) -> tuple[str, str]:
@@ -204,23 +259,26 @@ def _unit_expression(tokens: list[str]) -> str:
 def _find_column(spec: str | int, header: list[str], path: str, role: str) -> int:
     """Index of the column `spec` (name, base name or 0-based index) in `header`."""
     available = ", ".join(repr(h) for h in header)
-    if isinstance(spec, (int, np.integer)) or (isinstance(spec, str) and spec.isdigit()
-                                               and spec not in header):
+    if isinstance(spec, (int, np.integer)) or (isinstance(spec, str) and spec.isdigit() and spec not in header):
         i = int(spec)
         if not 0 <= i < len(header):
-            raise RecordingError(f"{path}: {role} column index {i} out of range: the file has "
-                                 f"{len(header)} columns ({available})")
+            raise RecordingError(
+                f"{path}: {role} column index {i} out of range: the file has {len(header)} columns ({available})"
+            )
         return i
     bases = [split_unit(h)[0] for h in header]
-    for candidates in ([h == spec for h in header], [b == spec for b in bases],
-                       [h.lower() == spec.lower() or b.lower() == spec.lower()
-                        for h, b in zip(header, bases)]):
+    for candidates in (
+        [h == spec for h in header],
+        [b == spec for b in bases],
+        [h.lower() == spec.lower() or b.lower() == spec.lower() for h, b in zip(header, bases)],
+    ):
         hits = [i for i, c in enumerate(candidates) if c]
         if len(hits) == 1:
             return hits[0]
         if len(hits) > 1:
-            raise RecordingError(f"{path}: {role} column {spec!r} is ambiguous: it matches "
-                                 + ", ".join(repr(header[i]) for i in hits))
+            raise RecordingError(
+                f"{path}: {role} column {spec!r} is ambiguous: it matches " + ", ".join(repr(header[i]) for i in hits)
+            )
     hint = "; a file without time: time=None (duhem: --no-time) uses the sample index" if role == "time" else ""
     raise RecordingError(f"{path}: {role} column {spec!r} not found (available: {available}){hint}")
 
@@ -266,15 +324,17 @@ class _Table:
     before input before output; in a column, its first non-number before its first non-finite value).
     """
 
-    def __init__(self, path: str, header_line: str, specs: dict[str, str | int | None], rows_hint: int,
-                 line: int = 1):
+    def __init__(self, path: str, header_line: str, specs: dict[str, str | int | None], rows_hint: int, line: int = 1):
         self.path = path
-        self.delimiter = "," if "," in header_line else "\t" if "\t" in header_line else ";" \
-            if ";" in header_line else ","
+        self.delimiter = (
+            "," if "," in header_line else "\t" if "\t" in header_line else ";" if ";" in header_line else ","
+        )
         self.header = [h.strip() for h in _csv_rows(path, [header_line], self.delimiter, line)[0][1]]
         if all(_is_number(h) for h in self.header):
-            raise RecordingError(f"{path}: line {line}: the first row {header_line.strip()[:60]!r} is numbers, not a "
-                                 "header: a header line naming the columns is needed (e.g. time,u,y)")
+            raise RecordingError(
+                f"{path}: line {line}: the first row {header_line.strip()[:60]!r} is numbers, not a "
+                "header: a header line naming the columns is needed (e.g. time,u,y)"
+            )
         self.cols: dict[str, int] = {}
         self.column_error: RecordingError | None = None
         try:
@@ -320,8 +380,15 @@ class _Table:
         if np.any(per_line != len(self.header) - 1):
             return None
         try:
-            values = np.loadtxt(io.StringIO(text), delimiter=self.delimiter, usecols=list(self.cols.values()),
-                                comments=None, quotechar=None, dtype=float, ndmin=2)
+            values = np.loadtxt(
+                io.StringIO(text),
+                delimiter=self.delimiter,
+                usecols=list(self.cols.values()),
+                comments=None,
+                quotechar=None,
+                dtype=float,
+                ndmin=2,
+            )
         except ValueError:
             return None
         if values.shape[0] != len(ends) or not np.isfinite(values).all():
@@ -338,10 +405,14 @@ class _Table:
             if not row or all(not c.strip() for c in row) or row[0].lstrip().startswith("#"):
                 continue
             if len(row) != len(self.header):
-                comma = " (decimal commas? write decimal points, or separate the columns by ';')" \
-                    if self.delimiter == "," and len(row) > len(self.header) else ""
-                raise RecordingError(f"{self.path}: line {number} has {len(row)} fields but the header has "
-                                     f"{len(self.header)}{comma}")
+                comma = (
+                    " (decimal commas? write decimal points, or separate the columns by ';')"
+                    if self.delimiter == "," and len(row) > len(self.header)
+                    else ""
+                )
+                raise RecordingError(
+                    f"{self.path}: line {number} has {len(row)} fields but the header has {len(self.header)}{comma}"
+                )
             rows.append(row)
             numbers.append(number)
         follow = bool(numbers) and numbers[-1] - numbers[0] == len(numbers) - 1
@@ -357,16 +428,25 @@ class _Table:
         except ValueError:
             if role not in self.errors["number"]:
                 cell, line = next((c, k) for c, k in zip(cells, numbers) if not _is_number(c))
-                what = "an empty cell" if not cell.strip() else f"{cell.strip()!r} is not a number" + (
-                    " (a decimal comma? write a decimal point: " + cell.strip().replace(",", ".") + ")"
-                    if _is_number(cell.replace(",", ".")) else "")
+                what = (
+                    "an empty cell"
+                    if not cell.strip()
+                    else f"{cell.strip()!r} is not a number"
+                    + (
+                        " (a decimal comma? write a decimal point: " + cell.strip().replace(",", ".") + ")"
+                        if _is_number(cell.replace(",", "."))
+                        else ""
+                    )
+                )
                 self.errors["number"][role] = f"{self.path}: line {line}, column {name!r}: {what}"
             return np.empty(0)
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size and role not in self.errors["finite"]:
             k = bad[0]
-            self.errors["finite"][role] = (f"{self.path}: line {numbers[k]}, column {name!r}: value "
-                                           f"{cells[k].strip()!r} is not finite (NaN or infinity)")
+            self.errors["finite"][role] = (
+                f"{self.path}: line {numbers[k]}, column {name!r}: value "
+                f"{cells[k].strip()!r} is not finite (NaN or infinity)"
+            )
         return values
 
     def columns(self) -> tuple[dict[str, np.ndarray], Sequence[int]]:
@@ -381,7 +461,7 @@ class _Table:
                 if role in self.errors[kind]:
                     raise RecordingError(self.errors[kind][role])
         if all(isinstance(p, range) for p in pieces) and all(a.stop == b.start for a, b in zip(pieces, pieces[1:])):
-            numbers: Sequence[int] = range(pieces[0].start, pieces[-1].stop)     # no blank line: no array
+            numbers: Sequence[int] = range(pieces[0].start, pieces[-1].stop)  # no blank line: no array
         else:
             numbers = np.concatenate([np.asarray(p, dtype=np.int64) for p in pieces])
         return {role: column.array() for role, column in self.values.items()}, numbers
@@ -403,9 +483,9 @@ class _Column:
         end = self.size + len(values)
         if end > len(self.data):
             grown = np.empty(max(end, 2 * len(self.data)))
-            grown[:self.size] = self.data[:self.size]
+            grown[: self.size] = self.data[: self.size]
             self.data = grown
-        self.data[self.size:end] = values
+        self.data[self.size : end] = values
         self.size = end
 
     def array(self) -> np.ndarray:
@@ -423,8 +503,12 @@ def _csv_rows(path: str, lines: list[str], delimiter: str, first: int) -> list[t
             rows.append((first + reader.line_num - 1, row))
     except csv.Error as exc:
         limit = csv.field_size_limit()
-        what = f"a field of more than {limit} characters (csv's field size limit): not a CSV recording, or a " \
-            "quote (\") left open" if "field larger than field limit" in str(exc) else f"not CSV: {exc}"
+        what = (
+            f"a field of more than {limit} characters (csv's field size limit): not a CSV recording, or a "
+            'quote (") left open'
+            if "field larger than field limit" in str(exc)
+            else f"not CSV: {exc}"
+        )
         raise RecordingError(f"{path}: line {first + reader.line_num - 1}: {what}") from None
     return rows
 
@@ -450,7 +534,7 @@ def _read_table(path: str, specs: dict[str, str | int | None]) -> _Table:
             continue
         rows_hint = int(1.25 * os.path.getsize(path) * len(lines) / len(text)) + 1024
         table = _Table(path, lines[k].splitlines()[0], specs, rows_hint, line + k)
-        rest = "".join(lines[k + 1:])
+        rest = "".join(lines[k + 1 :])
         line += k + 1
         line += table.add_block(rest, line) if rest else 0
         break
@@ -461,9 +545,15 @@ def _read_table(path: str, specs: dict[str, str | int | None]) -> _Table:
     return table
 
 
-def load_recording(path: str | os.PathLike, time: str | int | None = "time", input: str | int = "u",
-                   output: str | int | None = "y", *, name: str | None = None,
-                   min_samples: int = MIN_SAMPLES) -> Recording:
+def load_recording(
+    path: str | os.PathLike,
+    time: str | int | None = "time",
+    input: str | int = "u",
+    output: str | int | None = "y",
+    *,
+    name: str | None = None,
+    min_samples: int = MIN_SAMPLES,
+) -> Recording:
     """Load one experiment from a CSV file.
 
     Parameters
@@ -502,13 +592,25 @@ def load_recording(path: str | os.PathLike, time: str | int | None = "time", inp
             base, unit = split_unit(header[cols[role]])
             signals[role] = Signal(base, unit, f"{role} column {header[cols[role]]!r} of {Path(path).name}")
     y = values["output"] if "output" in values else np.full(n, np.nan)
-    return Recording(t, values["input"], y, name=name or Path(path).stem,
-                     input=signals["input"], output=signals["output"], source=path)
+    return Recording(
+        t,
+        values["input"],
+        y,
+        name=name or Path(path).stem,
+        input=signals["input"],
+        output=signals["output"],
+        source=path,
+    )
 
 
-def load_recordings(paths: Sequence[str | os.PathLike], time: str | int | None = "time",
-                    input: str | int = "u", output: str | int = "y", *,
-                    min_samples: int = MIN_SAMPLES) -> list[Recording]:
+def load_recordings(
+    paths: Sequence[str | os.PathLike],
+    time: str | int | None = "time",
+    input: str | int = "u",
+    output: str | int = "y",
+    *,
+    min_samples: int = MIN_SAMPLES,
+) -> list[Recording]:
     """Load several experiments (one file each) with the same column choice.
 
     Raises `RecordingError` for the first bad file, and when the files' input
@@ -523,13 +625,15 @@ def load_recordings(paths: Sequence[str | os.PathLike], time: str | int | None =
         for role in ("input", "output"):
             a, b = getattr(first, role), getattr(r, role)
             if (a.name, a.unit) != (b.name, b.unit):
-                raise RecordingError(f"{r.source}: {role} column is {b.name!r} [{b.unit}] but "
-                                     f"{first.source} has {a.name!r} [{a.unit}]")
+                raise RecordingError(
+                    f"{r.source}: {role} column is {b.name!r} [{b.unit}] but {first.source} has {a.name!r} [{a.unit}]"
+                )
     return recs
 
 
-def save_columns(path: str | os.PathLike, names: Sequence[str], columns: Sequence[np.ndarray],
-                 block: int = 1 << 16) -> None:
+def save_columns(
+    path: str | os.PathLike, names: Sequence[str], columns: Sequence[np.ndarray], block: int = 1 << 16
+) -> None:
     """Write equal-length columns as a CSV file: the header line ``names`` joined by commas, then one row
     per sample, each value as ``%.17g`` (it reads back to the same float).
 
@@ -540,5 +644,5 @@ def save_columns(path: str | os.PathLike, names: Sequence[str], columns: Sequenc
     with open(path, "w", encoding="utf-8") as fh:
         fh.write(",".join(names) + "\n")
         for a in range(0, len(columns[0]), block):
-            values = np.column_stack([c[a:a + block] for c in columns])
+            values = np.column_stack([c[a : a + block] for c in columns])
             fh.write(row * len(values) % tuple(values.ravel().tolist()))

@@ -17,6 +17,7 @@ each recording is simulated alone, from the initial state that fits it best
 state restarts at its own start (a creep at equilibrium with the first input,
 a drift at 0).  `runs` gives the slices that are simulated as one signal.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -46,9 +47,9 @@ class JoinedExperiment:
     t: np.ndarray
     u: np.ndarray
     y: np.ndarray
-    index: np.ndarray          # recording number of each sample
-    bounds: list               # [start, stop) of each recording in the arrays
-    separate: bool = False     # each recording its own run (module docstring)
+    index: np.ndarray  # recording number of each sample
+    bounds: list  # [start, stop) of each recording in the arrays
+    separate: bool = False  # each recording its own run (module docstring)
 
     def part(self, i: int) -> slice:
         """The samples of recording `i` in the joined arrays."""
@@ -104,22 +105,35 @@ def join_recordings(recordings: Sequence[Recording], separate: bool | None = Non
         separate = overlap is not None
     if overlap is not None and not separate:
         a, b = overlap
-        raise DiagnoseError(f"{b.source}: starts at t = {b.t[0]} before {a.source} ends (t = {a.t[-1]}); "
-                            "the recordings of one experiment on one clock must run on from file to file "
-                            "(shift the time of later files, or leave out --one-clock: files each on their own "
-                            "clock are diagnosed as separate runs)")
+        raise DiagnoseError(
+            f"{b.source}: starts at t = {b.t[0]} before {a.source} ends (t = {a.t[-1]}); "
+            "the recordings of one experiment on one clock must run on from file to file "
+            "(shift the time of later files, or leave out --one-clock: files each on their own "
+            "clock are diagnosed as separate runs)"
+        )
     n = sum(len(r.t) for r in recs)
     if n < MIN_SAMPLES:
-        raise DiagnoseError(f"{n} samples in all ({', '.join(r.source for r in recs)}): too short to "
-                            f"diagnose (at least {MIN_SAMPLES} needed)")
+        raise DiagnoseError(
+            f"{n} samples in all ({', '.join(r.source for r in recs)}): too short to "
+            f"diagnose (at least {MIN_SAMPLES} needed)"
+        )
     u = np.concatenate([r.u for r in recs])
     if count_reversals(u, threshold=0.1 * np.ptp(u)) < 2:
-        raise DiagnoseError(f"the input ({recs[0].input.name}) reverses fewer than twice over the experiment "
-                            f"({', '.join(r.source for r in recs)}): no hysteresis loop to diagnose")
+        raise DiagnoseError(
+            f"the input ({recs[0].input.name}) reverses fewer than twice over the experiment "
+            f"({', '.join(r.source for r in recs)}): no hysteresis loop to diagnose"
+        )
     stops = np.cumsum([len(r.t) for r in recs])
     bounds = [(int(s - len(r.t)), int(s)) for s, r in zip(stops, recs)]
-    return JoinedExperiment(recs, np.concatenate([r.t for r in recs]), u, np.concatenate([r.y for r in recs]),
-                            np.concatenate([np.full(len(r.t), i) for i, r in enumerate(recs)]), bounds, separate)
+    return JoinedExperiment(
+        recs,
+        np.concatenate([r.t for r in recs]),
+        u,
+        np.concatenate([r.y for r in recs]),
+        np.concatenate([np.full(len(r.t), i) for i, r in enumerate(recs)]),
+        bounds,
+        separate,
+    )
 
 
 def chain_recordings(recordings: Sequence[Recording], relative_output: bool = False) -> list[Recording]:
@@ -146,14 +160,17 @@ def _check_columns(recs: list[Recording]) -> None:
     first = recs[0]
     for r in recs[1:]:
         if (r.input.name, r.output.name) != (first.input.name, first.output.name):
-            raise DiagnoseError(f"{r.source}: columns ({r.input.name}, {r.output.name}) differ from "
-                                f"{first.source}: ({first.input.name}, {first.output.name}); one experiment "
-                                "needs the same input and output in every recording")
+            raise DiagnoseError(
+                f"{r.source}: columns ({r.input.name}, {r.output.name}) differ from "
+                f"{first.source}: ({first.input.name}, {first.output.name}); one experiment "
+                "needs the same input and output in every recording"
+            )
 
 
 def _check_output(r: Recording) -> None:
     """A diagnosis needs the output everywhere (`Recording` checks time and input at construction)."""
     bad = np.flatnonzero(~np.isfinite(r.y))
     if bad.size:
-        raise DiagnoseError(f"{r.source}: column {r.output.name or 'y'}, row {bad[0]}: value {r.y[bad[0]]} "
-                            "is not finite")
+        raise DiagnoseError(
+            f"{r.source}: column {r.output.name or 'y'}, row {bad[0]}: value {r.y[bad[0]]} is not finite"
+        )

@@ -43,6 +43,7 @@ Bounds: the effects' fitting bounds from the registry (`EffectSpec.bounds`);
 for a first-order rate-independent base, A+ <= 0 <= A- (both branches
 converge, condition (5)) and |A| <= 1000 / input range.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -62,8 +63,22 @@ from fitter.identification.output_error import Recordings
 from fitter.identification.refine import Options, RefineResult, refine
 from fitter.identification.parametrisation import StateSpace, WithEffects
 
-__all__ = ["Fit", "duhem_fit", "family", "fit_base", "fit_family", "fit_per_recording", "first_order_ri", "free_base",
-           "problem", "jacobian_rows", "output_references", "refit", "with_refinements", "OPTIONS"]
+__all__ = [
+    "Fit",
+    "duhem_fit",
+    "family",
+    "fit_base",
+    "fit_family",
+    "fit_per_recording",
+    "first_order_ri",
+    "free_base",
+    "problem",
+    "jacobian_rows",
+    "output_references",
+    "refit",
+    "with_refinements",
+    "OPTIONS",
+]
 
 OPTIONS = Options(xtol=1e-7, ftol=1e-7, gtol=1e-8, max_samples=None, normalise=True)
 """Tolerances of every diagnosis fit; the budget is 30 (free parameters + 1) evaluations."""
@@ -114,12 +129,28 @@ class Fit:
         return self.result.model
 
 
-def first_order_ri(a_plus: float, a_minus: float, b_plus: float, b_minus: float, e_plus: float,
-                   e_minus: float, x0: float, signals: Signals | None = None) -> RateIndependentModel:
+def first_order_ri(
+    a_plus: float,
+    a_minus: float,
+    b_plus: float,
+    b_minus: float,
+    e_plus: float,
+    e_minus: float,
+    x0: float,
+    signals: Signals | None = None,
+) -> RateIndependentModel:
     """The first-order rate-independent model dx = (A+- x + B+- u + E+-) du, y = x (C = 1, D = 0)."""
-    return RateIndependentModel(A_plus=[[a_plus]], A_minus=[[a_minus]], B_plus=[b_plus], B_minus=[b_minus],
-                                C=[1.0], E_plus=[e_plus], E_minus=[e_minus], x0=[x0],
-                                signals=signals or Signals())
+    return RateIndependentModel(
+        A_plus=[[a_plus]],
+        A_minus=[[a_minus]],
+        B_plus=[b_plus],
+        B_minus=[b_minus],
+        C=[1.0],
+        E_plus=[e_plus],
+        E_minus=[e_minus],
+        x0=[x0],
+        signals=signals or Signals(),
+    )
 
 
 def _base_bounds(template, ex: JoinedExperiment) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -132,8 +163,9 @@ def _base_bounds(template, ex: JoinedExperiment) -> tuple[np.ndarray | None, np.
     return lo, hi
 
 
-def family(template, effects: Sequence[str], ex: JoinedExperiment, ctx: EffectContext | None,
-           refinements: bool = False) -> WithEffects:
+def family(
+    template, effects: Sequence[str], ex: JoinedExperiment, ctx: EffectContext | None, refinements: bool = False
+) -> WithEffects:
     """The parametrisation of `template` extended by `effects` (module docstring; `refinements`: the effects'
     refinement parameters fitted too, `with_refinements`)."""
     return WithEffects(StateSpace(template, *_base_bounds(template, ex)), effects, ctx, refinements=refinements)
@@ -159,9 +191,13 @@ def problem(ex: JoinedExperiment, mask: np.ndarray) -> Recordings:
     (x0 = "model"), or its separate runs (x0 = "fit"), `mask` as 0/1 weights."""
     if ex.separate:
         share = _share(ex)
-        return Recordings(list(ex.recordings), x0="fit", weights=[mask[s].astype(float) for s in ex.runs()],
-                          settle=[closed_loop(r) and len(r.t) <= share for r in ex.recordings],
-                          references=len(ex.recordings) > 1)
+        return Recordings(
+            list(ex.recordings),
+            x0="fit",
+            weights=[mask[s].astype(float) for s in ex.runs()],
+            settle=[closed_loop(r) and len(r.t) <= share for r in ex.recordings],
+            references=len(ex.recordings) > 1,
+        )
     return Recordings([Recording(ex.t, ex.u, ex.y, "experiment")], x0="model", weights=[mask.astype(float)])
 
 
@@ -178,8 +214,14 @@ def _share(ex: JoinedExperiment) -> int | None:
     return SAMPLES // len(ex.recordings) if ex.separate else None
 
 
-def _refine(fam: WithEffects, theta0: np.ndarray, ex: JoinedExperiment, mask: np.ndarray,
-            free: np.ndarray | None = None, iterations: int | None = None) -> Fit:
+def _refine(
+    fam: WithEffects,
+    theta0: np.ndarray,
+    ex: JoinedExperiment,
+    mask: np.ndarray,
+    free: np.ndarray | None = None,
+    iterations: int | None = None,
+) -> Fit:
     """Minimise the sum over `mask` of (y - yhat(theta))^2; only the `free` entries of theta move (and
     never theta's x0 for separate runs: each run's initial state is fitted inside `problem`); at most
     `iterations` steps (default 30 (free parameters + 1); scipy's count, each step also takes one evaluation
@@ -192,8 +234,9 @@ def _refine(fam: WithEffects, theta0: np.ndarray, ex: JoinedExperiment, mask: np
     return Fit(fam, refine(fam, theta0, problem(ex, mask), options, free=free), mask, ex.separate, iterations)
 
 
-def fit_family(template, effects: Sequence[str], base: np.ndarray, ex: JoinedExperiment, mask: np.ndarray,
-               y_fit: np.ndarray) -> Fit:
+def fit_family(
+    template, effects: Sequence[str], base: np.ndarray, ex: JoinedExperiment, mask: np.ndarray, y_fit: np.ndarray
+) -> Fit:
     """Joint fit of `template`'s parameters (from `base`) and `effects`, from the best effect start.
 
     The starts are screened with the base parameters held (cheap: only the
@@ -282,12 +325,13 @@ def with_refinements(fit: Fit, names: Sequence[str], ex: JoinedExperiment, mask:
     fam = family(template, [e.effect for e in found], ex, ex.effect_context(float(np.mean(y_fit))), True)
     combos = {}
     for combo in itertools.product(*[e.spec.starts(fam.ctx) for e in found]):
-        values = [{p.name: (start if p.refinement else e.parameters)[p.name] for p in e.spec.parameters}
-                  for e, start in zip(found, combo)]
+        values = [
+            {p.name: (start if p.refinement else e.parameters)[p.name] for p in e.spec.parameters}
+            for e, start in zip(found, combo)
+        ]
         combos.setdefault(tuple(fam.encode(values)), None)
     base = fam.base.theta(template)
-    screened = [_refine(fam, np.r_[base, np.array(c)], ex, mask, _effects_only(fam), REFINE_STEPS // 4)
-                for c in combos]
+    screened = [_refine(fam, np.r_[base, np.array(c)], ex, mask, _effects_only(fam), REFINE_STEPS // 4) for c in combos]
     return _refine(fam, min(screened, key=lambda f: f.rss).theta, ex, mask, free_base(fam), REFINE_STEPS)
 
 
@@ -317,6 +361,4 @@ def fit_per_recording(fit: Fit, ex: JoinedExperiment, mask: np.ndarray) -> list[
     """The last effect of `fit`'s family refitted on each recording alone (everything else held), started
     from the joint values: does one parameter set hold across the recordings?"""
     fam = fit.family
-    return [_refine(fam, fit.theta, ex, mask & (ex.index == i), _effects_only(fam))
-            for i in range(len(ex.recordings))]
-
+    return [_refine(fam, fit.theta, ex, mask & (ex.index == i), _effects_only(fam)) for i in range(len(ex.recordings))]

@@ -16,6 +16,7 @@ toward one recording's peculiarity does not predict the others better.
 With a single recording there is nothing to hold out (None).  The recordings' refits run on several
 processes (`fitter.diagnosis.workers`).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -32,15 +33,16 @@ HELD_OUT_GAIN = 0.25
 every recording's own must fall by a fifth of it)."""
 
 
-def _held_out_residuals(ex: JoinedExperiment, fit: Fit, mask: np.ndarray,
-                        ks: list[int] | None = None) -> list[np.ndarray] | None:
+def _held_out_residuals(
+    ex: JoinedExperiment, fit: Fit, mask: np.ndarray, ks: list[int] | None = None
+) -> list[np.ndarray] | None:
     """Residual y - yhat on the fitted samples of each recording of `ks` (default all), `fit` refitted without
     it (`held_out_residual`, on several processes); None for a single recording."""
     if len(ex.recordings) < 2:
         return None
     ks = list(range(len(ex.recordings))) if ks is None else ks
     out = parallel_map(lambda k: held_out_residual(ex, fit, mask, k), ks)
-    fit.held_out.update({(k, mask.tobytes()): r for k, r in zip(ks, out)})     # computed in other processes
+    fit.held_out.update({(k, mask.tobytes()): r for k, r in zip(ks, out)})  # computed in other processes
     return out
 
 
@@ -75,7 +77,7 @@ def held_out_residual(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, k: int) 
 def held_out_rss(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> np.ndarray | None:
     """Squared prediction error of each recording (leave one recording out; None for one recording)."""
     parts = _held_out_residuals(ex, fit, mask)
-    return None if parts is None else np.array([float(np.sum(r ** 2)) for r in parts])
+    return None if parts is None else np.array([float(np.sum(r**2)) for r in parts])
 
 
 def held_out_nrmse(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> dict[str, float] | None:
@@ -94,5 +96,6 @@ def confirmed(with_effect: np.ndarray | None, without: np.ndarray | None) -> boo
     if with_effect is None or without is None:
         return False
     q = np.asarray(with_effect, dtype=float) / np.maximum(np.asarray(without, dtype=float), 1e-300)
-    return bool(np.all(q < 1.0 - HELD_OUT_GAIN / 5) and np.exp(np.mean(np.log(np.maximum(q, 1e-300))))
-                <= 1.0 - HELD_OUT_GAIN)
+    return bool(
+        np.all(q < 1.0 - HELD_OUT_GAIN / 5) and np.exp(np.mean(np.log(np.maximum(q, 1e-300)))) <= 1.0 - HELD_OUT_GAIN
+    )

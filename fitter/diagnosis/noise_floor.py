@@ -29,6 +29,7 @@ Estimates (`noise_floor`):
 A noise-free input (piecewise linear, as generated) gives sigma_u near 0 and
 the floor is sigma_y, as before this correction.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -59,11 +60,15 @@ def noise_floor(ex: JoinedExperiment, reference) -> dict:
     sigma_y = _median_noise([r.y for r in ex.recordings])
     sigma_u = _median_noise([r.u for r in ex.recordings])
     sigma_in = _through_input(ex, reference, sigma_u) if sigma_u > 0 else 0.0
-    return {"rms": float(np.hypot(sigma_y, sigma_in)), "output": sigma_y, "input": sigma_u,
-            "through_input": sigma_in,
-            "method": "white noise on the output (local quadratic fit, median over recordings) and on the input, "
-                      "carried to the output by the first-order base (seeded input perturbations); "
-                      "rms = sqrt(output^2 + through_input^2)"}
+    return {
+        "rms": float(np.hypot(sigma_y, sigma_in)),
+        "output": sigma_y,
+        "input": sigma_u,
+        "through_input": sigma_in,
+        "method": "white noise on the output (local quadratic fit, median over recordings) and on the input, "
+        "carried to the output by the first-order base (seeded input perturbations); "
+        "rms = sqrt(output^2 + through_input^2)",
+    }
 
 
 def _through_input(ex: JoinedExperiment, reference, sigma_u: float) -> float:
@@ -75,8 +80,7 @@ def _through_input(ex: JoinedExperiment, reference, sigma_u: float) -> float:
             t, u = ex.t[run], ex.u[run]
             try:
                 y0 = simulate(reference, t, u).y
-                diffs = [simulate(reference, t, u + sigma_u * rng.standard_normal(len(u))).y - y0
-                         for _ in range(DRAWS)]
+                diffs = [simulate(reference, t, u + sigma_u * rng.standard_normal(len(u))).y - y0 for _ in range(DRAWS)]
             except KernelError:
                 return 0.0
             squares.append(np.mean(np.square(diffs)) * len(u))

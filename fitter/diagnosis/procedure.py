@@ -127,6 +127,7 @@ catalogue, or a base model too simple, and the paragraph says so and where
 the remainder lives.  The result is a `Diagnosis`; ``to_json()`` is the
 stable ``--json`` output.
 """
+
 from __future__ import annotations
 
 from typing import Callable, Sequence
@@ -141,15 +142,30 @@ from fitter.data.cycles import closed_last_cycle
 from fitter.data.metrics import nrmse, rms
 from fitter.data.recordings import Recording
 from fitter.diagnosis.experiment import DiagnoseError, JoinedExperiment, join_recordings
-from fitter.diagnosis.fitting import (Fit, duhem_fit, fit_base, fit_family, fit_per_recording, output_references,
-                                      with_refinements)
+from fitter.diagnosis.fitting import (
+    Fit,
+    duhem_fit,
+    fit_base,
+    fit_family,
+    fit_per_recording,
+    output_references,
+    with_refinements,
+)
 from fitter.diagnosis.locate import locate_mismatch, where_differs
 from fitter.diagnosis.noise_floor import noise_floor
 from fitter.diagnosis.result import Diagnosis
 from fitter.diagnosis.held_out import confirmed, held_out_nrmse, held_out_residual, held_out_rss, prediction_error
-from fitter.diagnosis.statistics import (ALPHA, MIN_EXPLAINED, NOISE_MARGIN, consistency_report,
-                                         memory_response_report, effect_report, is_significant, remainder_report,
-                                         reversal_report)
+from fitter.diagnosis.statistics import (
+    ALPHA,
+    MIN_EXPLAINED,
+    NOISE_MARGIN,
+    consistency_report,
+    memory_response_report,
+    effect_report,
+    is_significant,
+    remainder_report,
+    reversal_report,
+)
 from fitter.diagnosis.text import comparison_text, summary_paragraph
 from fitter.diagnosis.workers import parallel_map
 from fitter.identification.exported import described, fitted_range
@@ -164,13 +180,34 @@ FAR_FROM_NOISE = 10.0
 """An account (a base and its findings) that leaves over this many times the noise has missed most of the
 structure (99 % of the residual energy is not noise): the higher-order base is searched too, and the account
 that predicts better is taken (`_higher_order_account`)."""
-_FINDING_KEYS = ("effect", "origin", "p_value", "parameters", "stderr", "explained_fraction", "residual_rms", "lr",
-                 "df", "n_eff", "confirmed_held_out", "held_out_rss", "held_out_rss_without")
+_FINDING_KEYS = (
+    "effect",
+    "origin",
+    "p_value",
+    "parameters",
+    "stderr",
+    "explained_fraction",
+    "residual_rms",
+    "lr",
+    "df",
+    "n_eff",
+    "confirmed_held_out",
+    "held_out_rss",
+    "held_out_rss_without",
+)
 
 
-def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress = silent,
-             candidates: Sequence[str] = CANDIDATES, alpha: float = ALPHA, max_findings: int = 2,
-             base_order: int | None = None, separate: bool | None = None) -> Diagnosis:
+def diagnose(
+    recordings: Sequence[Recording],
+    *,
+    model=None,
+    progress: Progress = silent,
+    candidates: Sequence[str] = CANDIDATES,
+    alpha: float = ALPHA,
+    max_findings: int = 2,
+    base_order: int | None = None,
+    separate: bool | None = None,
+) -> Diagnosis:
     """Diagnose one experiment; see the module docstring for the procedure.
 
     Parameters
@@ -222,11 +259,26 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
         if model is None and base_order != 1:
             model = duhem_fit(ex, mask, base_order).model
         base, first_round = (first if model is None else fit_base(ex, model, mask)), None
-    account = _refined(ex, _search(ex, base, first_round, _below_order(candidates) if below else candidates, mask,
-                                   noise, alpha, max_findings, tick), mask, tick)
+    account = _refined(
+        ex,
+        _search(
+            ex,
+            base,
+            first_round,
+            _below_order(candidates) if below else candidates,
+            mask,
+            noise,
+            alpha,
+            max_findings,
+            tick,
+        ),
+        mask,
+        tick,
+    )
     if alternative is not None:
-        base, account = _higher_order_account(ex, base, account, alternative, candidates, mask, noise, alpha,
-                                              max_findings, tick)
+        base, account = _higher_order_account(
+            ex, base, account, alternative, candidates, mask, noise, alpha, max_findings, tick
+        )
     current, findings, tested, fits = account
     mismatch = locate_mismatch(ex, base.residual, noise)
     tick("checking on held-out data")
@@ -234,29 +286,61 @@ def diagnose(recordings: Sequence[Recording], *, model=None, progress: Progress 
     for f in findings:
         f["partial"] = not remainder["explained"]
     validation, comparison = _validate(ex, base, findings, tested, fits, mask, noise)
-    ext_model = described(_with_first_start(current), ex.recordings).replace(fit_info={
-        "method": "duhem diagnose", "effects": [f["effect"] for f in findings], "noise_rms": noise,
-        "x0": {"stored": np.ravel(current.model.x0).tolist(), "recording": ex.recordings[0].name,
-               "u0": float(ex.u[0])}, "fitted_range": fitted_range(ex.recordings)})
-    extended = dict(_summary(ex, current, noise), effects=[e.to_dict() for e in ext_model.effects],
-                    heldout_nrmse_per_recording=held_out_nrmse(ex, current, mask),
-                    **{f"{origin}_effects": [f["effect"] for f in findings if f["origin"] == origin]
-                       for origin in ORIGINS}, remainder=remainder)
+    ext_model = described(_with_first_start(current), ex.recordings).replace(
+        fit_info={
+            "method": "duhem diagnose",
+            "effects": [f["effect"] for f in findings],
+            "noise_rms": noise,
+            "x0": {
+                "stored": np.ravel(current.model.x0).tolist(),
+                "recording": ex.recordings[0].name,
+                "u0": float(ex.u[0]),
+            },
+            "fitted_range": fitted_range(ex.recordings),
+        }
+    )
+    extended = dict(
+        _summary(ex, current, noise),
+        effects=[e.to_dict() for e in ext_model.effects],
+        heldout_nrmse_per_recording=held_out_nrmse(ex, current, mask),
+        **{f"{origin}_effects": [f["effect"] for f in findings if f["origin"] == origin] for origin in ORIGINS},
+        remainder=remainder,
+    )
     baseline = _summary(ex, base, noise)
     progress("done", 1.0)
-    diag = Diagnosis(noise_rms=noise, noise=floor, verdict=_verdict(findings, baseline, remainder, noise),
-                     baseline=baseline,
-                     mismatch=mismatch, candidates=tested, findings=findings, extended=extended,
-                     validation=validation, comparison=comparison, paragraph="",
-                     base_model=described(base.model, ex.recordings),
-                     extended_model=ext_model, baseline_output=ex.y - base.residual,
-                     extended_output=ex.y - current.residual, separate=ex.separate)
+    diag = Diagnosis(
+        noise_rms=noise,
+        noise=floor,
+        verdict=_verdict(findings, baseline, remainder, noise),
+        baseline=baseline,
+        mismatch=mismatch,
+        candidates=tested,
+        findings=findings,
+        extended=extended,
+        validation=validation,
+        comparison=comparison,
+        paragraph="",
+        base_model=described(base.model, ex.recordings),
+        extended_model=ext_model,
+        baseline_output=ex.y - base.residual,
+        extended_output=ex.y - current.residual,
+        separate=ex.separate,
+    )
     diag.paragraph = summary_paragraph(diag)
     return diag
 
 
-def _search(ex: JoinedExperiment, base: Fit, first_round: list | None, candidates: Sequence[str], mask: np.ndarray,
-            noise: float, alpha: float, max_findings: int, tick: Callable[[str], None]) -> tuple:
+def _search(
+    ex: JoinedExperiment,
+    base: Fit,
+    first_round: list | None,
+    candidates: Sequence[str],
+    mask: np.ndarray,
+    noise: float,
+    alpha: float,
+    max_findings: int,
+    tick: Callable[[str], None],
+) -> tuple:
     """Steps 3-4 on `base` (module docstring): (extended fit, findings, first-round candidate reports with
     their rank, first-round fits by effect).  `first_round`: the base's first round when already run."""
     present = {e.effect for e in base.model.effects}
@@ -264,13 +348,16 @@ def _search(ex: JoinedExperiment, base: Fit, first_round: list | None, candidate
     current, findings, tested, fits = base, [], [], {}
     remaining = list(candidates)
     while remaining and len(findings) < max_findings:
-        round_results = first_round if first_round is not None and not findings else \
-            _test_round(ex, current, remaining, mask, alpha, len(candidates), tick)
+        round_results = (
+            first_round
+            if first_round is not None and not findings
+            else _test_round(ex, current, remaining, mask, alpha, len(candidates), tick)
+        )
         if not findings:
             tested = [dict(r, rank=j + 1) for j, (r, _) in enumerate(round_results)]
             fits = {r["effect"]: f for r, f in round_results}
         if rms(current.residual) <= NOISE_MARGIN * noise:
-            break                   # the model is adequate already: a significant candidate would fit noise
+            break  # the model is adequate already: a significant candidate would fit noise
         winner = next(((r, f) for r, f in round_results if r["significant"]), None)
         if winner is None:
             break
@@ -283,9 +370,18 @@ def _search(ex: JoinedExperiment, base: Fit, first_round: list | None, candidate
     return current, findings, tested, fits
 
 
-def _higher_order_account(ex: JoinedExperiment, base: Fit, account: tuple, alternative: tuple,
-                          candidates: Sequence[str], mask: np.ndarray, noise: float, alpha: float,
-                          max_findings: int, tick: Callable[[str], None]) -> tuple[Fit, tuple]:
+def _higher_order_account(
+    ex: JoinedExperiment,
+    base: Fit,
+    account: tuple,
+    alternative: tuple,
+    candidates: Sequence[str],
+    mask: np.ndarray,
+    noise: float,
+    alpha: float,
+    max_findings: int,
+    tick: Callable[[str], None],
+) -> tuple[Fit, tuple]:
     """Step 1's second account (module docstring): the first-order `base` and its `account`, or the base of
     `alternative` (the order `duhem fit` chooses, its fit and parameter count) with its own account (refined,
     `_refined`).  Far from the noise (over `FAR_FROM_NOISE` times it) the first-order account is no account of
@@ -300,8 +396,10 @@ def _higher_order_account(ex: JoinedExperiment, base: Fit, account: tuple, alter
     if not far and (not findings or (findings[0]["consistency"] or {}).get("consistent", False)):
         return base, account
     high, k_high = alternative
-    if not far and _test_round(ex, high, [findings[0]["effect"]], mask, alpha, len(candidates), tick)[0][0][
-            "significant"]:
+    if (
+        not far
+        and _test_round(ex, high, [findings[0]["effect"]], mask, alpha, len(candidates), tick)[0][0]["significant"]
+    ):
         return base, account
     other = _refined(ex, _search(ex, high, None, candidates, mask, noise, alpha, max_findings, tick), mask, tick)
     adequate = far or (other[1] and rms(other[0].residual) <= NOISE_MARGIN * noise)
@@ -348,8 +446,15 @@ def _bic(fit: Fit, n_parameters: int) -> float:
     return float(N * np.log(max(fit.rss, 1e-300) / N) + n_parameters * np.log(N))
 
 
-def _adequate_base(ex: JoinedExperiment, first: Fit, mask: np.ndarray, noise: float, candidates: Sequence[str],
-                   alpha: float, tick: Callable[[str], None]) -> tuple[Fit, list | None, tuple | None, bool]:
+def _adequate_base(
+    ex: JoinedExperiment,
+    first: Fit,
+    mask: np.ndarray,
+    noise: float,
+    candidates: Sequence[str],
+    alpha: float,
+    tick: Callable[[str], None],
+) -> tuple[Fit, list | None, tuple | None, bool]:
     """The base of step 1 (module docstring), when it is the first-order base its first round of candidate
     tests (reused by the search), the higher-order alternative (`_higher_order_account`) and whether the
     base is below the order `duhem fit` chooses (its candidates then `_below_order`).
@@ -377,8 +482,12 @@ def _adequate_base(ex: JoinedExperiment, first: Fit, mask: np.ndarray, noise: fl
     below = _below_order(candidates)
     results = _test_round(ex, first, below, mask, alpha, len(below), tick)
     best = next((f for r, f in results if r["significant"]), None)
-    if best is None or rms(best.residual) > NOISE_MARGIN * noise or \
-            _structured(ex, best, mask, alpha) and not _structured(ex, high, mask, alpha):
+    if (
+        best is None
+        or rms(best.residual) > NOISE_MARGIN * noise
+        or _structured(ex, best, mask, alpha)
+        and not _structured(ex, high, mask, alpha)
+    ):
         return high, None, None, False
     if len(ex.recordings) > 1:
         better = _held_out_rms(ex, best, mask) < _held_out_rms(ex, high, mask)
@@ -452,12 +561,19 @@ def _held_out_rms(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> float:
         return rms(held_out_residual(ex, fit, mask, last))
     train = mask.copy()
     train[ex.part(last)] = False
-    again = fit_family(fam.base.template, fam.effects, fit.theta[:fam.n_base], ex, train, ex.y - fit.residual)
+    again = fit_family(fam.base.template, fam.effects, fit.theta[: fam.n_base], ex, train, ex.y - fit.residual)
     return rms(again.residual[~train])
 
 
-def _test_round(ex: JoinedExperiment, current: Fit, names: Sequence[str], mask: np.ndarray,
-                alpha: float, n_candidates: int, tick: Callable[[str], None]) -> list[tuple[dict, Fit]]:
+def _test_round(
+    ex: JoinedExperiment,
+    current: Fit,
+    names: Sequence[str],
+    mask: np.ndarray,
+    alpha: float,
+    n_candidates: int,
+    tick: Callable[[str], None],
+) -> list[tuple[dict, Fit]]:
     """Fit and test each candidate on top of `current` (base + the effects found; the candidates' fits and
     held-out refits on several processes, `fitter.diagnosis.workers`); sorted by BIC (`_bic`, the effect's
     parameters counted: module docstring, step 4)."""
@@ -482,12 +598,13 @@ def _test_round(ex: JoinedExperiment, current: Fit, names: Sequence[str], mask: 
     return results
 
 
-def _candidate(ex: JoinedExperiment, current: Fit, name: str, mask: np.ndarray, alpha: float,
-               n_candidates: int) -> tuple[dict, Fit]:
+def _candidate(
+    ex: JoinedExperiment, current: Fit, name: str, mask: np.ndarray, alpha: float, n_candidates: int
+) -> tuple[dict, Fit]:
     """One candidate of `_test_round`: its joint fit and report (significance by the likelihood ratio); with two
     or more recordings, one it cannot establish that explains at least `MIN_EXPLAINED` also gets its held-out
     squared errors (``held_out_rss``), for `_test_round` to confirm against the model without it."""
-    fit = fit_family(current.model, [name], current.theta[:current.family.n_base], ex, mask, ex.y - current.residual)
+    fit = fit_family(current.model, [name], current.theta[: current.family.n_base], ex, mask, ex.y - current.residual)
     rep = effect_report(fit, current.rss, effective_samples(fit.residual), _freedoms(name, ex))
     rep.update(effect=name, origin=REGISTRY[name].origin)
     rep["significant"] = is_significant(rep, alpha, n_candidates)
@@ -511,8 +628,7 @@ def _consistency(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, alpha: float)
     if len(ex.recordings) < 2:
         return None
     per = fit_per_recording(fit, ex, mask)
-    return consistency_report(fit, per, [r.name for r in ex.recordings], effective_samples(fit.residual[mask]),
-                              alpha)
+    return consistency_report(fit, per, [r.name for r in ex.recordings], effective_samples(fit.residual[mask]), alpha)
 
 
 def _remainder(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, noise: float, alpha: float) -> dict:
@@ -521,15 +637,20 @@ def _remainder(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, noise: float, a
     where it is largest (recording, branch, input range: `locate.locate_mismatch`)."""
     rep = remainder_report(ex, fit.residual, mask, alpha)
     where = locate_mismatch(ex, fit.residual, noise)
-    worst_range = max((b for b in where["per_input_range"] if b["residual_rms"] is not None),
-                      key=lambda b: b["residual_rms"])
+    worst_range = max(
+        (b for b in where["per_input_range"] if b["residual_rms"] is not None), key=lambda b: b["residual_rms"]
+    )
     branches = {k: v for k, v in where["per_branch"].items() if v is not None}
-    rep.update(residual_rms=rms(fit.residual[mask]), noise_ratio=rms(fit.residual[mask]) / noise if noise else None,
-               explained=bool(rms(fit.residual[mask]) <= NOISE_MARGIN * noise and not rep["structured"]),
-               worst_recording=where["worst_recording"], worst_branch=max(branches, key=branches.get),
-               worst_input_range=[worst_range["u_from"], worst_range["u_to"]],
-               per_recording={p["name"]: p["residual_rms"] for p in where["per_recording"]},
-               per_branch=where["per_branch"])
+    rep.update(
+        residual_rms=rms(fit.residual[mask]),
+        noise_ratio=rms(fit.residual[mask]) / noise if noise else None,
+        explained=bool(rms(fit.residual[mask]) <= NOISE_MARGIN * noise and not rep["structured"]),
+        worst_recording=where["worst_recording"],
+        worst_branch=max(branches, key=branches.get),
+        worst_input_range=[worst_range["u_from"], worst_range["u_to"]],
+        per_recording={p["name"]: p["residual_rms"] for p in where["per_recording"]},
+        per_branch=where["per_branch"],
+    )
     return rep
 
 
@@ -544,8 +665,9 @@ def _verdict(findings: list, baseline: dict, remainder: dict, noise: float) -> s
     return "unexplained"
 
 
-def _validate(ex: JoinedExperiment, base: Fit, findings: list, tested: list, fits: dict, mask: np.ndarray,
-              noise: float) -> tuple[dict | None, str]:
+def _validate(
+    ex: JoinedExperiment, base: Fit, findings: list, tested: list, fits: dict, mask: np.ndarray, noise: float
+) -> tuple[dict | None, str]:
     """Hold out the last recording: refit base (+ winner, + runner-up) on the rest, predict it."""
     if len(ex.recordings) < 2 or not findings:
         return None, ""
@@ -560,8 +682,9 @@ def _validate(ex: JoinedExperiment, base: Fit, findings: list, tested: list, fit
     out["base"] = rms(base_hold.residual[hold])
     for name in names:
         f = fits[name]
-        fit = fit_family(f.family.base.template, f.family.effects, f.theta[:f.family.n_base], ex, train,
-                         ex.y - f.residual)
+        fit = fit_family(
+            f.family.base.template, f.family.effects, f.theta[: f.family.n_base], ex, train, ex.y - f.residual
+        )
         out[name] = rms(fit.residual[hold])
     worst = ""
     if runner is not None:
@@ -583,8 +706,10 @@ def _with_first_start(fit: Fit):
 
 def _summary(ex: JoinedExperiment, model_fit: Fit, noise: float) -> dict:
     yhat = ex.y - model_fit.residual
-    return {"nrmse": nrmse(ex.y, yhat), "residual_rms": rms(model_fit.residual),
-            "references": output_references(model_fit, ex),
-            "noise_ratio": rms(model_fit.residual) / noise if noise else None,
-            "nrmse_per_recording": {r.name: nrmse(ex.y[ex.part(i)], yhat[ex.part(i)])
-                                    for i, r in enumerate(ex.recordings)}}
+    return {
+        "nrmse": nrmse(ex.y, yhat),
+        "residual_rms": rms(model_fit.residual),
+        "references": output_references(model_fit, ex),
+        "noise_ratio": rms(model_fit.residual) / noise if noise else None,
+        "nrmse_per_recording": {r.name: nrmse(ex.y[ex.part(i)], yhat[ex.part(i)]) for i, r in enumerate(ex.recordings)},
+    }

@@ -63,6 +63,7 @@ explained its structured part would itself be a finding.  No constant is
 new (the concealed catalogue effects of the tests leave r1 between -0.04
 and 0.01 at N = 1200, white noise's 0 +- 0.03).
 """
+
 from __future__ import annotations
 
 import math
@@ -74,8 +75,19 @@ from fitter.core.effects import REGISTRY, Chain
 from fitter.diagnosis.experiment import JoinedExperiment
 from fitter.diagnosis.fitting import Fit, jacobian_rows
 
-__all__ = ["ALPHA", "MIN_EXPLAINED", "NOISE_MARGIN", "REVERSAL_MIN", "consistency_report",
-           "effect_report", "is_significant", "memory_response_report", "remainder_report", "reversal_report", "swing"]
+__all__ = [
+    "ALPHA",
+    "MIN_EXPLAINED",
+    "NOISE_MARGIN",
+    "REVERSAL_MIN",
+    "consistency_report",
+    "effect_report",
+    "is_significant",
+    "memory_response_report",
+    "remainder_report",
+    "reversal_report",
+    "swing",
+]
 
 ALPHA = 0.01
 MIN_EXPLAINED = 0.02
@@ -90,7 +102,7 @@ def _physical(fam, theta, se=None) -> tuple[dict, dict]:
     """The effect parameters of `theta` (and of its standard errors `se`) in physical units."""
     params, errs = {}, {}
     se = [0.0] * len(fam.keys) if se is None else se
-    for (_, par), v, s in zip(fam.keys, theta[fam.n_base:], se):
+    for (_, par), v, s in zip(fam.keys, theta[fam.n_base :], se):
         if par.log:
             params[par.name] = math.exp(v)
             errs[par.name] = math.exp(v) * float(s)
@@ -108,19 +120,29 @@ def consistency_report(fit: Fit, per_recording: list[Fit], names: list[str], n_e
     lr = n_eff * math.log(max(fit.rss, 1e-300) / max(rss_sep, 1e-300))
     p = float(chi2.sf(max(lr, 0.0), k * (len(per_recording) - 1)))
     gain = 1.0 - rss_sep / fit.rss if fit.rss > 0 else 0.0
-    return {"per_recording": {name: _physical(fit.family, f.theta)[0] for name, f in zip(names, per_recording)},
-            "p_value": p, "gain": gain, "consistent": not (p < alpha and gain >= MIN_EXPLAINED)}
+    return {
+        "per_recording": {name: _physical(fit.family, f.theta)[0] for name, f in zip(names, per_recording)},
+        "p_value": p,
+        "gain": gain,
+        "consistent": not (p < alpha and gain >= MIN_EXPLAINED),
+    }
 
 
 def effect_report(fit: Fit, base_rss: float, n_eff: float, df: int) -> dict:
     """Parameters, standard errors, LR, p-value and explained fraction of a candidate fit against `base_rss`."""
     fam = fit.family
-    params, errs = _physical(fam, fit.theta, fit.result.stderr(n_eff)[fam.n_base:])
+    params, errs = _physical(fam, fit.theta, fit.result.stderr(n_eff)[fam.n_base :])
     lr = n_eff * math.log(max(base_rss, 1e-300) / max(fit.rss, 1e-300))
-    return {"parameters": params, "stderr": errs, "lr": lr, "df": df,
-            "p_value": float(chi2.sf(max(lr, 0.0), df)), "n_eff": n_eff,
-            "explained_fraction": 1.0 - fit.rss / base_rss if base_rss > 0 else 0.0,
-            "residual_rms": math.sqrt(fit.rss / max(int(fit.mask.sum()), 1))}
+    return {
+        "parameters": params,
+        "stderr": errs,
+        "lr": lr,
+        "df": df,
+        "p_value": float(chi2.sf(max(lr, 0.0), df)),
+        "n_eff": n_eff,
+        "explained_fraction": 1.0 - fit.rss / base_rss if base_rss > 0 else 0.0,
+        "residual_rms": math.sqrt(fit.rss / max(int(fit.mask.sum()), 1)),
+    }
 
 
 def is_significant(report: dict, alpha: float, n_candidates: int) -> bool:
@@ -128,8 +150,9 @@ def is_significant(report: dict, alpha: float, n_candidates: int) -> bool:
     return bool(report["p_value"] < alpha / n_candidates and report["explained_fraction"] >= MIN_EXPLAINED)
 
 
-def memory_response_report(fit: Fit, ex: JoinedExperiment, name: str, n_eff: float, alpha: float,
-                           n_candidates: int) -> dict:
+def memory_response_report(
+    fit: Fit, ex: JoinedExperiment, name: str, n_eff: float, alpha: float, n_candidates: int
+) -> dict:
     """Does the input memory `name` of `fit` (a creep or a relaxation spectrum: `EffectSpec.memory_taus`)
     follow the input, or only its start transient (module docstring)?  ``gain_response``: its gain k with
     the transient free (a free e^{-(t - t0)/tau_i} per time constant and run); ``follows_input``: that gain
@@ -138,7 +161,7 @@ def memory_response_report(fit: Fit, ex: JoinedExperiment, name: str, n_eff: flo
     spec = REGISTRY[name]
     par = next(e.parameters for e in fam.effect_list(fit.theta) if e.effect == name)
     k, taus = float(par["k"]), spec.memory_taus(par)
-    L = np.concatenate(_alone(spec, dict(par, k=1.0), ex))            # the output per unit k
+    L = np.concatenate(_alone(spec, dict(par, k=1.0), ex))  # the output per unit k
     runs = ex.runs()
     E = np.zeros((len(ex.t), len(runs) * (len(taus) + START_TRANSIENTS)))
     for j, s in enumerate(runs):
@@ -147,7 +170,7 @@ def memory_response_report(fit: Fit, ex: JoinedExperiment, name: str, n_eff: flo
         generic = np.geomspace(3 * step, max(elapsed[-1], 3 * step), START_TRANSIENTS)
         for i, tau in enumerate([*taus, *generic]):
             E[s, j * (len(taus) + START_TRANSIENTS) + i] = np.exp(-elapsed / tau)
-    rows = jacobian_rows(ex, mask)                 # the samples the Jacobian has (the optimised ones)
+    rows = jacobian_rows(ex, mask)  # the samples the Jacobian has (the optimised ones)
     L, E, J = L[rows], E[rows], fit.result.jac
     own = {fam.n_base + i for i, (e, _) in enumerate(fam.keys) if e == name}
     moving = [j for j in np.flatnonzero(np.any(J != 0, axis=0)) if j not in own]
@@ -158,8 +181,12 @@ def memory_response_report(fit: Fit, ex: JoinedExperiment, name: str, n_eff: flo
     gain = k + float(coef[-1])
     lr = n_eff * math.log(max(rss_without, 1e-300) / max(rss_with, 1e-300))
     p = float(chi2.sf(max(lr, 0.0), 1))
-    return {"gain_response": gain, "lr": lr, "p_value": p,
-            "follows_input": bool(gain * k > 0 and p < alpha / n_candidates)}
+    return {
+        "gain_response": gain,
+        "lr": lr,
+        "p_value": p,
+        "follows_input": bool(gain * k > 0 and p < alpha / n_candidates),
+    }
 
 
 def _alone(spec, par: dict, ex: JoinedExperiment) -> list[np.ndarray]:

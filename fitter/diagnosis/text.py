@@ -1,4 +1,5 @@
 """The verdict in prose: the paragraph of a `Diagnosis` and the winner-versus-runner-up comparison."""
+
 from __future__ import annotations
 
 from fitter.core.effects import REGISTRY
@@ -9,54 +10,78 @@ __all__ = ["comparison_text", "summary_paragraph"]
 
 
 def _noise_parts(noise: dict | None) -> str:
-    """", the output's x and the input's noise carried through the model y" when the input's part counts
+    """ ", the output's x and the input's noise carried through the model y" when the input's part counts
     (over 10 % of the output's), else ""."""
     if not noise or noise["through_input"] <= 0.1 * noise["output"]:
         return ""
-    return (f" (the output's noise {noise['output']:.3g} and the input's noise carried through the model "
-            f"{noise['through_input']:.3g})")
+    return (
+        f" (the output's noise {noise['output']:.3g} and the input's noise carried through the model "
+        f"{noise['through_input']:.3g})"
+    )
 
 
 def summary_paragraph(d: Diagnosis) -> str:
     """The diagnosis in one paragraph: the base residual against the noise, where it lies, what was found."""
     b, e = d.baseline, d.extended
     m = d.mismatch
-    text = ("The files are read as separate runs, each on its own clock and each simulated from its own "
-            "initial state. " if d.separate and len(d.mismatch.get("per_recording", [])) > 1 else "")
-    text += (f"The base model leaves a residual of {b['residual_rms']:.3g} RMS against a noise level of "
-            f"{d.noise_rms:.3g} estimated from the data{_noise_parts(d.noise)} "
-            f"({_times(b['residual_rms'], d.noise_rms)}); "
-            f"the largest mismatch is in {m['worst_recording']}.")
+    text = (
+        "The files are read as separate runs, each on its own clock and each simulated from its own initial state. "
+        if d.separate and len(d.mismatch.get("per_recording", [])) > 1
+        else ""
+    )
+    text += (
+        f"The base model leaves a residual of {b['residual_rms']:.3g} RMS against a noise level of "
+        f"{d.noise_rms:.3g} estimated from the data{_noise_parts(d.noise)} "
+        f"({_times(b['residual_rms'], d.noise_rms)}); "
+        f"the largest mismatch is in {m['worst_recording']}."
+    )
     g = m["growth"]
-    trends = [f"{'increases' if v > 0 else 'decreases'} with {k.split('_')[1]} (r = {v:.2f})"
-              for k, v in g.items() if v is not None and abs(v) >= 0.7]
+    trends = [
+        f"{'increases' if v > 0 else 'decreases'} with {k.split('_')[1]} (r = {v:.2f})"
+        for k, v in g.items()
+        if v is not None and abs(v) >= 0.7
+    ]
     if trends and b["residual_rms"] > NOISE_MARGIN * d.noise_rms:
         text += " Across recordings it " + ", ".join(trends) + "."
     rep = m.get("repeat")
     if rep:
-        text += (f" The repeated run {rep['repeat']} differs from {rep['original']} by {rep['data_difference_rms']:.3g}"
-                 f" RMS (noise alone: {rep['expected_from_noise']:.3g}).")
+        text += (
+            f" The repeated run {rep['repeat']} differs from {rep['original']} by {rep['data_difference_rms']:.3g}"
+            f" RMS (noise alone: {rep['expected_from_noise']:.3g})."
+        )
     if not d.findings and d.verdict == "nothing_missing":
         return text + " No candidate effect explains a significant part of it: nothing is missing."
     if not d.findings:
         best = d.candidates[0] if d.candidates else None
-        more = (f" (the best, {best['effect']}, explains {100 * best['explained_fraction']:.0f}%, "
-                f"p = {best['p_value']:.2g} with an effective sample size of {best['n_eff']:.0f})") if best else ""
-        return text + (" The residual is above the noise, but no candidate effect explains a significant part of "
-                       f"it{more}: what is missing is not in the catalogue (or the base model is too simple).")
+        more = (
+            (
+                f" (the best, {best['effect']}, explains {100 * best['explained_fraction']:.0f}%, "
+                f"p = {best['p_value']:.2g} with an effective sample size of {best['n_eff']:.0f})"
+            )
+            if best
+            else ""
+        )
+        return text + (
+            " The residual is above the noise, but no candidate effect explains a significant part of "
+            f"it{more}: what is missing is not in the catalogue (or the base model is too simple)."
+        )
     for f in d.findings:
         params = ", ".join(f"{k} = {v:.3g} ± {f['stderr'][k]:.2g}" for k, v in f["parameters"].items())
         gain = f"removes {100 * f['explained_fraction']:.0f}% of the residual ({_p_text(f['p_value'])})"
         if f.get("origin") == "measurement":
-            text += (f" The recording carries {REGISTRY[f['effect']].description}; modelled as "
-                     f"{f['effect']} ({params}) it {gain}. This is reported apart from the material's physics.")
+            text += (
+                f" The recording carries {REGISTRY[f['effect']].description}; modelled as "
+                f"{f['effect']} ({params}) it {gain}. This is reported apart from the material's physics."
+            )
         else:
             text += f" The model had no {f['effect'].replace('_', ' ')}; adding it ({params}) {gain}."
         text += _consistency_text(f)
     if d.comparison:
         text += " " + d.comparison + "."
-    text += (f" The extended model leaves {e['residual_rms']:.3g} RMS ({_times(e['residual_rms'], d.noise_rms)}); "
-             f"NRMSE {100 * b['nrmse']:.2f}% -> {100 * e['nrmse']:.2f}%.")
+    text += (
+        f" The extended model leaves {e['residual_rms']:.3g} RMS ({_times(e['residual_rms'], d.noise_rms)}); "
+        f"NRMSE {100 * b['nrmse']:.2f}% -> {100 * e['nrmse']:.2f}%."
+    )
     if d.verdict == "unexplained":
         text += " " + _remainder_text(e["remainder"], len(d.findings))
     return text
@@ -65,18 +90,25 @@ def summary_paragraph(d: Diagnosis) -> str:
 def _remainder_text(rem: dict, n_findings: int) -> str:
     """Why a diagnosis with findings is "unexplained": the remainder is not noise, and where it lives."""
     if rem["structured"]:
-        why = (f"its neighbouring samples correlate (lag-1 autocorrelation {rem['lag1']:.2f}, "
-               f"{_p_text(rem['p_value'])}; white noise gives 0 ± {1 / max(rem['pairs'], 1) ** 0.5:.2g}): "
-               f"a structured part of about {100 * rem['lag1']:.0f}% of it")
+        why = (
+            f"its neighbouring samples correlate (lag-1 autocorrelation {rem['lag1']:.2f}, "
+            f"{_p_text(rem['p_value'])}; white noise gives 0 ± {1 / max(rem['pairs'], 1) ** 0.5:.2g}): "
+            f"a structured part of about {100 * rem['lag1']:.0f}% of it"
+        )
     else:
         why = f"it stays above {NOISE_MARGIN:g} times the noise"
     lo, hi = rem["worst_input_range"]
-    effects = ("the finding is partial: the nearest effect" if n_findings == 1 else
-               "the findings are partial: the nearest effects")
-    return (f"Unexplained: the residual left is not the noise, {why} that no effect of the catalogue explains "
-            f"(largest in {rem['worst_recording']}, on the {rem['worst_branch']} branch, for inputs "
-            f"{lo:.3g} to {hi:.3g}). So {effects} of the catalogue, not necessarily the physics; what is "
-            "missing is another functional form, an effect outside the catalogue, or a base model too simple.")
+    effects = (
+        "the finding is partial: the nearest effect"
+        if n_findings == 1
+        else "the findings are partial: the nearest effects"
+    )
+    return (
+        f"Unexplained: the residual left is not the noise, {why} that no effect of the catalogue explains "
+        f"(largest in {rem['worst_recording']}, on the {rem['worst_branch']} branch, for inputs "
+        f"{lo:.3g} to {hi:.3g}). So {effects} of the catalogue, not necessarily the physics; what is "
+        "missing is another functional form, an effect outside the catalogue, or a base model too simple."
+    )
 
 
 def comparison_text(winner: dict, runner: dict | None, hold_out: dict, noise: float, worst: str) -> str:
@@ -94,22 +126,30 @@ def comparison_text(winner: dict, runner: dict | None, hold_out: dict, noise: fl
     if runner is None:
         return text
     other, held = runner["effect"], hold_out["held_out"]
-    text += (f"; the runner-up {other} leaves {runner['residual_rms']:.3g}"
-             f" (explains {100 * runner['explained_fraction']:.0f}% against "
-             f"{100 * winner['explained_fraction']:.0f}%)")
+    text += (
+        f"; the runner-up {other} leaves {runner['residual_rms']:.3g}"
+        f" (explains {100 * runner['explained_fraction']:.0f}% against "
+        f"{100 * winner['explained_fraction']:.0f}%)"
+    )
     resp = runner.get("response")
     if resp and not resp["follows_input"]:
-        text += (f"; but that {other} does not follow the input (its gain on the input's response is "
-                 f"{resp['gain_response']:.3g} against k = {runner['parameters']['k']:.3g} once its start "
-                 f"transient is free, {_p_text(resp['p_value'])}): what it fits is its start, a change in time, "
-                 "so it is not a finding")
-    text += (f". Refitted without {held}, {win} predicts it with a residual of {hold_out[win]:.3g}, "
-             f"{other} with {hold_out[other]:.3g}, the base model with {hold_out['base']:.3g}")
+        text += (
+            f"; but that {other} does not follow the input (its gain on the input's response is "
+            f"{resp['gain_response']:.3g} against k = {runner['parameters']['k']:.3g} once its start "
+            f"transient is free, {_p_text(resp['p_value'])}): what it fits is its start, a change in time, "
+            "so it is not a finding"
+        )
+    text += (
+        f". Refitted without {held}, {win} predicts it with a residual of {hold_out[win]:.3g}, "
+        f"{other} with {hold_out[other]:.3g}, the base model with {hold_out['base']:.3g}"
+    )
     text += f". The runner-up's extra error is largest {worst}"
     if not hold_out["confirmed"]:
-        text += (f". Caution: on the held-out run {win} does not predict better than "
-                 f"{'the base model' if hold_out[win] >= hold_out['base'] else other}, so the hold-out "
-                 "check does not confirm it")
+        text += (
+            f". Caution: on the held-out run {win} does not predict better than "
+            f"{'the base model' if hold_out[win] >= hold_out['base'] else other}, so the hold-out "
+            "check does not confirm it"
+        )
     return text
 
 
@@ -118,12 +158,15 @@ def _consistency_text(f: dict) -> str:
     c = f.get("consistency")
     if not c or c["consistent"]:
         return ""
-    per = "; ".join(f"{rec}: " + ", ".join(f"{k} = {v:.3g}" for k, v in vals.items())
-                    for rec, vals in c["per_recording"].items())
-    return (f" But one parameter set does not hold across the recordings ({per}; separate parameters would remove "
-            f"a further {100 * c['gain']:.0f}% of the residual, {_p_text(c['p_value'])}): the data follow "
-            f"{f['effect']} only approximately, so it is the nearest effect of the catalogue, not necessarily the "
-            "physics (another functional form, or an effect outside the catalogue).")
+    per = "; ".join(
+        f"{rec}: " + ", ".join(f"{k} = {v:.3g}" for k, v in vals.items()) for rec, vals in c["per_recording"].items()
+    )
+    return (
+        f" But one parameter set does not hold across the recordings ({per}; separate parameters would remove "
+        f"a further {100 * c['gain']:.0f}% of the residual, {_p_text(c['p_value'])}): the data follow "
+        f"{f['effect']} only approximately, so it is the nearest effect of the catalogue, not necessarily the "
+        "physics (another functional form, or an effect outside the catalogue)."
+    )
 
 
 def _p_text(p: float) -> str:

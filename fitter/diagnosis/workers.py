@@ -9,6 +9,7 @@ item (an effect name, a recording index) goes to a process and only its
 result (a `Fit`) comes back.  Every fit is deterministic, so the diagnosis
 is the same on any number of processes (tested).
 """
+
 from __future__ import annotations
 
 import multiprocessing
@@ -40,7 +41,7 @@ def workers() -> int:
 
 def _call(item):
     global _IN_WORKER
-    _IN_WORKER = True           # a map inside a worker runs in that worker (no processes of processes)
+    _IN_WORKER = True  # a map inside a worker runs in that worker (no processes of processes)
     return _TASK(item)
 
 

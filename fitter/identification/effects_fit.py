@@ -38,6 +38,7 @@ effect carries the output's reference (`EffectSpec.offset`), the first
 recording's is the base's own (stored as the afresh value) and each other
 recording's is fitted with its x0, relative to it (`Recordings`).
 """
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -81,12 +82,15 @@ def check_held(held: dict[str, float] | None, effects: Sequence[str]) -> dict[st
     for key, value in (held or {}).items():
         name, _, par = str(key).partition(".")
         if name not in effects:
-            raise DuhemError(f"held parameter {key!r}: {name!r} is not one of the fitted effects "
-                             f"({', '.join(effects) or 'none'})")
+            raise DuhemError(
+                f"held parameter {key!r}: {name!r} is not one of the fitted effects ({', '.join(effects) or 'none'})"
+            )
         spec = {p.name: p for p in REGISTRY[name].parameters}.get(par)
         if spec is None:
-            raise DuhemError(f"held parameter {key!r}: {name} has no parameter {par!r} "
-                             f"(its parameters: {', '.join(p.name for p in REGISTRY[name].parameters)})")
+            raise DuhemError(
+                f"held parameter {key!r}: {name} has no parameter {par!r} "
+                f"(its parameters: {', '.join(p.name for p in REGISTRY[name].parameters)})"
+            )
         try:
             number = float(value)
         except (TypeError, ValueError):
@@ -110,10 +114,14 @@ def _balanced(recordings: Sequence[Recording]) -> list[float]:
     return [(total / max(float(np.ptp(r.y)), 1e-300)) ** 2 for r in recordings]
 
 
-def fit_effects(model, recordings: Sequence[Recording], effects: Sequence[str],
-                penalty: Callable[[object], np.ndarray] | None = None,
-                progress: Progress = silent, held: dict[str, float] | None = None
-                ) -> tuple[object, RefineResult, WithEffects]:
+def fit_effects(
+    model,
+    recordings: Sequence[Recording],
+    effects: Sequence[str],
+    penalty: Callable[[object], np.ndarray] | None = None,
+    progress: Progress = silent,
+    held: dict[str, float] | None = None,
+) -> tuple[object, RefineResult, WithEffects]:
     """`model` and `effects` refined jointly on `recordings` (module docstring).
 
     `penalty` maps a candidate model to barrier residuals (zero where it is acceptable); `held`, effect
@@ -134,8 +142,15 @@ def fit_effects(model, recordings: Sequence[Recording], effects: Sequence[str],
     screened = []
     for k, start in enumerate(fam.starts()):
         progress(f"effects {', '.join(names)}: start {k + 1}", None)
-        screened.append(refine(fam, np.r_[base, start], problem, replace(OPTIONS, max_nfev=SCREEN_NFEV,
-                                                                          covariance=False), free=screen_free))
+        screened.append(
+            refine(
+                fam,
+                np.r_[base, start],
+                problem,
+                replace(OPTIONS, max_nfev=SCREEN_NFEV, covariance=False),
+                free=screen_free,
+            )
+        )
     screened.sort(key=lambda r: r.rss)
 
     def objective(res: RefineResult) -> float:
@@ -148,6 +163,9 @@ def fit_effects(model, recordings: Sequence[Recording], effects: Sequence[str],
         if best is None or objective(res) < objective(best):
             best = res
     fitted, first = fam.build(best.theta), recordings[0]
-    start = best.states[0] if best.states[0] is not None else \
-        fresh_state(fitted, first.t, first.u, best.x0s[0], flows(fitted))
+    start = (
+        best.states[0]
+        if best.states[0] is not None
+        else fresh_state(fitted, first.t, first.u, best.x0s[0], flows(fitted))
+    )
     return with_start(fitted, start).replace(x0=best.x0s[0]), best, fam

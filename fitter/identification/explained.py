@@ -19,6 +19,7 @@ model: `check_explained` refuses it unless the caller insists.  Beside it, the
 white-noise estimate of the output (`fitter.data.noise.noise_rms`) says how
 much of the output's spread is sample-to-sample noise.
 """
+
 from __future__ import annotations
 
 from typing import Sequence
@@ -31,8 +32,14 @@ from fitter.data.noise import noise_or_zero
 from fitter.data.recordings import Recording
 from fitter.identification.exported import own_start
 
-__all__ = ["EXPLAINED_MIN", "NothingToModelError", "explained_variance", "unexplained", "explained_text",
-           "check_explained"]
+__all__ = [
+    "EXPLAINED_MIN",
+    "NothingToModelError",
+    "explained_variance",
+    "unexplained",
+    "explained_text",
+    "check_explained",
+]
 
 EXPLAINED_MIN = 0.5
 """Smallest R^2 of a recording whose output the model relates to its input (module docstring)."""
@@ -65,9 +72,17 @@ def explained_variance(model, recordings: Sequence[Recording]) -> list[dict]:
         y_hat = _best_output(model, rec)
         sst, sse = float(np.sum((rec.y - np.mean(rec.y)) ** 2)), float(np.sum((rec.y - y_hat) ** 2))
         r2 = 1.0 - sse / sst if sst > 0 and np.isfinite(sse) else (1.0 if sst == 0 and sse == 0 else -np.inf)
-        rows.append({"recording": rec.name, "source": rec.label, "r2": r2,
-                     "residual_rms": float(np.sqrt(sse / len(rec.y))), "output_std": float(np.std(rec.y)),
-                     "noise_rms": noise_or_zero(rec.y), "threshold": EXPLAINED_MIN})
+        rows.append(
+            {
+                "recording": rec.name,
+                "source": rec.label,
+                "r2": r2,
+                "residual_rms": float(np.sqrt(sse / len(rec.y))),
+                "output_std": float(np.std(rec.y)),
+                "noise_rms": noise_or_zero(rec.y),
+                "threshold": EXPLAINED_MIN,
+            }
+        )
     return rows
 
 
@@ -79,10 +94,12 @@ def unexplained(rows: Sequence[dict]) -> dict | None:
 
 def explained_text(row: dict) -> str:
     """The numbers of a row that has nothing to model, in words."""
-    return (f"the fitted model explains R^2 = {row['r2']:.3g} of the output's variance (residual RMS "
-            f"{row['residual_rms']:.4g} against the output's standard deviation {row['output_std']:.4g}; its "
-            f"white-noise estimate is {row['noise_rms']:.4g}; real hysteresis gives R^2 > 0.99, the limit is "
-            f"{row['threshold']:g}): the output looks like noise, with no relation to the input")
+    return (
+        f"the fitted model explains R^2 = {row['r2']:.3g} of the output's variance (residual RMS "
+        f"{row['residual_rms']:.4g} against the output's standard deviation {row['output_std']:.4g}; its "
+        f"white-noise estimate is {row['noise_rms']:.4g}; real hysteresis gives R^2 > 0.99, the limit is "
+        f"{row['threshold']:g}): the output looks like noise, with no relation to the input"
+    )
 
 
 def check_explained(rows: Sequence[dict], *, allow_noise: bool = False) -> dict | None:
@@ -96,6 +113,8 @@ def check_explained(rows: Sequence[dict], *, allow_noise: bool = False) -> dict 
     """
     row = unexplained(rows)
     if row is not None and not allow_noise:
-        raise NothingToModelError(f"{row['source']}: {explained_text(row)}; no model written: check the output "
-                                  "column (--output), or pass --allow-noise to save the model anyway")
+        raise NothingToModelError(
+            f"{row['source']}: {explained_text(row)}; no model written: check the output "
+            "column (--output), or pass --allow-noise to save the model anyway"
+        )
     return row

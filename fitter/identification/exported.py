@@ -54,6 +54,7 @@ stored initial state.  This module makes the two the same:
   matrices.  Rates need no such rule: g is held constant beyond its outermost
   node (`fitter.core.rates`).
 """
+
 from __future__ import annotations
 
 from typing import Sequence
@@ -71,14 +72,29 @@ from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording
 from fitter.identification.output_error import fitted_initial_state
 
-__all__ = ["X0_POLICIES", "NRMSE_CONVENTION", "initial_state", "own_start", "started", "score", "raw_input_rho",
-           "fitted_range", "minor_loop_excursion", "minor_loop_warning", "MINOR_LOOP_WARNING", "input_range",
-           "range_warnings", "described"]
+__all__ = [
+    "X0_POLICIES",
+    "NRMSE_CONVENTION",
+    "initial_state",
+    "own_start",
+    "started",
+    "score",
+    "raw_input_rho",
+    "fitted_range",
+    "minor_loop_excursion",
+    "minor_loop_warning",
+    "MINOR_LOOP_WARNING",
+    "input_range",
+    "range_warnings",
+    "described",
+]
 
 X0_POLICIES = ("fitted", "periodic")
-NRMSE_CONVENTION = ("nrmse: RMS error / output range over all samples of the raw recording, the saved model "
-                    "simulated from its stored x0 (what `duhem validate` reports for its FMU); nrmse_last_cycle: "
-                    "the same over the last full input cycle")
+NRMSE_CONVENTION = (
+    "nrmse: RMS error / output range over all samples of the raw recording, the saved model "
+    "simulated from its stored x0 (what `duhem validate` reports for its FMU); nrmse_last_cycle: "
+    "the same over the last full input cycle"
+)
 
 
 def _periodic_x0(model, rec: Recording) -> np.ndarray:
@@ -86,13 +102,15 @@ def _periodic_x0(model, rec: Recording) -> np.ndarray:
     prep = prepare(rec, min_cycles=0, drop_transient=False)
     s0, s1 = prep.first_cycle()
     cache = flows(model)
-    xs, rho = fixed_point(model, rec.t[s0:s1 + 1], rec.u[s0:s1 + 1], cache)
+    xs, rho = fixed_point(model, rec.t[s0 : s1 + 1], rec.u[s0 : s1 + 1], cache)
     if xs is None:
-        raise DuhemError(f"{rec.name}: no periodic state (spectral radius of the cycle's map {rho:.4g} >= 1); "
-                         "use the fitted initial state")
+        raise DuhemError(
+            f"{rec.name}: no periodic state (spectral radius of the cycle's map {rho:.4g} >= 1); "
+            "use the fitted initial state"
+        )
     if s0 == 0:
         return xs
-    Phi, c = period_map(model, rec.t[:s0 + 1], rec.u[:s0 + 1], cache)
+    Phi, c = period_map(model, rec.t[: s0 + 1], rec.u[: s0 + 1], cache)
     x0, *_ = np.linalg.lstsq(Phi, xs - c, rcond=None)
     return x0
 
@@ -168,8 +186,11 @@ def _own_start(model, rec: Recording) -> dict:
     start = own_start(model, rec)
     if start is None:
         return {"x0_fitted": None, "effect_start_fitted": None, "nrmse_x0_fitted": None}
-    return {"x0_fitted": start[0].tolist(), "effect_start_fitted": None if start[2] is None else list(start[2]),
-            "nrmse_x0_fitted": compare(rec, start[1])["nrmse"]}
+    return {
+        "x0_fitted": start[0].tolist(),
+        "effect_start_fitted": None if start[2] is None else list(start[2]),
+        "nrmse_x0_fitted": compare(rec, start[1])["nrmse"],
+    }
 
 
 def raw_input_rho(model, recordings: Sequence[Recording]) -> list[float | None]:
@@ -266,12 +287,14 @@ def minor_loop_warning(model) -> str | None:
         return None
     exc = minor.get("excursion")
     size = "overflows" if exc is None else f"settles up to {exc:.3g} output ranges outside anything recorded"
-    return ("on minor loops smaller than the recorded ones the model's output " + size + ": it reproduces "
-            "the recorded loops, not necessarily smaller ones (a semilinear model's small loops settle on a "
-            "centre line affine in u); its compensator inverts the model exactly but may ask for inputs far from "
-            "the recorded path; check it on a recording with minor loops before using it there, or fit with "
-            "--faithful-minor-loops (and --effects for physics such as switching that the faithful base then "
-            "cannot follow)")
+    return (
+        "on minor loops smaller than the recorded ones the model's output " + size + ": it reproduces "
+        "the recorded loops, not necessarily smaller ones (a semilinear model's small loops settle on a "
+        "centre line affine in u); its compensator inverts the model exactly but may ask for inputs far from "
+        "the recorded path; check it on a recording with minor loops before using it there, or fit with "
+        "--faithful-minor-loops (and --effects for physics such as switching that the faithful base then "
+        "cannot follow)"
+    )
 
 
 def input_range(recordings: Sequence[Recording]) -> tuple[float, float]:
@@ -285,10 +308,12 @@ def described(model, recordings: Sequence[Recording]):
     """`model` with the description of `recordings` (module docstring): the first recording's signals, the
     longest one's span and median step as the default experiment, and their `input_range`."""
     r0, longest = recordings[0], max(recordings, key=lambda rec: rec.t[-1] - rec.t[0])
-    experiment = Experiment(start_time=float(longest.t[0]), stop_time=float(longest.t[-1]),
-                            step_size=float(np.median(np.diff(longest.t))))
-    return model.replace(signals=Signals(input=r0.input, output=r0.output), experiment=experiment,
-                         input_range=input_range(recordings))
+    experiment = Experiment(
+        start_time=float(longest.t[0]), stop_time=float(longest.t[-1]), step_size=float(np.median(np.diff(longest.t)))
+    )
+    return model.replace(
+        signals=Signals(input=r0.input, output=r0.output), experiment=experiment, input_range=input_range(recordings)
+    )
 
 
 def range_warnings(model, t: np.ndarray, u: np.ndarray) -> list[str]:
@@ -303,16 +328,22 @@ def range_warnings(model, t: np.ndarray, u: np.ndarray) -> list[str]:
     lo, hi = rng["input"]
     slack = INPUT_MARGIN * (hi - lo)
     if u.min() < lo - slack or u.max() > hi + slack:
-        held = (f"beyond [{model.input_range[0]:.6g}, {model.input_range[1]:.6g}] the model holds the input at "
-                "the edge, so its output stays at its value there" if model.input_range is not None
-                else "outside it the model extrapolates (no input_range: unbounded)")
-        out.append(f"the input spans [{u.min():.6g}, {u.max():.6g}] but the model was fitted on "
-                   f"[{lo:.6g}, {hi:.6g}]: {held}")
+        held = (
+            f"beyond [{model.input_range[0]:.6g}, {model.input_range[1]:.6g}] the model holds the input at "
+            "the edge, so its output stays at its value there"
+            if model.input_range is not None
+            else "outside it the model extrapolates (no input_range: unbounded)"
+        )
+        out.append(
+            f"the input spans [{u.min():.6g}, {u.max():.6g}] but the model was fitted on [{lo:.6g}, {hi:.6g}]: {held}"
+        )
     v = _moving_rates(t, u)
     if model.kind == "rd" and rng.get("rate") and v.size:
         v_lo, v_hi = np.percentile(v, [5, 95])
         f_lo, f_hi = rng["rate"]
         if v_hi > 1.5 * f_hi or v_lo < f_lo / 1.5:
-            out.append(f"the input's rates |du/dt| span [{v_lo:.4g}, {v_hi:.4g}] (5-95 %) but the model was "
-                       f"fitted on [{f_lo:.4g}, {f_hi:.4g}]: its rate function g is extrapolated")
+            out.append(
+                f"the input's rates |du/dt| span [{v_lo:.4g}, {v_hi:.4g}] (5-95 %) but the model was "
+                f"fitted on [{f_lo:.4g}, {f_hi:.4g}]: its rate function g is extrapolated"
+            )
     return out

@@ -50,6 +50,7 @@ Pipeline of `fit_recordings`
    settled on it, and the model stores the first recording's
    (`fitter.identification.effects_fit`).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
@@ -67,11 +68,27 @@ from fitter.core.periodic import fixed_point
 from fitter.data.metrics import compare
 from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording, check_scale
-from fitter.identification.fit_data import (FitData, FitError, RateLevels, averaged_loop, monotone_input,
-                                            prepare_for_fit, rate_levels)
+from fitter.identification.fit_data import (
+    FitData,
+    FitError,
+    RateLevels,
+    averaged_loop,
+    monotone_input,
+    prepare_for_fit,
+    rate_levels,
+)
 from fitter.identification.effects_fit import check_effects, check_held, fit_effects
-from fitter.identification.exported import (MINOR_LOOP_WARNING, NRMSE_CONVENTION, X0_POLICIES, described,
-                                            fitted_range, initial_state, minor_loop_excursion, raw_input_rho, score)
+from fitter.identification.exported import (
+    MINOR_LOOP_WARNING,
+    NRMSE_CONVENTION,
+    X0_POLICIES,
+    described,
+    fitted_range,
+    initial_state,
+    minor_loop_excursion,
+    raw_input_rho,
+    score,
+)
 from fitter.identification.output_error import Recordings
 from fitter.identification.refine import Options, RefineResult, jacobian, refine
 from fitter.identification.parametrisation import Parametrisation, Physical, RDCanonical, RICanonical, WithEffects
@@ -96,10 +113,12 @@ max(|theta|, 1) times a seeded normal draw.  Measured on the three piezo rates: 
 and 4 end in minima of 1.2-3x the best cost, depending on the start and on the numerical stack."""
 FIT_OPTIONS = Options(ftol=1e-9, xtol=1e-10, max_nfev=MAX_NFEV, max_samples=3000, eliminate=True)
 
-X0_TEXT = {"fit": "during the fit, every sample is fitted and the state at each recording's first sample is "
-                  "fitted (linear least squares)",
-           "periodic": "every recording holds a single cycle, so transient and loop cannot be told apart: "
-                       "each is taken as settled and starts from the fixed point of its one-cycle map"}
+X0_TEXT = {
+    "fit": "during the fit, every sample is fitted and the state at each recording's first sample is "
+    "fitted (linear least squares)",
+    "periodic": "every recording holds a single cycle, so transient and loop cannot be told apart: "
+    "each is taken as settled and starts from the fixed point of its one-cycle map",
+}
 
 
 # --------------------------------------------------------------------- one candidate
@@ -134,11 +153,13 @@ def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.nd
         except (ValueError, np.linalg.LinAlgError):
             model = None
         return _barrier_residuals(param, model, lo, hi)
+
     return pen
 
 
-def _barrier_residuals(param: RICanonical | RDCanonical, model, lo: float, hi: float,
-                       output: tuple[float, float] = (0.0, 1.0)) -> np.ndarray:
+def _barrier_residuals(
+    param: RICanonical | RDCanonical, model, lo: float, hi: float, output: tuple[float, float] = (0.0, 1.0)
+) -> np.ndarray:
     """1e3 max(0, excess + `BARRIER_INSIDE`) of `param.excesses(model, lo, hi, output)`; 1e3 where an excess
     cannot be evaluated (or `model` is None)."""
     try:
@@ -176,7 +197,7 @@ def _candidate(param, starts, data: FitData, info, progress: Progress) -> _Candi
     race = param.kind == "ri" and len(starts) > 1
     options = replace(FIT_OPTIONS, max_nfev=RACE_NFEV, covariance=False) if race else FIT_OPTIONS
     best = None
-    for th0 in starts:      # only the best so far is kept: a result holds residuals on every sample
+    for th0 in starts:  # only the best so far is kept: a result holds residuals on every sample
         res = run(th0, options)
         if res is not None and (best is None or objective(res) < objective(best)):
             best = res
@@ -186,7 +207,7 @@ def _candidate(param, starts, data: FitData, info, progress: Progress) -> _Candi
     if race:
         more = run(best.theta, replace(FIT_OPTIONS, max_nfev=MAX_NFEV - RACE_NFEV))
         if not (more is not None and objective(more) <= objective(best)):
-            del more        # freed before the one-evaluation run that gives the race's best its covariance
+            del more  # freed before the one-evaluation run that gives the race's best its covariance
             more = run(best.theta, replace(FIT_OPTIONS, max_nfev=1))
         best = more if more is not None else best
     if param.kind == "rd" and param.n >= GLOBAL_FROM_ORDER:
@@ -194,8 +215,12 @@ def _candidate(param, starts, data: FitData, info, progress: Progress) -> _Candi
     return _Candidate(param, best, info)
 
 
-def _global_stage(param: RDCanonical, best: RefineResult, run: Callable[[np.ndarray, Options], RefineResult | None],
-                  objective: Callable[[RefineResult], float]) -> RefineResult:
+def _global_stage(
+    param: RDCanonical,
+    best: RefineResult,
+    run: Callable[[np.ndarray, Options], RefineResult | None],
+    objective: Callable[[RefineResult], float],
+) -> RefineResult:
     """The lowest objective among `best` and `GLOBAL_STARTS` full refinements from perturbed copies of it
     (`GLOBAL_SCALE`; seeded by the order, so a fit is repeatable)."""
     rng = np.random.default_rng(param.n)
@@ -209,19 +234,19 @@ def _global_stage(param: RDCanonical, best: RefineResult, run: Callable[[np.ndar
     return best
 
 
-def _search(data: FitData, kind: str, orders, q, levels: RateLevels, progress: Progress,
-            faithful: bool = False) -> list[_Candidate]:
+def _search(
+    data: FitData, kind: str, orders, q, levels: RateLevels, progress: Progress, faithful: bool = False
+) -> list[_Candidate]:
     """Candidates of the order (and kind) search of the module docstring, item 5; `faithful`: the
     rate-independent candidates keep their settled minor loops near the data (`fit_recordings`)."""
     loop = averaged_loop(data.loops) if data.loops is not None else None
     cands: list[_Candidate] = []
     ri_fits: dict[int, _Candidate] = {}
-    for n in (orders if kind != "rd" else orders[:1]):
+    for n in orders if kind != "rd" else orders[:1]:
         progress(f"rate-independent model, order {n}", None)
         lower = ri_fits.get(n - 1)
         lower_model = lower.res.model if lower else None
-        starts, info = (ri_starts(*loop, n, q, lower_model) if loop is not None
-                        else generic_ri_starts(n, lower_model))
+        starts, info = ri_starts(*loop, n, q, lower_model) if loop is not None else generic_ri_starts(n, lower_model)
         ri_fits[n] = _candidate(RICanonical(n, faithful), starts, data, info, progress)
         if kind in ("auto", "ri"):
             cands.append(ri_fits[n])
@@ -233,8 +258,9 @@ def _search(data: FitData, kind: str, orders, q, levels: RateLevels, progress: P
             progress(f"rate-dependent model, order {n}", None)
             param = RDCanonical(n, levels.v_ref, levels.knots)
             ri, lower = ri_fits.get(n), rd_fits.get(n - 1)
-            starts, info = rd_starts(param, ri.res.model if ri else None, lower.res if lower else None,
-                                     data.norm, levels.triangle)
+            starts, info = rd_starts(
+                param, ri.res.model if ri else None, lower.res if lower else None, data.norm, levels.triangle
+            )
             rd_fits[n] = _candidate(param, starts, data, info, progress)
             cands.append(rd_fits[n])
             if n - 1 in rd_fits and rd_fits[n].bic > rd_fits[n - 1].bic:
@@ -275,7 +301,7 @@ class FitResult:
         prep = prepare(rec, min_cycles=0)
         s0, s1 = prep.first_cycle()
         a = prep.transient_end + s0
-        x0, _ = fixed_point(self.model, rec.t[a:prep.transient_end + s1 + 1], rec.u[a:prep.transient_end + s1 + 1])
+        x0, _ = fixed_point(self.model, rec.t[a : prep.transient_end + s1 + 1], rec.u[a : prep.transient_end + s1 + 1])
         y = np.full(len(rec.u), np.nan)
         y[a:] = simulate(self.model, rec.t[a:], rec.u[a:], x0=self.model.x0 if x0 is None else x0).y
         return y
@@ -288,10 +314,18 @@ class FitResult:
         return y0 - level * sd, y0 + level * sd
 
 
-def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order: int | None = None,
-                   q: float | None = None, x0: str = "fitted", faithful_minor_loops: bool = False,
-                   effects: Sequence[str] = (), held: dict[str, float] | None = None,
-                   progress: Progress = silent) -> FitResult:
+def fit_recordings(
+    recordings: Sequence[Recording],
+    *,
+    kind: str = "auto",
+    order: int | None = None,
+    q: float | None = None,
+    x0: str = "fitted",
+    faithful_minor_loops: bool = False,
+    effects: Sequence[str] = (),
+    held: dict[str, float] | None = None,
+    progress: Progress = silent,
+) -> FitResult:
     """Fit a semilinear Duhem model to one or more recordings (see the module docstring).
 
     Parameters
@@ -330,7 +364,7 @@ def fit_recordings(recordings: Sequence[Recording], *, kind: str = "auto", order
     if effects and x0 != "fitted":
         raise ValueError("effects are fitted with x0 'fitted' (their initial state is fitted per recording)")
     check_scale(recordings)
-    with threadpool_limits(limits=1, user_api="blas"):    # small matrices: one thread, the same rounding every run
+    with threadpool_limits(limits=1, user_api="blas"):  # small matrices: one thread, the same rounding every run
         data = prepare_for_fit(recordings)
         levels = rate_levels(data.norm)
         orders = ORDERS if order is None else (order,)
@@ -360,8 +394,14 @@ def _base_model(cand: _Candidate, data: FitData, recordings):
     return described(bare, recordings)
 
 
-def _with_effects(eligible: Sequence[_Candidate], data: FitData, recordings, effects: Sequence[str],
-                  held: dict[str, float], progress: Progress) -> _Extended:
+def _with_effects(
+    eligible: Sequence[_Candidate],
+    data: FitData,
+    recordings,
+    effects: Sequence[str],
+    held: dict[str, float],
+    progress: Progress,
+) -> _Extended:
     """Module docstring, item 6: the best candidate of each kind extended by `effects`; the lowest BIC
     N ln(RSS/N) + p ln N on every raw sample (p: the base's and the effects' parameters) is kept."""
     best, tried = None, []
@@ -371,8 +411,14 @@ def _with_effects(eligible: Sequence[_Candidate], data: FitData, recordings, eff
             continue
         cand = min(of_kind, key=lambda c: c.bic)
         progress(f"{kind}{cand.param.n} with {', '.join(effects)}", None)
-        model, res, fam = fit_effects(_base_model(cand, data, recordings), recordings, effects,
-                                      _physical_barrier(cand.param, data, recordings), progress, held)
+        model, res, fam = fit_effects(
+            _base_model(cand, data, recordings),
+            recordings,
+            effects,
+            _physical_barrier(cand.param, data, recordings),
+            progress,
+            held,
+        )
         n = int(sum(len(r) for r in res.residuals))
         bic = float(n * np.log(res.rss / n) + (cand.param.size + fam.size - fam.n_base) * np.log(n))
         tried.append({"base": f"{kind}{cand.param.n}", "bic": bic, "rss": res.rss, "samples": n})
@@ -386,8 +432,7 @@ def _raw_range(recordings) -> tuple[float, float]:
     return min(float(np.min(r.u)) for r in recordings), max(float(np.max(r.u)) for r in recordings)
 
 
-def _physical_barrier(param: RICanonical | RDCanonical, data: FitData,
-                      recordings) -> Callable[[object], np.ndarray]:
+def _physical_barrier(param: RICanonical | RDCanonical, data: FitData, recordings) -> Callable[[object], np.ndarray]:
     """`_barrier`'s residuals for a model in physical units over the recordings' input range (condition (5),
     the branch amplification and the damping are invariant under the normalisation of `scaling`; the settled
     minor loops of faithful minor loops are put on its output scale).  They depend on the base alone (its
@@ -403,6 +448,7 @@ def _physical_barrier(param: RICanonical | RDCanonical, data: FitData,
             cache.clear()
             cache[key] = _barrier_residuals(param, model, lo, hi, output)
         return cache[key]
+
     return pen
 
 
@@ -437,8 +483,9 @@ def _per_recording(model, res: RefineResult | None, data: FitData, recordings) -
     return out
 
 
-def _convergence(best: _Candidate, data: FitData, model, recordings, scores: list[dict],
-                 extended: bool = False) -> dict:
+def _convergence(
+    best: _Candidate, data: FitData, model, recordings, scores: list[dict], extended: bool = False
+) -> dict:
     """The condition with its fitting margin and on each raw input (physical model).  The structural quantities
     are the candidate's (normalised units) or, with effects fitted jointly (`extended`), the saved model's over
     the raw input range (invariant under the normalisation)."""
@@ -446,12 +493,16 @@ def _convergence(best: _Candidate, data: FitData, model, recordings, scores: lis
     structural, lo, hi = (model, *_raw_range(recordings)) if extended else (best.res.model, *data.input_range())
     val = param.convergence(structural, lo, hi)
     raw = raw_input_rho(model, recordings)
-    ok = (param.converges(val) and all(r is None or r < 1 for r in raw)
-          and not any(m.get("diverged") for m in scores))
-    out = {"satisfied": bool(ok), "quantity": param.QUANTITY, "value": val, "margin": param.LIMIT,
-           "rho_raw_input_per_recording": raw,
-           "rule": "the structural condition holds within its fitting margin and the period map of every raw "
-                   "recording's last full cycle has spectral radius < 1"}
+    ok = param.converges(val) and all(r is None or r < 1 for r in raw) and not any(m.get("diverged") for m in scores)
+    out = {
+        "satisfied": bool(ok),
+        "quantity": param.QUANTITY,
+        "value": val,
+        "margin": param.LIMIT,
+        "rho_raw_input_per_recording": raw,
+        "rule": "the structural condition holds within its fitting margin and the period map of every raw "
+        "recording's last full cycle has spectral radius < 1",
+    }
     if param.kind == "ri":
         out["branch_amplification"] = float(np.exp(min(param.amplification(structural, lo, hi), 700.0)))
         out["amplification_margin"] = param.AMPLIFICATION
@@ -462,8 +513,17 @@ def _convergence(best: _Candidate, data: FitData, model, recordings, scores: lis
     return out
 
 
-def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels: RateLevels,
-            x0_policy: str, extended: _Extended | None = None) -> FitResult:
+def _result(
+    best: _Candidate,
+    cands,
+    data: FitData,
+    recordings,
+    kind,
+    q,
+    levels: RateLevels,
+    x0_policy: str,
+    extended: _Extended | None = None,
+) -> FitResult:
     if extended is not None:
         best = extended.candidate
     param, res = best.param, best.res
@@ -478,45 +538,79 @@ def _result(best: _Candidate, cands, data: FitData, recordings, kind, q, levels:
     per_recording = _per_recording(model, None if extended else res, data, recordings)
     bad = next((m["recording"] for m in per_recording if not np.isfinite(m["nrmse"])), None)
     if bad is not None:
-        raise FitError(f"{bad}: the fitted model gives a non-finite output on its own recording (raw input, stored "
-                       "x0), so it is not saved; check the recording's scale and units")
+        raise FitError(
+            f"{bad}: the fitted model gives a non-finite output on its own recording (raw input, stored "
+            "x0), so it is not saved; check the recording's scale and units"
+        )
     summary = {
-        "kind": param.kind, "order": param.n,
+        "kind": param.kind,
+        "order": param.n,
         "q": q if q is not None else next((c.start_info["q"] for c in cands if "q" in c.start_info), None),
-        "q_why": "given" if q is not None else "lowest loop error of the Section III estimate among "
-                 f"{list(Q_CANDIDATES)} (a start for the output-error refinement only)",
+        "q_why": "given"
+        if q is not None
+        else "lowest loop error of the Section III estimate among "
+        f"{list(Q_CANDIDATES)} (a start for the output-error refinement only)",
         "why": _why(best, cands, kind, levels.levels, [c for c in cands if not _meets_barrier(c, data, recordings)]),
-        "candidates": [{"kind": c.param.kind, "order": c.param.n, "parameters": c.param.size,
-                        "rss_normalised": c.res.rss, "bic": c.bic, "start": c.start_info.get("start")}
-                       for c in cands],
+        "candidates": [
+            {
+                "kind": c.param.kind,
+                "order": c.param.n,
+                "parameters": c.param.size,
+                "rss_normalised": c.res.rss,
+                "bic": c.bic,
+                "start": c.start_info.get("start"),
+            }
+            for c in cands
+        ],
         "recordings": per_recording,
         "nrmse_convention": NRMSE_CONVENTION,
-        "parameters_normalised": {k: {"value": v, "stderr": e}
-                                  for k, v, e in zip(param.names(), res.theta.tolist(), stderr.tolist())},
+        "parameters_normalised": {
+            k: {"value": v, "stderr": e} for k, v, e in zip(param.names(), res.theta.tolist(), stderr.tolist())
+        },
         "normalisation": vars(data.scaling),
         "convergence": _convergence(best, data, model, recordings, per_recording, extended is not None),
         "fitted_range": fitted_range(recordings),
         "input_deadband": data.deadband,
-        "rate_levels": levels.levels, "triangle_inputs": levels.triangle,
+        "rate_levels": levels.levels,
+        "triangle_inputs": levels.triangle,
         "v_ref": levels.v_ref * data.scaling.u_s if param.kind == "rd" else None,
-        "x0": {"policy": x0_policy, "stored": model.x0.tolist(), "recording": r0.name, "u0": float(r0.u[0]),
-               "fit": X0_TEXT[data.x0_mode]},
+        "x0": {
+            "policy": x0_policy,
+            "stored": model.x0.tolist(),
+            "recording": r0.name,
+            "u0": float(r0.u[0]),
+            "fit": X0_TEXT[data.x0_mode],
+        },
         "optimiser": {"success": res.success, "nfev": res.nfev, "message": res.message},
         "preparation": [dict(p.to_dict(), notes=n) for p, n in zip(data.preps, data.notes)],
     }
     if extended is not None:
         summary["effects"] = _effects_summary(extended, recordings)
         names = ", ".join(e["effect"] for e in summary["effects"]["fitted"])
-        summary["why"] += (f"; extended by {names} on the {summary['effects']['base']} base (the lower BIC with "
-                           f"the effects, {summary['effects']['bic']:.1f})")
-    model = model.replace(fit_info=jsonable({k: summary[k] for k in ("kind", "order", "why", "convergence",
-                                                                     "fitted_range", "x0", "nrmse_convention")}))
+        summary["why"] += (
+            f"; extended by {names} on the {summary['effects']['base']} base (the lower BIC with "
+            f"the effects, {summary['effects']['bic']:.1f})"
+        )
+    model = model.replace(
+        fit_info=jsonable(
+            {k: summary[k] for k in ("kind", "order", "why", "convergence", "fitted_range", "x0", "nrmse_convention")}
+        )
+    )
     summary["minor_loops"] = _minor_loops(model, recordings, getattr(param, "faithful_minor_loops", False))
-    model = model.replace(fit_info=dict(model.fit_info, minor_loops=jsonable(
-        {k: summary["minor_loops"][k] for k in ("excursion", "faithful", "constrained")})))
+    model = model.replace(
+        fit_info=dict(
+            model.fit_info,
+            minor_loops=jsonable({k: summary["minor_loops"][k] for k in ("excursion", "faithful", "constrained")}),
+        )
+    )
     if extended is not None:
-        return FitResult(model=model, summary=jsonable(summary), theta=extended.res.theta,
-                         cov=extended.res.covariance(), param=extended.param)
+        return FitResult(
+            model=model,
+            summary=jsonable(summary),
+            theta=extended.res.theta,
+            cov=extended.res.covariance(),
+            param=extended.param,
+        )
     return FitResult(model=model, summary=jsonable(summary), theta=res.theta, cov=res.covariance(), param=physical)
 
 
@@ -526,46 +620,62 @@ def _effects_summary(extended: _Extended, recordings) -> dict:
     base = f"{extended.candidate.param.kind}{extended.candidate.param.n}"
     chosen = next(t for t in extended.tried if t["base"] == base)
     res, fam = extended.res, extended.param
-    return {"fitted": [e.to_dict() for e in fam.effect_list(res.theta)], "base": base, "bic": chosen["bic"],
-            "tried": extended.tried, "settled": [r.name for r in recordings if closed_loop(r)],
-            "held": dict(fam.held),
-            "parameters": {k: {"value": v, "stderr": e}
-                           for k, v, e in zip(fam.names(), res.theta.tolist(), res.stderr().tolist())},
-            "optimiser": {"success": res.success, "nfev": res.nfev, "message": res.message},
-            "method": "the best rate-independent and rate-dependent candidates each refined jointly with the "
-                      "effects by output error on every raw sample (x0 fitted per recording; the effects of a "
-                      "recording that is a closed loop ('settled') start settled on it, of any other afresh; each "
-                      "recording's residuals divided by its own output range; rss weighted so); lowest BIC kept; "
-                      "the model stores the first recording's effect start; 'parameters' are the saved "
-                      "model's (physical units; the summary's parameters_normalised and optimiser are the base's "
-                      "before the joint refinement)"}
+    return {
+        "fitted": [e.to_dict() for e in fam.effect_list(res.theta)],
+        "base": base,
+        "bic": chosen["bic"],
+        "tried": extended.tried,
+        "settled": [r.name for r in recordings if closed_loop(r)],
+        "held": dict(fam.held),
+        "parameters": {
+            k: {"value": v, "stderr": e} for k, v, e in zip(fam.names(), res.theta.tolist(), res.stderr().tolist())
+        },
+        "optimiser": {"success": res.success, "nfev": res.nfev, "message": res.message},
+        "method": "the best rate-independent and rate-dependent candidates each refined jointly with the "
+        "effects by output error on every raw sample (x0 fitted per recording; the effects of a "
+        "recording that is a closed loop ('settled') start settled on it, of any other afresh; each "
+        "recording's residuals divided by its own output range; rss weighted so); lowest BIC kept; "
+        "the model stores the first recording's effect start; 'parameters' are the saved "
+        "model's (physical units; the summary's parameters_normalised and optimiser are the base's "
+        "before the joint refinement)",
+    }
 
 
 def _minor_loops(model, recordings, constrained: bool) -> dict:
     """The saved model off its recorded loops (`minor_loop_excursion`), with the verdict `duhem fit` prints;
     `constrained`: the fit had the faithful-minor-loops barrier."""
     exc = minor_loop_excursion(model, recordings)
-    return {"excursion": exc, "warning_above": MINOR_LOOP_WARNING, "faithful": bool(exc <= MINOR_LOOP_WARNING),
-            "constrained": bool(constrained),
-            "input": "40 triangle cycles of each of 8 sub-spans (1/8 to 8/8) of the model's input range around its "
-                     "middle, from the stored x0 at the first input, at the recordings' median rate; for a "
-                     "rate-independent model also the settled loops of 64 sub-spans at 5 places each",
-            "quantity": "largest distance of the output beyond the recorded output range, in output ranges"}
+    return {
+        "excursion": exc,
+        "warning_above": MINOR_LOOP_WARNING,
+        "faithful": bool(exc <= MINOR_LOOP_WARNING),
+        "constrained": bool(constrained),
+        "input": "40 triangle cycles of each of 8 sub-spans (1/8 to 8/8) of the model's input range around its "
+        "middle, from the stored x0 at the first input, at the recordings' median rate; for a "
+        "rate-independent model also the settled loops of 64 sub-spans at 5 places each",
+        "quantity": "largest distance of the output beyond the recorded output range, in output ranges",
+    }
 
 
 def _why(best: _Candidate, cands, kind: str, levels: int, outside: Sequence[_Candidate] = ()) -> str:
     ranked = sorted(cands, key=lambda c: c.bic)
-    text = (f"lowest BIC ({best.bic:.1f}) among {len(cands)} candidate(s) "
-            f"({', '.join(f'{c.param.kind}{c.param.n}: {c.bic:.1f}' for c in ranked)})")
+    text = (
+        f"lowest BIC ({best.bic:.1f}) among {len(cands)} candidate(s) "
+        f"({', '.join(f'{c.param.kind}{c.param.n}: {c.bic:.1f}' for c in ranked)})"
+    )
     if outside and best not in outside:
-        text += (f" that end inside the fit's barrier (condition (5) margin, branch amplification / damping) "
-                 f"and converge on every raw input; "
-                 f"not eligible: {', '.join(f'{c.param.kind}{c.param.n}' for c in outside)}")
+        text += (
+            f" that end inside the fit's barrier (condition (5) margin, branch amplification / damping) "
+            f"and converge on every raw input; "
+            f"not eligible: {', '.join(f'{c.param.kind}{c.param.n}' for c in outside)}"
+        )
     if kind != "auto":
         text = f"kind {kind!r} requested; order by " + text
     if levels < 2 and best.param.kind == "rd":
         text += "; note: a single input rate, so g is barely identifiable"
     if levels < 2 and kind == "auto":
-        text += ("; rate-dependent candidates not tried: the recordings have a single input rate, "
-                 "from which rate dependence cannot be established (use --kind rd to force it)")
+        text += (
+            "; rate-dependent candidates not tried: the recordings have a single input rate, "
+            "from which rate dependence cannot be established (use --kind rd to force it)"
+        )
     return text

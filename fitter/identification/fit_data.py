@@ -37,6 +37,7 @@
    over 1.9x are two levels, not one chain), the reference rate and the knots
    of g.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -51,8 +52,18 @@ from fitter.data.preparation import PreparationError, Prepared, branch_on_grid, 
 from fitter.data.recordings import Recording
 from fitter.identification.scaling import Normalisation
 
-__all__ = ["FitError", "FitData", "RateLevels", "prepare_for_fit", "monotone_input", "averaged_loop",
-           "rate_levels", "extremes_spread", "GRID_POINTS", "PERIODIC_SPREAD"]
+__all__ = [
+    "FitError",
+    "FitData",
+    "RateLevels",
+    "prepare_for_fit",
+    "monotone_input",
+    "averaged_loop",
+    "rate_levels",
+    "extremes_spread",
+    "GRID_POINTS",
+    "PERIODIC_SPREAD",
+]
 
 GRID_POINTS = 101
 NOISY_RUNS = 2.0
@@ -106,8 +117,8 @@ def monotone_input(u: np.ndarray, reversals: np.ndarray) -> np.ndarray:
     for a, b in zip(cuts[:-1], cuts[1:]):
         if b - a < 1:
             continue
-        seg = u[a:b + 1]
-        out[a:b + 1] = isotonic_regression(seg, increasing=bool(seg[-1] >= seg[0])).x
+        seg = u[a : b + 1]
+        out[a : b + 1] = isotonic_regression(seg, increasing=bool(seg[-1] >= seg[0])).x
     return out
 
 
@@ -127,8 +138,10 @@ def _loop_pieces(rec: Recording, prep: Prepared, cycle: tuple[int, int]) -> list
 def _prepare_one(rec: Recording) -> tuple[Prepared, Recording, tuple[int, int], list[str]]:
     reversals = find_reversals(rec.u)
     if len(reversals) < 1:
-        raise FitError(f"{rec.label}: the input never reverses (it must go up and down at least once: "
-                       f"a single loop, or periodically)")
+        raise FitError(
+            f"{rec.label}: the input never reverses (it must go up and down at least once: "
+            f"a single loop, or periodically)"
+        )
     try:
         prep = prepare(rec, min_cycles=0)
         cycle = prep.first_cycle()
@@ -154,10 +167,12 @@ def _deadband(preps: list[Prepared], notes: list[list[str]]) -> float:
     b = DEADBAND_SIGMAS * max(p.input_noise_rms for p in preps)
     for p, n, is_noisy in zip(preps, notes, noisy):
         if is_noisy:
-            n.append(f"the input reverses at {_direction_changes(p.recording.u)} samples but has "
-                     f"{len(p.reversals)} true reversals (noise on the input, RMS {p.input_noise_rms:.3g}): "
-                     f"the model carries an input dead band (play operator) of width {b:.3g} "
-                     f"({DEADBAND_SIGMAS:g} x the noise), in the fit and in the exported model")
+            n.append(
+                f"the input reverses at {_direction_changes(p.recording.u)} samples but has "
+                f"{len(p.reversals)} true reversals (noise on the input, RMS {p.input_noise_rms:.3g}): "
+                f"the model carries an input dead band (play operator) of width {b:.3g} "
+                f"({DEADBAND_SIGMAS:g} x the noise), in the fit and in the exported model"
+            )
     return b
 
 
@@ -168,7 +183,7 @@ def _fit_input(prep: Prepared, b: float, whole: bool) -> Recording:
     r = prep.original if whole else prep.recording
     if b <= 0:
         return r
-    w = play_operator(prep.original.u, b, float(prep.original.u[0]))[0 if whole else prep.transient_end:]
+    w = play_operator(prep.original.u, b, float(prep.original.u[0]))[0 if whole else prep.transient_end :]
     return Recording(r.t, w, r.y, r.name, r.input, r.output, r.source)
 
 
@@ -191,18 +206,23 @@ def _prepare_general(recordings: Sequence[Recording]) -> FitData:
             raise FitError(f"{rec.label}: the input never reverses (it must go up and down at least once)")
         prep = prepare(rec, min_cycles=0, drop_transient=False)
         preps.append(prep)
-        notes.append(list(prep.notes) + [
-            f"the input does not repeat one cycle (its peaks or troughs spread over "
-            f"{100 * extremes_spread(rec.u):.0f}% of the input range): fitted as a general input, on every "
-            f"sample, with the initial state fitted and generic starting values (no input dead band: the "
-            f"reversals of such an input cannot be told from noise)"])
+        notes.append(
+            list(prep.notes)
+            + [
+                f"the input does not repeat one cycle (its peaks or troughs spread over "
+                f"{100 * extremes_spread(rec.u):.0f}% of the input range): fitted as a general input, on every "
+                f"sample, with the initial state fitted and generic starting values (no input dead band: the "
+                f"reversals of such an input cannot be told from noise)"
+            ]
+        )
     recs = [_fit_input(p, 0.0, True) for p in preps]
     try:
         scaling = Normalisation.of(recs)
     except DuhemError as exc:
         raise FitError(str(exc)) from None
-    return FitData(preps, recs, [scaling.normalise(r) for r in recs], [None] * len(recs), None, notes, scaling,
-                   "fit", 0.0)
+    return FitData(
+        preps, recs, [scaling.normalise(r) for r in recs], [None] * len(recs), None, notes, scaling, "fit", 0.0
+    )
 
 
 def prepare_for_fit(recordings: Sequence[Recording]) -> FitData:
@@ -239,14 +259,16 @@ def averaged_loop(loops: list[list[Recording]], points: int = GRID_POINTS):
     covers (a cycle that does not close, ending above its start, has a falling branch shorter than its
     rising one), less 1 % at each end."""
     pieces = [(p, int(np.argmax(p.u))) for ps in loops for p in ps]
-    lo = max(max(p.u[:k + 1].min(), p.u[k:].min()) for p, k in pieces)
+    lo = max(max(p.u[: k + 1].min(), p.u[k:].min()) for p, k in pieces)
     hi = min(p.u[k] for p, k in pieces)
     if not hi > lo:
-        raise FitError(f"{pieces[0][0].label}: the cycles' rising and falling branches share no input range "
-                       f"(each must sweep from its lowest to its highest input and back)")
+        raise FitError(
+            f"{pieces[0][0].label}: the cycles' rising and falling branches share no input range "
+            f"(each must sweep from its lowest to its highest input and back)"
+        )
     span = hi - lo
     grid = np.linspace(lo + 0.01 * span, hi - 0.01 * span, points)
-    rising = [branch_on_grid(p.u[:k + 1], p.y[:k + 1], grid) for p, k in pieces]
+    rising = [branch_on_grid(p.u[: k + 1], p.y[: k + 1], grid) for p, k in pieces]
     falling = [branch_on_grid(p.u[k:], p.y[k:], grid) for p, k in pieces]
     return grid, np.mean(rising, axis=0), np.mean(falling, axis=0)
 
@@ -281,9 +303,11 @@ def rate_levels(norm: Sequence[Recording]) -> RateLevels:
     for r in norm:
         v = np.abs(np.diff(r.u) / np.diff(r.t))
         if not np.any(v > 0):
-            raise FitError(f"{r.label}: the input does not move at the scale of all recordings together (another "
-                           f"recording's input range is so much wider that this one's span is below its rounding): "
-                           f"fit the recordings apart, or remove the outlier that widens the range")
+            raise FitError(
+                f"{r.label}: the input does not move at the scale of all recordings together (another "
+                f"recording's input range is so much wider that this one's span is below its rounding): "
+                f"fit the recordings apart, or remove the outlier that widens the range"
+            )
         v = v[v > 1e-3 * np.median(v[v > 0])]
         meds.append(np.median(v))
         pooled.append(v)

@@ -72,6 +72,7 @@ so a rate-independent model's state at the kept samples is exact
 samples are spread evenly along the branches, as densely as in a short
 recording.  Final residuals are on all samples.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -96,8 +97,9 @@ FAIL = 1e3
 
 
 # ----------------------------------------------------------------------------- initial states
-def fitted_initial_state(model, t, u, y, cache: dict | None = None, effect_state=None, reference: bool = True,
-                         constant: bool = False):
+def fitted_initial_state(
+    model, t, u, y, cache: dict | None = None, effect_state=None, reference: bool = True, constant: bool = False
+):
     """Initial state x_0 = argmin ||y - yhat(0) - G x_0|| over all samples, the output from it and the
     effect chain state it starts from (module docstring, ``"fit"``): yhat is affine in x_0, G its columns.
     A model with effects is simulated once per unit initial state (its output is y = C x + D w after its
@@ -114,8 +116,10 @@ def fitted_initial_state(model, t, u, y, cache: dict | None = None, effect_state
         base = simulate(model, t, u, x0=np.zeros(n), flow_cache=cache, effect_state=effect_state).y
         G = _affine_output(model.replace(effects=[]), t, u, cache)[1]
     elif getattr(model, "effects", None):
-        ys = [simulate(model, t, u, x0=x, flow_cache=cache, effect_state=effect_state).y
-              for x in np.hstack([np.zeros((n, 1)), np.eye(n)]).T]
+        ys = [
+            simulate(model, t, u, x0=x, flow_cache=cache, effect_state=effect_state).y
+            for x in np.hstack([np.zeros((n, 1)), np.eye(n)]).T
+        ]
         base, G = ys[0], np.column_stack(ys[1:]) - ys[0][:, None]
     else:
         base, G = _affine_output(model, t, u, cache)
@@ -143,8 +147,8 @@ def _affine_output(model, t, u, cache: dict | None) -> tuple[np.ndarray, np.ndar
     k = 0
     base, G = np.empty(len(u)), np.empty((len(u), model.order))
     for c, Phi in affine_blocks(model, t, u, cache):
-        G[k:k + len(c)] = np.einsum("j,kjl->kl", model.C, Phi)
-        base[k:k + len(c)] = c @ model.C
+        G[k : k + len(c)] = np.einsum("j,kjl->kl", model.C, Phi)
+        base[k : k + len(c)] = c @ model.C
         k += len(c)
     base += model.D * np.asarray(u, dtype=float)
     return base, G
@@ -191,7 +195,7 @@ def response_columns(model, lin: dict[int, tuple[str, int]], t, u, mode: str, cy
     for j, (_, f, i) in enumerate(forcing_lin):
         cols[f][i, 1 + j] = 1.0
     X0 = np.zeros((n, m))
-    X0[:, m - n_x0:] = np.eye(n)[:, :n_x0]
+    X0[:, m - n_x0 :] = np.eye(n)[:, :n_x0]
     if mode == "model":
         X0[:, 0] = model.x0
     forcing = {b: (cols[fb], cols[fe]) for b, (fb, fe) in fields.items()}
@@ -207,11 +211,11 @@ def response_columns(model, lin: dict[int, tuple[str, int]], t, u, mode: str, cy
     rho = np.nan
     if mode == "periodic":
         c = cycle[1] - cycle[0]
-        Phi = X[c][:, m - n:]
+        Phi = X[c][:, m - n :]
         rho = float(np.max(np.abs(np.linalg.eigvals(Phi)))) if np.all(np.isfinite(Phi)) else np.inf
-        G = Y[:, m - n:]
+        G = Y[:, m - n :]
         if rho < 1:
-            fix = np.linalg.solve(np.eye(n) - Phi, X[c][:, :m - n])
+            fix = np.linalg.solve(np.eye(n) - Phi, X[c][:, : m - n])
             x0_base = fix[:, 0]
             base = base + G @ x0_base
             for k, col in forcing_col.items():
@@ -221,11 +225,20 @@ def response_columns(model, lin: dict[int, tuple[str, int]], t, u, mode: str, cy
             x0_base = np.array(model.x0, dtype=float)
             base = base + G @ x0_base
         return start, base, Psi, None, (x0_base, X0_L), rho
-    return start, base, Psi, (Y[:, m - n:] if mode == "fit" else None), (x0_base, X0_L), rho
+    return start, base, Psi, (Y[:, m - n :] if mode == "fit" else None), (x0_base, X0_L), rho
 
 
-def simulate_from(model, t, u, y, mode: str, cycle: tuple[int, int] | None, settle: bool = False,
-                  reference: bool = True, constant: bool = False):
+def simulate_from(
+    model,
+    t,
+    u,
+    y,
+    mode: str,
+    cycle: tuple[int, int] | None,
+    settle: bool = False,
+    reference: bool = True,
+    constant: bool = False,
+):
     """Simulate one recording under an initial-state mode (module docstring); with `settle`, a model's
     effect chain starts from its state settled on the recording (``Recordings.settle``); with `reference`
     (``"fit"`` only), the output's reference is fitted with x0 (`fitted_initial_state`; with `constant`
@@ -246,7 +259,7 @@ def simulate_from(model, t, u, y, mode: str, cycle: tuple[int, int] | None, sett
     if mode != "periodic":
         raise ValueError(f"x0 must be one of {X0_MODES}, not {mode!r}")
     s0, s1 = cycle
-    x0, rho = fixed_point(model, t[s0:s1 + 1], u[s0:s1 + 1], cache)
+    x0, rho = fixed_point(model, t[s0 : s1 + 1], u[s0 : s1 + 1], cache)
     x0 = np.array(model.x0, dtype=float) if x0 is None else x0
     return s0, x0, simulate(model, t[s0:], u[s0:], x0=x0, flow_cache=cache).y, rho, None
 
@@ -277,10 +290,11 @@ def _keep_indices(u: np.ndarray, max_samples: int | None, cycle) -> tuple[np.nda
         keep = np.unique(np.r_[scored, turns, ends]).astype(int)
         return keep, np.isin(keep, scored)
     nb = n // k
-    blocks = u[:nb * k].reshape(nb, k)
+    blocks = u[: nb * k].reshape(nb, k)
     base = np.arange(nb) * k
-    keep = np.unique(np.r_[base, base + blocks.argmax(axis=1), base + blocks.argmin(axis=1), np.arange(nb * k, n),
-                           n - 1, ends]).astype(int)
+    keep = np.unique(
+        np.r_[base, base + blocks.argmax(axis=1), base + blocks.argmin(axis=1), np.arange(nb * k, n), n - 1, ends]
+    ).astype(int)
     return keep, np.ones(len(keep), dtype=bool)
 
 
@@ -327,8 +341,10 @@ class Recordings:
         if self.cycles is None:
             self.cycles = [_first_cycle(rec) if self.x0 == "periodic" else None for rec in self.recordings]
         w = [None] * len(self.recordings) if self.weights is None else self.weights
-        self._w = [np.broadcast_to(1.0 if wi is None else np.asarray(wi, dtype=float), r.u.shape)
-                   for r, wi in zip(self.recordings, w)]
+        self._w = [
+            np.broadcast_to(1.0 if wi is None else np.asarray(wi, dtype=float), r.u.shape)
+            for r, wi in zip(self.recordings, w)
+        ]
         self.scale = max(float(np.ptp(np.concatenate([r.y for r in self.recordings]))), 1e-300)
         self._settle = [False] * len(self.recordings) if self.settle is None else [bool(s) for s in self.settle]
 
@@ -339,10 +355,13 @@ class Recordings:
             return self
         keeps = [k for k, _ in kept]
         weights = [np.where(scored, w[k], 0.0) for w, (k, scored) in zip(self._w, kept)]
-        recs = [Recording(r.t[k], r.u[k], r.y[k], r.name, r.input, r.output, r.source)
-                for r, k in zip(self.recordings, keeps)]
-        cycles = [None if c is None else tuple(int(i) for i in np.searchsorted(k, c))
-                  for c, k in zip(self.cycles, keeps)]
+        recs = [
+            Recording(r.t[k], r.u[k], r.y[k], r.name, r.input, r.output, r.source)
+            for r, k in zip(self.recordings, keeps)
+        ]
+        cycles = [
+            None if c is None else tuple(int(i) for i in np.searchsorted(k, c)) for c, k in zip(self.cycles, keeps)
+        ]
         if any(self._settle):
             raise DuhemError("settled effect starts need every sample of a recording (no decimation)")
         return Recordings(recs, self.x0, weights, cycles, references=self.references)
@@ -368,7 +387,7 @@ class Recordings:
         owner = self._reference_owner()
         for i, (rec, w, cyc, settle) in enumerate(zip(self.recordings, self._w, self.cycles, self._settle)):
             one = self._one(model, rec, cyc, settle, reference=i != owner)
-            parts.append(_weighted(one[2], w[one[0]:]))
+            parts.append(_weighted(one[2], w[one[0] :]))
             info.append(one)
         return (parts[0] if len(parts) == 1 else np.concatenate(parts)), model, info
 
@@ -384,21 +403,23 @@ class Recordings:
             if getattr(model, "effects", None):
                 raise DuhemError("variable projection needs a model without effects")
             with np.errstate(all="ignore"):
-                parts = [response_columns(model, lin, rec.t, rec.u, self.x0, cyc)
-                         for rec, cyc in zip(self.recordings, self.cycles)]
+                parts = [
+                    response_columns(model, lin, rec.t, rec.u, self.x0, cyc)
+                    for rec, cyc in zip(self.recordings, self.cycles)
+                ]
             solution = self._solve(parts, len(lin), model.order)
         except (DuhemError, ValueError, np.linalg.LinAlgError, FloatingPointError):
             info = [self._one(None, rec, cyc) for rec, cyc in zip(self.recordings, self.cycles)]
-            weighted = np.concatenate([_weighted(i[2], w[i[0]:]) for i, w in zip(info, self._w)])
+            weighted = np.concatenate([_weighted(i[2], w[i[0] :]) for i, w in zip(info, self._w)])
             return weighted, np.asarray(theta, dtype=float), None, info
         theta = np.array(theta, dtype=float)
-        theta[list(lin)] = solution[:len(lin)]
+        theta[list(lin)] = solution[: len(lin)]
         weighted, info = [], []
         for i, (rec, w, (start, base, Psi, G, (xb, XL), rho)) in enumerate(zip(self.recordings, self._w, parts)):
-            x0 = xb + XL @ solution[:len(lin)]
-            yhat = base + Psi @ solution[:len(lin)]
+            x0 = xb + XL @ solution[: len(lin)]
+            yhat = base + Psi @ solution[: len(lin)]
             if G is not None:
-                x0 = solution[len(lin) + i * model.order:len(lin) + (i + 1) * model.order]
+                x0 = solution[len(lin) + i * model.order : len(lin) + (i + 1) * model.order]
                 yhat = yhat + G @ x0
             r = rec.y[start:] - yhat
             weighted.append(_weighted(r, w[start:]))
@@ -415,7 +436,7 @@ class Recordings:
             M = np.zeros((len(base), n_lin + n_x0))
             M[:, :n_lin] = Psi
             if G is not None:
-                M[:, n_lin + i * n:n_lin + (i + 1) * n] = G
+                M[:, n_lin + i * n : n_lin + (i + 1) * n] = G
             rows.append((M * sw[:, None])[keep])
             rhs.append(((rec.y[start:] - base) * sw)[keep])
         M, b = np.concatenate(rows), np.concatenate(rhs)
@@ -436,8 +457,9 @@ class Recordings:
             if model is None:
                 raise KernelError("model could not be built")
             with np.errstate(all="ignore"):
-                s, x0, yhat, rho, state = simulate_from(model, rec.t, rec.u, rec.y, self.x0, cyc, settle,
-                                                        reference, self.references)
+                s, x0, yhat, rho, state = simulate_from(
+                    model, rec.t, rec.u, rec.y, self.x0, cyc, settle, reference, self.references
+                )
             r = rec.y[s:] - yhat
             if not np.all(np.abs(r) < fail * 1e3):
                 raise KernelError("simulation diverged")
@@ -451,5 +473,3 @@ def _weighted(r: np.ndarray, w: np.ndarray) -> np.ndarray:
     if np.all(w == 1.0):
         return r
     return (r * np.sqrt(w))[w > 0]
-
-

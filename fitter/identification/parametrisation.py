@@ -29,6 +29,7 @@ Wrappers:
 * `Physical`: a parametrisation fitted in normalised units, built in physical
   units by a `Normalisation` (exact map, `fitter.identification.scaling`).
 """
+
 from __future__ import annotations
 
 import itertools
@@ -45,8 +46,20 @@ from fitter.core.checks import spectral_abscissa
 from fitter.core.periodic import minor_loop_outputs, minor_loop_rho
 from fitter.core.rates import TabulatedRate
 
-__all__ = ["Parametrisation", "RICanonical", "RDCanonical", "StateSpace", "WithEffects", "Physical",
-           "companion", "observability", "hurwitz_poly", "hurwitz_theta", "RATE_NODES", "RHO_MARGIN"]
+__all__ = [
+    "Parametrisation",
+    "RICanonical",
+    "RDCanonical",
+    "StateSpace",
+    "WithEffects",
+    "Physical",
+    "companion",
+    "observability",
+    "hurwitz_poly",
+    "hurwitz_theta",
+    "RATE_NODES",
+    "RHO_MARGIN",
+]
 
 RATE_NODES = np.logspace(-3, 3, 97)
 """Positive rate nodes (multiples of v_ref) at which a fitted g is tabulated."""
@@ -115,7 +128,7 @@ def hurwitz_poly(th: np.ndarray) -> np.ndarray:
     poly = np.array([1.0])
     if len(e) % 2:
         poly = np.array([1.0, e[0]])
-    for c, b in zip(e[len(e) % 2::2], e[len(e) % 2 + 1::2]):
+    for c, b in zip(e[len(e) % 2 :: 2], e[len(e) % 2 + 1 :: 2]):
         poly = np.convolve(poly, [1.0, b, c])
     return poly[1:][::-1]
 
@@ -156,25 +169,35 @@ class RICanonical(Parametrisation):
 
     def names(self) -> list[str]:
         n = self.n
-        return ([f"A_plus[{n - 1},{j}]" for j in range(n)]
-                + [f"A_minus[{i},{j}]" for i in range(n) for j in range(n)]
-                + [f"{p}[{i}]" for p in ("B_plus", "B_minus", "E_plus", "E_minus") for i in range(n)]
-                + ["D"])
+        return (
+            [f"A_plus[{n - 1},{j}]" for j in range(n)]
+            + [f"A_minus[{i},{j}]" for i in range(n) for j in range(n)]
+            + [f"{p}[{i}]" for p in ("B_plus", "B_minus", "E_plus", "E_minus") for i in range(n)]
+            + ["D"]
+        )
 
     def build(self, theta: np.ndarray) -> RateIndependentModel:
         n = self.n
         a, rest = theta[:n], theta[n:]
-        Am, rest = rest[:n * n].reshape(n, n), rest[n * n:]
-        Bp, Bm, Ep, Em = (rest[i * n:(i + 1) * n] for i in range(4))
-        return RateIndependentModel(A_plus=companion(a), A_minus=Am, B_plus=Bp, B_minus=Bm,
-                                    C=np.eye(n)[0], E_plus=Ep, E_minus=Em, D=rest[4 * n])
+        Am, rest = rest[: n * n].reshape(n, n), rest[n * n :]
+        Bp, Bm, Ep, Em = (rest[i * n : (i + 1) * n] for i in range(4))
+        return RateIndependentModel(
+            A_plus=companion(a), A_minus=Am, B_plus=Bp, B_minus=Bm, C=np.eye(n)[0], E_plus=Ep, E_minus=Em, D=rest[4 * n]
+        )
 
     def theta(self, model: RateIndependentModel) -> np.ndarray:
         """Canonical theta of an observable model of order n (state x -> O x)."""
         T = observability(model.A_plus, model.C)
         Ti = np.linalg.inv(T)
-        return np.r_[(T @ model.A_plus @ Ti)[-1], (T @ model.A_minus @ Ti).ravel(), T @ model.B_plus,
-                     T @ model.B_minus, T @ model.E_plus, T @ model.E_minus, model.D]
+        return np.r_[
+            (T @ model.A_plus @ Ti)[-1],
+            (T @ model.A_minus @ Ti).ravel(),
+            T @ model.B_plus,
+            T @ model.B_minus,
+            T @ model.E_plus,
+            T @ model.E_minus,
+            model.D,
+        ]
 
     def linear_entries(self) -> dict[int, tuple[str, int]]:
         """B+, B-, E+, E- and D (see `Parametrisation.linear_entries`)."""
@@ -204,8 +227,10 @@ class RICanonical(Parametrisation):
         return value < 1
 
     LIMIT = RHO_MARGIN
-    QUANTITY = ("max over sub-spans b <= beta of rho(e^{b A+} e^{-b A-})^(beta/b) (condition 5 for every minor "
-                "loop, beta the stored input range)")
+    QUANTITY = (
+        "max over sub-spans b <= beta of rho(e^{b A+} e^{-b A-})^(beta/b) (condition 5 for every minor "
+        "loop, beta the stored input range)"
+    )
     AMPLIFICATION = 1e6
     """Largest growth factor a branch may give a state error over one traversal of the fitted span."""
 
@@ -250,8 +275,10 @@ class RICanonical(Parametrisation):
         """The fit's barrier quantities (each <= 0 when met): condition (5) beyond `LIMIT`, the branch
         amplification beyond `AMPLIFICATION` (relative, in logs) and, with `faithful_minor_loops`, the
         `minor_loop_extent` (on the normalised scale `output`) beyond `EXTENT_BOUND` (relative)."""
-        out = [self.convergence(model, u_min, u_max) - self.LIMIT,
-               self.amplification(model, u_min, u_max) / math.log(self.AMPLIFICATION) - 1.0]
+        out = [
+            self.convergence(model, u_min, u_max) - self.LIMIT,
+            self.amplification(model, u_min, u_max) / math.log(self.AMPLIFICATION) - 1.0,
+        ]
         if self.faithful_minor_loops:
             out.append(self.minor_loop_extent(model, u_min, u_max, output) / self.EXTENT_BOUND - 1.0)
         return out
@@ -270,8 +297,13 @@ class RDCanonical(Parametrisation):
     def names(self) -> list[str]:
         n = self.n
         rates = [f"g_log_at_{self.v_ref * np.exp(k):.4g}" for k in self.knots if k != 0.0]
-        return ([f"A_poly[{j}]" for j in range(n)] + [f"B[{i}]" for i in range(n)]
-                + [f"E[{i}]" for i in range(n)] + ["D", "g_sign"] + rates)
+        return (
+            [f"A_poly[{j}]" for j in range(n)]
+            + [f"B[{i}]" for i in range(n)]
+            + [f"E[{i}]" for i in range(n)]
+            + ["D", "g_sign"]
+            + rates
+        )
 
     def g_values(self, c: np.ndarray, v: np.ndarray) -> np.ndarray:
         """g(v) = |v| exp(c_s [v<0] + h(s)), s = ln(|v|/v_ref), h linear between the knots."""
@@ -283,9 +315,15 @@ class RDCanonical(Parametrisation):
     def build(self, theta: np.ndarray) -> RateDependentModel:
         n = self.n
         nodes = np.r_[-self.v_ref * RATE_NODES[::-1], self.v_ref * RATE_NODES]
-        g = TabulatedRate(nodes, self.g_values(theta[3 * n + 1:], nodes))
-        return RateDependentModel(A=companion(-hurwitz_poly(theta[:n])), B=theta[n:2 * n],
-                                  E=theta[2 * n:3 * n], C=np.eye(n)[0], D=theta[3 * n], g=g)
+        g = TabulatedRate(nodes, self.g_values(theta[3 * n + 1 :], nodes))
+        return RateDependentModel(
+            A=companion(-hurwitz_poly(theta[:n])),
+            B=theta[n : 2 * n],
+            E=theta[2 * n : 3 * n],
+            C=np.eye(n)[0],
+            D=theta[3 * n],
+            g=g,
+        )
 
     def theta(self, model: RateDependentModel, c: np.ndarray | None = None) -> np.ndarray:
         """Canonical theta of (A, B, E, C, D); the rate part is `c` (default zeros: g = |v|)."""
@@ -356,7 +394,7 @@ class StateSpace(Parametrisation):
         out, i = {}, 0
         for k, s in zip(self.keys, self.shapes):
             n = int(np.prod(s))
-            out[k] = np.reshape(theta[i:i + n], s)
+            out[k] = np.reshape(theta[i : i + n], s)
             i += n
         return out
 
@@ -378,12 +416,25 @@ class WithEffects(Parametrisation):
     ``default`` (the effects' basic forms, as `duhem diagnose` tests them).
     """
 
-    def __init__(self, base: Parametrisation, effects: Sequence[str], ctx: EffectContext,
-                 refinements: bool = True, held: dict[str, float] | None = None):
+    def __init__(
+        self,
+        base: Parametrisation,
+        effects: Sequence[str],
+        ctx: EffectContext,
+        refinements: bool = True,
+        held: dict[str, float] | None = None,
+    ):
         self.base, self.effects, self.ctx = base, list(effects), ctx
         self.specs = [REGISTRY[e] for e in self.effects]
-        self.held = {**{f"{s.name}.{p.name}": p.default for s in self.specs for p in s.parameters
-                        if p.refinement and not refinements}, **(held or {})}
+        self.held = {
+            **{
+                f"{s.name}.{p.name}": p.default
+                for s in self.specs
+                for p in s.parameters
+                if p.refinement and not refinements
+            },
+            **(held or {}),
+        }
         self.keys = [(s.name, p) for s in self.specs for p in self._fitted(s)]
         self.n_base = base.size
         self.size = base.size + len(self.keys)
@@ -418,11 +469,16 @@ class WithEffects(Parametrisation):
 
     def encode(self, values: Sequence[dict]) -> np.ndarray:
         """theta-coordinates of one parameter dict per effect (physical units)."""
-        return np.array([math.log(v[p.name]) if p.log else float(v[p.name])
-                         for spec, v in zip(self.specs, values) for p in self._fitted(spec)])
+        return np.array(
+            [
+                math.log(v[p.name]) if p.log else float(v[p.name])
+                for spec, v in zip(self.specs, values)
+                for p in self._fitted(spec)
+            ]
+        )
 
     def effect_list(self, theta: np.ndarray) -> list[Effect]:
-        vals = iter(theta[self.n_base:])
+        vals = iter(theta[self.n_base :])
         out = []
         for spec in self.specs:
             params = {p.name: self.held.get(f"{spec.name}.{p.name}", p.default) for p in spec.parameters}
@@ -433,7 +489,7 @@ class WithEffects(Parametrisation):
         return out
 
     def build(self, theta: np.ndarray):
-        model = self.base.build(theta[:self.n_base])
+        model = self.base.build(theta[: self.n_base])
         return model.replace(effects=list(model.effects) + self.effect_list(theta))
 
     def theta(self, model) -> np.ndarray:

@@ -79,6 +79,7 @@ Numerical assumptions
 * C-hat = [1, 0, ..., 0], E = 0, D = 0, as in the paper; g-hat is stored as a
   `TabulatedRate` (PCHIP through g(0) = 0, constant beyond the outermost slopes).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -86,7 +87,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.sparse import lil_matrix
 
-from fitter.core import (CallableRate, ConvergenceError, KernelError, RateDependentModel, TabulatedRate)
+from fitter.core import CallableRate, ConvergenceError, KernelError, RateDependentModel, TabulatedRate
 from fitter.identification.output_error import FAIL
 from fitter.identification.refine import Options, refine
 from fitter.identification.parametrisation import Parametrisation
@@ -99,6 +100,7 @@ _TOL = 1e-6
 
 
 # ----------------------------------------------------------------------------- record parsing
+
 
 @dataclass
 class _Record:
@@ -138,16 +140,23 @@ def _check_arrays(i: int, rec, order: int) -> tuple[np.ndarray, np.ndarray, np.n
     delta = float(np.median(dt))
     if np.max(np.abs(dt - delta)) > _TOL * delta:
         k = int(np.argmax(np.abs(dt - delta)))
-        _fail(i, f"sampling is not uniform (t[{k + 1}] - t[{k}] = {dt[k]}, median {delta}); "
-                 "the DARMA models (31)-(32) need a fixed sampling period")
+        _fail(
+            i,
+            f"sampling is not uniform (t[{k + 1}] - t[{k}] = {dt[k]}, median {delta}); "
+            "the DARMA models (31)-(32) need a fixed sampling period",
+        )
     return t, u, y, delta
 
 
 def _interval_types(i: int, v: np.ndarray) -> tuple[np.ndarray, float, float]:
     """+1 / -1 for intervals on the rising / falling ramp, 0 for corner intervals."""
     if not np.any(v > 0) or not np.any(v < 0):
-        _fail(i, "the input never " + ("rises" if not np.any(v > 0) else "falls")
-              + ": a triangle wave (20) needs both branches")
+        _fail(
+            i,
+            "the input never "
+            + ("rises" if not np.any(v > 0) else "falls")
+            + ": a triangle wave (20) needs both branches",
+        )
     a, b = float(np.median(v[v > 0])), float(np.median(v[v < 0]))
     kind = np.zeros(len(v), dtype=int)
     kind[np.abs(v - a) <= _TOL * a] = 1
@@ -155,9 +164,12 @@ def _interval_types(i: int, v: np.ndarray) -> tuple[np.ndarray, float, float]:
     zero = np.flatnonzero((kind[:-1] == 0) & (kind[1:] == 0))
     if zero.size:
         k = int(zero[0])
-        _fail(i, f"branch not monotone or not a ramp near samples {k}..{k + 2} (du/dt = {v[k]:.6g}, "
-                 f"{v[k + 1]:.6g}; the ramps have slopes a = {a:.6g}, b = {b:.6g}), or the branches are "
-                 "too short: each must span whole sample intervals (sample faster)")
+        _fail(
+            i,
+            f"branch not monotone or not a ramp near samples {k}..{k + 2} (du/dt = {v[k]:.6g}, "
+            f"{v[k + 1]:.6g}; the ramps have slopes a = {a:.6g}, b = {b:.6g}), or the branches are "
+            "too short: each must span whole sample intervals (sample faster)",
+        )
     return kind, a, b
 
 
@@ -173,8 +185,11 @@ def _corners(i: int, t, u, runs, a: float, b: float) -> list[tuple[int, float, f
     out = []
     for (d0, _, e0), (d1, s1, _) in zip(runs[:-1], runs[1:]):
         if d0 == d1:
-            _fail(i, f"branch not monotone: the input turns back between samples {e0 + 1} and {s1} "
-                     "and resumes in the same direction")
+            _fail(
+                i,
+                f"branch not monotone: the input turns back between samples {e0 + 1} and {s1} "
+                "and resumes in the same direction",
+            )
         if s1 == e0 + 1:
             out.append((d0, t[s1], u[s1]))
         else:
@@ -197,15 +212,21 @@ def _fit_wave(i: int, t, u, runs, a: float, b: float) -> TriangleWave:
     for d, tc, uc in corners:
         ref = u_hi if d > 0 else u_lo
         if abs(uc - ref) > 1e3 * _TOL * amp:
-            _fail(i, f"branch not monotone: the corner at t = {tc:.6g} has u = {uc:.6g} but the wave's "
-                     f"{'maximum' if d > 0 else 'minimum'} is {ref:.6g}")
+            _fail(
+                i,
+                f"branch not monotone: the corner at t = {tc:.6g} has u = {uc:.6g} but the wave's "
+                f"{'maximum' if d > 0 else 'minimum'} is {ref:.6g}",
+            )
     t_min = bottoms[0][1] if bottoms else tops[0][1] - amp / a
     wave = TriangleWave(a=a, b=b, u_lo=u_lo, u_hi=u_hi, t_min=float(t_min))
     off = np.abs(wave(t) - u)
     if off.max() > 1e3 * _TOL * amp:
         k = int(np.argmax(off))
-        _fail(i, f"u[{k}] = {u[k]:.6g} is off the triangle wave (expected {wave(t[k]):.6g}): "
-                 "branches must be monotone ramps of constant slope")
+        _fail(
+            i,
+            f"u[{k}] = {u[k]:.6g} is off the triangle wave (expected {wave(t[k]):.6g}): "
+            "branches must be monotone ramps of constant slope",
+        )
     return wave
 
 
@@ -223,13 +244,17 @@ def _parse_record(i: int, rec, order: int) -> _Record:
             by_dir[d].append((s, e + 1))
         elif s > 0 and e < last:
             name = "rising" if d > 0 else "falling"
-            _fail(i, f"the {name} branch at samples {s}..{e + 1} has {samples} samples on the ramp; "
-                     f"order {order} needs at least {order + 2} per branch (sample faster or use a "
-                     "slower triangle wave): branches too short")
+            _fail(
+                i,
+                f"the {name} branch at samples {s}..{e + 1} has {samples} samples on the ramp; "
+                f"order {order} needs at least {order + 2} per branch (sample faster or use a "
+                "slower triangle wave): branches too short",
+            )
     return _Record(index=i, t=t, u=u, y=y, delta=delta, wave=wave, runs=by_dir)
 
 
 # ----------------------------------------------------------------------------- DARMA and transforms
+
 
 def _darma_rows(rec: _Record, direction: int, order: int, intercept: bool):
     """Regression rows of (31)/(32): targets y_{k+1}, regressors [-y_k..-y_{k-n+1}, u_k..].
@@ -251,8 +276,11 @@ def _darma_rows(rec: _Record, direction: int, order: int, intercept: bool):
         _fail(rec.index, f"no {'rising' if direction > 0 else 'falling'} branch long enough for order {n}")
     Phi, Y = np.vstack(rows), np.concatenate(target)
     if len(Y) < Phi.shape[1]:
-        _fail(rec.index, f"too few samples for order {n}: {len(Y)} regression rows on the "
-                         f"{'rising' if direction > 0 else 'falling'} branches, {Phi.shape[1]} unknowns")
+        _fail(
+            rec.index,
+            f"too few samples for order {n}: {len(Y)} regression rows on the "
+            f"{'rising' if direction > 0 else 'falling'} branches, {Phi.shape[1]} unknowns",
+        )
     return Phi, Y
 
 
@@ -305,13 +333,14 @@ def _canonical(alpha: np.ndarray, beta: np.ndarray) -> tuple[np.ndarray, np.ndar
     n = len(alpha)
     A = np.zeros((n, n))
     A[:, 0] = -np.asarray(alpha)
-    A[:n - 1, 1:] = np.eye(n - 1)
+    A[: n - 1, 1:] = np.eye(n - 1)
     C = np.zeros(n)
     C[0] = 1.0
     return A, np.asarray(beta, dtype=float).copy(), C
 
 
 # ----------------------------------------------------------------------------- results
+
 
 @dataclass
 class WaveFit:
@@ -360,14 +389,23 @@ class RDIdentification:
     optimizer: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
-        return {"estimator": self.estimator, "order": int(len(self.C_hat)),
-                "A_hat": self.A_hat.tolist(), "B_hat": self.B_hat.tolist(), "C_hat": self.C_hat.tolist(),
-                "slopes": self.slopes.tolist(), "g_hat": self.g_hat.tolist(),
-                "rms_residual": self.rms_residual, "optimizer": self.optimizer,
-                "waves": [w.to_dict() for w in self.waves], "model": self.model.to_dict()}
+        return {
+            "estimator": self.estimator,
+            "order": int(len(self.C_hat)),
+            "A_hat": self.A_hat.tolist(),
+            "B_hat": self.B_hat.tolist(),
+            "C_hat": self.C_hat.tolist(),
+            "slopes": self.slopes.tolist(),
+            "g_hat": self.g_hat.tolist(),
+            "rms_residual": self.rms_residual,
+            "optimizer": self.optimizer,
+            "waves": [w.to_dict() for w in self.waves],
+            "model": self.model.to_dict(),
+        }
 
 
 # ----------------------------------------------------------------------------- estimators
+
 
 def _two_level_rate(g_plus: float, g_minus: float) -> CallableRate:
     return CallableRate(lambda v: np.where(v > 0, g_plus, np.where(v < 0, g_minus, 0.0)))
@@ -395,9 +433,19 @@ def _literal(recs: list[_Record], order: int) -> tuple[np.ndarray, np.ndarray, l
     for rec, (dp, dm), (cp, cm) in zip(recs, disc, cont):
         gp = (cp[0] * b1 + a1 * cp[n]) / (2 * a1 * b1)
         gm = (cm[0] * b1 + a1 * cm[n]) / (2 * a1 * b1)
-        waves.append(WaveFit(a=rec.wave.a, b=rec.wave.b, samples=len(rec.t), discrete_plus=dp,
-                             discrete_minus=dm, continuous_plus=cp, continuous_minus=cm,
-                             g_plus=float(gp), g_minus=float(gm)))
+        waves.append(
+            WaveFit(
+                a=rec.wave.a,
+                b=rec.wave.b,
+                samples=len(rec.t),
+                discrete_plus=dp,
+                discrete_minus=dm,
+                continuous_plus=cp,
+                continuous_minus=cm,
+                g_plus=float(gp),
+                g_minus=float(gm),
+            )
+        )
     waves[0].g_plus = 1.0
     return alpha_ref, beta_ref, waves
 
@@ -416,8 +464,10 @@ def _ramp_exact_start(recs: list[_Record], order: int):
         alphas.append(pair_a)
     alpha_ref = alphas[0][0]
     if alpha_ref is None or alpha_ref[0] == 0:
-        raise ValueError("record 0 (slowest wave): the rising-branch DARMA has a pole on the negative "
-                         "real axis; no continuous model (try order or sampling)")
+        raise ValueError(
+            "record 0 (slowest wave): the rising-branch DARMA has a pole on the negative "
+            "real axis; no continuous model (try order or sampling)"
+        )
     g = np.array([[al[0] / alpha_ref[0] if al is not None else np.nan for al in pair] for pair in alphas])
     g[~np.isfinite(g)] = np.nanmedian(g)
     g[0, 0] = 1.0
@@ -435,9 +485,9 @@ class _WaveParameters(Parametrisation):
 
     def unpack(self, theta: np.ndarray):
         n, p = self.n, self.p
-        alpha, beta = theta[:n], theta[n:2 * n]
-        gp = np.r_[1.0, theta[2 * n:2 * n + p - 1]]
-        gm = theta[2 * n + p - 1:]
+        alpha, beta = theta[:n], theta[n : 2 * n]
+        gp = np.r_[1.0, theta[2 * n : 2 * n + p - 1]]
+        gm = theta[2 * n + p - 1 :]
         return alpha, beta, gp, gm
 
     def pack(self, alpha, beta, gp, gm) -> np.ndarray:
@@ -455,7 +505,7 @@ class _WaveParameters(Parametrisation):
         S = lil_matrix((offsets[-1], self.size), dtype=int)
         for i in range(p):
             rows = slice(offsets[i], offsets[i + 1])
-            S[rows, :2 * n] = 1
+            S[rows, : 2 * n] = 1
             if i > 0:
                 S[rows, 2 * n + i - 1] = 1
             S[rows, 2 * n + p - 1 + i] = 1
@@ -496,9 +546,15 @@ class _WaveRecords:
         """Variable projection: the periodic response is linear in B for fixed A and g."""
         n = param.n
         A, _, C = _canonical(alpha, np.zeros(n))
-        cols = [np.concatenate([periodic_triangle_output(_model(A, e, C, _two_level_rate(gp[i], gm[i])), rec.wave,
-                                                         rec.t) for i, rec in enumerate(self.recs)])
-                for e in np.eye(n)]
+        cols = [
+            np.concatenate(
+                [
+                    periodic_triangle_output(_model(A, e, C, _two_level_rate(gp[i], gm[i])), rec.wave, rec.t)
+                    for i, rec in enumerate(self.recs)
+                ]
+            )
+            for e in np.eye(n)
+        ]
         return _lstsq(np.column_stack(cols), np.concatenate([r.y for r in self.recs]))
 
 
@@ -510,19 +566,35 @@ def _improved(recs: list[_Record], order: int):
     alpha0, g0, disc = _ramp_exact_start(recs, n)
     param, problem = _WaveParameters(n, len(recs)), _WaveRecords(recs)
     beta0 = problem.best_beta(param, alpha0, g0[:, 0], g0[:, 1])
-    res = refine(param, param.pack(alpha0, beta0, g0[:, 0], g0[:, 1]), problem, _OPTIONS,
-                 jac_sparsity=param.sparsity(problem.sizes))
+    res = refine(
+        param,
+        param.pack(alpha0, beta0, g0[:, 0], g0[:, 1]),
+        problem,
+        _OPTIONS,
+        jac_sparsity=param.sparsity(problem.sizes),
+    )
     alpha, beta, gp, gm = param.unpack(res.theta)
-    waves = [WaveFit(a=rec.wave.a, b=rec.wave.b, samples=len(rec.t), discrete_plus=dp, discrete_minus=dm,
-                     continuous_plus=np.r_[gp[i] ** np.arange(1, n + 1) * alpha,
-                                           gp[i] ** np.arange(1, n + 1) * beta],
-                     continuous_minus=np.r_[gm[i] ** np.arange(1, n + 1) * alpha,
-                                            gm[i] ** np.arange(1, n + 1) * beta],
-                     g_plus=float(gp[i]), g_minus=float(gm[i]))
-             for i, (rec, (dp, dm)) in enumerate(zip(recs, disc))]
-    info = {"method": "least_squares trf, output error (fitter.identification.output_error)", "nfev": res.nfev,
-            "success": res.success, "message": res.message,
-            "cost": res.cost}
+    waves = [
+        WaveFit(
+            a=rec.wave.a,
+            b=rec.wave.b,
+            samples=len(rec.t),
+            discrete_plus=dp,
+            discrete_minus=dm,
+            continuous_plus=np.r_[gp[i] ** np.arange(1, n + 1) * alpha, gp[i] ** np.arange(1, n + 1) * beta],
+            continuous_minus=np.r_[gm[i] ** np.arange(1, n + 1) * alpha, gm[i] ** np.arange(1, n + 1) * beta],
+            g_plus=float(gp[i]),
+            g_minus=float(gm[i]),
+        )
+        for i, (rec, (dp, dm)) in enumerate(zip(recs, disc))
+    ]
+    info = {
+        "method": "least_squares trf, output error (fitter.identification.output_error)",
+        "nfev": res.nfev,
+        "success": res.success,
+        "message": res.message,
+        "cost": res.cost,
+    }
     return alpha, beta, waves, info
 
 
@@ -533,12 +605,15 @@ def _check_distinct_slopes(recs: list[_Record]) -> None:
         for r0, r1 in zip(ordered[:-1], ordered[1:]):
             v0, v1 = getattr(r0.wave, key), getattr(r1.wave, key)
             if np.isclose(v0, v1, rtol=_TOL, atol=0):
-                raise ValueError(f"records {min(r0.index, r1.index)} and {max(r0.index, r1.index)} have the "
-                                 f"same {kind} slope {v0:.6g}; eq (50) needs one wave per slope")
+                raise ValueError(
+                    f"records {min(r0.index, r1.index)} and {max(r0.index, r1.index)} have the "
+                    f"same {kind} slope {v0:.6g}; eq (50) needs one wave per slope"
+                )
 
 
-def identify_rd_triangles(records: list[tuple[np.ndarray, np.ndarray, np.ndarray]], *, order: int = 1,
-                          estimator: str = "improved") -> RDIdentification:
+def identify_rd_triangles(
+    records: list[tuple[np.ndarray, np.ndarray, np.ndarray]], *, order: int = 1, estimator: str = "improved"
+) -> RDIdentification:
     """Identify a rate-dependent semilinear Duhem model from triangle-wave records (Section V).
 
     Parameters
@@ -563,8 +638,7 @@ def identify_rd_triangles(records: list[tuple[np.ndarray, np.ndarray, np.ndarray
         raise ValueError(f"order must be a positive integer, got {order}")
     order = int(order)
     if len(records) < 2:
-        raise ValueError(f"need at least 2 triangle-wave records of different slopes (eq 50), "
-                         f"got {len(records)}")
+        raise ValueError(f"need at least 2 triangle-wave records of different slopes (eq 50), got {len(records)}")
     recs = sorted((_parse_record(i, r, order) for i, r in enumerate(records)), key=lambda r: r.wave.a)
     _check_distinct_slopes(recs)
     optimizer: dict = {}
@@ -575,12 +649,30 @@ def identify_rd_triangles(records: list[tuple[np.ndarray, np.ndarray, np.ndarray
     slopes = np.array([w.a for w in waves] + [w.b for w in waves])
     g_hat = np.array([w.g_plus for w in waves] + [w.g_minus for w in waves])
     A, B, C = _canonical(alpha, beta)
-    model = RateDependentModel(A=A, B=B, C=C, g=TabulatedRate(slopes, g_hat), fit_info={
-        "method": "Oh & Bernstein 2007, Section V (triangle waves)", "estimator": estimator,
-        "normalisation": "g_hat(a_1) = 1 at the smallest rising slope; A_hat = g(a_1) A"})
+    model = RateDependentModel(
+        A=A,
+        B=B,
+        C=C,
+        g=TabulatedRate(slopes, g_hat),
+        fit_info={
+            "method": "Oh & Bernstein 2007, Section V (triangle waves)",
+            "estimator": estimator,
+            "normalisation": "g_hat(a_1) = 1 at the smallest rising slope; A_hat = g(a_1) A",
+        },
+    )
     param = _WaveParameters(order, len(recs))
-    resid = _WaveRecords(recs).residuals(param, param.pack(alpha, beta, np.array([w.g_plus for w in waves]),
-                                                           np.array([w.g_minus for w in waves])))[0]
-    return RDIdentification(model=model, slopes=slopes, g_hat=g_hat, A_hat=A, B_hat=B, C_hat=C,
-                            estimator=estimator, waves=waves, rms_residual=float(np.sqrt(np.mean(resid ** 2))),
-                            optimizer=optimizer)
+    resid = _WaveRecords(recs).residuals(
+        param, param.pack(alpha, beta, np.array([w.g_plus for w in waves]), np.array([w.g_minus for w in waves]))
+    )[0]
+    return RDIdentification(
+        model=model,
+        slopes=slopes,
+        g_hat=g_hat,
+        A_hat=A,
+        B_hat=B,
+        C_hat=C,
+        estimator=estimator,
+        waves=waves,
+        rms_residual=float(np.sqrt(np.mean(resid**2))),
+        optimizer=optimizer,
+    )

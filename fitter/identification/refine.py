@@ -28,6 +28,7 @@ parameter's error does not depend on the units of the others), n_eff the
 effective sample size (N when not given; the diagnosis passes the AR(1)
 value of `effective_samples` for autocorrelated residuals).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -91,7 +92,7 @@ class RefineResult:
     @property
     def rss(self) -> float:
         """Weighted residual sum of squares over the fitted samples."""
-        return float(np.sum(self.weighted ** 2))
+        return float(np.sum(self.weighted**2))
 
     @property
     def cost(self) -> float:
@@ -110,7 +111,7 @@ class RefineResult:
         norms = np.where(norms > 0, norms, 1.0)
         scaled = self.jac / norms
         inverse = np.linalg.pinv(self.info_scale * (scaled.T @ scaled)) / np.outer(norms, norms)
-        return self.sigma ** 2 * inverse * inflate
+        return self.sigma**2 * inverse * inflate
 
     def stderr(self, n_eff: float | None = None) -> np.ndarray:
         return np.sqrt(np.clip(np.diag(self.covariance(n_eff)), 0, None))
@@ -124,10 +125,8 @@ def effective_samples(residual: np.ndarray) -> float:
     return len(r) * (1 - r1) / (1 + r1)
 
 
-
 # ----------------------------------------------------------------------------- refine
-def jacobian(fun: Callable[[np.ndarray], np.ndarray], theta: np.ndarray,
-             f0: np.ndarray | None = None) -> np.ndarray:
+def jacobian(fun: Callable[[np.ndarray], np.ndarray], theta: np.ndarray, f0: np.ndarray | None = None) -> np.ndarray:
     """Forward-difference Jacobian of a vector function, steps 1e-6 (1 + |theta_j|)."""
     f0 = fun(theta) if f0 is None else f0
     J = np.empty((len(f0), len(theta)))
@@ -139,10 +138,18 @@ def jacobian(fun: Callable[[np.ndarray], np.ndarray], theta: np.ndarray,
     return J
 
 
-def refine(param: Parametrisation, theta0: np.ndarray, problem, options: Options = Options(), *,
-           penalty: Callable[[np.ndarray], np.ndarray] | None = None, free: np.ndarray | None = None,
-           jac_sparsity=None, jac: Callable[[np.ndarray], np.ndarray] | None = None,
-           progress: Progress = silent) -> RefineResult:
+def refine(
+    param: Parametrisation,
+    theta0: np.ndarray,
+    problem,
+    options: Options = Options(),
+    *,
+    penalty: Callable[[np.ndarray], np.ndarray] | None = None,
+    free: np.ndarray | None = None,
+    jac_sparsity=None,
+    jac: Callable[[np.ndarray], np.ndarray] | None = None,
+    progress: Progress = silent,
+) -> RefineResult:
     """Output-error least squares of `param.build(theta)` on `problem`.
 
     Parameters
@@ -167,28 +174,49 @@ def refine(param: Parametrisation, theta0: np.ndarray, problem, options: Options
         raise ValueError("a problem's own Jacobian cannot be combined with a penalty or elimination")
     jac_moving = "2-point" if jac is None else (lambda z: jac(obj.full_theta(z))[:, obj.moving] / obj.scale)
     with np.errstate(all="ignore"), threadpool_limits(limits=1, user_api="blas"):
-        sol = least_squares(obj, obj.theta0[obj.moving], jac=jac_moving, bounds=(lo[obj.moving], hi[obj.moving]),
-                            method="trf", x_scale="jac", ftol=options.ftol, xtol=options.xtol, gtol=options.gtol,
-                            max_nfev=options.max_nfev, jac_sparsity=jac_sparsity if jac is None else None)
+        sol = least_squares(
+            obj,
+            obj.theta0[obj.moving],
+            jac=jac_moving,
+            bounds=(lo[obj.moving], hi[obj.moving]),
+            method="trf",
+            x_scale="jac",
+            ftol=options.ftol,
+            xtol=options.xtol,
+            gtol=options.gtol,
+            max_nfev=options.max_nfev,
+            jac_sparsity=jac_sparsity if jac is None else None,
+        )
     progress(f"output-error refinement: cost {sol.cost:.4g} after {sol.nfev} evaluations", None)
     theta = obj.full_theta(sol.x)
     if obj.lin.any():
         theta = obj.coarse.projected(param, theta)[1]
     weighted, model, info = problem.residuals(param, theta)
     if not options.covariance:
-        J = np.broadcast_to(0.0, (len(weighted), len(theta)))      # zero, in no memory
+        J = np.broadcast_to(0.0, (len(weighted), len(theta)))  # zero, in no memory
     else:
         if obj.lin.any():
             J_free = _free_jacobian(obj.coarse, param, theta, obj.free) / obj.scale
         else:
             J_free = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
-            J_free = J_free[:len(J_free) - (0 if penalty is None else len(penalty(theta)))]
+            J_free = J_free[: len(J_free) - (0 if penalty is None else len(penalty(theta)))]
         J = np.zeros((len(J_free), len(theta)))
         J[:, obj.free] = J_free * obj.scale
-    return RefineResult(theta=theta, model=model, residuals=[i[2] for i in info], weighted=weighted, jac=J,
-                        nfev=int(sol.nfev), success=bool(sol.success), message=str(sol.message),
-                        starts=[i[0] for i in info], x0s=[i[1] for i in info],
-                        rho=[float(i[3]) for i in info], states=[i[4] for i in info], info_scale=len(weighted) / len(J))
+    return RefineResult(
+        theta=theta,
+        model=model,
+        residuals=[i[2] for i in info],
+        weighted=weighted,
+        jac=J,
+        nfev=int(sol.nfev),
+        success=bool(sol.success),
+        message=str(sol.message),
+        starts=[i[0] for i in info],
+        x0s=[i[1] for i in info],
+        rho=[float(i[3]) for i in info],
+        states=[i[4] for i in info],
+        info_scale=len(weighted) / len(J),
+    )
 
 
 class _Objective:
@@ -228,9 +256,11 @@ class _Objective:
 
 def _free_jacobian(problem, param: Parametrisation, theta: np.ndarray, free: np.ndarray) -> np.ndarray:
     """Forward-difference Jacobian of `problem.residuals` in the free entries of theta."""
+
     def fun(z):
         th = theta.copy()
         th[free] = z
         with np.errstate(all="ignore"):
             return problem.residuals(param, th)[0]
+
     return jacobian(fun, theta[free])

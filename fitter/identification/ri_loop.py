@@ -99,17 +99,23 @@ Accuracy: noise-free, the bilinear transform makes the paper method's continuous
 loop differ from the data by O(delta) (Example 1: about 0.28/ell in max abs for
 y-range 0.214).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from fitter.core import (ConvergenceError, RateIndependentModel, convergence_rho, limiting_loop,
-                   periodic_response)
+from fitter.core import ConvergenceError, RateIndependentModel, convergence_rho, limiting_loop, periodic_response
 
-__all__ = ["RIIdentification", "identify_ri_loop", "flip_and_concatenate", "nmss_states",
-           "bilinear_to_continuous", "refit_b"]
+__all__ = [
+    "RIIdentification",
+    "identify_ri_loop",
+    "flip_and_concatenate",
+    "nmss_states",
+    "bilinear_to_continuous",
+    "refit_b",
+]
 
 _SOLVER = "CLARABEL"
 _METHODS = ("improved", "paper")
@@ -167,23 +173,34 @@ class RIIdentification:
 
     def to_dict(self) -> dict:
         """JSON-able summary (scalars only); non-finite numbers become None."""
+
         def num(v: float):
             return float(v) if np.isfinite(v) else None
+
         return {
             "algorithm": "Oh & Bernstein 2007 Section III (flip-and-concatenate, NMSS, "
-                         "constrained LS (16)-(17), bilinear transform)",
-            "m": self.m, "order": self.order, "ell": self.ell, "delta": self.delta,
-            "u_min": self.u_min, "u_max": self.u_max, "q": self.q,
-            "cost": num(self.cost), "cost_plus": num(self.cost_plus),
+            "constrained LS (16)-(17), bilinear transform)",
+            "m": self.m,
+            "order": self.order,
+            "ell": self.ell,
+            "delta": self.delta,
+            "u_min": self.u_min,
+            "u_max": self.u_max,
+            "q": self.q,
+            "cost": num(self.cost),
+            "cost_plus": num(self.cost_plus),
             "cost_minus": num(self.cost_minus),
             "sigma_max_plus": num(self.sigma_max_plus),
             "sigma_max_minus": num(self.sigma_max_minus),
             "constraint_active": self.constraint_active,
             "constraint_active_plus": self.constraint_active_plus,
             "constraint_active_minus": self.constraint_active_minus,
-            "rho_text": num(self.rho_text), "rho_eq13": num(self.rho_eq13),
-            "rho_continuous": num(self.rho_continuous), "converged": self.converged,
-            "method": self.method, "b_refined": self.b_refined,
+            "rho_text": num(self.rho_text),
+            "rho_eq13": num(self.rho_eq13),
+            "rho_continuous": num(self.rho_continuous),
+            "converged": self.converged,
+            "method": self.method,
+            "b_refined": self.b_refined,
             "loop_max_error": num(self.loop_max_error),
             "solvers": dict(self.solvers),
         }
@@ -205,15 +222,16 @@ def _check_grid(u: np.ndarray) -> float:
     bad = np.flatnonzero(du <= 0)
     if bad.size:
         i = bad[0]
-        raise ValueError(f"u_grid must increase strictly: u_grid[{i + 1}] = {u[i + 1]} "
-                         f"after u_grid[{i}] = {u[i]}")
+        raise ValueError(f"u_grid must increase strictly: u_grid[{i + 1}] = {u[i + 1]} after u_grid[{i}] = {u[i]}")
     delta = (u[-1] - u[0]) / (len(u) - 1)
     tol = 1e-6 * delta + 1e-12 * np.max(np.abs(u))
     dev = np.abs(du - delta)
     if dev.max() > tol:
         i = int(np.argmax(dev))
-        raise ValueError(f"u_grid must be uniform (delta = {delta:.6g}): step u_grid[{i + 1}] - "
-                         f"u_grid[{i}] = {du[i]:.6g}; resample the branches to a uniform grid")
+        raise ValueError(
+            f"u_grid must be uniform (delta = {delta:.6g}): step u_grid[{i + 1}] - "
+            f"u_grid[{i}] = {du[i]:.6g}; resample the branches to a uniform grid"
+        )
     return float(delta)
 
 
@@ -222,8 +240,7 @@ def _check_inputs(u_grid, y_rising, y_falling, m, q, method):
     yr = _as_finite("y_rising", y_rising)
     yf = _as_finite("y_falling", y_falling)
     if len(yr) != len(u) or len(yf) != len(u):
-        raise ValueError(f"lengths differ: u_grid has {len(u)} points, y_rising {len(yr)}, "
-                         f"y_falling {len(yf)}")
+        raise ValueError(f"lengths differ: u_grid has {len(u)} points, y_rising {len(yr)}, y_falling {len(yf)}")
     if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1:
         raise ValueError(f"m must be an integer >= 1, got {m!r}")
     if not (isinstance(q, (int, float, np.number)) and np.isfinite(q) and q > 0):
@@ -232,8 +249,10 @@ def _check_inputs(u_grid, y_rising, y_falling, m, q, method):
         raise ValueError(f"method must be one of {_METHODS}, got {method!r}")
     ell_min = 3 * m
     if len(u) < ell_min + 1:
-        raise ValueError(f"too few samples for m = {m} (order {2 * m - 1}): the least squares "
-                         f"need at least {ell_min + 1} grid points, got {len(u)}")
+        raise ValueError(
+            f"too few samples for m = {m} (order {2 * m - 1}): the least squares "
+            f"need at least {ell_min + 1} grid points, got {len(u)}"
+        )
     return u, yr, yf, _check_grid(u)
 
 
@@ -270,8 +289,8 @@ def nmss_states(u_bar: np.ndarray, y_bar: np.ndarray, m: int) -> np.ndarray:
 def _lstsq_branch(X: np.ndarray, u_bar: np.ndarray, ks: np.ndarray, q: float):
     """Solve (16) or (17) on columns k in ks: x_{k+1} ~ A x_k + B u_k."""
     n = X.shape[1]
-    R = np.column_stack([X[ks], u_bar[ks]])      # rows: regressors [x_k^T, u_k]
-    T = X[ks + 1]                                # rows: targets x_{k+1}^T
+    R = np.column_stack([X[ks], u_bar[ks]])  # rows: regressors [x_k^T, u_k]
+    T = X[ks + 1]  # rows: targets x_{k+1}^T
     theta = np.linalg.lstsq(R, T, rcond=None)[0].T
     active = np.linalg.norm(theta[:, :n], 2) > q
     solver = "numpy.lstsq"
@@ -289,12 +308,12 @@ def _constrained(R: np.ndarray, T: np.ndarray, n: int, q: float) -> np.ndarray:
     Q, R1 = np.linalg.qr(R)
     target = T.T @ Q
     theta = cp.Variable((n, n + 1))
-    problem = cp.Problem(cp.Minimize(cp.sum_squares(target - theta @ R1.T)),
-                         [cp.sigma_max(theta[:, :n]) <= q])
+    problem = cp.Problem(cp.Minimize(cp.sum_squares(target - theta @ R1.T)), [cp.sigma_max(theta[:, :n]) <= q])
     problem.solve(solver=_SOLVER)
     if theta.value is None or problem.status not in ("optimal", "optimal_inaccurate"):
-        raise RuntimeError(f"cvxpy/{_SOLVER} failed on the constrained least squares (16)-(17): "
-                           f"status {problem.status}")
+        raise RuntimeError(
+            f"cvxpy/{_SOLVER} failed on the constrained least squares (16)-(17): status {problem.status}"
+        )
     return np.asarray(theta.value)
 
 
@@ -303,8 +322,10 @@ def bilinear_to_continuous(Ad: np.ndarray, Bd: np.ndarray, delta: float):
     n = Ad.shape[0]
     P = Ad + np.eye(n)
     if np.linalg.cond(P) > 1e12:
-        raise ValueError("bilinear transform undefined: the identified discrete matrix has an "
-                         f"eigenvalue at -1 (eigenvalues {np.round(np.linalg.eigvals(Ad), 6)})")
+        raise ValueError(
+            "bilinear transform undefined: the identified discrete matrix has an "
+            f"eigenvalue at -1 (eigenvalues {np.round(np.linalg.eigvals(Ad), 6)})"
+        )
     Pinv = np.linalg.inv(P)
     return (2 / delta) * (Ad - np.eye(n)) @ Pinv, (2 / delta) * Pinv @ Bd
 
@@ -347,8 +368,7 @@ def refit_b(model: RateIndependentModel, u_grid, y_rising, y_falling):
     basis = []
     for j in range(2 * n):
         b = np.eye(2 * n)[j]
-        unit = RateIndependentModel(A_plus=model.A_plus, A_minus=model.A_minus,
-                                    B_plus=b[:n], B_minus=b[n:], C=model.C)
+        unit = RateIndependentModel(A_plus=model.A_plus, A_minus=model.A_minus, B_plus=b[:n], B_minus=b[n:], C=model.C)
         _, ur, uf, _ = limiting_loop(unit, u_grid[0], u_grid[-1], len(u_grid))
         basis.append(np.r_[ur, uf])
     coef = np.linalg.lstsq(np.column_stack(basis), np.r_[y_rising, y_falling], rcond=1e-10)[0]
@@ -377,8 +397,9 @@ def _initial_state(model, u_grid, X0, rho):
     return X0
 
 
-def identify_ri_loop(u_grid, y_rising, y_falling, *, m: int = 2, q: float = 7.0,
-                     method: str = "improved") -> RIIdentification:
+def identify_ri_loop(
+    u_grid, y_rising, y_falling, *, m: int = 2, q: float = 7.0, method: str = "improved"
+) -> RIIdentification:
     """Identify a rate-independent semilinear Duhem model from its limiting loop (Section III).
 
     Parameters
@@ -430,15 +451,33 @@ def identify_ri_loop(u_grid, y_rising, y_falling, *, m: int = 2, q: float = 7.0,
         model = model.replace(B_plus=B_plus, B_minus=B_minus)
     model = model.replace(x0=_initial_state(model, u, X[0], rho_c))
     result = RIIdentification(
-        model=model, Ad_plus=Ap, Ad_minus=Am, Bd_plus=Bp, Bd_minus=Bm, Cd=Cd,
-        cost=cost_p + cost_m, cost_plus=cost_p, cost_minus=cost_m,
+        model=model,
+        Ad_plus=Ap,
+        Ad_minus=Am,
+        Bd_plus=Bp,
+        Bd_minus=Bm,
+        Cd=Cd,
+        cost=cost_p + cost_m,
+        cost_plus=cost_p,
+        cost_minus=cost_m,
         rho_text=_spectral_radius_of_powers([(Ap, ell), (Am, ell)]),
         rho_eq13=_spectral_radius_of_powers([(Ap, 1), (Am, ell)]),
-        rho_continuous=rho_c, q=q,
-        sigma_max_plus=float(np.linalg.norm(Ap, 2)), sigma_max_minus=float(np.linalg.norm(Am, 2)),
-        constraint_active_plus=act_p, constraint_active_minus=act_m,
-        ell=ell, delta=delta, m=m, order=n, u_min=float(u[0]), u_max=float(u[-1]),
-        method=method, b_refined=refined, loop_max_error=_loop_error(model, u, yr, yf, rho_c),
-        solvers={"plus": sol_p, "minus": sol_m})
+        rho_continuous=rho_c,
+        q=q,
+        sigma_max_plus=float(np.linalg.norm(Ap, 2)),
+        sigma_max_minus=float(np.linalg.norm(Am, 2)),
+        constraint_active_plus=act_p,
+        constraint_active_minus=act_m,
+        ell=ell,
+        delta=delta,
+        m=m,
+        order=n,
+        u_min=float(u[0]),
+        u_max=float(u[-1]),
+        method=method,
+        b_refined=refined,
+        loop_max_error=_loop_error(model, u, yr, yf, rho_c),
+        solvers={"plus": sol_p, "minus": sol_m},
+    )
     result.model = model.replace(fit_info={"ri_identification": result.to_dict()})
     return result

@@ -9,6 +9,7 @@ g(v) = g_n(v/u_s); both C -> y_s C, D -> y_s D/u_s, and the output offset
 k = y_c - y_s D u_c/u_s is absorbed in the state (x -> x + x_c with C x_c = k,
 E -> E - A x_c), so no output constant is needed.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -40,13 +41,22 @@ class Normalisation:
         us, ys = 0.5 * np.ptp(u), 0.5 * np.ptp(y)
         if not (us > 0 and ys > 0):
             column = recs[0].input.name if not us > 0 else recs[0].output.name
-            raise DuhemError(f"{', '.join(r.label for r in recs)}: the {'input' if not us > 0 else 'output'} "
-                             f"(column {column!r}) is constant over all recordings: nothing to fit")
+            raise DuhemError(
+                f"{', '.join(r.label for r in recs)}: the {'input' if not us > 0 else 'output'} "
+                f"(column {column!r}) is constant over all recordings: nothing to fit"
+            )
         return cls(0.5 * (u.max() + u.min()), us, 0.5 * (y.max() + y.min()), ys)
 
     def normalise(self, rec: Recording) -> Recording:
-        return Recording(rec.t, (rec.u - self.u_c) / self.u_s, (rec.y - self.y_c) / self.y_s,
-                         rec.name, rec.input, rec.output, rec.source)
+        return Recording(
+            rec.t,
+            (rec.u - self.u_c) / self.u_s,
+            (rec.y - self.y_c) / self.y_s,
+            rec.name,
+            rec.input,
+            rec.output,
+            rec.source,
+        )
 
     def _output(self, C, D, A_list, E_list, x0):
         """Map C, D to physical units and absorb the output offset into the state."""
@@ -65,8 +75,17 @@ class Normalisation:
             Ep = (m.E_plus - m.B_plus * c / s) / s
             Em = (m.E_minus - m.B_minus * c / s) / s
             C, D, (Ep, Em), x0 = self._output(m.C, m.D, [Ap, Am], [Ep, Em], m.x0)
-            return m.replace(A_plus=Ap, A_minus=Am, B_plus=m.B_plus / s ** 2, B_minus=m.B_minus / s ** 2,
-                             C=C, E_plus=Ep, E_minus=Em, D=D, x0=x0)
+            return m.replace(
+                A_plus=Ap,
+                A_minus=Am,
+                B_plus=m.B_plus / s**2,
+                B_minus=m.B_minus / s**2,
+                C=C,
+                E_plus=Ep,
+                E_minus=Em,
+                D=D,
+                x0=x0,
+            )
         E = m.E - m.B * c / s
         C, D, (E,), x0 = self._output(m.C, m.D, [m.A], [E], m.x0)
         return m.replace(B=m.B / s, C=C, E=E, D=D, x0=x0, g=TabulatedRate(m.g.v * s, m.g.g))

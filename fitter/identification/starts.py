@@ -12,6 +12,7 @@ its g, normalised to g(a_1) = 1, is converted explicitly to the fit's
 normalisation g(v_ref) = v_ref), and the rising branch of the rate-independent
 fit with g = |v|.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -46,8 +47,9 @@ def _branch_regression(grid, y, rising: bool) -> tuple[float, float, float]:
 def _ri_first_order(grid, yr, yf) -> RateIndependentModel:
     ap, bp, ep = _branch_regression(grid, yr, True)
     am, bm, em = _branch_regression(grid, yf, False)
-    return RateIndependentModel(A_plus=[[ap]], A_minus=[[am]], B_plus=[bp], B_minus=[bm], C=[1.0],
-                                E_plus=[ep], E_minus=[em])
+    return RateIndependentModel(
+        A_plus=[[ap]], A_minus=[[am]], B_plus=[bp], B_minus=[bm], C=[1.0], E_plus=[ep], E_minus=[em]
+    )
 
 
 def _pad(M: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -69,9 +71,16 @@ def embed(m, n: int):
     C = np.r_[m.C, 0.05 * np.ones(k)]
     if isinstance(m, RateDependentModel):
         return RateDependentModel(A=_pad(m.A, extra), B=vec(m.B), C=C, g=m.g, E=vec(m.E), D=m.D)
-    return RateIndependentModel(A_plus=_pad(m.A_plus, extra), A_minus=_pad(m.A_minus, -extra),
-                                B_plus=vec(m.B_plus), B_minus=vec(m.B_minus), C=C,
-                                E_plus=vec(m.E_plus), E_minus=vec(m.E_minus), D=m.D)
+    return RateIndependentModel(
+        A_plus=_pad(m.A_plus, extra),
+        A_minus=_pad(m.A_minus, -extra),
+        B_plus=vec(m.B_plus),
+        B_minus=vec(m.B_minus),
+        C=C,
+        E_plus=vec(m.E_plus),
+        E_minus=vec(m.E_minus),
+        D=m.D,
+    )
 
 
 def _loop_error(m, grid, yr, yf) -> float:
@@ -86,7 +95,7 @@ def _loop_error(m, grid, yr, yf) -> float:
 def _section3(grid, yr, yf, n: int, q: float | None, par: RICanonical, info: dict):
     """Section III start (q by loop error), or None."""
     errors = {}
-    for qq in (Q_CANDIDATES if q is None else (q,)):
+    for qq in Q_CANDIDATES if q is None else (q,):
         try:
             mod = identify_ri_loop(grid, yr, yf, m=(n + 1) // 2, q=qq).model
             errors[qq] = (_loop_error(mod, grid, yr, yf), par.theta(mod))
@@ -108,7 +117,7 @@ def ri_starts(grid, yr, yf, n: int, q: float | None, lower=None) -> tuple[list[n
         m = embed(lower, n)
         try:
             cands.append((_loop_error(m, grid, yr, yf) * 0.5, par.theta(m), f"order {n - 1} fit, embedded"))
-        except np.linalg.LinAlgError as exc:     # (A+, C) of the embedding not observable: no canonical form
+        except np.linalg.LinAlgError as exc:  # (A+, C) of the embedding not observable: no canonical form
             info.setdefault("ri_identification_errors", []).append(f"order {n - 1} fit, embedded: {exc}")
     base = embed(_ri_first_order(grid, yr, yf), n)
     cands.append((_loop_error(base, grid, yr, yf), par.theta(base), "branch regression"))
@@ -120,7 +129,7 @@ def ri_starts(grid, yr, yf, n: int, q: float | None, lower=None) -> tuple[list[n
     cands.sort(key=lambda c: c[0])
     info["start"] = cands[0][2]
     info["start_loop_error"] = cands[0][0]
-    return [c[1] for c in cands[:_STARTS_KEPT["ri"]]], info
+    return [c[1] for c in cands[: _STARTS_KEPT["ri"]]], info
 
 
 def generic_ri_starts(n: int, lower=None) -> tuple[list[np.ndarray], dict]:
@@ -134,8 +143,11 @@ def generic_ri_starts(n: int, lower=None) -> tuple[list[np.ndarray], dict]:
     for a in GENERIC_RATES:
         A = -a * np.diag(np.arange(1.0, n + 1))
         starts.append(par.theta(RateIndependentModel(A_plus=A, A_minus=-A, B_plus=ones, B_minus=ones, C=ones)))
-    info = {"start": f"order {n - 1} fit, embedded" if lower is not None else
-            f"generic relaxations (rates {list(GENERIC_RATES)} x 1..{n})"}
+    info = {
+        "start": f"order {n - 1} fit, embedded"
+        if lower is not None
+        else f"generic relaxations (rates {list(GENERIC_RATES)} x 1..{n})"
+    }
     return starts, info
 
 
@@ -158,7 +170,7 @@ def rd_starts(param: RDCanonical, ri_model, lower, norm, triangle: bool) -> tupl
     starts, info = [], {}
     if lower is not None:
         m = embed(lower.model, param.n)
-        starts.append(np.r_[param.theta(m)[:-1 - param.n_c], lower.theta[-1 - param.n_c:]])
+        starts.append(np.r_[param.theta(m)[: -1 - param.n_c], lower.theta[-1 - param.n_c :]])
         info["start"] = f"order {param.n - 1} fit, embedded"
     if triangle and len(norm) >= 2:
         try:
@@ -168,8 +180,9 @@ def rd_starts(param: RDCanonical, ri_model, lower, norm, triangle: bool) -> tupl
             info["rd_identification_error"] = str(exc)[:200]
     if ri_model is not None:
         m = ri_model
-        starts.append(param.theta(RateDependentModel(A=m.A_plus, B=m.B_plus, E=m.E_plus, C=m.C, D=m.D,
-                                                     g=lambda v: np.abs(v))))
+        starts.append(
+            param.theta(RateDependentModel(A=m.A_plus, B=m.B_plus, E=m.E_plus, C=m.C, D=m.D, g=lambda v: np.abs(v)))
+        )
         info.setdefault("start", "rising branch of the rate-independent fit, g = |v|")
     starts = [th for th in starts if np.all(np.isfinite(th))]
-    return starts[:_STARTS_KEPT["rd"]], info
+    return starts[: _STARTS_KEPT["rd"]], info

@@ -5,6 +5,7 @@
 output under it (Theorem 1, exact at every sample: the input is linear between
 grid points).  The records `fitter.identification.rd_triangles` identifies from.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -59,16 +60,17 @@ class TriangleWave:
 
 def _wave_from_eq20(a: float, b: float, Ta: float, Tb: float) -> TriangleWave:
     if not (a > 0 and b < 0 and Ta > 0 and Tb > 0):
-        raise ValueError(f"triangle wave (20) needs a > 0, b < 0, Ta > 0, Tb > 0; "
-                         f"got a={a}, b={b}, Ta={Ta}, Tb={Tb}")
+        raise ValueError(f"triangle wave (20) needs a > 0, b < 0, Ta > 0, Tb > 0; got a={a}, b={b}, Ta={Ta}, Tb={Tb}")
     if not np.isclose(a * Ta, -b * Tb, rtol=1e-9, atol=0):
-        raise ValueError(f"triangle wave (20) is continuous only when a*Ta = -b*Tb; "
-                         f"got a*Ta = {a * Ta}, -b*Tb = {-b * Tb}")
+        raise ValueError(
+            f"triangle wave (20) is continuous only when a*Ta = -b*Tb; got a*Ta = {a * Ta}, -b*Tb = {-b * Tb}"
+        )
     return TriangleWave(a=float(a), b=float(b), u_lo=-a * Ta / 2, u_hi=a * Ta / 2, t_min=0.0)
 
 
-def triangle_wave(a: float, b: float, Ta: float, Tb: float, periods: int,
-                  delta: float) -> tuple[np.ndarray, np.ndarray]:
+def triangle_wave(
+    a: float, b: float, Ta: float, Tb: float, periods: int, delta: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Samples t_k = k delta, 0 <= t_k <= periods T, of the triangle wave (20).
 
     u(t) = a t - a q T - a T_a / 2 on [qT, qT + T_a) and
@@ -96,12 +98,20 @@ def periodic_triangle_output(model: RateDependentModel, wave: TriangleWave, t: n
     tau = wave.phase(t)
     grid, inverse = np.unique(np.r_[tau, 0.0, wave.Ta, wave.T], return_inverse=True)
     y = periodic_response(model, grid, wave.value_at_phase(grid)).sim.y
-    return y[inverse[:len(tau)]]
+    return y[inverse[: len(tau)]]
 
 
-def triangle_response(model: RateDependentModel, a: float, b: float, Ta: float, Tb: float,
-                      periods: int, delta: float, noise_pp: float = 0.0,
-                      rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def triangle_response(
+    model: RateDependentModel,
+    a: float,
+    b: float,
+    Ta: float,
+    Tb: float,
+    periods: int,
+    delta: float,
+    noise_pp: float = 0.0,
+    rng: np.random.Generator | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Steady-state record (t, u, y) of `model` under the sampled triangle wave (20).
 
     y is the limiting periodic response (exact at each sample) plus, when

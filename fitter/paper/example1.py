@@ -19,6 +19,7 @@ which suggests the paper's regression had no switch-crossing column either.)
 `run_example1` reports the paper's method ("runs", drawn by `plot_example1` as in
 Fig. 1) and the default improved estimator ("improved_runs") on the same data.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -36,8 +37,7 @@ def true_model() -> RateIndependentModel:
     """The paper's Example 1 model."""
     A = np.array([[-1.0, 4.0], [-4.0, -1.0]])
     B = np.array([0.0, 1.0])
-    return RateIndependentModel(A_plus=A, A_minus=-A, B_plus=B, B_minus=-B, C=[0.0, 1.0],
-                                x0=[0.15, 0.15])
+    return RateIndependentModel(A_plus=A, A_minus=-A, B_plus=B, B_minus=-B, C=[0.0, 1.0], x0=[0.15, 0.15])
 
 
 def _loop_error(model, grid, yr, yf) -> float | None:
@@ -56,13 +56,20 @@ def _identify(q_values, ell: int, m: int, method: str = "paper"):
 
 
 def _figures(fits, fine, fyr, fyf, y_range) -> dict:
-    return {f"q={q:g}": {
-        "q": q, "cost": r.cost, "rho_text": r.rho_text, "rho_eq13": r.rho_eq13,
-        "rho_continuous": r.rho_continuous,
-        "sigma_max": max(r.sigma_max_plus, r.sigma_max_minus),
-        "constraint_active": r.constraint_active,
-        "max_abs_loop_error": _loop_error(r.model, fine, fyr, fyf),
-        "y_range": y_range} for q, r in fits.items()}
+    return {
+        f"q={q:g}": {
+            "q": q,
+            "cost": r.cost,
+            "rho_text": r.rho_text,
+            "rho_eq13": r.rho_eq13,
+            "rho_continuous": r.rho_continuous,
+            "sigma_max": max(r.sigma_max_plus, r.sigma_max_minus),
+            "constraint_active": r.constraint_active,
+            "max_abs_loop_error": _loop_error(r.model, fine, fyr, fyf),
+            "y_range": y_range,
+        }
+        for q, r in fits.items()
+    }
 
 
 def run_example1(q_values=(1.0, 7.0), ell: int = 1000, m: int = 2) -> dict:
@@ -79,10 +86,16 @@ def run_example1(q_values=(1.0, 7.0), ell: int = 1000, m: int = 2) -> dict:
     improved = _identify(q_values, ell, m, method="improved")[3]
     fine, fyr, fyf, _ = limiting_loop(true_model(), U_MIN, U_MAX, 2 * ell + 1)
     y_range = float(np.ptp(np.r_[yr, yf]))
-    return {"ell": ell, "delta": (U_MAX - U_MIN) / ell, "m": m, "order": 2 * m - 1,
-            "u": "sin t (u_min = -1, u_max = 1)", "paper": PAPER,
-            "runs": _figures(fits, fine, fyr, fyf, y_range),
-            "improved_runs": _figures(improved, fine, fyr, fyf, y_range)}
+    return {
+        "ell": ell,
+        "delta": (U_MAX - U_MIN) / ell,
+        "m": m,
+        "order": 2 * m - 1,
+        "u": "sin t (u_min = -1, u_max = 1)",
+        "paper": PAPER,
+        "runs": _figures(fits, fine, fyr, fyf, y_range),
+        "improved_runs": _figures(improved, fine, fyr, fyf, y_range),
+    }
 
 
 def plot_example1(result_or_none, path: str, *, ell: int = 1000, m: int = 2) -> None:
@@ -92,6 +105,7 @@ def plot_example1(result_or_none, path: str, *, ell: int = 1000, m: int = 2) -> 
     or None for the defaults.
     """
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -111,8 +125,7 @@ def plot_example1(result_or_none, path: str, *, ell: int = 1000, m: int = 2) -> 
             ax.plot(grid, jf, "r--", lw=1.2)
         except ConvergenceError:
             ax.text(0.05, 0.9, "identified loop does not converge", transform=ax.transAxes)
-        ax.set_title(f"({label}) q = {q:g}: cost {r.cost:.3g}, "
-                     f"$\\rho(A_+A_-^\\ell)$ = {r.rho_eq13:.3g}", fontsize=9)
+        ax.set_title(f"({label}) q = {q:g}: cost {r.cost:.3g}, $\\rho(A_+A_-^\\ell)$ = {r.rho_eq13:.3g}", fontsize=9)
         ax.set_xlabel("u")
         ax.set_ylabel("y")
         ax.legend(loc="lower right", fontsize=8)

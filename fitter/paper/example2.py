@@ -11,6 +11,7 @@ from the wave's minimum at t = 0, so a record has floor(T_i/delta) + 1 samples;
 noise seeds 0..seeds-1 (numpy default_rng).  Since g(a_1) = g(0.25) = 0.25 the
 identified model is A_hat = g(a_1) A = -0.25, B_hat = 0.25, g_hat = 4 g.
 """
+
 from __future__ import annotations
 
 from concurrent.futures import ProcessPoolExecutor
@@ -22,11 +23,26 @@ from fitter.identification.rd_triangles import ESTIMATORS, identify_rd_triangles
 from fitter.identification.triangle_waves import triangle_response
 from fitter.paper.example3 import loop_errors, plot_loops
 
-__all__ = ["PAPER", "SLOPES", "DELTA", "NOISE_PP", "PERIODS", "OMEGAS", "g_true", "true_model", "records",
-           "run_example2", "plot_example2"]
+__all__ = [
+    "PAPER",
+    "SLOPES",
+    "DELTA",
+    "NOISE_PP",
+    "PERIODS",
+    "OMEGAS",
+    "g_true",
+    "true_model",
+    "records",
+    "run_example2",
+    "plot_example2",
+]
 
-PAPER = {"A_hat": -0.2501, "B_hat": 0.25, "C_hat": 1.0,
-         "note": "g_hat shown only in Fig. 3 (close to 4 g); one noisy run, seed and record length unstated"}
+PAPER = {
+    "A_hat": -0.2501,
+    "B_hat": 0.25,
+    "C_hat": 1.0,
+    "note": "g_hat shown only in Fig. 3 (close to 4 g); one noisy run, seed and record length unstated",
+}
 SLOPES = 0.25 * np.arange(1, 13)
 DELTA = 0.13
 NOISE_PP = 0.1
@@ -56,10 +72,15 @@ def _summary(fit) -> dict:
     """A_hat, B_hat and the relative errors of g_hat against 4 g at all 24 slopes (both signs)."""
     target = SCALE * g_true(fit.slopes)
     rel = np.abs(fit.g_hat - target) / target
-    return {"A_hat": float(fit.A_hat[0, 0]), "B_hat": float(fit.B_hat[0]),
-            "worst_rel_g_error": float(rel.max()), "slopes": fit.slopes.tolist(),
-            "g_hat": fit.g_hat.tolist(), "g_hat_over_4g": (fit.g_hat / target).tolist(),
-            "rms_residual": fit.rms_residual}
+    return {
+        "A_hat": float(fit.A_hat[0, 0]),
+        "B_hat": float(fit.B_hat[0]),
+        "worst_rel_g_error": float(rel.max()),
+        "slopes": fit.slopes.tolist(),
+        "g_hat": fit.g_hat.tolist(),
+        "g_hat_over_4g": (fit.g_hat / target).tolist(),
+        "rms_residual": fit.rms_residual,
+    }
 
 
 def _seed_run(seed: int) -> dict:
@@ -91,25 +112,45 @@ def run_example2(seeds: int = 20, workers: int = 2) -> dict:
     seed0 = records(NOISE_PP, 0)
     fit0 = {est: identify_rd_triangles(seed0, estimator=est) for est in ESTIMATORS}
     true = true_model()
-    out = {"settings": {"slopes": SLOPES.tolist(), "delta": DELTA, "noise_pp": NOISE_PP,
-                        "periods_per_record": PERIODS, "seeds": seeds, "omegas": list(OMEGAS)},
-           "paper": PAPER, "target": {"A_hat": -0.25, "B_hat": 0.25, "g_hat": "4 g"}, "estimators": {}}
+    out = {
+        "settings": {
+            "slopes": SLOPES.tolist(),
+            "delta": DELTA,
+            "noise_pp": NOISE_PP,
+            "periods_per_record": PERIODS,
+            "seeds": seeds,
+            "omegas": list(OMEGAS),
+        },
+        "paper": PAPER,
+        "target": {"A_hat": -0.25, "B_hat": 0.25, "g_hat": "4 g"},
+        "estimators": {},
+    }
     for est in ESTIMATORS:
         out["estimators"][est] = {
-            "noise_free": {**_summary(fits[est]), "model": fits[est].model.to_dict(),
-                           "loop_rel_errors": loop_errors(true, fits[est].model, OMEGAS)},
-            "noisy": {"median_A_hat": _median(runs, est, "A_hat"), "median_B_hat": _median(runs, est, "B_hat"),
-                      "median_worst_rel_g_error": _median(runs, est, "worst_rel_g_error"),
-                      "per_seed": [{k: r[est][k] for k in ("A_hat", "B_hat", "worst_rel_g_error")}
-                                   for r in runs],
-                      "seed0": {**_summary(fit0[est]), "model": fit0[est].model.to_dict(),
-                                "loop_rel_errors": loop_errors(true, fit0[est].model, OMEGAS)}}}
+            "noise_free": {
+                **_summary(fits[est]),
+                "model": fits[est].model.to_dict(),
+                "loop_rel_errors": loop_errors(true, fits[est].model, OMEGAS),
+            },
+            "noisy": {
+                "median_A_hat": _median(runs, est, "A_hat"),
+                "median_B_hat": _median(runs, est, "B_hat"),
+                "median_worst_rel_g_error": _median(runs, est, "worst_rel_g_error"),
+                "per_seed": [{k: r[est][k] for k in ("A_hat", "B_hat", "worst_rel_g_error")} for r in runs],
+                "seed0": {
+                    **_summary(fit0[est]),
+                    "model": fit0[est].model.to_dict(),
+                    "loop_rel_errors": loop_errors(true, fit0[est].model, OMEGAS),
+                },
+            },
+        }
     return out
 
 
 def plot_example2(result: dict, figures_dir: str) -> list[str]:
     """PNGs like the paper's Fig. 3 (g_hat vs 4 g, seed 0) and Fig. 4 (sine loops)."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from pathlib import Path

@@ -14,6 +14,7 @@ u = sin(w t), w in {0.5, 1, 2, 4, 6}, one period sampled at 2001 points (the
 input is piecewise linear between them for both models): the error is
 max |y_id - y_true| / (max y_true - min y_true).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -22,8 +23,22 @@ from fitter.core import CallableRate, ConvergenceError, RateDependentModel, mode
 from fitter.identification.rd_triangles import ESTIMATORS, identify_rd_triangles
 from fitter.identification.triangle_waves import triangle_response
 
-__all__ = ["PAPER", "SLOPES", "DELTA", "PERIODS", "ORDER", "OMEGAS", "g_true", "true_model", "records",
-           "sine_period", "loop_errors", "plot_loops", "run_example3", "plot_example3"]
+__all__ = [
+    "PAPER",
+    "SLOPES",
+    "DELTA",
+    "PERIODS",
+    "ORDER",
+    "OMEGAS",
+    "g_true",
+    "true_model",
+    "records",
+    "sine_period",
+    "loop_errors",
+    "plot_loops",
+    "run_example3",
+    "plot_example3",
+]
 
 PAPER = {"note": "the paper shows Figs. 5-6 only (g_hat close to g/g(a_1), loops close); no numbers"}
 SLOPES = np.r_[0.25, 0.5, 0.75, np.arange(1.0, 6.01, 0.5)]
@@ -80,6 +95,7 @@ def loop_errors(true: RateDependentModel, model: RateDependentModel, omegas) -> 
 def plot_loops(true: RateDependentModel, models: dict, omegas, path: str, title: str) -> None:
     """Input-output maps of the true (dashed) and identified models under sin(w t), one panel per w."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -108,8 +124,9 @@ def _linear_g_error(fit, true: RateDependentModel, w: float) -> float:
     """Loop error at w if g_hat were straight between g(0) = 0 and the slopes (not PCHIP)."""
     v, g = np.r_[fit.slopes, 0.0], np.r_[fit.g_hat, 0.0]
     order = np.argsort(v)
-    lin = RateDependentModel(A=fit.A_hat, B=fit.B_hat, C=fit.C_hat,
-                             g=CallableRate(lambda s: np.interp(s, v[order], g[order])))
+    lin = RateDependentModel(
+        A=fit.A_hat, B=fit.B_hat, C=fit.C_hat, g=CallableRate(lambda s: np.interp(s, v[order], g[order]))
+    )
     return loop_errors(true, lin, (w,))[f"{w:g}"]
 
 
@@ -124,27 +141,41 @@ def run_example3() -> dict:
     recs = records()
     true = true_model()
     g1 = float(g_true(SLOPES[0]))
-    out = {"settings": {"slopes": SLOPES.tolist(), "delta": DELTA, "periods_per_record": PERIODS,
-                        "order": ORDER, "noise": "none", "omegas": list(OMEGAS), "sine_points": SINE_POINTS},
-           "paper": PAPER,
-           "target": {"A_hat": [[-g1, 1.0], [-3 * g1 ** 2, 0.0]], "B_hat": [g1, -2 * g1 ** 2],
-                      "g_hat": "g / g(0.25)"},
-           "estimators": {}}
+    out = {
+        "settings": {
+            "slopes": SLOPES.tolist(),
+            "delta": DELTA,
+            "periods_per_record": PERIODS,
+            "order": ORDER,
+            "noise": "none",
+            "omegas": list(OMEGAS),
+            "sine_points": SINE_POINTS,
+        },
+        "paper": PAPER,
+        "target": {"A_hat": [[-g1, 1.0], [-3 * g1**2, 0.0]], "B_hat": [g1, -2 * g1**2], "g_hat": "g / g(0.25)"},
+        "estimators": {},
+    }
     for est in ESTIMATORS:
         fit = identify_rd_triangles(recs, order=ORDER, estimator=est)
         err = np.abs(fit.g_hat - g_true(fit.slopes) / g1)
         out["estimators"][est] = {
-            "max_abs_g_error": float(err.max()), "A_hat": fit.A_hat.tolist(), "B_hat": fit.B_hat.tolist(),
-            "slopes": fit.slopes.tolist(), "g_hat": fit.g_hat.tolist(),
+            "max_abs_g_error": float(err.max()),
+            "A_hat": fit.A_hat.tolist(),
+            "B_hat": fit.B_hat.tolist(),
+            "slopes": fit.slopes.tolist(),
+            "g_hat": fit.g_hat.tolist(),
             "loop_rel_errors": loop_errors(true, fit.model, OMEGAS),
             "loop_rel_error_w0.5_linear_g": _linear_g_error(fit, true, 0.5),
-            "rms_residual": fit.rms_residual, "model": fit.model.to_dict()}
+            "rms_residual": fit.rms_residual,
+            "model": fit.model.to_dict(),
+        }
     return out
 
 
 def plot_example3(result: dict, figures_dir: str) -> list[str]:
     """PNGs like the paper's Fig. 5 (g_hat vs g/g(a_1)) and Fig. 6 (sine loops)."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from pathlib import Path

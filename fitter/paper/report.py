@@ -8,6 +8,7 @@ saves PNGs like the paper's Figs. 1, 3-6.  `command` is the command line
 function): a readable table, or ``--json``; its exit status is 1 when a
 done-when check fails.
 """
+
 from __future__ import annotations
 
 import time
@@ -49,14 +50,22 @@ def checks(result: dict) -> list[dict]:
     if ex1:
         e7, e1 = ex1["q=7"]["max_abs_loop_error"], ex1["q=1"]["max_abs_loop_error"]
         out.append(_check("ex1 q=7 max |loop error|", e7, 2e-3, e7 is not None and e7 <= 2e-3))
-        out.append(_check("ex1 q=1 constraint active and fit worse than q=7", e1, e7 or 0.0,
-                          ex1["q=1"]["constraint_active"] and (e1 is None or e1 > (e7 or 0.0))))
+        out.append(
+            _check(
+                "ex1 q=1 constraint active and fit worse than q=7",
+                e1,
+                e7 or 0.0,
+                ex1["q=1"]["constraint_active"] and (e1 is None or e1 > (e7 or 0.0)),
+            )
+        )
     imp = result["example2"]["estimators"]["improved"]
     a, b = imp["noisy"]["median_A_hat"], imp["noisy"]["median_B_hat"]
-    out.append(_check("ex2 improved median A_hat rel. error vs -0.25", abs(a / -0.25 - 1), 0.01,
-                      abs(a / -0.25 - 1) <= 0.01))
-    out.append(_check("ex2 improved median B_hat rel. error vs 0.25", abs(b / 0.25 - 1), 0.01,
-                      abs(b / 0.25 - 1) <= 0.01))
+    out.append(
+        _check("ex2 improved median A_hat rel. error vs -0.25", abs(a / -0.25 - 1), 0.01, abs(a / -0.25 - 1) <= 0.01)
+    )
+    out.append(
+        _check("ex2 improved median B_hat rel. error vs 0.25", abs(b / 0.25 - 1), 0.01, abs(b / 0.25 - 1) <= 0.01)
+    )
     e = imp["noise_free"]["worst_rel_g_error"]
     out.append(_check("ex2 improved noise-free worst rel. g error", e, 0.01, e <= 0.01))
     e = imp["noisy"]["median_worst_rel_g_error"]
@@ -66,8 +75,7 @@ def checks(result: dict) -> list[dict]:
     out.append(_check("ex3 improved max |g_hat - g/g(a1)|", e, 0.005, e <= 0.005))
     loops = list(imp3["loop_rel_errors"].values())
     worst = None if None in loops else max(loops)
-    out.append(_check("ex3 improved worst sine-loop error / y-range", worst, 0.01,
-                      worst is not None and worst <= 0.01))
+    out.append(_check("ex3 improved worst sine-loop error / y-range", worst, 0.01, worst is not None and worst <= 0.01))
     t = result["run_time_s"]
     out.append(_check("run time [s]", t, TIME_LIMIT_S, t < TIME_LIMIT_S))
     return out
@@ -87,8 +95,13 @@ def run(seeds: int = DEFAULT_SEEDS, figures_dir: str | None = None, workers: int
     ex3 = example3.run_example3()
     if figures_dir is not None:
         figures += example2.plot_example2(ex2, figures_dir) + example3.plot_example3(ex3, figures_dir)
-    result = {"example1": ex1, "example2": ex2, "example3": ex3, "figures": figures,
-              "run_time_s": time.perf_counter() - t0}
+    result = {
+        "example1": ex1,
+        "example2": ex2,
+        "example3": ex3,
+        "figures": figures,
+        "run_time_s": time.perf_counter() - t0,
+    }
     result["checks"] = checks(result)
     return result
 
@@ -118,36 +131,70 @@ def _example1_lines(ex1: dict) -> list[str]:
     rows = []
     for key, r in ex1["runs"].items():
         paper = ex1.get("paper", {}).get(key, {})
-        rows += [[key, "cost (12)", paper.get("cost"), r["cost"]],
-                 [key, "rho(A+^l A-^l) (text)", paper.get("rho"), r["rho_text"]],
-                 [key, "rho(A+ A-^l) (eq 13)", paper.get("rho"), r["rho_eq13"]],
-                 [key, "constraint active", None, r["constraint_active"]],
-                 [key, "max |loop error|", None, r["max_abs_loop_error"]]]
-    title = (f"Example 1 (rate-independent, m = {ex1['m']}, order {ex1['order']}, ell = {ex1['ell']}; "
-             f"true y-range {ex1['runs']['q=7']['y_range']:.4g})")
+        rows += [
+            [key, "cost (12)", paper.get("cost"), r["cost"]],
+            [key, "rho(A+^l A-^l) (text)", paper.get("rho"), r["rho_text"]],
+            [key, "rho(A+ A-^l) (eq 13)", paper.get("rho"), r["rho_eq13"]],
+            [key, "constraint active", None, r["constraint_active"]],
+            [key, "max |loop error|", None, r["max_abs_loop_error"]],
+        ]
+    title = (
+        f"Example 1 (rate-independent, m = {ex1['m']}, order {ex1['order']}, ell = {ex1['ell']}; "
+        f"true y-range {ex1['runs']['q=7']['y_range']:.4g})"
+    )
     return _rows(title, ["q", "quantity", "paper", "ours"], rows)
 
 
 def _example2_lines(ex2: dict) -> list[str]:
     est, s = ex2["estimators"], ex2["settings"]
     lit, imp = est["literal"], est["improved"]
-    rows = [["noise-free A_hat", -0.25, lit["noise_free"]["A_hat"], imp["noise_free"]["A_hat"], "-0.25"],
-            ["noise-free B_hat", 0.25, lit["noise_free"]["B_hat"], imp["noise_free"]["B_hat"], "0.25"],
-            ["noise-free worst |g_hat/4g - 1|", None, lit["noise_free"]["worst_rel_g_error"],
-             imp["noise_free"]["worst_rel_g_error"], "<= 0.01"],
-            ["noisy median A_hat", ex2["paper"]["A_hat"], lit["noisy"]["median_A_hat"],
-             imp["noisy"]["median_A_hat"], "-0.25 +-1%"],
-            ["noisy median B_hat", ex2["paper"]["B_hat"], lit["noisy"]["median_B_hat"],
-             imp["noisy"]["median_B_hat"], "0.25 +-1%"],
-            ["noisy median worst |g_hat/4g - 1|", None, lit["noisy"]["median_worst_rel_g_error"],
-             imp["noisy"]["median_worst_rel_g_error"], "< 0.10"]]
+    rows = [
+        ["noise-free A_hat", -0.25, lit["noise_free"]["A_hat"], imp["noise_free"]["A_hat"], "-0.25"],
+        ["noise-free B_hat", 0.25, lit["noise_free"]["B_hat"], imp["noise_free"]["B_hat"], "0.25"],
+        [
+            "noise-free worst |g_hat/4g - 1|",
+            None,
+            lit["noise_free"]["worst_rel_g_error"],
+            imp["noise_free"]["worst_rel_g_error"],
+            "<= 0.01",
+        ],
+        [
+            "noisy median A_hat",
+            ex2["paper"]["A_hat"],
+            lit["noisy"]["median_A_hat"],
+            imp["noisy"]["median_A_hat"],
+            "-0.25 +-1%",
+        ],
+        [
+            "noisy median B_hat",
+            ex2["paper"]["B_hat"],
+            lit["noisy"]["median_B_hat"],
+            imp["noisy"]["median_B_hat"],
+            "0.25 +-1%",
+        ],
+        [
+            "noisy median worst |g_hat/4g - 1|",
+            None,
+            lit["noisy"]["median_worst_rel_g_error"],
+            imp["noisy"]["median_worst_rel_g_error"],
+            "< 0.10",
+        ],
+    ]
     for w in s["omegas"]:
         key = f"{w:g}"
-        rows.append([f"seed-0 sine loop error/range, w={key}", None,
-                     lit["noisy"]["seed0"]["loop_rel_errors"][key], imp["noisy"]["seed0"]["loop_rel_errors"][key],
-                     ""])
-    title = (f"Example 2 (12 waves, delta = {s['delta']}, noise {s['noise_pp']} p-p, "
-             f"{s['periods_per_record']} period per record, {s['seeds']} seeds; g errors over all 24 slopes)")
+        rows.append(
+            [
+                f"seed-0 sine loop error/range, w={key}",
+                None,
+                lit["noisy"]["seed0"]["loop_rel_errors"][key],
+                imp["noisy"]["seed0"]["loop_rel_errors"][key],
+                "",
+            ]
+        )
+    title = (
+        f"Example 2 (12 waves, delta = {s['delta']}, noise {s['noise_pp']} p-p, "
+        f"{s['periods_per_record']} period per record, {s['seeds']} seeds; g errors over all 24 slopes)"
+    )
     return _rows(title, ["quantity", "paper", "literal", "improved", "target"], rows)
 
 
@@ -157,21 +204,41 @@ def _example3_lines(ex3: dict) -> list[str]:
     rows = [["max |g_hat - g/g(a1)|", None, lit["max_abs_g_error"], imp["max_abs_g_error"], "<= 0.005"]]
     for w in s["omegas"]:
         key = f"{w:g}"
-        rows.append([f"sine loop error/range, w={key}", None, lit["loop_rel_errors"][key],
-                     imp["loop_rel_errors"][key], "<= 0.01"])
-    rows.append(["w=0.5 loop error, g_hat linear (not PCHIP)", None, lit["loop_rel_error_w0.5_linear_g"],
-                 imp["loop_rel_error_w0.5_linear_g"], ""])
-    title = (f"Example 3 (14 waves, order {s['order']}, delta = {s['delta']}, noise-free, "
-             f"{s['periods_per_record']} period per record; paper gives figures only)")
+        rows.append(
+            [
+                f"sine loop error/range, w={key}",
+                None,
+                lit["loop_rel_errors"][key],
+                imp["loop_rel_errors"][key],
+                "<= 0.01",
+            ]
+        )
+    rows.append(
+        [
+            "w=0.5 loop error, g_hat linear (not PCHIP)",
+            None,
+            lit["loop_rel_error_w0.5_linear_g"],
+            imp["loop_rel_error_w0.5_linear_g"],
+            "",
+        ]
+    )
+    title = (
+        f"Example 3 (14 waves, order {s['order']}, delta = {s['delta']}, noise-free, "
+        f"{s['periods_per_record']} period per record; paper gives figures only)"
+    )
     return _rows(title, ["quantity", "paper", "literal", "improved", "target"], rows)
 
 
 def format_table(result: dict) -> str:
     """The readable report printed by `main`."""
-    lines = _example1_lines(result["example1"]) + _example2_lines(result["example2"]) \
-        + _example3_lines(result["example3"])
-    lines += _rows("Done-when checks", ["check", "value", "limit", "pass"],
-                   [[c["check"], c["value"], c["limit"], c["pass"]] for c in result["checks"]])
+    lines = (
+        _example1_lines(result["example1"]) + _example2_lines(result["example2"]) + _example3_lines(result["example3"])
+    )
+    lines += _rows(
+        "Done-when checks",
+        ["check", "value", "limit", "pass"],
+        [[c["check"], c["value"], c["limit"], c["pass"]] for c in result["checks"]],
+    )
     if result["figures"]:
         lines += ["Figures: " + ", ".join(result["figures"]), ""]
     lines.append(f"run time {result['run_time_s']:.2f} s")
@@ -180,10 +247,19 @@ def format_table(result: dict) -> str:
 
 @click.command("reproduce-paper")
 @click.option("--json", "as_json", is_flag=True, help="print the figures as JSON")
-@click.option("--figures", type=click.Path(file_okay=False), metavar="DIR",
-              help="save PNG figures like the paper's (Figs. 1, 3-6) here")
-@click.option("--seeds", type=Number(int, low=1), default=DEFAULT_SEEDS, show_default=True,
-              help="number of noise seeds for Example 2")
+@click.option(
+    "--figures",
+    type=click.Path(file_okay=False),
+    metavar="DIR",
+    help="save PNG figures like the paper's (Figs. 1, 3-6) here",
+)
+@click.option(
+    "--seeds",
+    type=Number(int, low=1),
+    default=DEFAULT_SEEDS,
+    show_default=True,
+    help="number of noise seeds for Example 2",
+)
 @click.pass_context
 def command(ctx: click.Context, as_json: bool, figures: str | None, seeds: int) -> None:
     """Reproduce Examples 1-3 of Oh & Bernstein (2007): our figures beside the paper's."""

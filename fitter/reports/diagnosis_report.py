@@ -16,6 +16,7 @@ then replaces `directory` (`fitter.core.files.atomic_directory`), so a reader
 never sees a half-written report; `fill_diagnosis_report` writes the same files
 into a directory the caller provides.
 """
+
 from __future__ import annotations
 
 import html
@@ -34,7 +35,7 @@ def _split(diagnosis, recordings) -> list[tuple[np.ndarray, np.ndarray]]:
     out, i = [], 0
     for r in recordings:
         n = len(r.t)
-        out.append((diagnosis.baseline_output[i:i + n], diagnosis.extended_output[i:i + n]))
+        out.append((diagnosis.baseline_output[i : i + n], diagnosis.extended_output[i : i + n]))
         i += n
     return out
 
@@ -119,34 +120,50 @@ def _table(rows: list[dict], keys: Sequence[str]) -> str:
 def _html(diagnosis) -> str:
     d = diagnosis.to_json()
     m = d["mismatch"]
-    findings = _table(d["findings"], ["effect", "origin", "p_value", "parameters", "stderr", "explained_fraction",
-                                      "residual_rms"]) if d["findings"] else "<p>Nothing missing.</p>"
+    findings = (
+        _table(
+            d["findings"], ["effect", "origin", "p_value", "parameters", "stderr", "explained_fraction", "residual_rms"]
+        )
+        if d["findings"]
+        else "<p>Nothing missing.</p>"
+    )
     parts = [
         "<!doctype html><meta charset='utf-8'><title>duhem diagnose</title>",
         "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}td,th{border:1px solid #ccc;"
         "padding:2px 6px;font-size:13px}table{border-collapse:collapse}</style>",
-        "<h1>Diagnosis</h1>", f"<p><b>Verdict: {html.escape(d['verdict'].replace('_', ' '))}.</b> "
-        f"{html.escape(d['summary'])}</p>",
+        "<h1>Diagnosis</h1>",
+        f"<p><b>Verdict: {html.escape(d['verdict'].replace('_', ' '))}.</b> {html.escape(d['summary'])}</p>",
         f"<p>Noise level (from the data): {d['noise_rms']:.4g}; base residual RMS "
         f"{d['baseline']['residual_rms']:.4g}; extended residual RMS {d['extended']['residual_rms']:.4g}.</p>",
         _remainder_html(d["extended"].get("remainder")),
-        "<h2>Findings</h2>", findings,
+        "<h2>Findings</h2>",
+        findings,
         "<h2>All candidates (first round)</h2>",
-        _table(d["candidates"], ["rank", "effect", "residual_rms", "explained_fraction", "p_value", "n_eff",
-                                 "significant", "parameters"]),
-        "<h2>Where the mismatch is</h2>", "<img src='residual_map.png'>",
-        _table(m["per_recording"], ["name", "t_start", "rate", "amplitude", "residual_rms", "noise_ratio",
-                                    "residual_mean"]),
+        _table(
+            d["candidates"],
+            ["rank", "effect", "residual_rms", "explained_fraction", "p_value", "n_eff", "significant", "parameters"],
+        ),
+        "<h2>Where the mismatch is</h2>",
+        "<img src='residual_map.png'>",
+        _table(
+            m["per_recording"], ["name", "t_start", "rate", "amplitude", "residual_rms", "noise_ratio", "residual_mean"]
+        ),
         _table([{"branch": k, "residual_rms": v} for k, v in m["per_branch"].items()], ["branch", "residual_rms"]),
         _table(m["per_input_range"], ["u_from", "u_to", "residual_rms"]),
         _table([{"trend": k, "correlation": v} for k, v in m["growth"].items()], ["trend", "correlation"]),
-        "<h2>Before and after</h2>", "<img src='loops.png' style='max-width:100%'>", "<img src='nrmse.png'>",
+        "<h2>Before and after</h2>",
+        "<img src='loops.png' style='max-width:100%'>",
+        "<img src='nrmse.png'>",
     ]
     if d["validation"]:
-        parts += ["<h2>Hold-out check</h2>",
-                  _table([{"model": k, "held-out residual RMS": v} for k, v in d["validation"].items()
-                          if k != "held_out"], ["model", "held-out residual RMS"]),
-                  f"<p>Held out: {html.escape(d['validation']['held_out'])}.</p>"]
+        parts += [
+            "<h2>Hold-out check</h2>",
+            _table(
+                [{"model": k, "held-out residual RMS": v} for k, v in d["validation"].items() if k != "held_out"],
+                ["model", "held-out residual RMS"],
+            ),
+            f"<p>Held out: {html.escape(d['validation']['held_out'])}.</p>",
+        ]
     return "\n".join(parts)
 
 
@@ -177,7 +194,9 @@ def _remainder_html(rem: dict | None) -> str:
         return ""
     state = "explained (the noise)" if rem["explained"] else "not explained"
     lo, hi = rem["worst_input_range"]
-    return (f"<p>Remainder: {state}; lag-1 autocorrelation {rem['lag1']:.3f} (p = {rem['p_value']:.2g}, white noise "
-            f"0 &plusmn; {1 / max(rem['pairs'], 1) ** 0.5:.2g}); largest in "
-            f"{html.escape(str(rem['worst_recording']))}, {html.escape(str(rem['worst_branch']))} branch, inputs "
-            f"{lo:.3g} to {hi:.3g}.</p>")
+    return (
+        f"<p>Remainder: {state}; lag-1 autocorrelation {rem['lag1']:.3f} (p = {rem['p_value']:.2g}, white noise "
+        f"0 &plusmn; {1 / max(rem['pairs'], 1) ** 0.5:.2g}); largest in "
+        f"{html.escape(str(rem['worst_recording']))}, {html.escape(str(rem['worst_branch']))} branch, inputs "
+        f"{lo:.3g} to {hi:.3g}.</p>"
+    )

@@ -11,6 +11,7 @@ preparation notes.  The report is written into a temporary directory beside
 reader never sees half a report; `fill_fit_report` writes the same files into
 a directory the caller provides.
 """
+
 from __future__ import annotations
 
 import html
@@ -85,47 +86,62 @@ def _minor_loops(minor: dict | None) -> str:
         return ""
     exc = minor.get("excursion")
     size = "overflows" if exc is None else f"leaves the recorded output range by at most {exc:.3g} output ranges"
-    verdict = ("" if minor.get("faithful") else " <b>The model reproduces the recorded loops, not necessarily "
-               "smaller ones: check it on a recording with minor loops before using it there.</b>")
+    verdict = (
+        ""
+        if minor.get("faithful")
+        else " <b>The model reproduces the recorded loops, not necessarily "
+        "smaller ones: check it on a recording with minor loops before using it there.</b>"
+    )
     return f"<p>Minor loops inside the input range ({html.escape(minor['input'])}): the output {size}.{verdict}</p>"
 
 
 def _page(result, rows: list[tuple[str, dict, str, str]]) -> str:
     s = result.summary
     conv = s["convergence"]
-    head = ("<tr><th>recording</th><th>samples used</th><th>NRMSE</th><th>NRMSE own x0</th><th>max error</th>"
-            "<th>loop-area error</th><th>residual RMS</th><th>noise RMS</th><th>residual / noise</th></tr>")
+    head = (
+        "<tr><th>recording</th><th>samples used</th><th>NRMSE</th><th>NRMSE own x0</th><th>max error</th>"
+        "<th>loop-area error</th><th>residual RMS</th><th>noise RMS</th><th>residual / noise</th></tr>"
+    )
     own = {r["recording"]: r.get("nrmse_x0_fitted") for r in s.get("recordings", [])}
     body = []
     for name, m, _, _ in rows:
         ratio = m["residual_rms"] / m["noise_rms"] if m.get("noise_rms") else None
-        body.append(f"<tr><td>{html.escape(name)}</td><td>{m['samples']}</td><td>{_fmt(m['nrmse'], '.3%')}</td>"
-                    f"<td>{_fmt(own.get(name), '.3%')}</td>"
-                    f"<td>{_fmt(m['max_error'])}</td>"
-                    f"<td>{_fmt(m['loop_area_error'], '.2%') if m['loop_area_error'] is not None else '–'}</td>"
-                    f"<td>{_fmt(m['residual_rms'])}</td><td>{_fmt(m['noise_rms'])}</td>"
-                    f"<td>{_fmt(ratio, '.2f')}</td></tr>")
-    figs = "".join(f"<h3>{html.escape(n)}</h3><img src='{a}' alt='loop {html.escape(n)}'>"
-                   f"<img src='{b}' alt='residual {html.escape(n)}'>" for n, _, a, b in rows)
-    notes = "".join(f"<li><b>{html.escape(p['recording'])}</b>: {html.escape('; '.join(p['notes']))}</li>"
-                    for p in s.get("preparation", []))
-    params = "".join(f"<tr><td>{html.escape(k)}</td><td>{v['value']:.6g}</td><td>{_fmt(v['stderr'], '.3g')}</td></tr>"
-                     for k, v in s.get("parameters_normalised", {}).items())
+        body.append(
+            f"<tr><td>{html.escape(name)}</td><td>{m['samples']}</td><td>{_fmt(m['nrmse'], '.3%')}</td>"
+            f"<td>{_fmt(own.get(name), '.3%')}</td>"
+            f"<td>{_fmt(m['max_error'])}</td>"
+            f"<td>{_fmt(m['loop_area_error'], '.2%') if m['loop_area_error'] is not None else '–'}</td>"
+            f"<td>{_fmt(m['residual_rms'])}</td><td>{_fmt(m['noise_rms'])}</td>"
+            f"<td>{_fmt(ratio, '.2f')}</td></tr>"
+        )
+    figs = "".join(
+        f"<h3>{html.escape(n)}</h3><img src='{a}' alt='loop {html.escape(n)}'>"
+        f"<img src='{b}' alt='residual {html.escape(n)}'>"
+        for n, _, a, b in rows
+    )
+    notes = "".join(
+        f"<li><b>{html.escape(p['recording'])}</b>: {html.escape('; '.join(p['notes']))}</li>"
+        for p in s.get("preparation", [])
+    )
+    params = "".join(
+        f"<tr><td>{html.escape(k)}</td><td>{v['value']:.6g}</td><td>{_fmt(v['stderr'], '.3g')}</td></tr>"
+        for k, v in s.get("parameters_normalised", {}).items()
+    )
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>Fit report</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}img{{max-width:100%}}</style></head><body>
 <h1>Semilinear Duhem fit report</h1>
-<p>Model: <b>{'rate-dependent' if s['kind'] == 'rd' else 'rate-independent'}</b>, order {s['order']}.
-Chosen by: {html.escape(s['why'])}.</p>
-<p>Convergence condition: <b>{'satisfied' if conv['satisfied'] else 'NOT satisfied'}</b>
-({html.escape(conv['quantity'])} = {_fmt(conv['value'])}).</p>
+<p>Model: <b>{"rate-dependent" if s["kind"] == "rd" else "rate-independent"}</b>, order {s["order"]}.
+Chosen by: {html.escape(s["why"])}.</p>
+<p>Convergence condition: <b>{"satisfied" if conv["satisfied"] else "NOT satisfied"}</b>
+({html.escape(conv["quantity"])} = {_fmt(conv["value"])}).</p>
 {_minor_loops(s.get("minor_loops"))}
 <h2>Errors per recording</h2><p>The saved model, simulated from its stored initial state over all samples
 of each recording (what the FMU gives and what <code>duhem validate</code> reports).  NRMSE = RMS error /
 output range; the last full input cycle beside it.  "NRMSE own x0": from the state fitted to that recording
 (recordings made after different histories start from different states; <code>duhem validate --x0 fitted</code>
 starts the FMU there).</p>
-<table>{head}{''.join(body)}</table>
+<table>{head}{"".join(body)}</table>
 {_comparison_html(s.get("comparison"))}
 <h2>Figures</h2>{figs}
 <h2>Preparation</h2><ul>{notes}</ul>
@@ -147,9 +163,11 @@ def _comparison_html(comp: dict | None) -> str:
         if several:
             cells += [_fmt(comp["baselines"][n]["per_recording"][r], ".3%") for n in names]
         rows.append(f"<tr><td>{html.escape(r)}</td>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
-    return (f"<h2>Beside the classical models</h2><p>NRMSE, {html.escape(comp['measure'])}; one parameter "
-            f"set for all recordings{', and each classical model fitted to each recording alone' if several else ''}."
-            f"</p><table>{head}</tr>{''.join(rows)}</table>")
+    return (
+        f"<h2>Beside the classical models</h2><p>NRMSE, {html.escape(comp['measure'])}; one parameter "
+        f"set for all recordings{', and each classical model fitted to each recording alone' if several else ''}."
+        f"</p><table>{head}</tr>{''.join(rows)}</table>"
+    )
 
 
 def write_fit_report(result, recordings: Sequence[Recording], directory) -> str:

@@ -6,6 +6,7 @@ when there is none) and the FMU's output over that cycle, titled with the
 NRMSE the validation judged.  The PNG is written atomically
 (`fitter.core.files.atomic_file`).
 """
+
 from __future__ import annotations
 
 import os
@@ -39,8 +40,9 @@ def _panel(ax, rec: Recording, y_fmu: np.ndarray, nrmse: float) -> None:
     ax.legend(fontsize=7, loc="best")
 
 
-def write_validation_plot(path: str | os.PathLike, recordings: Sequence[Recording],
-                          outputs: Sequence[np.ndarray], nrmses: Sequence[float]) -> None:
+def write_validation_plot(
+    path: str | os.PathLike, recordings: Sequence[Recording], outputs: Sequence[np.ndarray], nrmses: Sequence[float]
+) -> None:
     """Write the PNG `path`: per recording, its data and the FMU output `outputs[i]` over the
     last full cycle, titled with `nrmses[i]` (a fraction, shown in percent); up to 3 panels a row."""
     plt = pyplot()

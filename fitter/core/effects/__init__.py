@@ -127,15 +127,55 @@ numpy: it is shipped inside the FMUs.
 Modules: `spec` (the parts an effect is built from), `catalogue` (the
 effects and `REGISTRY`), `chain` (a model's effects, their states, the run).
 """
+
 from ..errors import EffectError
-from .catalogue import (REGISTRY, SWITCHING_NODES, SWITCHING_NODES_Z, SWITCHING_POPULATIONS, play_operator,
-                        relaxation_taus, switching_states)
-from .chain import (SETTLE_RUNS, Effect, effects_from_list, fresh_state, offset_position, run_with_effects,
-                    settled_state, shifted, stored_start, with_start)
+from .catalogue import (
+    REGISTRY,
+    SWITCHING_NODES,
+    SWITCHING_NODES_Z,
+    SWITCHING_POPULATIONS,
+    play_operator,
+    relaxation_taus,
+    switching_states,
+)
+from .chain import (
+    SETTLE_RUNS,
+    Effect,
+    effects_from_list,
+    fresh_state,
+    offset_position,
+    run_with_effects,
+    settled_state,
+    shifted,
+    stored_start,
+    with_start,
+)
 from .spec import ORIGINS, STAGES, Chain, EffectContext, EffectSpec, EffectState, ParameterSpec
 
-__all__ = ["play_operator", "REGISTRY", "STAGES", "ORIGINS", "EffectSpec", "ParameterSpec", "EffectContext", "Chain",
-           "EffectError", "Effect", "EffectState", "effects_from_list", "run_with_effects", "relaxation_taus",
-           "switching_states", "SWITCHING_POPULATIONS", "SWITCHING_NODES",
-           "SWITCHING_NODES_Z", "stored_start", "settled_state", "fresh_state", "with_start", "SETTLE_RUNS",
-           "offset_position", "shifted"]
+__all__ = [
+    "play_operator",
+    "REGISTRY",
+    "STAGES",
+    "ORIGINS",
+    "EffectSpec",
+    "ParameterSpec",
+    "EffectContext",
+    "Chain",
+    "EffectError",
+    "Effect",
+    "EffectState",
+    "effects_from_list",
+    "run_with_effects",
+    "relaxation_taus",
+    "switching_states",
+    "SWITCHING_POPULATIONS",
+    "SWITCHING_NODES",
+    "SWITCHING_NODES_Z",
+    "stored_start",
+    "settled_state",
+    "fresh_state",
+    "with_start",
+    "SETTLE_RUNS",
+    "offset_position",
+    "shifted",
+]

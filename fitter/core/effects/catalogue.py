@@ -1,6 +1,7 @@
 """The catalogue of effects, one `EffectSpec` each, and `REGISTRY` (their math: the `fitter.core.effects`
 docstring).
 """
+
 from __future__ import annotations
 
 import math
@@ -22,8 +23,9 @@ def _first_order(m0: float, target: np.ndarray, h: np.ndarray, tau: float) -> np
     out = np.empty_like(target)
     out[0] = m0
     if len(h):
-        W = linear_recurrence(np.array([m0]), (-x)[:, None].astype(complex), a[:, None].astype(complex),
-                              f[:, None].astype(complex))
+        W = linear_recurrence(
+            np.array([m0]), (-x)[:, None].astype(complex), a[:, None].astype(complex), f[:, None].astype(complex)
+        )
         out[1:] = W[:, 0].real
     return out
 
@@ -42,13 +44,13 @@ def play_operator(u: np.ndarray, b: float, w0: float) -> np.ndarray:
     sgn = branches(du)
     cuts = np.r_[0, np.flatnonzero(np.diff(sgn)) + 1, len(du)]
     for s0, s1 in zip(cuts[:-1], cuts[1:]):
-        seg = u[s0 + 1:s1 + 1]
+        seg = u[s0 + 1 : s1 + 1]
         if s1 == s0:
             continue
         if sgn[s0] > 0:
-            w[s0 + 1:s1 + 1] = np.maximum(w[s0], seg - h)
+            w[s0 + 1 : s1 + 1] = np.maximum(w[s0], seg - h)
         else:
-            w[s0 + 1:s1 + 1] = np.minimum(w[s0], seg + h)
+            w[s0 + 1 : s1 + 1] = np.minimum(w[s0], seg + h)
     return w
 
 
@@ -136,15 +138,21 @@ class Relaxation(EffectSpec):
     """Step 5 of the chain: y += sum_i c_i, dc_i/dt = (k_i u - c_i) / tau_i, tau_i log-spaced (a Prony series)."""
 
     name = "relaxation"
-    description = ("a relaxation spectrum of the material: the output follows input changes through several time "
-                   "constants (dielectric or viscoelastic relaxation; the longest also takes a leakage current)")
+    description = (
+        "a relaxation spectrum of the material: the output follows input changes through several time "
+        "constants (dielectric or viscoelastic relaxation; the longest also takes a leakage current)"
+    )
     stage = "output"
     additive = True
     timed = True
-    parameters = (ParameterSpec("k", -INF, INF),) + tuple(
-        ParameterSpec(f"w{i}", 0.0, INF) for i in range(2, RELAXATION_TERMS + 1)) + (
-        ParameterSpec("tau_min", 0.0, INF, strict=True, log=True),
-        ParameterSpec("tau_max", 0.0, INF, strict=True, log=True))
+    parameters = (
+        (ParameterSpec("k", -INF, INF),)
+        + tuple(ParameterSpec(f"w{i}", 0.0, INF) for i in range(2, RELAXATION_TERMS + 1))
+        + (
+            ParameterSpec("tau_min", 0.0, INF, strict=True, log=True),
+            ParameterSpec("tau_max", 0.0, INF, strict=True, log=True),
+        )
+    )
     state = tuple(f"c{i + 1}" for i in range(RELAXATION_TERMS))
     example = {"k": 0.08, "w2": 1.0, "w3": 1.0, "w4": 1.0, "tau_min": 0.3, "tau_max": 30.0}
 
@@ -184,8 +192,11 @@ class Relaxation(EffectSpec):
 
     def null(self, ctx: EffectContext) -> dict[str, float]:
         """k = 0, equal shares, tau from 3 samples to the duration (at least 30 samples)."""
-        return dict({"k": 0.0, **{f"w{i}": 1.0 for i in range(2, RELAXATION_TERMS + 1)}}, tau_min=3 * ctx.dt_min,
-                    tau_max=max(ctx.duration, 30 * ctx.dt_min))
+        return dict(
+            {"k": 0.0, **{f"w{i}": 1.0 for i in range(2, RELAXATION_TERMS + 1)}},
+            tau_min=3 * ctx.dt_min,
+            tau_max=max(ctx.duration, 30 * ctx.dt_min),
+        )
 
 
 def _log_exprel(d: np.ndarray) -> np.ndarray:
@@ -221,8 +232,12 @@ def switching_states(u: np.ndarray, h: np.ndarray, S: float, u_up, u_dn, width: 
     out = np.empty((len(u), len(up)))
     out[0] = start
     if len(h):
-        W = linear_recurrence(start, (-total).astype(complex), np.exp(-total).astype(complex),
-                              (-np.expm1(-total) * target).astype(complex))
+        W = linear_recurrence(
+            start,
+            (-total).astype(complex),
+            np.exp(-total).astype(complex),
+            (-np.expm1(-total) * target).astype(complex),
+        )
         out[1:] = W.real
     return out
 
@@ -245,9 +260,14 @@ def _population_parameters(i: int) -> tuple[ParameterSpec, ...]:
     def spec(name: str, lower: float, upper: float, default: float, **kw) -> ParameterSpec:
         return ParameterSpec(f"{name}{i}", lower, upper, default=default if more else None, refinement=more, **kw)
 
-    return (spec("S", 0.0, INF, 0.0), spec("u_up", -INF, INF, 0.0), spec("u_dn", -INF, INF, 0.0),
-            spec("width", 0.0, INF, 1.0, strict=True, log=True), spec("q", -1.0, 1.0, 0.0),
-            ParameterSpec(f"spread{i}", 0.0, INF, log=True, default=0.0, refinement=True))
+    return (
+        spec("S", 0.0, INF, 0.0),
+        spec("u_up", -INF, INF, 0.0),
+        spec("u_dn", -INF, INF, 0.0),
+        spec("width", 0.0, INF, 1.0, strict=True, log=True),
+        spec("q", -1.0, 1.0, 0.0),
+        ParameterSpec(f"spread{i}", 0.0, INF, log=True, default=0.0, refinement=True),
+    )
 
 
 class Switching(EffectSpec):
@@ -255,16 +275,30 @@ class Switching(EffectSpec):
     ds_ij/dt = k+_ij(u) (S_i - s_ij) - k-_ij(u) (S_i + s_ij), thresholds spread by spread_i z_j."""
 
     name = "switching"
-    description = ("field-activated switching: beyond a threshold input the output switches over in time, at a "
-                   "rate growing exponentially with the input (a ferroelectric's domains, Merz's law), so it goes "
-                   "on after the input turns and a slower loop switches more")
+    description = (
+        "field-activated switching: beyond a threshold input the output switches over in time, at a "
+        "rate growing exponentially with the input (a ferroelectric's domains, Merz's law), so it goes "
+        "on after the input turns and a slower loop switches more"
+    )
     stage = "output"
     additive = True
     timed = True
     parameters = tuple(par for i in range(1, SWITCHING_POPULATIONS + 1) for par in _population_parameters(i))
     state = tuple(f"s{i}_{j}" for i in range(1, SWITCHING_POPULATIONS + 1) for j in range(1, SWITCHING_NODES + 1))
-    example = {"S1": 0.3, "u_up1": 0.5, "u_dn1": -0.5, "width1": 0.1, "q1": -1.0, "spread1": 0.0,
-               "S2": 0.0, "u_up2": 0.8, "u_dn2": -0.8, "width2": 0.05, "q2": -1.0, "spread2": 0.0}
+    example = {
+        "S1": 0.3,
+        "u_up1": 0.5,
+        "u_dn1": -0.5,
+        "width1": 0.1,
+        "q1": -1.0,
+        "spread1": 0.0,
+        "S2": 0.0,
+        "u_up2": 0.8,
+        "u_dn2": -0.8,
+        "width2": 0.05,
+        "q2": -1.0,
+        "spread2": 0.0,
+    }
     strength = "S1"
     reverses = True
     """With its thresholds just beyond the input's tips it switches slowly at every tip, one way: a drift in
@@ -273,8 +307,13 @@ class Switching(EffectSpec):
 
     def c_constants(self) -> dict[str, int | float | tuple[float, ...]]:
         """Populations, shares, their threshold offsets and the caps of the switching integrals."""
-        return {"POPULATIONS": SWITCHING_POPULATIONS, "NODES": SWITCHING_NODES, "NODES_Z": SWITCHING_NODES_Z,
-                "MAX_EXPONENT": _MAX_EXPONENT, "MAX_DECAY": _MAX_DECAY}
+        return {
+            "POPULATIONS": SWITCHING_POPULATIONS,
+            "NODES": SWITCHING_NODES,
+            "NODES_Z": SWITCHING_NODES_Z,
+            "MAX_EXPONENT": _MAX_EXPONENT,
+            "MAX_DECAY": _MAX_DECAY,
+        }
 
     def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
         ends = []
@@ -283,11 +322,15 @@ class Switching(EffectSpec):
             nodes = slice((i - 1) * SWITCHING_NODES, i * SWITCHING_NODES)
             start = np.full(SWITCHING_NODES, p[f"q{i}"] * S) if s0 is None else np.array(s0[nodes])
             if not shift.any() and np.all(start == start[0]):
-                s = np.repeat(switching_states(chain.u, chain.h, S, p[f"u_up{i}"], p[f"u_dn{i}"], p[f"width{i}"],
-                                               start[:1]), SWITCHING_NODES, axis=1)
+                s = np.repeat(
+                    switching_states(chain.u, chain.h, S, p[f"u_up{i}"], p[f"u_dn{i}"], p[f"width{i}"], start[:1]),
+                    SWITCHING_NODES,
+                    axis=1,
+                )
             else:
-                s = switching_states(chain.u, chain.h, S, p[f"u_up{i}"] + shift, p[f"u_dn{i}"] - shift,
-                                     p[f"width{i}"], start)
+                s = switching_states(
+                    chain.u, chain.h, S, p[f"u_up{i}"] + shift, p[f"u_dn{i}"] - shift, p[f"width{i}"], start
+                )
             for j in range(SWITCHING_NODES):
                 chain.y = chain.y + s[:, j] / SWITCHING_NODES
             ends += s[-1].tolist()
@@ -311,15 +354,24 @@ class Switching(EffectSpec):
         spread by 5 % of the input range."""
         w = width * ctx.u_span
         shift = w * math.log(max(time * ctx.duration, 1e-300))
-        return {f"S{i}": (ctx.y_max - ctx.y_min) / 3, f"u_up{i}": ctx.u_mid + 0.35 * ctx.u_span + shift,
-                f"u_dn{i}": ctx.u_mid - 0.35 * ctx.u_span - shift, f"width{i}": w, f"q{i}": -0.8,
-                f"spread{i}": 0.05 * ctx.u_span}
+        return {
+            f"S{i}": (ctx.y_max - ctx.y_min) / 3,
+            f"u_up{i}": ctx.u_mid + 0.35 * ctx.u_span + shift,
+            f"u_dn{i}": ctx.u_mid - 0.35 * ctx.u_span - shift,
+            f"width{i}": w,
+            f"q{i}": -0.8,
+            f"spread{i}": 0.05 * ctx.u_span,
+        }
 
     def starts(self, ctx: EffectContext) -> list[dict[str, float]]:
         """Population 1 of widths 3 % and 8 % of the input range, switching at its thresholds in a hundredth
         or a tenth of the duration; population 2 at either width, in a hundredth."""
-        return [{**self._population(ctx, 1, w1, f1), **self._population(ctx, 2, w2, 0.01)}
-                for w1 in (0.03, 0.08) for f1 in (0.01, 0.1) for w2 in (0.03, 0.08)]
+        return [
+            {**self._population(ctx, 1, w1, f1), **self._population(ctx, 2, w2, 0.01)}
+            for w1 in (0.03, 0.08)
+            for f1 in (0.01, 0.1)
+            for w2 in (0.03, 0.08)
+        ]
 
     def null(self, ctx: EffectContext) -> dict[str, float]:
         """S1 = S2 = 0: nothing switches."""
@@ -327,6 +379,7 @@ class Switching(EffectSpec):
         for i in range(1, SWITCHING_POPULATIONS + 1):
             out.update(self._population(ctx, i, 0.05, 0.1), **{f"S{i}": 0.0, f"q{i}": 0.0})
         return out
+
 
 class Viscous(EffectSpec):
     """Step 7 of the chain: y += c du/dt."""
@@ -424,8 +477,10 @@ class MeasurementDrift(EffectSpec):
     """Step 11 of the chain: y += rate (t - t_0), a measurement drift linear in time."""
 
     name = "measurement_drift"
-    description = ("a measurement drift of the output, linear in time (an offset current integrated by the "
-                   "charge amplifier, a wandering sensor zero): a property of the measurement, not of the material")
+    description = (
+        "a measurement drift of the output, linear in time (an offset current integrated by the "
+        "charge amplifier, a wandering sensor zero): a property of the measurement, not of the material"
+    )
     origin = "measurement"
     stage = "output"
     steady = False
@@ -442,7 +497,19 @@ class MeasurementDrift(EffectSpec):
         return (float(d[-1]),)
 
 
-REGISTRY: dict[str, EffectSpec] = {spec.name: spec for spec in (
-    Backlash(), RateDependence(), Creep(), Relaxation(), Switching(), Viscous(), ThermalDrift(), Saturation(),
-    SensorLag(), MeasurementDrift())}
+REGISTRY: dict[str, EffectSpec] = {
+    spec.name: spec
+    for spec in (
+        Backlash(),
+        RateDependence(),
+        Creep(),
+        Relaxation(),
+        Switching(),
+        Viscous(),
+        ThermalDrift(),
+        Saturation(),
+        SensorLag(),
+        MeasurementDrift(),
+    )
+}
 """Effect name -> `EffectSpec`, in chain order."""

@@ -1,6 +1,7 @@
 """A model's effects (`Effect`), their states at the first sample, and the run of the chain
 (`run_with_effects`; the `fitter.core.effects` docstring).
 """
+
 from __future__ import annotations
 
 import math
@@ -29,8 +30,10 @@ class Effect:
             raise EffectError(f"unknown effect {self.effect!r} (known: {', '.join(REGISTRY)})")
         names = [par.name for par in spec.parameters]
         if isinstance(self.parameters, dict):
-            self.parameters = {**{par.name: par.default for par in spec.parameters
-                                  if par.default is not None}, **self.parameters}
+            self.parameters = {
+                **{par.name: par.default for par in spec.parameters if par.default is not None},
+                **self.parameters,
+            }
         if not isinstance(self.parameters, dict) or set(self.parameters) != set(names):
             got = sorted(self.parameters) if isinstance(self.parameters, dict) else self.parameters
             raise EffectError(f"effect {self.effect!r}: parameters must be {sorted(names)}, got {got}")
@@ -87,8 +90,10 @@ def effects_from_list(items) -> list[Effect]:
         elif isinstance(item, dict) and {"effect", "parameters"} <= set(item) <= {"effect", "parameters", "start"}:
             out.append(Effect(item["effect"], item["parameters"], item.get("start")))
         else:
-            raise EffectError(f"each effect must be {{'effect': name, 'parameters': {{...}}}} (and optionally "
-                              f"'start': {{...}}), got {item!r}")
+            raise EffectError(
+                f"each effect must be {{'effect': name, 'parameters': {{...}}}} (and optionally "
+                f"'start': {{...}}), got {item!r}"
+            )
     names = [e.effect for e in out]
     dup = [n for n in set(names) if names.count(n) > 1]
     if dup:
@@ -117,9 +122,14 @@ def stored_start(model) -> EffectState | None:
 def with_start(model, state: EffectState | None):
     """`model` with its effects' stored start set to the chain state `state` (None: afresh)."""
     parts = _split_state(_present(model), state) if state is not None else {}
-    return model.replace(effects=[
-        Effect(e.effect, dict(e.parameters),
-               dict(zip(e.spec.state, parts[e.effect])) if state is not None else None) for e in model.effects])
+    return model.replace(
+        effects=[
+            Effect(
+                e.effect, dict(e.parameters), dict(zip(e.spec.state, parts[e.effect])) if state is not None else None
+            )
+            for e in model.effects
+        ]
+    )
 
 
 def offset_position(model) -> int | None:
@@ -176,13 +186,14 @@ def _split_state(present: list, state0: EffectState | None) -> dict[str, tuple |
         raise KernelError(f"effect state has {len(state0)} values, the model's effects have {need}")
     out, i = {}, 0
     for spec, _ in present:
-        out[spec.name] = tuple(state0[i:i + len(spec.state)])
+        out[spec.name] = tuple(state0[i : i + len(spec.state)])
         i += len(spec.state)
     return out
 
 
-def run_with_effects(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: dict,
-                     state0: EffectState | None = None, base: bool = True):
+def run_with_effects(
+    model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: dict, state0: EffectState | None = None, base: bool = True
+):
     """Simulate `model` with its effects over the samples (t, u).
 
     The stages run in the order of `STAGES`, the effects of each stage in

@@ -1,6 +1,7 @@
 """The parts every effect is built from: `ParameterSpec`, `EffectContext`, the `Chain` of signals and the
 `EffectSpec` base class (the math of the chain: the `fitter.core.effects` docstring).
 """
+
 from __future__ import annotations
 
 import math
@@ -44,8 +45,12 @@ class ParameterSpec:
 
     def allows(self, value: float) -> bool:
         """Whether `value` is finite and in the allowed range."""
-        return (math.isfinite(value) and value >= self.lower and value <= self.upper
-                and not (self.strict and value <= self.lower))
+        return (
+            math.isfinite(value)
+            and value >= self.lower
+            and value <= self.upper
+            and not (self.strict and value <= self.lower)
+        )
 
     def rule(self) -> str:
         """The allowed range in words: "positive", ">= 0", "finite", "> 0 and <= 1", ..."""
@@ -79,18 +84,25 @@ class EffectContext:
     u_mid: float = 0.0
 
     @classmethod
-    def of(cls, runs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], y_mean: float,
-           dt_min: float | None = None) -> "EffectContext":
+    def of(
+        cls, runs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], y_mean: float, dt_min: float | None = None
+    ) -> "EffectContext":
         """The context of an experiment given as runs (t, u, y), each simulated as one signal: v95 over the
         intervals of every run, the duration the longest run's, `dt_min` (default) the shortest median sample
         period of the runs."""
         rates = np.concatenate([np.diff(u) / np.diff(t) for t, u, _ in runs])
         u = np.concatenate([u for _, u, _ in runs])
         y = np.concatenate([y for _, _, y in runs])
-        return cls(dt_min=float(min(np.median(np.diff(t)) for t, _, _ in runs)) if dt_min is None else dt_min,
-                   duration=max(float(np.ptp(t)) for t, _, _ in runs), u_span=float(np.ptp(u)),
-                   y_min=float(y.min()), y_max=float(y.max()), y_mean=y_mean,
-                   v95=float(np.percentile(np.abs(rates), 95)) or 1.0, u_mid=float(u.max() + u.min()) / 2)
+        return cls(
+            dt_min=float(min(np.median(np.diff(t)) for t, _, _ in runs)) if dt_min is None else dt_min,
+            duration=max(float(np.ptp(t)) for t, _, _ in runs),
+            u_span=float(np.ptp(u)),
+            y_min=float(y.min()),
+            y_max=float(y.max()),
+            y_mean=y_mean,
+            v95=float(np.percentile(np.abs(rates), 95)) or 1.0,
+            u_mid=float(u.max() + u.min()) / 2,
+        )
 
 
 @dataclass
