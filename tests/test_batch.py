@@ -22,13 +22,13 @@ from click.testing import CliRunner
 
 distributed = pytest.importorskip("distributed")
 
-from fitter.batch import (
+from fitter.batch import (  # noqa: E402
     BatchError,
     BatchOptions,
     DeviceTask,
     flag_outliers,
     input_hash,
-    process_device,  # noqa: E402
+    process_device,
     read_manifest,
     run_batch,
 )
