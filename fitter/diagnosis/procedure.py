@@ -6,46 +6,22 @@ or separate runs, each simulated alone from its own fitted initial state
 
 Procedure (`diagnose`)
 ----------------------
-1. Base model, made adequate before effects are added (`_adequate_base`):
-   by default the first-order rate-independent model (eqs (1)-(2) with
-   C = 1, D = 0, fitted here) or the order `duhem fit` chooses (BIC over
-   orders 1-4, `fitter.identification.fit.fit_recordings`; separate runs
-   levelled to one instrument zero, `fitting.duhem_fit`).  The higher
-   order is the base when it brings the residual to the noise and the
-   first-order base with its best effect does not (a missing order is not
-   "explained" by whichever effect absorbs it); when both do, the one that
-   predicts the held-out last recording better (an effect is not hidden by
-   an extra order that fits as well but generalises worse; one recording:
-   the lower BIC); a higher order that leaves a misfit above the noise is
-   not taken alone (the misfit is then physics for the effects to explain),
-   unless the first-order account fails (`_higher_order_account`): when the
-   first-order base with its findings (steps 3-4) stays above
-   `FAR_FROM_NOISE` times the noise, or above `NOISE_MARGIN` times it with a
-   first finding that does not hold with one parameter set across the
-   recordings and is not significant on the higher-order base (it stood in
-   for the order), the search is run on the higher order too, and its
-   account (refined, step 4) is taken when it predicts held-out recordings
-   better (`fitter.diagnosis.held_out.prediction_error`: each recording
-   predicted by the account refitted without it, the mean NRMSE; one
-   recording: the lower BIC; scikit-learn's model selection), and, in the
-   second case, reaches the noise.  The piezo
-   triangles need the order `duhem fit` chooses, with switching: the
-   first-order base with saturation stays hundreds of times the noise away.
-   On a base below the order `duhem fit` chooses, the reversing effects
-   (switching) are not tested (`_below_order`): they add a hysteretic state
-   and there stand in for the states the base lacks.
-   A higher order that reaches the
-   noise with a loop still far from settled when the experiment ends
-   (`_unsettled_rms` beyond `NOISE_MARGIN` times the noise: a
-   rate-independent base fits a drift of the output with a loop that keeps
-   moving) counts as one that leaves a misfit, unless a lower order 2 ..
-   n - 1 reaches the noise settled (`_settled_lower_order`: the unsettled
-   loop is then a mode the data do not determine, not a drift, and that
-   order is the base); and the first-order base with
-   its best effect is not preferred when it leaves a structured residual
-   and the higher order a white one.  Or
-   a fixed order, or a given model.  The base's A, B, E (per branch) and
-   x0 are refined (`fitter.diagnosis.fitting.fit_base`).
+1. Base model, made adequate before effects are added
+   (`fitter.diagnosis.base.adequate_base`): the first-order base or the
+   order `duhem fit` chooses, whichever accounts for the data without
+   handing a missing order to the effects.  When the first-order base with
+   its findings (steps 3-4) stays above `FAR_FROM_NOISE` times the noise,
+   or above `NOISE_MARGIN` times it with a first finding that does not hold
+   with one parameter set across the recordings and is not significant on
+   the higher-order base (it stood in for the order), the search is run on
+   the higher order too (`_higher_order_account`), and its account
+   (refined, step 4) is taken when it predicts held-out recordings better
+   (`fitter.diagnosis.held_out.prediction_error`: each recording predicted
+   by the account refitted without it, the mean NRMSE; one recording: the
+   lower BIC; scikit-learn's model selection), and, in the second case,
+   reaches the noise.  The piezo triangles need the order `duhem fit`
+   chooses, with switching: the first-order base with saturation stays
+   hundreds of times the noise away.  Or a fixed order, or a given model.
 2. Noise level sigma: the residual the true model would leave
    (`fitter.diagnosis.noise_floor.noise_floor`): the output's white noise
    (`fitter.data.metrics.noise_rms`, median over the recordings) and the
@@ -135,12 +111,9 @@ from typing import Callable, Sequence
 import numpy as np
 
 from fitter.core.effects import ORIGINS, REGISTRY, with_start
-from fitter.core.errors import DuhemError, KernelError
-from fitter.core.kernel import simulate
-from fitter.core.periodic import fixed_point
-from fitter.data.cycles import closed_last_cycle
 from fitter.data.metrics import nrmse, rms
 from fitter.data.recordings import Recording
+from fitter.diagnosis.base import adequate_base, below_order
 from fitter.diagnosis.experiment import DiagnoseError, JoinedExperiment, join_recordings
 from fitter.diagnosis.fitting import (
     Fit,
@@ -154,20 +127,10 @@ from fitter.diagnosis.fitting import (
 from fitter.diagnosis.locate import locate_mismatch, where_differs
 from fitter.diagnosis.noise_floor import noise_floor
 from fitter.diagnosis.result import Diagnosis
-from fitter.diagnosis.held_out import confirmed, held_out_nrmse, held_out_residual, held_out_rss, prediction_error
-from fitter.diagnosis.statistics import (
-    ALPHA,
-    MIN_EXPLAINED,
-    NOISE_MARGIN,
-    consistency_report,
-    memory_response_report,
-    effect_report,
-    is_significant,
-    remainder_report,
-    reversal_report,
-)
+from fitter.diagnosis.held_out import held_out_nrmse, prediction_error
+from fitter.diagnosis.statistics import ALPHA, NOISE_MARGIN, consistency_report, remainder_report
+from fitter.diagnosis.rounds import bic, candidate_round
 from fitter.diagnosis.text import comparison_text, summary_paragraph
-from fitter.diagnosis.workers import parallel_map
 from fitter.identification.exported import described, fitted_range
 from fitter.identification.refine import effective_samples
 from fitter.progress import Progress, silent
@@ -254,7 +217,7 @@ def diagnose(
 
     alternative, below = None, False
     if model is None and base_order is None:
-        base, first_round, alternative, below = _adequate_base(ex, first, mask, noise, candidates, alpha, tick)
+        base, first_round, alternative, below = adequate_base(ex, first, mask, noise, candidates, alpha, tick)
     else:
         if model is None and base_order != 1:
             model = duhem_fit(ex, mask, base_order).model
@@ -265,7 +228,7 @@ def diagnose(
             ex,
             base,
             first_round,
-            _below_order(candidates) if below else candidates,
+            below_order(candidates) if below else candidates,
             mask,
             noise,
             alpha,
@@ -351,7 +314,7 @@ def _search(
         round_results = (
             first_round
             if first_round is not None and not findings
-            else _test_round(ex, current, remaining, mask, alpha, len(candidates), tick)
+            else candidate_round(ex, current, remaining, mask, alpha, len(candidates), tick)
         )
         if not findings:
             tested = [dict(r, rank=j + 1) for j, (r, _) in enumerate(round_results)]
@@ -398,7 +361,7 @@ def _higher_order_account(
     high, k_high = alternative
     if (
         not far
-        and _test_round(ex, high, [findings[0]["effect"]], mask, alpha, len(candidates), tick)[0][0]["significant"]
+        and candidate_round(ex, high, [findings[0]["effect"]], mask, alpha, len(candidates), tick)[0][0]["significant"]
     ):
         return base, account
     other = _refined(ex, _search(ex, high, None, candidates, mask, noise, alpha, max_findings, tick), mask, tick)
@@ -411,7 +374,7 @@ def _higher_order_account(
 def _refined(ex: JoinedExperiment, account: tuple, mask: np.ndarray, tick: Callable[[str], None]) -> tuple:
     """Step 4's last part (module docstring): the account (`_search`) with its extended fit's findings, tested
     in their basic form, refitted with their refinement parameters (`fitter.diagnosis.fitting.with_refinements`)
-    when the BIC counting them (`_bic`) is lower; the first finding alone, refined from its own basic fit on
+    when the BIC counting them (`bic`) is lower; the first finding alone, refined from its own basic fit on
     the base (the first round's, not the joint fit with the later findings taken out), when it predicts the
     held-out recordings at least as well (`fitter.diagnosis.held_out.prediction_error`) as all of them."""
     fit, findings = account[0], account[1]
@@ -421,7 +384,7 @@ def _refined(ex: JoinedExperiment, account: tuple, mask: np.ndarray, tick: Calla
     names = [f["effect"] for f in findings]
     refined = with_refinements(fit, names, ex, mask)
     extra = sum(p.refinement for f in findings for p in REGISTRY[f["effect"]].parameters)
-    if refined is None or _bic(refined, extra) >= _bic(fit, 0):
+    if refined is None or bic(refined, extra) >= bic(fit, 0):
         return account
     if len(names) > 1 and len(ex.recordings) > 1:
         first = with_refinements(account[3][names[0]], names[:1], ex, mask)
@@ -437,190 +400,7 @@ def _account_error(ex: JoinedExperiment, account: tuple, k_base: int, mask: np.n
     current, findings = account[0], account[1]
     if len(ex.recordings) > 1:
         return prediction_error(ex, current, mask)
-    return _bic(current, k_base + sum(len(f["parameters"]) for f in findings))
-
-
-def _bic(fit: Fit, n_parameters: int) -> float:
-    """BIC = N ln(RSS / N) + k ln N over the fitted samples (the criterion `duhem fit` orders by)."""
-    N = int(np.count_nonzero(fit.mask))
-    return float(N * np.log(max(fit.rss, 1e-300) / N) + n_parameters * np.log(N))
-
-
-def _adequate_base(
-    ex: JoinedExperiment,
-    first: Fit,
-    mask: np.ndarray,
-    noise: float,
-    candidates: Sequence[str],
-    alpha: float,
-    tick: Callable[[str], None],
-) -> tuple[Fit, list | None, tuple | None, bool]:
-    """The base of step 1 (module docstring), when it is the first-order base its first round of candidate
-    tests (reused by the search), the higher-order alternative (`_higher_order_account`) and whether the
-    base is below the order `duhem fit` chooses (its candidates then `_below_order`).
-
-    The order-n base is taken only when it alone is adequate (residual within `NOISE_MARGIN` of the
-    noise): otherwise the misfit is more than a missing order, and the first-order base stays for the
-    effects to explain.  When the first-order base with its best significant effect is adequate too, both
-    accounts are refitted without the last recording and predict it: the lower hold-out error wins (two
-    accounts that fit equally well, e.g. an extra order and backlash, are told apart by how they
-    generalise to another rate or amplitude).  With a single recording the lower BIC wins (parameters:
-    7 for the first-order base plus the effect's; for the order-n base its canonical parameters
-    (`fit_recordings`) plus its n initial states)."""
-    if rms(first.residual) <= NOISE_MARGIN * noise:
-        return first, None, None, False
-    tick("choosing the base order (BIC)")
-    higher = duhem_fit(ex, mask)
-    order = higher.model.order
-    if order == 1:
-        return first, None, None, False
-    high = fit_base(ex, higher.model, mask)
-    k_high = next(c["parameters"] for c in higher.summary["candidates"] if c["order"] == order) + order
-    if not _settled_at_noise(high, ex, noise):
-        lower = _settled_lower_order(ex, mask, noise, order)
-        return (lower, None, None, True) if lower is not None else (first, None, (high, k_high), True)
-    below = _below_order(candidates)
-    results = _test_round(ex, first, below, mask, alpha, len(below), tick)
-    best = next((f for r, f in results if r["significant"]), None)
-    if (
-        best is None
-        or rms(best.residual) > NOISE_MARGIN * noise
-        or _structured(ex, best, mask, alpha)
-        and not _structured(ex, high, mask, alpha)
-    ):
-        return high, None, None, False
-    if len(ex.recordings) > 1:
-        better = _held_out_rms(ex, best, mask) < _held_out_rms(ex, high, mask)
-    else:
-        better = _bic(best, best.family.size) < _bic(high, k_high)
-    return (first, results, None, True) if better else (high, None, None, False)
-
-
-def _below_order(candidates: Sequence[str]) -> list[str]:
-    """The candidates tested on a base below the order `duhem fit` chooses: not the reversing effects
-    (`EffectSpec.reverses`), which add a hysteretic state and on such a base stand in for the states it
-    lacks (switching fitted a Bouc-Wen loop's shape, and its drift with it, on a first-order base)."""
-    return [c for c in candidates if not REGISTRY[c].reverses]
-
-
-def _settled_at_noise(fit: Fit, ex: JoinedExperiment, noise: float) -> bool:
-    """Whether a base leaves a residual within `NOISE_MARGIN` of the noise with a loop settled when the
-    experiment ends (`_unsettled_rms` within the same margin): an adequate base (module docstring, step 1)."""
-    return bool(rms(fit.residual) <= NOISE_MARGIN * noise and _unsettled_rms(fit, ex) <= NOISE_MARGIN * noise)
-
-
-def _settled_lower_order(ex: JoinedExperiment, mask: np.ndarray, noise: float, order: int) -> Fit | None:
-    """The lowest order 2 .. `order` - 1 whose base (`fit_recordings` at that order, as ``duhem fit --order``)
-    is adequate (`_settled_at_noise`), or None: when the order BIC picks reaches the noise only with a loop
-    that is not settled (a mode the data do not determine), a lower order that reaches it settled is the
-    base, and the misfit is not handed to the effects."""
-    for k in range(2, order):
-        fit = fit_base(ex, duhem_fit(ex, mask, k).model, mask)
-        if _settled_at_noise(fit, ex, noise):
-            return fit
-    return None
-
-
-def _structured(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, alpha: float) -> bool:
-    """Whether `fit` leaves a structured residual (`statistics.remainder_report`): not white noise."""
-    return remainder_report(ex, fit.residual, mask, alpha)["structured"]
-
-
-def _unsettled_rms(fit: Fit, ex: JoinedExperiment) -> float:
-    """How far the base of `fit` is from settled when the experiment ends: the RMS over the last full input
-    cycle (closed, `fitter.data.cycles.closed_last_cycle`) of its output from its state there minus its output
-    from that cycle's periodic state (the fixed point of its period map); inf when the cycle's map does not
-    converge, 0 without a full cycle.  A rate-independent base that fits a change in time
-    (a drift of the output) does so with a loop that never settles: large here although its residual is
-    at the noise."""
-    model, run = fit.model, ex.runs()[-1]
-    t, u = ex.t[run], ex.u[run]
-    try:
-        cycle, tc, uc = closed_last_cycle(t, u)
-    except DuhemError:
-        return 0.0
-    x0 = fit.result.x0s[-1] if ex.separate else None
-    with np.errstate(all="ignore"):
-        try:
-            state = simulate(model, t, u, x0=x0).x[cycle.start]
-            settled, rho = fixed_point(model, tc, uc)
-            if settled is None or not rho < 1:
-                return np.inf
-            return rms(simulate(model, tc, uc, x0=state).y - simulate(model, tc, uc, x0=settled).y)
-        except (KernelError, np.linalg.LinAlgError):
-            return np.inf
-
-
-def _held_out_rms(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> float:
-    """RMS error on the last recording of `fit`'s family refitted on the others: from the best of its effects'
-    starts (`fit_family`), or for refined effects (`_refined`) from `fit`'s values
-    (`fitter.diagnosis.held_out.held_out_residual`, once per fit)."""
-    last = len(ex.recordings) - 1
-    fam = fit.family
-    if any(par.refinement for _, par in fam.keys):
-        return rms(held_out_residual(ex, fit, mask, last))
-    train = mask.copy()
-    train[ex.part(last)] = False
-    again = fit_family(fam.base.template, fam.effects, fit.theta[: fam.n_base], ex, train, ex.y - fit.residual)
-    return rms(again.residual[~train])
-
-
-def _test_round(
-    ex: JoinedExperiment,
-    current: Fit,
-    names: Sequence[str],
-    mask: np.ndarray,
-    alpha: float,
-    n_candidates: int,
-    tick: Callable[[str], None],
-) -> list[tuple[dict, Fit]]:
-    """Fit and test each candidate on top of `current` (base + the effects found; the candidates' fits and
-    held-out refits on several processes, `fitter.diagnosis.workers`); sorted by BIC (`_bic`, the effect's
-    parameters counted: module docstring, step 4)."""
-    for name in names:
-        tick(f"testing {name}")
-    results = parallel_map(lambda name: _candidate(ex, current, name, mask, alpha, n_candidates), list(names))
-    if any("held_out_rss" in rep for rep, _ in results):
-        without = held_out_rss(ex, current, mask)
-        for rep, _ in results:
-            if "held_out_rss" in rep:
-                rep["held_out_rss_without"] = without.tolist()
-                rep["significant"] = rep["confirmed_held_out"] = confirmed(np.array(rep["held_out_rss"]), without)
-    for rep, fit in results:
-        name = rep["effect"]
-        if rep["significant"] and REGISTRY[name].memory_taus(rep["parameters"]) is not None:
-            rep["response"] = memory_response_report(fit, ex, name, rep["n_eff"], alpha, n_candidates)
-            rep["significant"] = rep["response"]["follows_input"]
-        if rep["significant"] and REGISTRY[name].reverses:
-            rep["reversal"] = reversal_report(fit, ex, name)
-            rep["significant"] = rep["reversal"]["reverses"]
-    results.sort(key=lambda rf: _bic(rf[1], _freedoms(rf[0]["effect"], ex)))
-    return results
-
-
-def _candidate(
-    ex: JoinedExperiment, current: Fit, name: str, mask: np.ndarray, alpha: float, n_candidates: int
-) -> tuple[dict, Fit]:
-    """One candidate of `_test_round`: its joint fit and report (significance by the likelihood ratio); with two
-    or more recordings, one it cannot establish that explains at least `MIN_EXPLAINED` also gets its held-out
-    squared errors (``held_out_rss``), for `_test_round` to confirm against the model without it."""
-    fit = fit_family(current.model, [name], current.theta[: current.family.n_base], ex, mask, ex.y - current.residual)
-    rep = effect_report(fit, current.rss, effective_samples(fit.residual), _freedoms(name, ex))
-    rep.update(effect=name, origin=REGISTRY[name].origin)
-    rep["significant"] = is_significant(rep, alpha, n_candidates)
-    if not rep["significant"] and rep["explained_fraction"] >= MIN_EXPLAINED and len(ex.recordings) > 1:
-        rep["held_out_rss"] = held_out_rss(ex, fit, mask).tolist()
-    return rep, fit
-
-
-def _freedoms(name: str, ex: JoinedExperiment) -> int:
-    """The number of values an effect adds to the fit: its parameters fitted in its basic form (not those
-    declared ``refinement``, held at their defaults: `fitter.diagnosis.fitting`) and, for separate recordings
-    (each with its initial state fitted), the reference of each but the first (`EffectSpec.offset`; the
-    first's is the base's, `fitter.identification.output_error.Recordings`)."""
-    spec = REGISTRY[name]
-    fitted = sum(not p.refinement for p in spec.parameters)
-    return fitted + (len(ex.recordings) - 1 if ex.separate and spec.offset else 0)
+    return bic(current, k_base + sum(len(f["parameters"]) for f in findings))
 
 
 def _consistency(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, alpha: float) -> dict | None:

@@ -1,7 +1,7 @@
 """The diagnosis' independent fits on several processes: the candidates of a round, the held-out refits.
 
 Each candidate effect of a round is fitted on the same base, independently of
-the others (`fitter.diagnosis.procedure._test_round`), and each recording's
+the others (`fitter.diagnosis.rounds.candidate_round`), and each recording's
 held-out refit is independent of the others' (`fitter.diagnosis.held_out`):
 `parallel_map` runs them on up to `workers()` processes.  The processes are
 forked, so they inherit the experiment and the fits made so far; only the
