@@ -49,6 +49,9 @@ Pipeline of `fit_recordings`
    both.  The effect chain of a recording that is a closed loop starts
    settled on it, and the model stores the first recording's
    (`fitter.identification.effects_fit`).
+
+The summary (scores per recording, convergence, minor loops, why) is built by
+`fitter.identification.fit_summary`.
 """
 
 from __future__ import annotations
@@ -60,12 +63,10 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from fitter.core.effects import Effect
-from fitter.data.cycles import closed_loop
 from fitter.core.errors import KernelError
 from fitter.core.files import jsonable
 from fitter.core.kernel import simulate
 from fitter.core.periodic import fixed_point
-from fitter.data.metrics import compare
 from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording, check_scale
 from fitter.identification.fit_data import (
@@ -79,16 +80,14 @@ from fitter.identification.fit_data import (
 )
 from fitter.identification.effects_fit import check_effects, check_held, fit_effects
 from fitter.identification.exported import (
-    MINOR_LOOP_WARNING,
     NRMSE_CONVENTION,
     X0_POLICIES,
     described,
     fitted_range,
     initial_state,
-    minor_loop_excursion,
     raw_input_rho,
-    score,
 )
+from fitter.identification import fit_summary
 from fitter.identification.output_error import Recordings
 from fitter.identification.refine import Options, RefineResult, jacobian, refine
 from fitter.identification.parametrisation import Parametrisation, Physical, RDCanonical, RICanonical, WithEffects
@@ -427,18 +426,13 @@ def _with_effects(
     return best[1]
 
 
-def _raw_range(recordings) -> tuple[float, float]:
-    """The recordings' input range in physical units."""
-    return min(float(np.min(r.u)) for r in recordings), max(float(np.max(r.u)) for r in recordings)
-
-
 def _physical_barrier(param: RICanonical | RDCanonical, data: FitData, recordings) -> Callable[[object], np.ndarray]:
     """`_barrier`'s residuals for a model in physical units over the recordings' input range (condition (5),
     the branch amplification and the damping are invariant under the normalisation of `scaling`; the settled
     minor loops of faithful minor loops are put on its output scale).  They depend on the base alone (its
     effects left out), so they are computed once per base: the effects' columns of a finite-difference
     Jacobian reuse them."""
-    lo, hi = _raw_range(recordings)
+    lo, hi = fit_summary.raw_range(recordings)
     output = (data.scaling.y_c, data.scaling.y_s)
     cache: dict[bytes, np.ndarray] = {}
 
@@ -468,51 +462,6 @@ def _meets_barrier(cand: _Candidate, data: FitData, recordings) -> bool:
             return False
 
 
-def _per_recording(model, res: RefineResult | None, data: FitData, recordings) -> list[dict]:
-    """The saved model's score on each raw recording (`exported.score`), with the optimiser's own
-    NRMSE on the prepared samples beside it (``nrmse_prepared``; None when effects were fitted after it on the
-    raw recordings, `res` None)."""
-    out = []
-    for k, (m, rec, prep) in enumerate(zip(score(model, recordings), data.recs, data.preps)):
-        prepared = None
-        if res is not None:
-            s, r = res.starts[k], res.residuals[k]
-            prepared = compare(rec.slice(slice(s, None)), rec.y[s:] - r * data.scaling.y_s)["nrmse"]
-        m.update(nrmse_prepared=prepared, transient_end=prep.transient_end)
-        out.append(m)
-    return out
-
-
-def _convergence(
-    best: _Candidate, data: FitData, model, recordings, scores: list[dict], extended: bool = False
-) -> dict:
-    """The condition with its fitting margin and on each raw input (physical model).  The structural quantities
-    are the candidate's (normalised units) or, with effects fitted jointly (`extended`), the saved model's over
-    the raw input range (invariant under the normalisation)."""
-    param = best.param
-    structural, lo, hi = (model, *_raw_range(recordings)) if extended else (best.res.model, *data.input_range())
-    val = param.convergence(structural, lo, hi)
-    raw = raw_input_rho(model, recordings)
-    ok = param.converges(val) and all(r is None or r < 1 for r in raw) and not any(m.get("diverged") for m in scores)
-    out = {
-        "satisfied": bool(ok),
-        "quantity": param.QUANTITY,
-        "value": val,
-        "margin": param.LIMIT,
-        "rho_raw_input_per_recording": raw,
-        "rule": "the structural condition holds within its fitting margin and the period map of every raw "
-        "recording's last full cycle has spectral radius < 1",
-    }
-    if param.kind == "ri":
-        out["branch_amplification"] = float(np.exp(min(param.amplification(structural, lo, hi), 700.0)))
-        out["amplification_margin"] = param.AMPLIFICATION
-    if param.kind == "rd":
-        lam = np.linalg.eigvals(structural.A)
-        out["min_damping_ratio"] = float(np.min(-lam.real / np.abs(lam)))
-        out["damping_margin"] = param.DAMPING
-    return out
-
-
 def _result(
     best: _Candidate,
     cands,
@@ -535,8 +484,8 @@ def _result(
         model = model.replace(x0=initial_state(model, r0, x0_policy))
     else:
         model = extended.model
-    per_recording = _per_recording(model, None if extended else res, data, recordings)
-    bad = next((m["recording"] for m in per_recording if not np.isfinite(m["nrmse"])), None)
+    scores = fit_summary.per_recording(model, None if extended else res, data, recordings)
+    bad = next((m["recording"] for m in scores if not np.isfinite(m["nrmse"])), None)
     if bad is not None:
         raise FitError(
             f"{bad}: the fitted model gives a non-finite output on its own recording (raw input, stored "
@@ -550,7 +499,9 @@ def _result(
         if q is not None
         else "lowest loop error of the Section III estimate among "
         f"{list(Q_CANDIDATES)} (a start for the output-error refinement only)",
-        "why": _why(best, cands, kind, levels.levels, [c for c in cands if not _meets_barrier(c, data, recordings)]),
+        "why": fit_summary.why(
+            best, cands, kind, levels.levels, [c for c in cands if not _meets_barrier(c, data, recordings)]
+        ),
         "candidates": [
             {
                 "kind": c.param.kind,
@@ -562,13 +513,13 @@ def _result(
             }
             for c in cands
         ],
-        "recordings": per_recording,
+        "recordings": scores,
         "nrmse_convention": NRMSE_CONVENTION,
         "parameters_normalised": {
             k: {"value": v, "stderr": e} for k, v, e in zip(param.names(), res.theta.tolist(), stderr.tolist())
         },
         "normalisation": vars(data.scaling),
-        "convergence": _convergence(best, data, model, recordings, per_recording, extended is not None),
+        "convergence": fit_summary.convergence(best, data, model, recordings, scores, extended is not None),
         "fitted_range": fitted_range(recordings),
         "input_deadband": data.deadband,
         "rate_levels": levels.levels,
@@ -585,7 +536,7 @@ def _result(
         "preparation": [dict(p.to_dict(), notes=n) for p, n in zip(data.preps, data.notes)],
     }
     if extended is not None:
-        summary["effects"] = _effects_summary(extended, recordings)
+        summary["effects"] = fit_summary.effects_summary(extended, recordings)
         names = ", ".join(e["effect"] for e in summary["effects"]["fitted"])
         summary["why"] += (
             f"; extended by {names} on the {summary['effects']['base']} base (the lower BIC with "
@@ -596,7 +547,7 @@ def _result(
             {k: summary[k] for k in ("kind", "order", "why", "convergence", "fitted_range", "x0", "nrmse_convention")}
         )
     )
-    summary["minor_loops"] = _minor_loops(model, recordings, getattr(param, "faithful_minor_loops", False))
+    summary["minor_loops"] = fit_summary.minor_loops(model, recordings, getattr(param, "faithful_minor_loops", False))
     model = model.replace(
         fit_info=dict(
             model.fit_info,
@@ -612,70 +563,3 @@ def _result(
             param=extended.param,
         )
     return FitResult(model=model, summary=jsonable(summary), theta=res.theta, cov=res.covariance(), param=physical)
-
-
-def _effects_summary(extended: _Extended, recordings) -> dict:
-    """The summary's ``effects``: what was fitted with the base, on which base, every base tried, and the
-    recordings whose effects started settled (closed loops)."""
-    base = f"{extended.candidate.param.kind}{extended.candidate.param.n}"
-    chosen = next(t for t in extended.tried if t["base"] == base)
-    res, fam = extended.res, extended.param
-    return {
-        "fitted": [e.to_dict() for e in fam.effect_list(res.theta)],
-        "base": base,
-        "bic": chosen["bic"],
-        "tried": extended.tried,
-        "settled": [r.name for r in recordings if closed_loop(r)],
-        "held": dict(fam.held),
-        "parameters": {
-            k: {"value": v, "stderr": e} for k, v, e in zip(fam.names(), res.theta.tolist(), res.stderr().tolist())
-        },
-        "optimiser": {"success": res.success, "nfev": res.nfev, "message": res.message},
-        "method": "the best rate-independent and rate-dependent candidates each refined jointly with the "
-        "effects by output error on every raw sample (x0 fitted per recording; the effects of a "
-        "recording that is a closed loop ('settled') start settled on it, of any other afresh; each "
-        "recording's residuals divided by its own output range; rss weighted so); lowest BIC kept; "
-        "the model stores the first recording's effect start; 'parameters' are the saved "
-        "model's (physical units; the summary's parameters_normalised and optimiser are the base's "
-        "before the joint refinement)",
-    }
-
-
-def _minor_loops(model, recordings, constrained: bool) -> dict:
-    """The saved model off its recorded loops (`minor_loop_excursion`), with the verdict `duhem fit` prints;
-    `constrained`: the fit had the faithful-minor-loops barrier."""
-    exc = minor_loop_excursion(model, recordings)
-    return {
-        "excursion": exc,
-        "warning_above": MINOR_LOOP_WARNING,
-        "faithful": bool(exc <= MINOR_LOOP_WARNING),
-        "constrained": bool(constrained),
-        "input": "40 triangle cycles of each of 8 sub-spans (1/8 to 8/8) of the model's input range around its "
-        "middle, from the stored x0 at the first input, at the recordings' median rate; for a "
-        "rate-independent model also the settled loops of 64 sub-spans at 5 places each",
-        "quantity": "largest distance of the output beyond the recorded output range, in output ranges",
-    }
-
-
-def _why(best: _Candidate, cands, kind: str, levels: int, outside: Sequence[_Candidate] = ()) -> str:
-    ranked = sorted(cands, key=lambda c: c.bic)
-    text = (
-        f"lowest BIC ({best.bic:.1f}) among {len(cands)} candidate(s) "
-        f"({', '.join(f'{c.param.kind}{c.param.n}: {c.bic:.1f}' for c in ranked)})"
-    )
-    if outside and best not in outside:
-        text += (
-            f" that end inside the fit's barrier (condition (5) margin, branch amplification / damping) "
-            f"and converge on every raw input; "
-            f"not eligible: {', '.join(f'{c.param.kind}{c.param.n}' for c in outside)}"
-        )
-    if kind != "auto":
-        text = f"kind {kind!r} requested; order by " + text
-    if levels < 2 and best.param.kind == "rd":
-        text += "; note: a single input rate, so g is barely identifiable"
-    if levels < 2 and kind == "auto":
-        text += (
-            "; rate-dependent candidates not tried: the recordings have a single input rate, "
-            "from which rate dependence cannot be established (use --kind rd to force it)"
-        )
-    return text
