@@ -91,172 +91,15 @@ from fitter.core import CallableRate, ConvergenceError, KernelError, RateDepende
 from fitter.identification.output_error import FAIL
 from fitter.identification.refine import Options, refine
 from fitter.identification.parametrisation import Parametrisation
-from fitter.identification.triangle_waves import TriangleWave, periodic_triangle_output
+from fitter.identification.triangle_records import TOL, Record, fail, parse_record
+from fitter.identification.triangle_waves import periodic_triangle_output
 
 __all__ = ["ESTIMATORS", "identify_rd_triangles", "RDIdentification", "WaveFit", "bilinear_d2c"]
 
 ESTIMATORS = ("literal", "improved")
-_TOL = 1e-6
 
 
-# ----------------------------------------------------------------------------- record parsing
-
-
-@dataclass
-class _Record:
-    """One checked triangle-wave record and its ramp runs."""
-
-    index: int
-    t: np.ndarray
-    u: np.ndarray
-    y: np.ndarray
-    delta: float
-    wave: TriangleWave
-    runs: dict  # direction (+1 / -1) -> list of (first, last) sample indices on that ramp
-
-
-def _fail(i: int, msg: str):
-    raise ValueError(f"record {i}: {msg}")
-
-
-def _check_arrays(i: int, rec, order: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    try:
-        t, u, y = (np.asarray(a, dtype=float).ravel() for a in rec)
-    except (TypeError, ValueError):
-        _fail(i, "must be a tuple (t, u, y) of numeric arrays")
-    if not (len(t) == len(u) == len(y)):
-        _fail(i, f"t, u, y differ in length ({len(t)}, {len(u)}, {len(y)})")
-    for name, arr in (("t", t), ("u", u), ("y", y)):
-        bad = np.flatnonzero(~np.isfinite(arr))
-        if bad.size:
-            _fail(i, f"{name}[{bad[0]}] is {arr[bad[0]]} (NaN or infinite)")
-    need = 2 * order + 4
-    if len(t) < need:
-        _fail(i, f"{len(t)} samples are too few for order {order} (need at least {need})")
-    dt = np.diff(t)
-    if np.any(dt <= 0):
-        k = int(np.flatnonzero(dt <= 0)[0])
-        _fail(i, f"time must increase: t[{k + 1}] = {t[k + 1]} after t[{k}] = {t[k]}")
-    delta = float(np.median(dt))
-    if np.max(np.abs(dt - delta)) > _TOL * delta:
-        k = int(np.argmax(np.abs(dt - delta)))
-        _fail(
-            i,
-            f"sampling is not uniform (t[{k + 1}] - t[{k}] = {dt[k]}, median {delta}); "
-            "the DARMA models (31)-(32) need a fixed sampling period",
-        )
-    return t, u, y, delta
-
-
-def _interval_types(i: int, v: np.ndarray) -> tuple[np.ndarray, float, float]:
-    """+1 / -1 for intervals on the rising / falling ramp, 0 for corner intervals."""
-    if not np.any(v > 0) or not np.any(v < 0):
-        _fail(
-            i,
-            "the input never "
-            + ("rises" if not np.any(v > 0) else "falls")
-            + ": a triangle wave (20) needs both branches",
-        )
-    a, b = float(np.median(v[v > 0])), float(np.median(v[v < 0]))
-    kind = np.zeros(len(v), dtype=int)
-    kind[np.abs(v - a) <= _TOL * a] = 1
-    kind[np.abs(v - b) <= _TOL * -b] = -1
-    zero = np.flatnonzero((kind[:-1] == 0) & (kind[1:] == 0))
-    if zero.size:
-        k = int(zero[0])
-        _fail(
-            i,
-            f"branch not monotone or not a ramp near samples {k}..{k + 2} (du/dt = {v[k]:.6g}, "
-            f"{v[k + 1]:.6g}; the ramps have slopes a = {a:.6g}, b = {b:.6g}), or the branches are "
-            "too short: each must span whole sample intervals (sample faster)",
-        )
-    return kind, a, b
-
-
-def _runs(kind: np.ndarray) -> list[tuple[int, int, int]]:
-    """Maximal runs (direction, first interval, last interval) of ramp intervals."""
-    edges = np.flatnonzero(np.diff(kind)) + 1
-    starts, stops = np.r_[0, edges], np.r_[edges, len(kind)]
-    return [(int(kind[s]), int(s), int(e - 1)) for s, e in zip(starts, stops) if kind[s] != 0]
-
-
-def _corners(i: int, t, u, runs, a: float, b: float) -> list[tuple[int, float, float]]:
-    """Corners (direction of the preceding run, time, value) between consecutive runs."""
-    out = []
-    for (d0, _, e0), (d1, s1, _) in zip(runs[:-1], runs[1:]):
-        if d0 == d1:
-            _fail(
-                i,
-                f"branch not monotone: the input turns back between samples {e0 + 1} and {s1} "
-                "and resumes in the same direction",
-            )
-        if s1 == e0 + 1:
-            out.append((d0, t[s1], u[s1]))
-        else:
-            k = e0 + 1
-            s0, s1_ = (a, b) if d0 > 0 else (b, a)
-            tc = (u[k + 1] - u[k] + s0 * t[k] - s1_ * t[k + 1]) / (s0 - s1_)
-            out.append((d0, tc, u[k] + s0 * (tc - t[k])))
-    return out
-
-
-def _fit_wave(i: int, t, u, runs, a: float, b: float) -> TriangleWave:
-    corners = _corners(i, t, u, runs, a, b)
-    if not corners:
-        _fail(i, "the input has no corner (a single ramp): a triangle wave (20) needs both branches")
-    tops = [c for c in corners if c[0] > 0]
-    bottoms = [c for c in corners if c[0] < 0]
-    u_hi = float(np.mean([c[2] for c in tops])) if tops else float(np.max(u))
-    u_lo = float(np.mean([c[2] for c in bottoms])) if bottoms else float(np.min(u))
-    amp = u_hi - u_lo
-    for d, tc, uc in corners:
-        ref = u_hi if d > 0 else u_lo
-        if abs(uc - ref) > 1e3 * _TOL * amp:
-            _fail(
-                i,
-                f"branch not monotone: the corner at t = {tc:.6g} has u = {uc:.6g} but the wave's "
-                f"{'maximum' if d > 0 else 'minimum'} is {ref:.6g}",
-            )
-    t_min = bottoms[0][1] if bottoms else tops[0][1] - amp / a
-    wave = TriangleWave(a=a, b=b, u_lo=u_lo, u_hi=u_hi, t_min=float(t_min))
-    off = np.abs(wave(t) - u)
-    if off.max() > 1e3 * _TOL * amp:
-        k = int(np.argmax(off))
-        _fail(
-            i,
-            f"u[{k}] = {u[k]:.6g} is off the triangle wave (expected {wave(t[k]):.6g}): "
-            "branches must be monotone ramps of constant slope",
-        )
-    return wave
-
-
-def _parse_record(i: int, rec, order: int) -> _Record:
-    t, u, y, delta = _check_arrays(i, rec, order)
-    v = np.diff(u) / np.diff(t)
-    kind, a, b = _interval_types(i, v)
-    runs = _runs(kind)
-    wave = _fit_wave(i, t, u, runs, a, b)
-    by_dir: dict = {1: [], -1: []}
-    last = len(kind) - 1
-    for d, s, e in runs:
-        samples = e - s + 2
-        if samples >= order + 2:
-            by_dir[d].append((s, e + 1))
-        elif s > 0 and e < last:
-            name = "rising" if d > 0 else "falling"
-            _fail(
-                i,
-                f"the {name} branch at samples {s}..{e + 1} has {samples} samples on the ramp; "
-                f"order {order} needs at least {order + 2} per branch (sample faster or use a "
-                "slower triangle wave): branches too short",
-            )
-    return _Record(index=i, t=t, u=u, y=y, delta=delta, wave=wave, runs=by_dir)
-
-
-# ----------------------------------------------------------------------------- DARMA and transforms
-
-
-def _darma_rows(rec: _Record, direction: int, order: int, intercept: bool):
+def _darma_rows(rec: Record, direction: int, order: int, intercept: bool):
     """Regression rows of (31)/(32): targets y_{k+1}, regressors [-y_k..-y_{k-n+1}, u_k..].
 
     With `intercept` (ramp-exact form) the input lags are replaced by u_k and 1.
@@ -273,10 +116,10 @@ def _darma_rows(rec: _Record, direction: int, order: int, intercept: bool):
         rows.append(np.hstack([ylags, ulags]))
         target.append(rec.y[ks + 1])
     if not rows:
-        _fail(rec.index, f"no {'rising' if direction > 0 else 'falling'} branch long enough for order {n}")
+        fail(rec.index, f"no {'rising' if direction > 0 else 'falling'} branch long enough for order {n}")
     Phi, Y = np.vstack(rows), np.concatenate(target)
     if len(Y) < Phi.shape[1]:
-        _fail(
+        fail(
             rec.index,
             f"too few samples for order {n}: {len(Y)} regression rows on the "
             f"{'rising' if direction > 0 else 'falling'} branches, {Phi.shape[1]} unknowns",
@@ -415,7 +258,7 @@ def _model(A, B, C, g) -> RateDependentModel:
     return RateDependentModel(A=A, B=B, C=C, g=g)
 
 
-def _literal(recs: list[_Record], order: int) -> tuple[np.ndarray, np.ndarray, list[WaveFit]]:
+def _literal(recs: list[Record], order: int) -> tuple[np.ndarray, np.ndarray, list[WaveFit]]:
     """Paper-literal: (31)-(34), bilinear to (35)-(36), (45), (49), (50)."""
     n = order
     disc, cont = [], []
@@ -450,7 +293,7 @@ def _literal(recs: list[_Record], order: int) -> tuple[np.ndarray, np.ndarray, l
     return alpha_ref, beta_ref, waves
 
 
-def _ramp_exact_start(recs: list[_Record], order: int):
+def _ramp_exact_start(recs: list[Record], order: int):
     """Step 1 of the improved estimator: ramp-exact DARMA and exact pole map per branch."""
     n = order
     disc, alphas = [], []
@@ -517,7 +360,7 @@ class _WaveRecords:
     """The output-error problem of the improved estimator: every sample of every record
     against the model's limiting periodic output (`periodic_triangle_output`)."""
 
-    recs: list[_Record]
+    recs: list[Record]
 
     @property
     def sizes(self) -> list[int]:
@@ -561,7 +404,7 @@ class _WaveRecords:
 _OPTIONS = Options(ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=200, max_samples=None)
 
 
-def _improved(recs: list[_Record], order: int):
+def _improved(recs: list[Record], order: int):
     n = order
     alpha0, g0, disc = _ramp_exact_start(recs, n)
     param, problem = _WaveParameters(n, len(recs)), _WaveRecords(recs)
@@ -598,13 +441,13 @@ def _improved(recs: list[_Record], order: int):
     return alpha, beta, waves, info
 
 
-def _check_distinct_slopes(recs: list[_Record]) -> None:
+def _check_distinct_slopes(recs: list[Record]) -> None:
     """Eq (50) reads g at one rising and one falling slope per wave: no slope twice (relative 1e-6)."""
     for kind, key in (("rising", "a"), ("falling", "b")):
         ordered = sorted(recs, key=lambda r: getattr(r.wave, key))
         for r0, r1 in zip(ordered[:-1], ordered[1:]):
             v0, v1 = getattr(r0.wave, key), getattr(r1.wave, key)
-            if np.isclose(v0, v1, rtol=_TOL, atol=0):
+            if np.isclose(v0, v1, rtol=TOL, atol=0):
                 raise ValueError(
                     f"records {min(r0.index, r1.index)} and {max(r0.index, r1.index)} have the "
                     f"same {kind} slope {v0:.6g}; eq (50) needs one wave per slope"
@@ -639,7 +482,7 @@ def identify_rd_triangles(
     order = int(order)
     if len(records) < 2:
         raise ValueError(f"need at least 2 triangle-wave records of different slopes (eq 50), got {len(records)}")
-    recs = sorted((_parse_record(i, r, order) for i, r in enumerate(records)), key=lambda r: r.wave.a)
+    recs = sorted((parse_record(i, r, order) for i, r in enumerate(records)), key=lambda r: r.wave.a)
     _check_distinct_slopes(recs)
     optimizer: dict = {}
     if estimator == "literal":
