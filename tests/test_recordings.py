@@ -234,7 +234,7 @@ def test_check_samples_names_file_lines_and_columns():
 def test_blocks_read_as_one(tmp_path, monkeypatch):
     """The reader takes the file a block of lines at a time (a block of simple lines at once, any other
     row by row): tiny blocks give the values, line numbers and messages of one block."""
-    from fitter.data import recordings
+    from fitter.data import csv_table
 
     rows = ["%.10g,%.17g,%.6g" % (0.1 * k, np.sin(k), np.cos(k)) for k in range(60)]
     rows[7] = ""  # a blank line
@@ -246,7 +246,7 @@ def test_blocks_read_as_one(tmp_path, monkeypatch):
     cases = [("good.csv", good), ("bad.csv", bad), ("ragged.csv", ragged)]
     outcomes = {}
     for block in (1 << 20, 7, 64):
-        monkeypatch.setattr(recordings, "_BLOCK_CHARS", block)
+        monkeypatch.setattr(csv_table, "_BLOCK_CHARS", block)
         for name, text in cases:
             path = tmp_path / name
             path.write_bytes(text.encode())
