@@ -276,3 +276,55 @@ def test_a_recording_held_out_of_the_fit_has_its_reference_fitted():
     assert np.sqrt(np.mean(held**2)) < 0.012
     plain = Recordings(recs, x0="fit", references=True).residuals(_Five(), TRUE)[2]
     assert np.sqrt(np.mean(plain[0][2] ** 2)) > 0.5  # all weighted: the first owns the reference
+
+
+@pytest.mark.parametrize("mode", ["fit", "model"])
+def test_a_recordings_memo_reuses_the_unchanged_part_and_changes_no_residual(mode, monkeypatch):
+    """With additive effects (switching + measurement drift) a finite-difference step moves the base or the
+    effects: the recording's memo recomputes only the part that moved (the base's output once per base, the
+    effects' terms once per effect setting), and every residual equals the unmemoised one to 1e-12 of the
+    output range, whichever part moved and in whichever order the steps come."""
+    from fitter.identification import output_error
+
+    base = RateIndependentModel(
+        A_plus=[[-3.0]], A_minus=[[-2.5]], B_plus=[1.0], B_minus=[1.2], C=[1.0], D=0.3, x0=[0.1]
+    )
+    model = base.replace(
+        effects=[
+            {"effect": "switching", "parameters": {"S1": 0.4, "u_up1": 0.5, "u_dn1": -0.5, "width1": 0.1, "q1": -1.0}},
+            {"effect": "measurement_drift", "parameters": {"rate": 0.01}},
+        ]
+    )
+    rec = _recording(0.0, cycles=2.0)
+    rec = Recording(rec.t, rec.u, simulate(model, rec.t, rec.u).y + 0.01 * np.sin(3 * rec.t), "r")
+    steps = [
+        model,
+        model.replace(A_plus=[[-3.001]]),
+        model.replace(effects=[model.effects[0], {"effect": "measurement_drift", "parameters": {"rate": 0.011}}]),
+        model,
+        model.replace(D=0.3001),
+        model,
+    ]
+    calls = {"base": 0, "terms": 0}
+    plain_base = output_error._affine_output if mode == "fit" else None
+    plain_terms = output_error._additive_terms
+
+    def counted(name, fn):
+        def run(*args, **kwargs):
+            calls[name] += 1
+            return fn(*args, **kwargs)
+
+        return run
+
+    if mode == "fit":
+        monkeypatch.setattr(output_error, "_affine_output", counted("base", plain_base))
+    else:
+        monkeypatch.setattr(output_error, "simulate", counted("base", output_error.simulate))
+    monkeypatch.setattr(output_error, "_additive_terms", counted("terms", plain_terms))
+    memo = {}
+    for m in steps:
+        kept = output_error.simulate_from(m, rec.t, rec.u, rec.y, mode, None, memo=memo)[2]
+        fresh = output_error.simulate_from(m, rec.t, rec.u, rec.y, mode, None, memo=None)[2]
+        assert np.max(np.abs(kept - fresh)) < 1e-12 * np.ptp(rec.y)
+    # memoised: bases model, A+ step, D step (3); effect settings model, drift step (2); unmemoised: one each
+    assert calls == {"base": 3 + len(steps), "terms": 2 + len(steps) * (mode == "fit")}, calls

@@ -80,7 +80,7 @@ from typing import Sequence
 
 import numpy as np
 
-from fitter.core.effects import fresh_state, offset_position, settled_state, shifted, stored_start
+from fitter.core.effects import fresh_state, offset_position, run_with_effects, settled_state, shifted, stored_start
 from fitter.core.errors import DuhemError, KernelError
 from fitter.core.flow import branches
 from fitter.core.kernel import flows, simulate, state_response
@@ -98,7 +98,15 @@ FAIL = 1e3
 
 # ----------------------------------------------------------------------------- initial states
 def fitted_initial_state(
-    model, t, u, y, cache: dict | None = None, effect_state=None, reference: bool = True, constant: bool = False
+    model,
+    t,
+    u,
+    y,
+    cache: dict | None = None,
+    effect_state=None,
+    reference: bool = True,
+    constant: bool = False,
+    memo: dict | None = None,
 ):
     """Initial state x_0 = argmin ||y - yhat(0) - G x_0|| over all samples, the output from it and the
     effect chain state it starts from (module docstring, ``"fit"``): yhat is affine in x_0, G its columns.
@@ -109,12 +117,17 @@ def fitted_initial_state(
     `reference`, a column of ones in G; the state returned then has it (numbers; else `effect_state` as
     given).  With `constant` (and `reference`), a model whose effects carry no reference gets one too: the
     column of ones is fitted and its value is part of yhat only (the instrument's zero of this recording,
-    not a state of the model).
+    not a state of the model).  With additive effects, y(x_0) = yhat_base(x_0) + (the effects' terms): the two
+    parts are kept in `memo` (a dict per recording, `_remembered`) and reused while their parameters repeat.
     Raises `KernelError` when the simulation overflows."""
     n = model.order
     if getattr(model, "effects", None) and all(e.spec.additive for e in model.effects):
-        base = simulate(model, t, u, x0=np.zeros(n), flow_cache=cache, effect_state=effect_state).y
-        G = _affine_output(model.replace(effects=[]), t, u, cache)[1]
+        bare = model.replace(effects=[])
+        ybare, G = _remembered(memo, "base", _base_key(bare), lambda: _affine_output(bare, t, u, cache))
+        terms = _remembered(
+            memo, "effects", _effects_key(model, effect_state), lambda: _additive_terms(model, t, u, effect_state)
+        )
+        base = ybare + terms
     elif getattr(model, "effects", None):
         ys = [
             simulate(model, t, u, x0=x, flow_cache=cache, effect_state=effect_state).y
@@ -150,8 +163,73 @@ def _affine_output(model, t, u, cache: dict | None) -> tuple[np.ndarray, np.ndar
         G[k : k + len(c)] = np.einsum("j,kjl->kl", model.C, Phi)
         base[k : k + len(c)] = c @ model.C
         k += len(c)
-    base += model.D * np.asarray(u, dtype=float)
+    base += model.D * model.model_input(np.asarray(u, dtype=float))
     return base, G
+
+
+def _settled(model, t, u, cache: dict, memo: dict | None):
+    """`settled_state` of the model's chain on the recording; kept in `memo` when no effect follows the output
+    (the settled state then depends on the effects alone)."""
+    if memo is None or any(e.spec.follows_output for e in model.effects):
+        return settled_state(model, t, u, model.x0, cache)
+    return _remembered(memo, "settled", _effects_key(model, None), lambda: settled_state(model, t, u, model.x0, cache))
+
+
+def _model_output(model, t, u, cache: dict, effect_state, memo: dict | None) -> np.ndarray:
+    """The model's output from its own x0 (``"model"``): with additive effects, the base's output plus the
+    effects' terms, each kept in `memo`."""
+    if memo is None or not getattr(model, "effects", None) or not all(e.spec.additive for e in model.effects):
+        return simulate(model, t, u, flow_cache=cache, effect_state=effect_state).y
+    bare = model.replace(effects=[])
+    key = (*_base_key(bare), np.asarray(model.x0, dtype=float).tobytes())
+    ybare = _remembered(memo, "base_from_x0", key, lambda: simulate(bare, t, u, flow_cache=cache).y)
+    terms = _remembered(
+        memo, "effects", _effects_key(model, effect_state), lambda: _additive_terms(model, t, u, effect_state)
+    )
+    return ybare + terms
+
+
+def _additive_terms(model, t, u, effect_state) -> np.ndarray:
+    """The sum of the terms a model's additive effects add to its output (`EffectSpec.additive`: driven by the
+    input and time alone), from the chain state `effect_state` (None: the stored start, else afresh): the
+    chain run without its base (`run_with_effects`, ``base=False``)."""
+    w = model.model_input(np.asarray(u, dtype=float))
+    return run_with_effects(model, t, w, np.zeros(model.order), {}, effect_state, base=False)[1]
+
+
+MEMO_SIZE = 3
+"""Parts kept per kind in a recording's memo: a finite-difference Jacobian moves one parameter at a time from
+the point it differentiates at, so the base's part repeats over the effects' columns and the effects' part over
+the base's columns, and the point itself is asked for again between them."""
+
+
+def _remembered(memo: dict | None, kind: str, key: tuple, compute):
+    """compute(), or its value kept in `memo` under (`kind`, `key`) (the last `MEMO_SIZE` per kind)."""
+    if memo is None:
+        return compute()
+    kept = memo.setdefault(kind, {})
+    if key not in kept:
+        if len(kept) >= MEMO_SIZE:
+            del kept[next(iter(kept))]
+        kept[key] = compute()
+        for a in kept[key] if isinstance(kept[key], tuple) else (kept[key],):
+            if isinstance(a, np.ndarray):
+                a.flags.writeable = False  # shared between evaluations: a caller may not change it
+    return kept[key]
+
+
+def _base_key(model) -> tuple:
+    """What a base model's simulation depends on besides (t, u, x_0): its class, its parameters but x0
+    (exact bytes), its rate function and input range."""
+    arrays = b"".join(np.asarray(getattr(model, k), dtype=float).tobytes() for k in model.PARAMS if k != "x0")
+    g = getattr(model, "g", None)
+    return type(model).__name__, arrays, None if g is None else repr(g.to_dict()), model.input_range
+
+
+def _effects_key(model, effect_state) -> tuple:
+    """What the effects' terms depend on besides (t, u): each effect's parameters and stored start, the chain
+    state given, the input range."""
+    return repr([e.to_dict() for e in model.effects]), repr(effect_state), model.input_range
 
 
 def _lstsq_scaled(M: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -238,23 +316,24 @@ def simulate_from(
     settle: bool = False,
     reference: bool = True,
     constant: bool = False,
+    memo: dict | None = None,
 ):
     """Simulate one recording under an initial-state mode (module docstring); with `settle`, a model's
     effect chain starts from its state settled on the recording (``Recordings.settle``); with `reference`
     (``"fit"`` only), the output's reference is fitted with x0 (`fitted_initial_state`; with `constant`
-    also for a model whose effects carry none).
+    also for a model whose effects carry none).  `memo`: the recording's memo of parts that repeat between
+    evaluations (`_remembered`; None: none kept).
 
     Returns (start, x0, yhat, rho, effect state): yhat covers samples start..end; the effect chain's state at
     the first sample where it is not the model's own start (settled, or with a fitted reference,
     `fitted_initial_state`), else None.
     """
     cache = flows(model)
-    state = settled_state(model, t, u, model.x0, cache) if settle and getattr(model, "effects", None) else None
+    state = _settled(model, t, u, cache, memo) if settle and getattr(model, "effects", None) else None
     if mode == "model":
-        yhat = simulate(model, t, u, flow_cache=cache, effect_state=state).y
-        return 0, np.array(model.x0, dtype=float), yhat, np.nan, state
+        return 0, np.array(model.x0, dtype=float), _model_output(model, t, u, cache, state, memo), np.nan, state
     if mode == "fit":
-        x0, yhat, state = fitted_initial_state(model, t, u, y, cache, state, reference, constant)
+        x0, yhat, state = fitted_initial_state(model, t, u, y, cache, state, reference, constant, memo)
         return 0, x0, yhat, np.nan, state
     if mode != "periodic":
         raise ValueError(f"x0 must be one of {X0_MODES}, not {mode!r}")
@@ -347,6 +426,7 @@ class Recordings:
         ]
         self.scale = max(float(np.ptp(np.concatenate([r.y for r in self.recordings]))), 1e-300)
         self._settle = [False] * len(self.recordings) if self.settle is None else [bool(s) for s in self.settle]
+        self._memos = [{} for _ in self.recordings]
 
     def decimated(self, max_samples: int | None) -> "Recordings":
         """The problem on the kept samples of `_keep_indices` (self when nothing is dropped)."""
@@ -386,7 +466,7 @@ class Recordings:
         parts, info = [], []
         owner = self._reference_owner()
         for i, (rec, w, cyc, settle) in enumerate(zip(self.recordings, self._w, self.cycles, self._settle)):
-            one = self._one(model, rec, cyc, settle, reference=i != owner)
+            one = self._one(model, rec, cyc, settle, reference=i != owner, memo=self._memos[i])
             parts.append(_weighted(one[2], w[one[0] :]))
             info.append(one)
         return (parts[0] if len(parts) == 1 else np.concatenate(parts)), model, info
@@ -450,7 +530,7 @@ class Recordings:
         it is predicted as every recording is scored)."""
         return next((i for i, w in enumerate(self._w) if np.any(w > 0)), 0)
 
-    def _one(self, model, rec: Recording, cyc, settle: bool = False, reference: bool = True):
+    def _one(self, model, rec: Recording, cyc, settle: bool = False, reference: bool = True, memo=None):
         start = cyc[0] if (self.x0 == "periodic" and cyc is not None) else 0
         fail = FAIL * max(float(np.ptp(rec.y)), 1e-300)
         try:
@@ -458,7 +538,7 @@ class Recordings:
                 raise KernelError("model could not be built")
             with np.errstate(all="ignore"):
                 s, x0, yhat, rho, state = simulate_from(
-                    model, rec.t, rec.u, rec.y, self.x0, cyc, settle, reference, self.references
+                    model, rec.t, rec.u, rec.y, self.x0, cyc, settle, reference, self.references, memo
                 )
             r = rec.y[s:] - yhat
             if not np.all(np.abs(r) < fail * 1e3):
