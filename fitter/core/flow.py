@@ -323,6 +323,7 @@ def linear_recurrence(w0: np.ndarray, z: np.ndarray, a: np.ndarray, f: np.ndarra
     P = exp(cumsum z) relative to the chunk's first state w_c; chunks are cut
     so that |Re cumsum z| stays below 300 and no exponential overflows.  The
     first step of every chunk is taken directly, so a single huge step is safe.
+    Real or complex: the result has f's type (real for the effects' real states).
     """
     N = len(z)
     span = np.cumsum(np.abs(z.real).max(axis=1))
@@ -333,7 +334,7 @@ def linear_recurrence(w0: np.ndarray, z: np.ndarray, a: np.ndarray, f: np.ndarra
         starts = np.concatenate(([0], np.flatnonzero(np.diff(chunk_id)) + 1))
         ends = np.concatenate((starts[1:], [N]))
     W = np.empty_like(f)
-    w = w0.astype(complex)
+    w = w0.astype(f.dtype)
     for s0, s1 in zip(starts, ends):
         w = a[s0] * w + f[s0]
         W[s0] = w

@@ -122,8 +122,9 @@ def fitted_initial_state(
     Raises `KernelError` when the simulation overflows."""
     n = model.order
     if getattr(model, "effects", None) and all(e.spec.additive for e in model.effects):
-        bare = model.replace(effects=[])
-        ybare, G = _remembered(memo, "base", _base_key(bare), lambda: _affine_output(bare, t, u, cache))
+        ybare, G = _remembered(
+            memo, "base", _base_key(model), lambda: _affine_output(model.replace(effects=[]), t, u, cache)
+        )
         terms = _remembered(
             memo, "effects", _effects_key(model, effect_state), lambda: _additive_terms(model, t, u, effect_state)
         )
@@ -180,9 +181,10 @@ def _model_output(model, t, u, cache: dict, effect_state, memo: dict | None) -> 
     effects' terms, each kept in `memo`."""
     if memo is None or not getattr(model, "effects", None) or not all(e.spec.additive for e in model.effects):
         return simulate(model, t, u, flow_cache=cache, effect_state=effect_state).y
-    bare = model.replace(effects=[])
-    key = (*_base_key(bare), np.asarray(model.x0, dtype=float).tobytes())
-    ybare = _remembered(memo, "base_from_x0", key, lambda: simulate(bare, t, u, flow_cache=cache).y)
+    key = (*_base_key(model), np.asarray(model.x0, dtype=float).tobytes())
+    ybare = _remembered(
+        memo, "base_from_x0", key, lambda: simulate(model.replace(effects=[]), t, u, flow_cache=cache).y
+    )
     terms = _remembered(
         memo, "effects", _effects_key(model, effect_state), lambda: _additive_terms(model, t, u, effect_state)
     )
@@ -219,8 +221,8 @@ def _remembered(memo: dict | None, kind: str, key: tuple, compute):
 
 
 def _base_key(model) -> tuple:
-    """What a base model's simulation depends on besides (t, u, x_0): its class, its parameters but x0
-    (exact bytes), its rate function and input range."""
+    """What the simulation of a model's base (its effects left out) depends on besides (t, u, x_0): its class,
+    its parameters but x0 (exact bytes), its rate function and input range."""
     arrays = b"".join(np.asarray(getattr(model, k), dtype=float).tobytes() for k in model.PARAMS if k != "x0")
     g = getattr(model, "g", None)
     return type(model).__name__, arrays, None if g is None else repr(g.to_dict()), model.input_range

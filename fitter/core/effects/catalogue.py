@@ -23,10 +23,8 @@ def _first_order(m0: float, target: np.ndarray, h: np.ndarray, tau: float) -> np
     out = np.empty_like(target)
     out[0] = m0
     if len(h):
-        W = linear_recurrence(
-            np.array([m0]), (-x)[:, None].astype(complex), a[:, None].astype(complex), f[:, None].astype(complex)
-        )
-        out[1:] = W[:, 0].real
+        W = linear_recurrence(np.array([m0], dtype=float), (-x)[:, None], a[:, None], f[:, None])
+        out[1:] = W[:, 0]
     return out
 
 
@@ -232,13 +230,7 @@ def switching_states(u: np.ndarray, h: np.ndarray, S: float, u_up, u_dn, width: 
     out = np.empty((len(u), len(up)))
     out[0] = start
     if len(h):
-        W = linear_recurrence(
-            start,
-            (-total).astype(complex),
-            np.exp(-total).astype(complex),
-            (-np.expm1(-total) * target).astype(complex),
-        )
-        out[1:] = W.real
+        out[1:] = linear_recurrence(start, -total, np.exp(-total), -np.expm1(-total) * target)
     return out
 
 
