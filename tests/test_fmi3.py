@@ -35,8 +35,8 @@ from fmpy.validation import validate_fmu  # noqa: E402
 
 from fitter.core import load_model, simulate  # noqa: E402
 from fitter.fmu.host import simulate_fmu as simulate_fmu2  # noqa: E402
-from fitter.fmu.native import build_gain_fmu, build_native_fmu, c_sources, headers, SOURCE_DIR  # noqa: E402
-from fitter.fmu.native import model_data_header  # noqa: E402
+from fitter.fmu.native import build_gain_fmu, build_native_fmu  # noqa: E402
+from fitter.fmu.native_sources import GAIN_FILE, c_sources, model_data_header, source_files  # noqa: E402
 from conftest import sampled_input  # noqa: E402
 from test_fmu_native import ALL_EFFECTS, rd_model, ri_model  # noqa: E402
 
@@ -169,9 +169,9 @@ def test_fmu_is_a_python_free_source_fmu(fmus, tmp_path):
     with zipfile.ZipFile(path) as zf:
         names = set(zf.namelist())
         build = zf.read("sources/buildDescription.xml").decode()
-    assert {"binaries/x86_64-linux/semilinear_duhem.so", "sources/fmi3_framework.c",
+    assert {"binaries/x86_64-linux/semilinear_duhem.so", "sources/fmi3.c", "sources/cosimulation.c",
             "sources/duhem_model.c", "sources/model_data.h", "sources/fmi3Functions.h"} <= names
-    assert '<SourceFile name="fmi3_framework.c" />' in build
+    assert '<SourceFile name="fmi3.c" />' in build
     with zipfile.ZipFile(path) as zf:
         zf.extract("binaries/x86_64-linux/semilinear_duhem.so", tmp_path)
     library = tmp_path / "binaries" / "x86_64-linux" / "semilinear_duhem.so"
@@ -183,12 +183,12 @@ def test_fmu_is_a_python_free_source_fmu(fmus, tmp_path):
 
 
 def test_fmi3_sources_compile_without_warnings(tmp_path):
-    for name in c_sources(3) + headers(3) + ("gain_model.c",):
-        shutil.copyfile(SOURCE_DIR / name, tmp_path / name)
+    for name, path in (source_files(3) | source_files(3, GAIN_FILE)).items():
+        shutil.copyfile(path, tmp_path / name)
     for model in (ri_model(ALL_EFFECTS), rd_model(), load_model(REPO / "examples" / "demo_truth.json")):
         (tmp_path / "model_data.h").write_text(model_data_header(model, "{guid}"))
         result = subprocess.run(["cc", "-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-c",
-                                 *c_sources(3), "gain_model.c"], cwd=tmp_path, capture_output=True,
+                                 *c_sources(3), GAIN_FILE], cwd=tmp_path, capture_output=True,
                                 text=True)
         assert result.returncode == 0, result.stderr
 

@@ -444,16 +444,14 @@ def test_rollback_and_serialized_state_replay_exactly(fmus, backend):
 
 def test_compensator_source_compiles_without_warnings(tmp_path):
     from fitter.fmu.variables import reference_start
-    from fitter.fmu.native import COMPENSATOR_FILE, SOURCE_DIR, headers, model_data_header
+    from fitter.fmu.native_sources import COMPENSATOR_FILE, c_sources, compensator_data_header, source_files
 
-    for name in ("fmi2_framework.c", "duhem_model.c", COMPENSATOR_FILE) + headers(2):
-        shutil.copyfile(SOURCE_DIR / name, tmp_path / name)
+    for name, path in source_files(2, COMPENSATOR_FILE).items():
+        shutil.copyfile(path, tmp_path / name)
     for model in (rd1(), effects_model()):
-        header = model_data_header(model, "{guid}").replace(
-            "\n#endif\n", f"\n#define COMPENSATOR_REFERENCE_START {reference_start(model)!r}\n#endif\n")
-        (tmp_path / "model_data.h").write_text(header)
+        (tmp_path / "model_data.h").write_text(compensator_data_header(model, "{guid}", reference_start(model)))
         result = subprocess.run(["cc", "-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-c",
-                                 "fmi2_framework.c", COMPENSATOR_FILE], cwd=tmp_path, capture_output=True,
+                                 *c_sources(2, COMPENSATOR_FILE)], cwd=tmp_path, capture_output=True,
                                 text=True)
         assert result.returncode == 0, result.stderr
 

@@ -43,7 +43,8 @@ from fitter.core import (RateDependentModel, RateIndependentModel, Stepper,  # n
 from fitter.core.effects import REGISTRY  # noqa: E402
 from fitter.fmu.host import collecting_callbacks, simulate_fmu, validate_fmu_file  # noqa: E402
 from fitter.fmu.variables import model_variables  # noqa: E402
-from fitter.fmu.native import NATIVE_EFFECTS, NativeBuildError, build_native_fmu  # noqa: E402
+from fitter.fmu.native import NativeBuildError, build_native_fmu  # noqa: E402
+from fitter.fmu.native_sources import NATIVE_EFFECTS  # noqa: E402
 from conftest import sampled_input  # noqa: E402
 
 ALL_EFFECTS = [
@@ -171,7 +172,7 @@ def test_c_reads_the_registrys_numbers(tmp_path, monkeypatch):
     C computes with them: with the switching integrals capped at 0.05 instead of 40 (a cap that binds on every
     interval), kernel and C still agree to 1e-10, and both differ from the uncapped output."""
     import fitter.core.effects.catalogue as catalogue
-    from fitter.fmu.native import model_data_header
+    from fitter.fmu.native_sources import model_data_header
 
     model = ri_model(ALL_EFFECTS)
     header = model_data_header(model, "{guid}")
@@ -206,10 +207,9 @@ def test_shared_library_needs_no_python(fmus, unzipped):
     assert md.coSimulation.needsExecutionTool is False
     with zipfile.ZipFile(fmus["rd_effects"]) as zf:
         names = set(zf.namelist())
-    assert {"sources/fmi2_framework.c", "sources/duhem_model.c", "sources/model_data.h",
+    assert {"sources/fmi2.c", "sources/cosimulation.c", "sources/duhem_model.c", "sources/model_data.h",
             "sources/fmi2Functions.h"} <= names
-    assert md.buildConfigurations[0].sourceFileSets[0].sourceFiles == ["fmi2_framework.c",
-                                                                       "duhem_model.c"]
+    assert md.buildConfigurations[0].sourceFileSets[0].sourceFiles == ["fmi2.c", "duhem_model.c"]
     with zipfile.ZipFile(fmus["rd_effects"]) as zf:
         shipped = model_from_dict(json.loads(zf.read("resources/model.json")))
     assert shipped.to_dict() == MODELS["rd_effects"]().to_dict()
@@ -234,14 +234,14 @@ def test_source_fmu_compiles_with_fmpy(unzipped, tmp_path):
 
 
 def test_sources_compile_without_warnings(tmp_path):
-    from fitter.fmu.native import C_SOURCES, HEADERS, SOURCE_DIR, model_data_header
+    from fitter.fmu.native_sources import c_sources, model_data_header, source_files
 
-    for name in C_SOURCES + HEADERS:
-        shutil.copyfile(SOURCE_DIR / name, tmp_path / name)
+    for name, path in source_files(2).items():
+        shutil.copyfile(path, tmp_path / name)
     for model in (ri_model(ALL_EFFECTS), rd_model(), ri_small()):
         (tmp_path / "model_data.h").write_text(model_data_header(model, "{guid}"))
         result = subprocess.run(["cc", "-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror",
-                                 "-c", *C_SOURCES], cwd=tmp_path, capture_output=True, text=True)
+                                 "-c", *c_sources(2)], cwd=tmp_path, capture_output=True, text=True)
         assert result.returncode == 0, result.stderr
 
 
@@ -464,7 +464,6 @@ def test_instantiate_rejects_wrong_guid_and_type(unzipped):
 
 def test_every_core_effect_runs_natively():
     from fitter.core.effects import REGISTRY
-    from fitter.fmu.native import NATIVE_EFFECTS
 
     assert NATIVE_EFFECTS == {name for name, spec in REGISTRY.items() if spec.native}
     assert NATIVE_EFFECTS == set(REGISTRY) == {e["effect"] for e in ALL_EFFECTS}
@@ -496,9 +495,9 @@ def test_each_native_effect_equals_python_and_checks_its_ranges(name, tmp_path):
 
 
 def test_effect_without_native_implementation_is_refused(tmp_path, monkeypatch):
-    import fitter.fmu.native as native
+    import fitter.fmu.native_sources as native_sources
 
-    monkeypatch.setattr(native, "NATIVE_EFFECTS", native.NATIVE_EFFECTS - {"creep"})
+    monkeypatch.setattr(native_sources, "NATIVE_EFFECTS", native_sources.NATIVE_EFFECTS - {"creep"})
     with pytest.raises(ValueError, match="'creep' is not supported by the native backend"):
         build_native_fmu(ri_small(FUZZ_EFFECTS), tmp_path / "m.fmu")
     assert list(tmp_path.iterdir()) == []

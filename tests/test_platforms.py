@@ -41,7 +41,7 @@ from conftest import sampled_input
 from fitter.core import Compensator, load_model, save_model, simulate
 from fitter.data.recordings import load_recording
 from fitter.fmu.build import build_fmu
-from fitter.fmu.native import SOURCE_DIR
+from fitter.fmu.native_sources import fmi_headers_dir
 from fitter.fmu.toolchain import PLATFORMS, host_platform, parse_platforms, zig_command, zig_environment
 from test_fmu_native import ALL_EFFECTS, rd_model, ri_model
 from test_inverse import rd1, ri2
@@ -122,7 +122,7 @@ def _library(md, unzipdir: Path, folder: str, suffix: str) -> Path:
 
 def _fmi_functions(version: int) -> set[str]:
     """The fmiXxx functions the standard's header declares (every one the framework must export)."""
-    text = (SOURCE_DIR / f"fmi{version}Functions.h").read_text()
+    text = (fmi_headers_dir() / f"fmi{version}Functions.h").read_text()
     return set(re.findall(rf"#define\s+(fmi{version}\w+)\s+fmi{version}FullName\(", text))
 
 
@@ -149,12 +149,13 @@ def test_every_platform_has_its_binary_and_the_sources_stay(built, name):
     if md.fmiVersion == "2.0":
         assert binaries == {"linux64": f"{identifier}.so", "win64": f"{identifier}.dll",
                             "darwin64": f"{identifier}.dylib"}
-        assert md.buildConfigurations[0].sourceFileSets[0].sourceFiles[0] == "fmi2_framework.c"
+        assert md.buildConfigurations[0].sourceFileSets[0].sourceFiles[0] == "fmi2.c"
     else:
         assert binaries == {p: f"{identifier}{spec.suffix}" for p, spec in PLATFORMS.items()}
         assert "sources/buildDescription.xml" in names
     sources = {n for n in names if n.startswith("sources/")}
-    assert {f"sources/fmi{md.fmiVersion[0]}_framework.c", "sources/duhem_model.c", "sources/model_data.h"} <= sources
+    assert {f"sources/fmi{md.fmiVersion[0]}.c", "sources/cosimulation.c", "sources/duhem_model.c",
+            "sources/model_data.h"} <= sources
 
 
 @pytest.mark.parametrize("name", CASES)
@@ -175,7 +176,7 @@ def hosts(tmp_path_factory) -> dict[str, Path]:
                                 ("x86_64-windows", PLATFORMS["x86_64-windows"].target, [])):
         exe = d / ("fmi_host.exe" if "windows" in name else "fmi_host")
         command = [*zig_command(), "cc", "-target", target, "-O2", "-s", "-std=c99", "-Wall", "-Wextra", "-Werror",
-                   "-I", str(SOURCE_DIR), str(HOST_SOURCE), "-o", str(exe), *extra]
+                   "-I", str(fmi_headers_dir()), str(HOST_SOURCE), "-o", str(exe), *extra]
         result = subprocess.run(command, capture_output=True, text=True, cwd=d, env=zig_environment())
         assert result.returncode == 0, result.stderr
         out[name] = exe

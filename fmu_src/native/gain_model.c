@@ -1,5 +1,5 @@
 /*
- * A trivial model on the same FMI frameworks: y = k u (value references u = 0,
+ * A trivial model on the same FMI framework: y = k u (value references u = 0,
  * y = 1, k = 2; time = 3, the independent variable FMI 3.0 declares).  It measures the per-step floor of a native FMU (host loop
  * plus framework) in bench/fmu_throughput.py; it is not part of any exported
  * model FMU.

@@ -1,12 +1,13 @@
 /*
  * The interface between a model file (duhem_model.c, gain_model.c) and the
- * FMI frameworks that expose it: fmi2_framework.c (FMI 2.0 Co-Simulation)
- * and fmi3_framework.c (FMI 3.0 Co-Simulation).  One model file serves both:
- * it includes no FMI header and uses plain C types only (a value reference is
- * an unsigned int, an Integer an int, a Boolean an int 0/1, a String a const
- * char *); each framework converts its own types at the call.
+ * FMI framework that exposes it: cosimulation.c, compiled for FMI 2.0
+ * (fmi2.c) or FMI 3.0 (fmi3.c) Co-Simulation.  One model file serves both
+ * versions: it includes no FMI header and uses plain C types only (a value
+ * reference is an unsigned int, an Integer an int, a Boolean an int 0/1, a
+ * String a const char *); the framework converts each version's types at the
+ * call.
  *
- * A framework implements the instance, the call state machine, argument
+ * The framework implements the instance, the call state machine, argument
  * checks, logging, value access dispatch and FMU state get/set/serialize.  It
  * knows nothing about the model: the model file implements the hooks declared
  * below on an opaque, pointer-free block of model data, so that an FMU state
