@@ -11,6 +11,7 @@ and a flipped byte must be refused.
 Run as a script (``python tests/test_fmi3.py misuse FMU``) this file is the
 driver those subprocesses execute.
 """
+
 from __future__ import annotations
 
 import json
@@ -53,9 +54,10 @@ MODELS = {
 def fmus(tmp_path_factory):
     """name -> {2: FMI 2.0 FMU, 3: FMI 3.0 FMU} of the same model."""
     directory = tmp_path_factory.mktemp("fmi3")
-    return {name: {v: build_native_fmu(make(), directory / f"{name}_{v}.fmu", fmi_version=v)
-                   for v in (2, 3)}
-            for name, make in MODELS.items()}
+    return {
+        name: {v: build_native_fmu(make(), directory / f"{name}_{v}.fmu", fmi_version=v) for v in (2, 3)}
+        for name, make in MODELS.items()
+    }
 
 
 def _demo_input() -> tuple[np.ndarray, np.ndarray]:
@@ -74,8 +76,12 @@ class Fmi3Host:
         self.md = read_model_description(fmu_path)
         self.unzipdir = extract(fmu_path)
         self.messages = messages if messages is not None else []
-        self.fmu = FMU3Slave(guid=self.md.guid, unzipDirectory=self.unzipdir,
-                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName="test")
+        self.fmu = FMU3Slave(
+            guid=self.md.guid,
+            unzipDirectory=self.unzipdir,
+            modelIdentifier=self.md.coSimulation.modelIdentifier,
+            instanceName="test",
+        )
         self.fmu.instantiate(logMessage=self._log)
         self.t = 0.0
 
@@ -131,9 +137,17 @@ def test_fmi3_output_equals_fmi2_in_fmpy_simulate_fmu(fmus, name):
     t, u = _input(name)
     signal = np.array(list(zip(t, u)), dtype=[("time", np.float64), ("u", np.float64)])
     step = float(t[1] - t[0])
-    runs = {v: simulate_fmu(fmus[name][v], start_time=float(t[0]), stop_time=float(t[-1]),
-                            output_interval=step, input=signal, output=["y"])
-            for v in (2, 3)}
+    runs = {
+        v: simulate_fmu(
+            fmus[name][v],
+            start_time=float(t[0]),
+            stop_time=float(t[-1]),
+            output_interval=step,
+            input=signal,
+            output=["y"],
+        )
+        for v in (2, 3)
+    }
     assert np.array_equal(runs[2]["time"], runs[3]["time"]) and len(runs[3]) >= len(t) - 1
     assert np.abs(runs[3]["y"] - runs[2]["y"]).max() <= 1e-12
 
@@ -154,8 +168,9 @@ def test_model_description_carries_the_fmi2_metadata(fmus):
     units = {u.name: u for u in md3.unitDefinitions}
     assert {"V", "um", "s"} <= set(units) and units["um"].baseUnit.m == 1
     variables = {v.name: v for v in md3.modelVariables}
-    assert [(v.name, v.valueReference) for v in md2.modelVariables] == \
-        [(v.name, v.valueReference) for v in md3.modelVariables if v.name != "time"]
+    assert [(v.name, v.valueReference) for v in md2.modelVariables] == [
+        (v.name, v.valueReference) for v in md3.modelVariables if v.name != "time"
+    ]
     assert variables["time"].causality == "independent"
     assert variables["u"].unit == "V" and variables["y"].unit == "um"
     for structural in ("order", "kind"):
@@ -169,16 +184,23 @@ def test_fmu_is_a_python_free_source_fmu(fmus, tmp_path):
     with zipfile.ZipFile(path) as zf:
         names = set(zf.namelist())
         build = zf.read("sources/buildDescription.xml").decode()
-    assert {"binaries/x86_64-linux/semilinear_duhem.so", "sources/fmi3.c", "sources/cosimulation.c",
-            "sources/duhem_model.c", "sources/model_data.h", "sources/fmi3Functions.h"} <= names
+    assert {
+        "binaries/x86_64-linux/semilinear_duhem.so",
+        "sources/fmi3.c",
+        "sources/cosimulation.c",
+        "sources/duhem_model.c",
+        "sources/model_data.h",
+        "sources/fmi3Functions.h",
+    } <= names
     assert '<SourceFile name="fmi3.c" />' in build
     with zipfile.ZipFile(path) as zf:
         zf.extract("binaries/x86_64-linux/semilinear_duhem.so", tmp_path)
     library = tmp_path / "binaries" / "x86_64-linux" / "semilinear_duhem.so"
     deps = subprocess.run(["ldd", str(library)], capture_output=True, text=True, check=True).stdout
     assert "python" not in deps.lower()
-    symbols = subprocess.run(["nm", "-D", "--defined-only", str(library)], capture_output=True,
-                             text=True, check=True).stdout.split()[2::3]
+    symbols = subprocess.run(
+        ["nm", "-D", "--defined-only", str(library)], capture_output=True, text=True, check=True
+    ).stdout.split()[2::3]
     assert len(symbols) == 75 and all(s.startswith("fmi3") for s in symbols), symbols
 
 
@@ -187,9 +209,12 @@ def test_fmi3_sources_compile_without_warnings(tmp_path):
         shutil.copyfile(path, tmp_path / name)
     for model in (ri_model(ALL_EFFECTS), rd_model(), load_model(REPO / "examples" / "demo_truth.json")):
         (tmp_path / "model_data.h").write_text(model_data_header(model, "{guid}"))
-        result = subprocess.run(["cc", "-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-c",
-                                 *c_sources(3), GAIN_FILE], cwd=tmp_path, capture_output=True,
-                                text=True)
+        result = subprocess.run(
+            ["cc", "-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-c", *c_sources(3), GAIN_FILE],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+        )
         assert result.returncode == 0, result.stderr
 
 
@@ -207,7 +232,7 @@ def test_serialized_state_round_trips_and_every_flipped_byte_is_refused(fmus):
     t, u = sampled_input(200)
     host = Fmi3Host(fmus["rd_effects"][3]).start()
     fmu, k = host.fmu, 80
-    host.run(t[:k + 1], u[:k + 1])
+    host.run(t[: k + 1], u[: k + 1])
     state = fmu.getFMUState()
     blob = bytes(fmu.serializeFMUState(state))
     first = host.run(t[k:], u[k:])
@@ -310,8 +335,19 @@ def _misuse(fmu_path: str) -> dict:
     case("enterEventMode", fmu.enterEventMode)
     case("enterConfigurationMode", fmu.fmi3EnterConfigurationMode, c)
     case("getOutputDerivatives", fmu.getOutputDerivatives, [Y], [1])
-    case("getDirectionalDerivative", fmu.fmi3GetDirectionalDerivative, c, vr, 1, vr, 1,
-         (c_double * 1)(1.0), 1, (c_double * 1)(), 1)
+    case(
+        "getDirectionalDerivative",
+        fmu.fmi3GetDirectionalDerivative,
+        c,
+        vr,
+        1,
+        vr,
+        1,
+        (c_double * 1)(1.0),
+        1,
+        (c_double * 1)(),
+        1,
+    )
     case("setFMUState of garbage", fmu.fmi3SetFMUState, c, c_void_p(id(messages)))
     case("exitInitializationMode while stepping", fmu.exitInitializationMode)
     t, u = sampled_input(60)
@@ -328,19 +364,46 @@ def _misuse_instantiation(fmu_path: str) -> dict:
     """Instantiation arguments that must be refused: NULL instance and a logged message."""
     md = read_model_description(fmu_path)
     unzipdir = extract(fmu_path)
-    fmu = FMU3Slave(guid=md.guid, unzipDirectory=unzipdir,
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="test")
+    fmu = FMU3Slave(
+        guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier, instanceName="test"
+    )
     results, messages = {}, []
     callback = fmi3LogMessageCallback(lambda env, status, category, message: messages.append(message.decode()))
     none = (c_uint32 * 0)()
-    for name, token, instance, event_mode in (("wrong token", b"{x}", b"a", False),
-                                              ("empty name", md.guid.encode(), b"", False),
-                                              ("event mode used", md.guid.encode(), b"a", True)):
-        handle = fmu.fmi3InstantiateCoSimulation(instance, token, b"", False, False, event_mode, False,
-                                                 none, 0, None, callback, fmi3IntermediateUpdateCallback())
+    for name, token, instance, event_mode in (
+        ("wrong token", b"{x}", b"a", False),
+        ("empty name", md.guid.encode(), b"", False),
+        ("event mode used", md.guid.encode(), b"a", True),
+    ):
+        handle = fmu.fmi3InstantiateCoSimulation(
+            instance,
+            token,
+            b"",
+            False,
+            False,
+            event_mode,
+            False,
+            none,
+            0,
+            None,
+            callback,
+            fmi3IntermediateUpdateCallback(),
+        )
         results[name] = (handle is None, messages[-1] if messages else "")
-    handle = fmu.fmi3InstantiateCoSimulation(b"a", md.guid.encode(), b"", False, False, False, False,
-                                             (c_uint32 * 1)(Y), 1, None, callback, fmi3IntermediateUpdateCallback())
+    handle = fmu.fmi3InstantiateCoSimulation(
+        b"a",
+        md.guid.encode(),
+        b"",
+        False,
+        False,
+        False,
+        False,
+        (c_uint32 * 1)(Y),
+        1,
+        None,
+        callback,
+        fmi3IntermediateUpdateCallback(),
+    )
     results["intermediate variables listed"] = (handle is None, messages[-1] if messages else "")
     if handle is not None:
         fmu.fmi3FreeInstance(handle)
@@ -352,8 +415,7 @@ def _misuse_instantiation(fmu_path: str) -> dict:
 
 def test_state_machine_misuse_is_refused_and_changes_nothing(fmus):
     path = fmus["rd_effects"][3]
-    result = subprocess.run([sys.executable, __file__, "misuse", path], capture_output=True, text=True,
-                            timeout=300)
+    result = subprocess.run([sys.executable, __file__, "misuse", path], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-3000:]
     report = json.loads(result.stdout)
     for name, fragment in MISUSE_EXPECTED.items():
@@ -362,7 +424,7 @@ def test_state_machine_misuse_is_refused_and_changes_nothing(fmus):
     for name, fragment in INSTANTIATION_EXPECTED.items():
         refused, message = report["instantiation"][name]
         assert refused and fragment in message, (name, message)
-    assert not report["instantiation"]["intermediate variables listed"][0]   # ignored, as the Reference-FMUs do
+    assert not report["instantiation"]["intermediate variables listed"][0]  # ignored, as the Reference-FMUs do
     t, u = sampled_input(60)
     assert np.abs(np.array(report["y"]) - simulate(MODELS["rd_effects"](), t, u).y).max() <= 1e-10
 
@@ -377,13 +439,13 @@ def test_cli_exports_fmi3_and_refuses_it_for_the_python_backend(tmp_path):
 
     model = str(REPO / "examples" / "demo_truth.json")
     runner = CliRunner()
-    result = runner.invoke(main, ["export", model, "-o", str(tmp_path / "m.fmu"), "--fmi-version", "3",
-                                  "--json"])
+    result = runner.invoke(main, ["export", model, "-o", str(tmp_path / "m.fmu"), "--fmi-version", "3", "--json"])
     assert result.exit_code == 0, result.output
     assert json.loads(result.stdout)["fmi_version"] == "3.0"
     assert read_model_description(str(tmp_path / "m.fmu")).fmiVersion == "3.0"
-    result = runner.invoke(main, ["export", model, "-o", str(tmp_path / "p.fmu"), "--fmi-version", "3",
-                                  "--backend", "python"])
+    result = runner.invoke(
+        main, ["export", model, "-o", str(tmp_path / "p.fmu"), "--fmi-version", "3", "--backend", "python"]
+    )
     assert result.exit_code == 1
     assert "FMI 3.0 export needs --backend native" in result.output
     assert not (tmp_path / "p.fmu").exists()

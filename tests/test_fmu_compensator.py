@@ -13,6 +13,7 @@ misuse (NaN y_ref, a step after terminate, a corrupt state) is an error status w
 rollback and serialized state replay exactly.  Models: the monotone test models of test_inverse.py (rate independent,
 rate dependent, with effects).
 """
+
 from __future__ import annotations
 
 import json
@@ -41,8 +42,12 @@ class Slave:
         self._owned = unzipped is None
         self.md, self.unzipdir = unzipped or (read_model_description(path), extract(path))
         self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
-        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzipdir,
-                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName="c")
+        self.fmu = FMU2Slave(
+            guid=self.md.guid,
+            unzipDirectory=self.unzipdir,
+            modelIdentifier=self.md.coSimulation.modelIdentifier,
+            instanceName="c",
+        )
         self.log: list[str] = []
         self._callbacks = collecting_callbacks(self.log)
         self.fmu.instantiate(callbacks=self._callbacks, loggingOn=True)
@@ -62,8 +67,9 @@ class Slave:
         self.t += h
 
     def derivative(self, name, value):
-        self.fmu.fmi2SetRealInputDerivatives(self.fmu.component, (c_uint * 1)(self.vr[name]), 1, (c_int * 1)(1),
-                                             (c_double * 1)(value))
+        self.fmu.fmi2SetRealInputDerivatives(
+            self.fmu.component, (c_uint * 1)(self.vr[name]), 1, (c_int * 1)(1), (c_double * 1)(value)
+        )
 
     def free(self):
         self.fmu.terminate()
@@ -115,7 +121,7 @@ def _misuse(path: str, sequences: int) -> None:
     print(f"misuse: {sequences} sequences, statuses {sorted(statuses)}")
 
 
-if __name__ == "__main__":     # the misuse driver: numpy and fmpy only (matplotlib breaks under ASan)
+if __name__ == "__main__":  # the misuse driver: numpy and fmpy only (matplotlib breaks under ASan)
     _misuse(sys.argv[2], int(sys.argv[3]))
     sys.exit(0)
 
@@ -135,13 +141,19 @@ TOL = {"native": 1e-10, "python": 1e-12}
 
 
 def effects_model():
-    return ri2([Effect("backlash", {"b": 0.3}), Effect("creep", {"k": 0.1, "tau": 0.4}),
-                Effect("saturation", {"y_c": 4.0, "beta": 0.05})])
+    return ri2(
+        [
+            Effect("backlash", {"b": 0.3}),
+            Effect("creep", {"k": 0.1, "tau": 0.4}),
+            Effect("saturation", {"y_c": 4.0, "beta": 0.05}),
+        ]
+    )
 
 
 def named(model):
-    return model.replace(signals=Signals(Signal("voltage", "V", "drive voltage"),
-                                         Signal("displacement", "um", "stack displacement")))
+    return model.replace(
+        signals=Signals(Signal("voltage", "V", "drive voltage"), Signal("displacement", "um", "stack displacement"))
+    )
 
 
 MODELS = {"ri2": lambda: named(ri2()), "rd1": rd1, "effects": effects_model}
@@ -161,12 +173,14 @@ def fmus(tmp_path_factory):
     d = tmp_path_factory.mktemp("compensator")
     out = {}
     for name, backend in KINDS:
-        out[name, backend, 2] = build_fmu(MODELS[name](), d / f"{name}_{backend}_comp.fmu", backend=backend,
-                                          inverse=True)
+        out[name, backend, 2] = build_fmu(
+            MODELS[name](), d / f"{name}_{backend}_comp.fmu", backend=backend, inverse=True
+        )
         out[name, backend, "plant"] = build_fmu(MODELS[name](), d / f"{name}_{backend}.fmu", backend=backend)
     for name in ("ri2", "effects"):
-        out[name, "native", 3] = build_fmu(MODELS[name](), d / f"{name}_native3_comp.fmu", backend="native",
-                                           inverse=True, fmi_version=3)
+        out[name, "native", 3] = build_fmu(
+            MODELS[name](), d / f"{name}_native3_comp.fmu", backend="native", inverse=True, fmi_version=3
+        )
     return out
 
 
@@ -201,6 +215,7 @@ def standard_host(path: str, t, x, inp: str, out: str) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- numbers
+
 
 @pytest.mark.parametrize("name,backend", KINDS)
 def test_fmu_output_equals_compensator_run(fmus, name, backend):
@@ -261,8 +276,9 @@ def test_fmi3_compensator_gives_the_fmi2_numbers(fmus, name):
     md = read_model_description(fmus[name, "native", 3])
     vr = {v.name: v.valueReference for v in md.modelVariables}
     unzipdir = extract(fmus[name, "native", 3])
-    fmu = FMU3Slave(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier,
-                    instanceName="c3")
+    fmu = FMU3Slave(
+        guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier, instanceName="c3"
+    )
     fmu.instantiate()
     fmu.enterInitializationMode(startTime=0.0)
     fmu.exitInitializationMode()
@@ -288,8 +304,9 @@ def fmusim_order(path: str, version: int, t, y_ref) -> np.ndarray:
         md = read_model_description(path)
         vr = {v.name: v.valueReference for v in md.modelVariables}
         unzipdir = extract(path)
-        fmu = FMU3Slave(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier,
-                        instanceName="c3")
+        fmu = FMU3Slave(
+            guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier, instanceName="c3"
+        )
         fmu.instantiate()
         fmu.enterInitializationMode(startTime=float(t[0]))
         fmu.exitInitializationMode()
@@ -309,6 +326,7 @@ def fmusim_order(path: str, version: int, t, y_ref) -> np.ndarray:
             fmu.terminate()
             fmu.freeInstance()
             shutil.rmtree(unzipdir, ignore_errors=True)
+
     after = np.empty(len(t) - 1)
     for k in range(len(t) - 1):
         put(y_ref[k])
@@ -324,17 +342,19 @@ def test_u_read_after_the_step_keeps_the_held_input_in_fmusim_order(tmp_path):
     the fitted demo model).  Rate independent with backlash: the held input gives the same output at t_k+1."""
     model = named(ri2([Effect("backlash", {"b": 0.3})]))
     t = np.linspace(0.0, 4.0, 161)
-    y_ref = simulate(model, t, reversals(5, per=14)[:len(t)]).y
+    y_ref = simulate(model, t, reversals(5, per=14)[: len(t)]).y
     ref = Compensator(model, t0=0.0).run(t, y_ref)
     assert ref.n_clamped == 0
     for backend, version in (("native", 2), ("native", 3), ("python", 2)):
-        path = build_fmu(model, tmp_path / f"backlash_{backend}{version}.fmu", backend=backend, inverse=True,
-                         fmi_version=version)
+        path = build_fmu(
+            model, tmp_path / f"backlash_{backend}{version}.fmu", backend=backend, inverse=True, fmi_version=version
+        )
         after = fmusim_order(path, version, t, y_ref)
         assert np.abs(after - ref.u[:-1]).max() <= 1e-9 * max(1.0, np.abs(ref.u).max()), (backend, version)
 
 
 # ----------------------------------------------------------------------------- description
+
 
 def test_validate_fmu_finds_nothing(fmus):
     for key, path in fmus.items():
@@ -360,17 +380,20 @@ def test_metadata_names_the_compensator_and_turns_the_signals_round(fmus, backen
 
 # ----------------------------------------------------------------------------- misuse and state
 
+
 def test_native_misuse_is_an_error_status_and_changes_nothing(fmus):
     comp = Slave(fmus["effects", "native", 2])
     comp.set("y_ref", 1.0)
     comp.step(0.05)
     comp.set("y_ref", 1.2)
     u = comp.get("u")
-    for call, why in ((lambda: comp.set("y_ref", float("nan")), "not finite"),
-                      (lambda: comp.set("u", 0.3), "an output cannot be set"),
-                      (lambda: comp.derivative("y_ref", float("inf")), "not finite"),
-                      (lambda: comp.fmu.doStep(currentCommunicationPoint=comp.t, communicationStepSize=-0.1), ""),
-                      (lambda: comp.fmu.deSerializeFMUstate(b"\x00" * 64), "")):
+    for call, why in (
+        (lambda: comp.set("y_ref", float("nan")), "not finite"),
+        (lambda: comp.set("u", 0.3), "an output cannot be set"),
+        (lambda: comp.derivative("y_ref", float("inf")), "not finite"),
+        (lambda: comp.fmu.doStep(currentCommunicationPoint=comp.t, communicationStepSize=-0.1), ""),
+        (lambda: comp.fmu.deSerializeFMUstate(b"\x00" * 64), ""),
+    ):
         with pytest.raises(FMICallException) as exc:
             call()
         assert exc.value.status == FMI2_ERROR and why in comp.log[-1]
@@ -397,9 +420,13 @@ def test_python_misuse_is_an_error_status_with_its_reason(fmus):
         comp.fmu.doStep(currentCommunicationPoint=comp.t, communicationStepSize=0.1)
     assert exc.value.status == FMI2_DISCARD and "after fmi2Terminate" in comp.log[-1]
     comp.fmu.freeInstance()
-    for bad, why in ((lambda s: s.set("y_ref", float("nan")), "is not finite"),
-                     (lambda s: s.fmu.setFMUstate(s.fmu.deSerializeFMUstate(json.dumps({"x": 1}).encode())),
-                      "not a state of this FMU")):
+    for bad, why in (
+        (lambda s: s.set("y_ref", float("nan")), "is not finite"),
+        (
+            lambda s: s.fmu.setFMUstate(s.fmu.deSerializeFMUstate(json.dumps({"x": 1}).encode())),
+            "not a state of this FMU",
+        ),
+    ):
         s = Slave(fmus["ri2", "python", 2])
         with pytest.raises(FMICallException) as exc:
             bad(s)
@@ -450,13 +477,17 @@ def test_compensator_source_compiles_without_warnings(tmp_path):
         shutil.copyfile(path, tmp_path / name)
     for model in (rd1(), effects_model()):
         (tmp_path / "model_data.h").write_text(compensator_data_header(model, "{guid}", reference_start(model)))
-        result = subprocess.run(["cc", "-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-c",
-                                 *c_sources(2, COMPENSATOR_FILE)], cwd=tmp_path, capture_output=True,
-                                text=True)
+        result = subprocess.run(
+            ["cc", "-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-c", *c_sources(2, COMPENSATOR_FILE)],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+        )
         assert result.returncode == 0, result.stderr
 
 
 # ----------------------------------------------------------------------------- build and CLI
+
 
 def test_models_the_compensator_cannot_serve_are_refused(tmp_path):
     with pytest.raises(InverseError, match="input range"):
@@ -474,8 +505,10 @@ def test_export_inverse_command(tmp_path):
     out = tmp_path / "comp.fmu"
     result = runner.invoke(main, ["export", str(model), "--inverse", "-o", str(out), "--backend", "python"])
     assert result.exit_code != 0 and "--measurement drop" in result.output and not out.exists()
-    result = runner.invoke(main, ["export", str(model), "--inverse", "--measurement", "drop", "-o", str(out),
-                                  "--backend", "python", "--json"])
+    result = runner.invoke(
+        main,
+        ["export", str(model), "--inverse", "--measurement", "drop", "-o", str(out), "--backend", "python", "--json"],
+    )
     assert result.exit_code == 0, result.output
     info = json.loads(result.stdout)
     assert info["inverse"] is True and info["backend"] == "python"
@@ -498,11 +531,21 @@ def test_sanitized_compensator_survives_random_misuse(tmp_path):
     if not os.path.isabs(runtime):
         pytest.skip("the C compiler ships no AddressSanitizer runtime")
     path = build_native_compensator(effects_model(), tmp_path / "comp.fmu", sanitize=True)
-    env = {**os.environ, "PYTHONPATH": str(REPO), "LD_PRELOAD": runtime,
-           "ASAN_OPTIONS": "detect_leaks=0:abort_on_error=1", "UBSAN_OPTIONS": "print_stacktrace=1:halt_on_error=1"}
-    result = subprocess.run([sys.executable, __file__, "misuse", str(path), "60"], capture_output=True, text=True,
-                            env=env, cwd=REPO, timeout=300)
+    env = {
+        **os.environ,
+        "PYTHONPATH": str(REPO),
+        "LD_PRELOAD": runtime,
+        "ASAN_OPTIONS": "detect_leaks=0:abort_on_error=1",
+        "UBSAN_OPTIONS": "print_stacktrace=1:halt_on_error=1",
+    }
+    result = subprocess.run(
+        [sys.executable, __file__, "misuse", str(path), "60"],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=REPO,
+        timeout=300,
+    )
     assert result.returncode == 0, result.stdout + result.stderr
     assert "misuse: 60 sequences" in result.stdout
     assert "AddressSanitizer" not in result.stderr and "runtime error" not in result.stderr
-

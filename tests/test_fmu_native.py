@@ -12,6 +12,7 @@ Run as a script (``python tests/test_fmu_native.py fuzz FMU MODEL EXAMPLES`` or
 ``... check FMU MODEL``, MODEL a key of `MODELS`) this file is the driver that
 those subprocesses execute.
 """
+
 from __future__ import annotations
 
 import copy
@@ -34,12 +35,24 @@ sys.path.insert(0, str(REPO))
 
 from fmpy import extract, read_model_description  # noqa: E402
 from fmpy.fmi1 import FMICallException  # noqa: E402
-from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE,  # noqa: E402
-                       fmi2CallbackFreeMemoryTYPE, fmi2CoSimulation, fmi2DoStepStatus,
-                       fmi2LastSuccessfulTime, fmi2ModelExchange)
+from fmpy.fmi2 import (  # noqa: E402
+    FMU2Slave,
+    fmi2CallbackAllocateMemoryTYPE,
+    fmi2CallbackFreeMemoryTYPE,
+    fmi2CoSimulation,
+    fmi2DoStepStatus,
+    fmi2LastSuccessfulTime,
+    fmi2ModelExchange,
+)
 
-from fitter.core import (RateDependentModel, RateIndependentModel, Stepper,  # noqa: E402
-                         TabulatedRate, model_from_dict, simulate)
+from fitter.core import (  # noqa: E402
+    RateDependentModel,
+    RateIndependentModel,
+    Stepper,
+    TabulatedRate,
+    model_from_dict,
+    simulate,
+)
 from fitter.core.effects import REGISTRY  # noqa: E402
 from fitter.fmu.host import collecting_callbacks, simulate_fmu, validate_fmu_file  # noqa: E402
 from fitter.fmu.variables import model_variables  # noqa: E402
@@ -51,11 +64,26 @@ ALL_EFFECTS = [
     {"effect": "backlash", "parameters": {"b": 0.15}},
     {"effect": "rate_dependence", "parameters": {"alpha": 0.4}},
     {"effect": "creep", "parameters": {"k": 0.2, "tau": 0.6}},
-    {"effect": "relaxation", "parameters": {"k": 0.08, "w2": 0.3, "w3": 1.5, "w4": 0.2, "tau_min": 0.05,
-                                            "tau_max": 20.0}},
-    {"effect": "switching", "parameters": {"S1": 0.25, "u_up1": 0.2, "u_dn1": -0.3, "width1": 0.08, "q1": -0.5,
-                                           "spread1": 0.12, "S2": 0.1, "u_up2": 0.5, "u_dn2": -0.6, "width2": 0.2,
-                                           "q2": 0.3}},
+    {
+        "effect": "relaxation",
+        "parameters": {"k": 0.08, "w2": 0.3, "w3": 1.5, "w4": 0.2, "tau_min": 0.05, "tau_max": 20.0},
+    },
+    {
+        "effect": "switching",
+        "parameters": {
+            "S1": 0.25,
+            "u_up1": 0.2,
+            "u_dn1": -0.3,
+            "width1": 0.08,
+            "q1": -0.5,
+            "spread1": 0.12,
+            "S2": 0.1,
+            "u_up2": 0.5,
+            "u_dn2": -0.6,
+            "width2": 0.2,
+            "q2": 0.3,
+        },
+    },
     {"effect": "viscous", "parameters": {"c": 0.03}},
     {"effect": "thermal_drift", "parameters": {"kappa": 0.02}},
     {"effect": "saturation", "parameters": {"y_c": 0.1, "beta": 0.7}},
@@ -73,18 +101,27 @@ def ri_model(effects=()):
     """Order 3 with E and D (a fitted model's full parameter set)."""
     A_p = np.array([[-2.0, 1.0, 0.0], [-1.0, -2.0, 0.5], [0.0, -0.5, -1.0]])
     A_m = np.array([[-1.5, -1.0, 0.2], [1.0, -1.5, 0.0], [0.0, 0.3, -2.0]])
-    return RateIndependentModel(A_plus=A_p, A_minus=A_m, B_plus=[1.0, 0.5, -0.2],
-                                B_minus=[0.8, -0.4, 0.3], E_plus=[0.1, 0.0, -0.05],
-                                E_minus=[-0.1, 0.02, 0.0], C=[1.0, -0.5, 0.25], D=0.4,
-                                x0=[0.2, -0.1, 0.05], effects=list(effects))
+    return RateIndependentModel(
+        A_plus=A_p,
+        A_minus=A_m,
+        B_plus=[1.0, 0.5, -0.2],
+        B_minus=[0.8, -0.4, 0.3],
+        E_plus=[0.1, 0.0, -0.05],
+        E_minus=[-0.1, 0.02, 0.0],
+        C=[1.0, -0.5, 0.25],
+        D=0.4,
+        x0=[0.2, -0.1, 0.05],
+        effects=list(effects),
+    )
 
 
 def rd_model(effects=()):
     """The paper's Example 3 with g tabulated on both sides, plus E and D."""
     nodes = np.geomspace(0.05, 6.0, 9)
     g = TabulatedRate.from_function(g3, np.r_[-nodes[::-1], nodes])
-    return RateDependentModel(A=[[0, 1], [-3, -1]], B=[1, 0], C=[1, 1], E=[0.1, -0.05], D=0.05,
-                              g=g, x0=[0.1, -0.2], effects=list(effects))
+    return RateDependentModel(
+        A=[[0, 1], [-3, -1]], B=[1, 0], C=[1, 1], E=[0.1, -0.05], D=0.05, g=g, x0=[0.1, -0.2], effects=list(effects)
+    )
 
 
 def rd_one_sided():
@@ -95,21 +132,31 @@ def rd_one_sided():
 def ri_small(effects=()):
     """Paper Example 1 (order 2); with creep and backlash for the fuzz test."""
     A = np.array([[-1.0, 4.0], [-4.0, -1.0]])
-    return RateIndependentModel(A_plus=A, A_minus=-A, B_plus=[0.0, 1.0], B_minus=[0.0, -1.0],
-                                C=[0, 1], x0=[0.15, 0.15], effects=list(effects))
+    return RateIndependentModel(
+        A_plus=A, A_minus=-A, B_plus=[0.0, 1.0], B_minus=[0.0, -1.0], C=[0, 1], x0=[0.15, 0.15], effects=list(effects)
+    )
 
 
 def rd_small(effects=()):
     """Order 2, a four-node rate table (for the fuzz test)."""
-    return RateDependentModel(A=[[-2.0, 0.3], [0.0, -1.0]], B=[2.0, 1.0], C=[1.0, 0.5], E=[0.1, 0.0],
-                              g=TabulatedRate([-1.0, -0.3, 0.4, 1.5], [0.8, 0.3, 0.35, 1.2]),
-                              effects=list(effects))
+    return RateDependentModel(
+        A=[[-2.0, 0.3], [0.0, -1.0]],
+        B=[2.0, 1.0],
+        C=[1.0, 0.5],
+        E=[0.1, 0.0],
+        g=TabulatedRate([-1.0, -0.3, 0.4, 1.5], [0.8, 0.3, 0.35, 1.2]),
+        effects=list(effects),
+    )
 
 
-FUZZ_EFFECTS = [{"effect": "creep", "parameters": {"k": 0.2, "tau": 0.6}},
-                {"effect": "backlash", "parameters": {"b": 0.1}}]
-FUZZ_RD_EFFECTS = [{"effect": "rate_dependence", "parameters": {"alpha": 0.3}},
-                   {"effect": "sensor_lag", "parameters": {"tau": 0.05}}]
+FUZZ_EFFECTS = [
+    {"effect": "creep", "parameters": {"k": 0.2, "tau": 0.6}},
+    {"effect": "backlash", "parameters": {"b": 0.1}},
+]
+FUZZ_RD_EFFECTS = [
+    {"effect": "rate_dependence", "parameters": {"alpha": 0.3}},
+    {"effect": "sensor_lag", "parameters": {"tau": 0.05}},
+]
 # The parameters each fuzz model's sequences set (g_v can collide: an invalid rate table).
 FUZZ_PARAMETERS = {
     "fuzz": ["x0[1]", "C[1]", "creep.tau", "backlash.b"],
@@ -201,14 +248,20 @@ def test_shared_library_needs_no_python(fmus, unzipped):
     names = {line.split()[0].split(".so")[0] for line in deps.splitlines() if line.strip()}
     assert "python" not in deps.lower()
     assert names <= {"linux-vdso", "libc", "libm", "/lib64/ld-linux-x86-64"}, names
-    symbols = subprocess.run(["nm", "-D", "--defined-only", str(library)], capture_output=True,
-                             text=True, check=True).stdout.split()[2::3]
+    symbols = subprocess.run(
+        ["nm", "-D", "--defined-only", str(library)], capture_output=True, text=True, check=True
+    ).stdout.split()[2::3]
     assert symbols and all(s.startswith("fmi2") for s in symbols), symbols
     assert md.coSimulation.needsExecutionTool is False
     with zipfile.ZipFile(fmus["rd_effects"]) as zf:
         names = set(zf.namelist())
-    assert {"sources/fmi2.c", "sources/cosimulation.c", "sources/duhem_model.c", "sources/model_data.h",
-            "sources/fmi2Functions.h"} <= names
+    assert {
+        "sources/fmi2.c",
+        "sources/cosimulation.c",
+        "sources/duhem_model.c",
+        "sources/model_data.h",
+        "sources/fmi2Functions.h",
+    } <= names
     assert md.buildConfigurations[0].sourceFileSets[0].sourceFiles == ["fmi2.c", "duhem_model.c"]
     with zipfile.ZipFile(fmus["rd_effects"]) as zf:
         shipped = model_from_dict(json.loads(zf.read("resources/model.json")))
@@ -240,8 +293,12 @@ def test_sources_compile_without_warnings(tmp_path):
         shutil.copyfile(path, tmp_path / name)
     for model in (ri_model(ALL_EFFECTS), rd_model(), ri_small()):
         (tmp_path / "model_data.h").write_text(model_data_header(model, "{guid}"))
-        result = subprocess.run(["cc", "-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror",
-                                 "-c", *c_sources(2)], cwd=tmp_path, capture_output=True, text=True)
+        result = subprocess.run(
+            ["cc", "-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-c", *c_sources(2)],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+        )
         assert result.returncode == 0, result.stderr
 
 
@@ -296,11 +353,13 @@ int main(int argc, char **argv)
 
 def _run_c_host(unzipdir: str, md, tmp_path: Path, flags: tuple[str, ...] = ()) -> np.ndarray:
     (tmp_path / "host.c").write_text(C_HOST)
-    subprocess.run(["cc", *flags, "-I", str(Path(unzipdir) / "sources"), "host.c", "-o", "host",
-                    "-ldl", "-lm"], cwd=tmp_path, check=True)
+    subprocess.run(
+        ["cc", *flags, "-I", str(Path(unzipdir) / "sources"), "host.c", "-o", "host", "-ldl", "-lm"],
+        cwd=tmp_path,
+        check=True,
+    )
     library = Path(unzipdir) / "binaries" / "linux64" / f"{md.coSimulation.modelIdentifier}.so"
-    result = subprocess.run([str(tmp_path / "host"), str(library), md.guid], capture_output=True,
-                            text=True, timeout=60)
+    result = subprocess.run([str(tmp_path / "host"), str(library), md.guid], capture_output=True, text=True, timeout=60)
     assert result.returncode == 0, result.stderr
     return np.array(result.stdout.split(), dtype=float)
 
@@ -386,7 +445,7 @@ def test_refused_calls_report_and_change_nothing(unzipped):
     _expect_error(inst, "illegal call sequence", fmu.getReal, [vr["y"]])
     _expect_error(inst, "must be positive", fmu.setReal, [vr["creep.tau"]], [0.0])
     _expect_error(inst, "must be >= 0", fmu.setReal, [vr["backlash.b"]], [-1.0])
-    _expect_error(inst, "unknown value reference", fmu.setReal, [10 ** 6], [1.0])
+    _expect_error(inst, "unknown value reference", fmu.setReal, [10**6], [1.0])
     _expect_error(inst, "structural", fmu.setInteger, [vr["order"]], [3])
     fmu.setInteger([vr["order"]], [2])
     _expect_error(inst, "structural", fmu.setString, [vr["kind"]], ["ri"])
@@ -394,20 +453,18 @@ def test_refused_calls_report_and_change_nothing(unzipped):
     inst.initialise(u0=u[0])
     _expect_error(inst, "not finite", fmu.setReal, [vr["u"]], [math.nan])
     _expect_error(inst, "not finite", fmu.setReal, [vr["u"]], [math.inf])
-    _expect_error(inst, "A[1,1] (value reference 4) = 1: a fixed parameter", fmu.setReal,
-                  [vr["A[1,1]"]], [1.0])
+    _expect_error(inst, "A[1,1] (value reference 4) = 1: a fixed parameter", fmu.setReal, [vr["A[1,1]"]], [1.0])
     _expect_error(inst, "output cannot be set", fmu.setReal, [vr["y"]], [1.0])
     _expect_error(inst, "must be positive", fmu.doStep, 0.0, 0.0)
     _expect_error(inst, "must be positive", fmu.doStep, 0.0, -0.1)
     _expect_error(inst, "must be positive", fmu.doStep, 0.0, math.nan)
     _expect_error(inst, "is not the FMU's time", fmu.doStep, 1.0, 0.1)
-    _expect_error(inst, "unknown value reference", fmu.getReal, [10 ** 6])
+    _expect_error(inst, "unknown value reference", fmu.getReal, [10**6])
     _expect_error(inst, "vr is NULL", fmu.fmi2GetReal, c, None, 1, None)
     _expect_error(inst, "value is NULL", fmu.fmi2SetReal, c, (c_uint * 1)(vr["u"]), 1, None)
     _expect_error(inst, "FMUstate is NULL", fmu.fmi2GetFMUstate, c, None)
     _expect_error(inst, "FMUstate is NULL", fmu.fmi2SetFMUstate, c, None)
-    _expect_error(inst, "unknown log category", fmu.fmi2SetDebugLogging, c, 1, 1,
-                  (c_char_p * 1)(b"logNothing"))
+    _expect_error(inst, "unknown log category", fmu.fmi2SetDebugLogging, c, 1, 1, (c_char_p * 1)(b"logNothing"))
     state = fmu.getFMUstate()
     size = len(fmu.serializeFMUstate(state))
     fmu.freeFMUstate(state)
@@ -416,11 +473,19 @@ def test_refused_calls_report_and_change_nothing(unzipped):
     set_time = fmu.dll.fmi2SetTime
     set_time.argtypes, set_time.restype = [c_void_p, c_double], c_int
     assert set_time(c, 0.0) == 3 and "Model Exchange is not supported" in inst.log[-1]
-    _expect_error(inst, "only order 1 is supported", fmu.fmi2SetRealInputDerivatives, c,
-                  (c_uint * 1)(inst.vr["u"]), 1, (c_int * 1)(2), (c_double * 1)(1.0))
-    assert status_of(fmu.getStatus, fmi2DoStepStatus) == 2          # fmi2Discard
+    _expect_error(
+        inst,
+        "only order 1 is supported",
+        fmu.fmi2SetRealInputDerivatives,
+        c,
+        (c_uint * 1)(inst.vr["u"]),
+        1,
+        (c_int * 1)(2),
+        (c_double * 1)(1.0),
+    )
+    assert status_of(fmu.getStatus, fmi2DoStepStatus) == 2  # fmi2Discard
     assert fmu.getRealStatus(fmi2LastSuccessfulTime) == 0.0
-    y = inst.run(t, u)             # every refusal left the instance as it was
+    y = inst.run(t, u)  # every refusal left the instance as it was
     inst.fmu.terminate()
     _expect_error(inst, "illegal call sequence", fmu.doStep, inst.t, 0.1)
     inst.free()
@@ -443,20 +508,18 @@ def test_instantiate_rejects_wrong_guid_and_type(unzipped):
     md, unzipdir = unzipped["ri"]
     log: list[str] = []
     callbacks = collecting_callbacks(log)
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="x")
+    fmu = FMU2Slave(
+        guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier, instanceName="x"
+    )
     assert fmu.fmi2Instantiate(b"x", fmi2CoSimulation, b"{wrong}", b"", byref(callbacks), 0, 0) is None
-    assert fmu.fmi2Instantiate(b"x", fmi2ModelExchange, md.guid.encode(), b"", byref(callbacks), 0,
-                               0) is None
-    assert fmu.fmi2Instantiate(b"", fmi2CoSimulation, md.guid.encode(), b"", byref(callbacks), 0,
-                               0) is None
+    assert fmu.fmi2Instantiate(b"x", fmi2ModelExchange, md.guid.encode(), b"", byref(callbacks), 0, 0) is None
+    assert fmu.fmi2Instantiate(b"", fmi2CoSimulation, md.guid.encode(), b"", byref(callbacks), 0, 0) is None
     assert fmu.fmi2Instantiate(b"x", fmi2CoSimulation, md.guid.encode(), b"", None, 0, 0) is None
     assert any("does not match" in m for m in log) and any("Co-Simulation only" in m for m in log)
     assert any("non-empty" in m for m in log)
-    callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE()   # NULL: the FMU declares
-    callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE()           # canNotUseMemoryManagementFunctions
-    component = fmu.fmi2Instantiate(b"x", fmi2CoSimulation, md.guid.encode(), b"",
-                                    byref(callbacks), 0, 0)
+    callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE()  # NULL: the FMU declares
+    callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE()  # canNotUseMemoryManagementFunctions
+    component = fmu.fmi2Instantiate(b"x", fmi2CoSimulation, md.guid.encode(), b"", byref(callbacks), 0, 0)
     assert component is not None
     fmu.fmi2FreeInstance(component)
     fmu.freeLibrary()
@@ -486,11 +549,15 @@ def test_each_native_effect_equals_python_and_checks_its_ranges(name, tmp_path):
             _expect_error(inst, "not finite", inst.fmu.setReal, [inst.vr[f"{name}.{par.name}"]], [value])
         if par.lower > -math.inf:
             low = par.lower if par.strict else par.lower - 1e-9 * max(1.0, abs(par.lower))
-            _expect_error(inst, f"must be {par.rule()}", inst.fmu.setReal,
-                          [inst.vr[f"{name}.{par.name}"]], [low])
+            _expect_error(inst, f"must be {par.rule()}", inst.fmu.setReal, [inst.vr[f"{name}.{par.name}"]], [low])
         if par.upper < math.inf:
-            _expect_error(inst, f"must be {par.rule()}", inst.fmu.setReal,
-                          [inst.vr[f"{name}.{par.name}"]], [par.upper * (1 + 1e-9) + 1e-9])
+            _expect_error(
+                inst,
+                f"must be {par.rule()}",
+                inst.fmu.setReal,
+                [inst.vr[f"{name}.{par.name}"]],
+                [par.upper * (1 + 1e-9) + 1e-9],
+            )
     inst.free()
 
 
@@ -506,8 +573,7 @@ def test_effect_without_native_implementation_is_refused(tmp_path, monkeypatch):
 def test_build_fmu_dispatches_to_the_native_backend(tmp_path):
     import build_fmu
 
-    path = build_fmu.build_fmu(ri_small(), tmp_path / "m.fmu", backend="native",
-                               model_name="Example 1")
+    path = build_fmu.build_fmu(ri_small(), tmp_path / "m.fmu", backend="native", model_name="Example 1")
     md = read_model_description(path)
     assert md.modelName == "Example 1" and md.coSimulation.needsExecutionTool is False
     t, u = sampled_input(60)
@@ -542,8 +608,14 @@ def test_benchmark_gain_fmu_is_valid_and_computes_k_u(tmp_path):
 
 def _driver(mode: str, fmu_path: Path, *arguments, env: dict | None = None):
     environment = {**os.environ, "PYTHONPATH": str(REPO), **(env or {})}
-    return subprocess.run([sys.executable, __file__, mode, str(fmu_path), *map(str, arguments)],
-                          capture_output=True, text=True, env=environment, cwd=REPO, timeout=300)
+    return subprocess.run(
+        [sys.executable, __file__, mode, str(fmu_path), *map(str, arguments)],
+        capture_output=True,
+        text=True,
+        env=environment,
+        cwd=REPO,
+        timeout=300,
+    )
 
 
 @pytest.mark.parametrize("name", FUZZ_PARAMETERS)
@@ -554,15 +626,19 @@ def test_random_call_sequences_never_crash(fmus, name):
 
 
 def test_sanitized_build_runs_clean(tmp_path):
-    runtime = subprocess.run(["cc", "-print-file-name=libasan.so"], capture_output=True,
-                             text=True).stdout.strip()
+    runtime = subprocess.run(["cc", "-print-file-name=libasan.so"], capture_output=True, text=True).stdout.strip()
     assert os.path.isabs(runtime), "the C compiler ships no AddressSanitizer runtime"
-    env = {"LD_PRELOAD": runtime, "ASAN_OPTIONS": "detect_leaks=0:abort_on_error=1",
-           "UBSAN_OPTIONS": "print_stacktrace=1:halt_on_error=1"}
-    runs = [("fuzz", "fuzz", (60,), "fuzz: 60 sequences"),
-            ("fuzz", "fuzz_rd", (60,), "fuzz: 60 sequences"),
-            ("check", "rd_effects", (), "check: rd_effects kernel match"),
-            ("check", "rd_one_sided", (), "check: rd_one_sided kernel match")]
+    env = {
+        "LD_PRELOAD": runtime,
+        "ASAN_OPTIONS": "detect_leaks=0:abort_on_error=1",
+        "UBSAN_OPTIONS": "print_stacktrace=1:halt_on_error=1",
+    }
+    runs = [
+        ("fuzz", "fuzz", (60,), "fuzz: 60 sequences"),
+        ("fuzz", "fuzz_rd", (60,), "fuzz: 60 sequences"),
+        ("check", "rd_effects", (), "check: rd_effects kernel match"),
+        ("check", "rd_one_sided", (), "check: rd_one_sided kernel match"),
+    ]
     for mode, name, arguments, expected in runs:
         path = build_native_fmu(MODELS[name](), tmp_path / f"{name}.fmu", sanitize=True)
         result = _driver(mode, Path(path), name, *arguments, env=env)
@@ -572,8 +648,12 @@ def test_sanitized_build_runs_clean(tmp_path):
     # and in a sanitized C host, without LD_PRELOAD
     path = tmp_path / "rd_effects.fmu"
     unzipdir = extract(str(path), str(tmp_path / "unzipped"))
-    y = _run_c_host(unzipdir, read_model_description(str(path)), tmp_path,
-                    ("-fsanitize=address,undefined", "-fno-sanitize-recover=undefined"))
+    y = _run_c_host(
+        unzipdir,
+        read_model_description(str(path)),
+        tmp_path,
+        ("-fsanitize=address,undefined", "-fno-sanitize-recover=undefined"),
+    )
     t = 0.05 * np.arange(200)
     assert np.abs(y - simulate(MODELS["rd_effects"](), t, np.sin(0.7 * t)).y).max() < 1e-10
 
@@ -624,8 +704,12 @@ class Reference:
 def _loaded(fmu_path: str):
     """An uninstantiated FMU2Slave of the FMU, and logging callbacks."""
     md = read_model_description(fmu_path)
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(fmu_path),
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="driver")
+    fmu = FMU2Slave(
+        guid=md.guid,
+        unzipDirectory=extract(fmu_path),
+        modelIdentifier=md.coSimulation.modelIdentifier,
+        instanceName="driver",
+    )
     return fmu, collecting_callbacks([])
 
 
@@ -655,7 +739,7 @@ def _kernel_match(fmu, callbacks, model) -> None:
         fmu.doStep(t[k - 1], t[k] - t[k - 1])
         fmu.setReal([vr["u"]], [u[k]])
         replay.append(fmu.getReal([vr["y"]])[0])
-    fmu.fmi2FreeInstance(fmu.component)       # keeps the library loaded, unlike freeInstance
+    fmu.fmi2FreeInstance(fmu.component)  # keeps the library loaded, unlike freeInstance
     assert np.abs(np.array(y) - simulate(model, t, u).y).max() < 1e-10
     assert replay == y[60:]
 
@@ -670,18 +754,42 @@ def _fuzz(fmu_path: str, name: str, examples: int) -> None:
     _kernel_match(fmu, callbacks, model)
     print("fuzz: kernel match")
 
-    values = st.sampled_from([0.3, -0.5, 1.2, 0.0, math.nan, math.inf, -math.inf]) | \
-        st.floats(-2.0, 2.0)
+    values = st.sampled_from([0.3, -0.5, 1.2, 0.0, math.nan, math.inf, -math.inf]) | st.floats(-2.0, 2.0)
     set_u = st.tuples(st.just("set_u"), values)
     get_y = st.tuples(st.just("get_y"))
-    step = st.tuples(st.just("step"), st.sampled_from([0.05, 0.3, 1e-3, 0.05, 0.0, -0.1, math.nan]),
-                     st.sampled_from([0.0, 0.0, 0.0, 1.0]))
-    ops = st.one_of(                         # stepping calls repeated: drawn more often
-        set_u, get_y, step, set_u, get_y, step,
-        st.tuples(st.sampled_from(["setup", "enter", "exit", "terminate", "reset",
-                                   "get_state", "status", "discard", "get_unknown", "null"])),
-        st.tuples(st.just("set_param"), st.sampled_from(FUZZ_PARAMETERS[name]),
-                  values | st.sampled_from([-1.0, -0.3, 0.4, 1.5])),
+    step = st.tuples(
+        st.just("step"),
+        st.sampled_from([0.05, 0.3, 1e-3, 0.05, 0.0, -0.1, math.nan]),
+        st.sampled_from([0.0, 0.0, 0.0, 1.0]),
+    )
+    ops = st.one_of(  # stepping calls repeated: drawn more often
+        set_u,
+        get_y,
+        step,
+        set_u,
+        get_y,
+        step,
+        st.tuples(
+            st.sampled_from(
+                [
+                    "setup",
+                    "enter",
+                    "exit",
+                    "terminate",
+                    "reset",
+                    "get_state",
+                    "status",
+                    "discard",
+                    "get_unknown",
+                    "null",
+                ]
+            )
+        ),
+        st.tuples(
+            st.just("set_param"),
+            st.sampled_from(FUZZ_PARAMETERS[name]),
+            values | st.sampled_from([-1.0, -0.3, 0.4, 1.5]),
+        ),
         st.tuples(st.sampled_from(["set_state", "free_state", "roundtrip"]), st.integers(0, 3)),
         st.tuples(st.just("garbage"), st.binary(max_size=64)),
         st.tuples(st.just("set_order"), st.integers(1, 3)),
@@ -695,8 +803,9 @@ def _fuzz(fmu_path: str, name: str, examples: int) -> None:
 
     prefixes = st.sampled_from([[], [("enter",)], [("enter",), ("exit",)]])
 
-    @settings(max_examples=examples, derandomize=True, deadline=None, database=None,
-              suppress_health_check=list(HealthCheck))
+    @settings(
+        max_examples=examples, derandomize=True, deadline=None, database=None, suppress_health_check=list(HealthCheck)
+    )
     @given(prefixes, st.lists(ops, min_size=10, max_size=40))
     def sequence(prefix, calls):
         calls = prefix + calls
@@ -721,11 +830,11 @@ def _fuzz(fmu_path: str, name: str, examples: int) -> None:
                 ref.t0 = 0.5
                 ref.stepper.reset(0.5, ref.stepper.u, ref.stepper.x_a)
         elif kind in ("enter", "exit", "terminate"):
-            source, target, call = {"enter": ("instantiated", "initialization",
-                                              fmu.enterInitializationMode),
-                                    "exit": ("initialization", "stepping",
-                                             fmu.exitInitializationMode),
-                                    "terminate": ("stepping", "terminated", fmu.terminate)}[kind]
+            source, target, call = {
+                "enter": ("instantiated", "initialization", fmu.enterInitializationMode),
+                "exit": ("initialization", "stepping", fmu.exitInitializationMode),
+                "terminate": ("stepping", "terminated", fmu.terminate),
+            }[kind]
             ok = mode == source and not (kind == "exit" and ref.invalid)
             expect(status_of(call), ok)
             ref.mode = target if ok else mode
@@ -764,8 +873,7 @@ def _fuzz(fmu_path: str, name: str, examples: int) -> None:
             expect(status_of(fmu.fmi2GetRealStatus, c, fmi2LastSuccessfulTime, byref(value)), ok)
             assert not ok or value.value == ref.stepper.t
         elif kind == "discard":
-            assert status_of(fmu.getStatus, fmi2DoStepStatus) == \
-                (2 if mode in ("stepping", "terminated") else 3)
+            assert status_of(fmu.getStatus, fmi2DoStepStatus) == (2 if mode in ("stepping", "terminated") else 3)
         elif kind == "get_unknown":
             expect(status_of(fmu.getReal, [4242]), False)
         elif kind == "null":
@@ -824,8 +932,9 @@ def _standard_host(md, unzipdir, t, u, derivatives: bool) -> np.ndarray:
         h = t[k + 1] - t[k]
         inst.set("u", u[k])
         if derivatives:
-            inst.fmu.fmi2SetRealInputDerivatives(inst.fmu.component, (c_uint * 1)(inst.vr["u"]), 1,
-                                                 (c_int * 1)(1), (c_double * 1)((u[k + 1] - u[k]) / h))
+            inst.fmu.fmi2SetRealInputDerivatives(
+                inst.fmu.component, (c_uint * 1)(inst.vr["u"]), 1, (c_int * 1)(1), (c_double * 1)((u[k + 1] - u[k]) / h)
+            )
         inst.step(h)
         y[k + 1] = inst.y()
     inst.free()
@@ -845,7 +954,7 @@ def test_input_derivatives_remove_the_one_step_lag_of_a_standard_host(unzipped, 
     with_d = _standard_host(md, unzipdir, t, u, True)
     assert np.abs(with_d - ref).max() <= 1e-9 * max(1.0, np.abs(ref).max())
     held = _standard_host(md, unzipdir, t, u, False)
-    st = Stepper(MODELS[name](), t0=t[0], u0=u[0])     # the documented lag: y(t_k+1) for u held at u(t_k)
+    st = Stepper(MODELS[name](), t0=t[0], u0=u[0])  # the documented lag: y(t_k+1) for u held at u(t_k)
     step_ref = [st.output()]
     for k in range(len(t) - 1):
         st.set_input(u[k])
@@ -859,14 +968,29 @@ def test_input_derivatives_of_order_two_or_of_a_parameter_are_refused(unzipped):
     md, unzipdir = unzipped["ri"]
     inst = Instance(md, unzipdir)
     vr = (c_uint * 1)(inst.vr["u"])
-    assert status_of(inst.fmu.fmi2SetRealInputDerivatives, inst.fmu.component, vr, 1, (c_int * 1)(2),
-                     (c_double * 1)(1.0)) == 3
+    assert (
+        status_of(inst.fmu.fmi2SetRealInputDerivatives, inst.fmu.component, vr, 1, (c_int * 1)(2), (c_double * 1)(1.0))
+        == 3
+    )
     assert any("only order 1 is supported" in line for line in inst.log)
     param = next(v.valueReference for v in md.modelVariables if v.causality == "parameter")
-    assert status_of(inst.fmu.fmi2SetRealInputDerivatives, inst.fmu.component, (c_uint * 1)(param), 1,
-                     (c_int * 1)(1), (c_double * 1)(1.0)) == 3
-    assert status_of(inst.fmu.fmi2SetRealInputDerivatives, inst.fmu.component, vr, 1, (c_int * 1)(1),
-                     (c_double * 1)(math.nan)) == 3
+    assert (
+        status_of(
+            inst.fmu.fmi2SetRealInputDerivatives,
+            inst.fmu.component,
+            (c_uint * 1)(param),
+            1,
+            (c_int * 1)(1),
+            (c_double * 1)(1.0),
+        )
+        == 3
+    )
+    assert (
+        status_of(
+            inst.fmu.fmi2SetRealInputDerivatives, inst.fmu.component, vr, 1, (c_int * 1)(1), (c_double * 1)(math.nan)
+        )
+        == 3
+    )
     inst.free()
 
 
@@ -875,8 +999,11 @@ def test_metadata_version_units_and_a_rounded_step(tmp_path):
     1e-6; V: kg m^2 s^-3 A^-1); the DefaultExperiment step is written as a person would (0.0025)."""
     from fitter.core.models import Experiment, Signal, Signals
     from fitter.fmu.model_description import package_version
-    model = ri_model().replace(signals=Signals(input=Signal("u", "V", "voltage"), output=Signal("y", "um", "stroke")),
-                               experiment=Experiment(0.0, 6.0, 0.0024999999999999467))
+
+    model = ri_model().replace(
+        signals=Signals(input=Signal("u", "V", "voltage"), output=Signal("y", "um", "stroke")),
+        experiment=Experiment(0.0, 6.0, 0.0024999999999999467),
+    )
     md = read_model_description(build_native_fmu(model, str(tmp_path / "m.fmu")))
     assert md.generationTool == f"semilinear-duhem {package_version()}" and md.version == package_version()
     assert md.defaultExperiment.stepSize == "0.0025"
@@ -884,13 +1011,13 @@ def test_metadata_version_units_and_a_rounded_step(tmp_path):
     assert (units["um"].m, units["um"].factor) == (1, 1e-6)
     assert (units["V"].kg, units["V"].m, units["V"].s, units["V"].A, units["V"].factor) == (1, 2, -3, -1, 1.0)
     from fmpy.validation import validate_fmu
+
     assert validate_fmu(str(tmp_path / "m.fmu")) == []
 
 
 def test_a_model_with_timed_effects_is_not_called_rate_independent(tmp_path):
     md = read_model_description(build_native_fmu(ri_model(ALL_EFFECTS), str(tmp_path / "e.fmu")))
-    assert md.modelName == ("semilinear Duhem RI model, order 3 with "
-                            + ", ".join(e["effect"] for e in ALL_EFFECTS))
+    assert md.modelName == ("semilinear Duhem RI model, order 3 with " + ", ".join(e["effect"] for e in ALL_EFFECTS))
     assert "so the model is not rate independent although its base is" in md.description
     plain = read_model_description(build_native_fmu(ri_model(), str(tmp_path / "p.fmu")))
     assert plain.modelName == "semilinear Duhem RI model, order 3" and "not rate independent" not in plain.description

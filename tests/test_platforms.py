@@ -19,6 +19,7 @@ The FMUs are built once per module.  zig's first compile for a target fills its 
 (``~/.cache/zig``, `fitter.fmu.toolchain.zig_environment`): about 1.5 minutes for Windows' C runtime on
 two cores, then about 0.3 s a binary.
 """
+
 from __future__ import annotations
 
 import ctypes
@@ -51,8 +52,10 @@ HOST_SOURCE = REPO / "tests" / "hosts" / "fmi_host.c"
 DEMO = REPO / "examples" / "demo.csv"
 FMI2_FOLDERS = {"linux64", "win64", "darwin64"}
 FMI3_FOLDERS = set(PLATFORMS)
-WINE_MISSING = ("Wine is not installed, so the Windows DLLs were NOT run (install it as root with "
-                "'apt-get install -y --no-install-recommends wine64'; .ci/run does)")
+WINE_MISSING = (
+    "Wine is not installed, so the Windows DLLs were NOT run (install it as root with "
+    "'apt-get install -y --no-install-recommends wine64'; .ci/run does)"
+)
 
 
 def _demo_model():
@@ -77,20 +80,39 @@ def _cases():
     demo = _demo_model()
     t, u = _demo_input()
     te, ue = sampled_input(400)
-    plant2, plant3 = ri2(), rd1([{"effect": "creep", "parameters": {"k": 0.2, "tau": 0.6}},
-                                 {"effect": "backlash", "parameters": {"b": 0.1}}])
+    plant2, plant3 = (
+        ri2(),
+        rd1(
+            [
+                {"effect": "creep", "parameters": {"k": 0.2, "tau": 0.6}},
+                {"effect": "backlash", "parameters": {"b": 0.1}},
+            ]
+        ),
+    )
     t2, r2 = _plant_output(plant2)
     t3, r3 = _plant_output(plant3)
     return {
         "demo_fmi2": (demo, {}, (t, u), lambda: simulate(demo, t, u).y),
         "demo_fmi3": (demo, {"fmi_version": 3}, (t, u), lambda: simulate(demo, t, u).y),
         "effects_rd_fmi2": (rd_model(ALL_EFFECTS), {}, (te, ue), lambda: simulate(rd_model(ALL_EFFECTS), te, ue).y),
-        "effects_ri_fmi3": (ri_model(ALL_EFFECTS), {"fmi_version": 3}, (te, ue),
-                            lambda: simulate(ri_model(ALL_EFFECTS), te, ue).y),
-        "compensator_fmi2": (plant2, {"inverse": True}, (t2, r2),
-                             lambda: Compensator(plant2, t0=float(t2[0])).run(t2, r2).u),
-        "compensator_effects_fmi3": (plant3, {"inverse": True, "fmi_version": 3}, (t3, r3),
-                                     lambda: Compensator(plant3, t0=float(t3[0])).run(t3, r3).u),
+        "effects_ri_fmi3": (
+            ri_model(ALL_EFFECTS),
+            {"fmi_version": 3},
+            (te, ue),
+            lambda: simulate(ri_model(ALL_EFFECTS), te, ue).y,
+        ),
+        "compensator_fmi2": (
+            plant2,
+            {"inverse": True},
+            (t2, r2),
+            lambda: Compensator(plant2, t0=float(t2[0])).run(t2, r2).u,
+        ),
+        "compensator_effects_fmi3": (
+            plant3,
+            {"inverse": True, "fmi_version": 3},
+            (t3, r3),
+            lambda: Compensator(plant3, t0=float(t3[0])).run(t3, r3).u,
+        ),
     }
 
 
@@ -147,15 +169,22 @@ def test_every_platform_has_its_binary_and_the_sources_stay(built, name):
     binaries = {n.split("/")[1]: n.split("/")[2] for n in names if n.startswith("binaries/")}
     identifier = md.coSimulation.modelIdentifier
     if md.fmiVersion == "2.0":
-        assert binaries == {"linux64": f"{identifier}.so", "win64": f"{identifier}.dll",
-                            "darwin64": f"{identifier}.dylib"}
+        assert binaries == {
+            "linux64": f"{identifier}.so",
+            "win64": f"{identifier}.dll",
+            "darwin64": f"{identifier}.dylib",
+        }
         assert md.buildConfigurations[0].sourceFileSets[0].sourceFiles[0] == "fmi2.c"
     else:
         assert binaries == {p: f"{identifier}{spec.suffix}" for p, spec in PLATFORMS.items()}
         assert "sources/buildDescription.xml" in names
     sources = {n for n in names if n.startswith("sources/")}
-    assert {f"sources/fmi{md.fmiVersion[0]}.c", "sources/cosimulation.c", "sources/duhem_model.c",
-            "sources/model_data.h"} <= sources
+    assert {
+        f"sources/fmi{md.fmiVersion[0]}.c",
+        "sources/cosimulation.c",
+        "sources/duhem_model.c",
+        "sources/model_data.h",
+    } <= sources
 
 
 @pytest.mark.parametrize("name", CASES)
@@ -172,11 +201,29 @@ def hosts(tmp_path_factory) -> dict[str, Path]:
     C runtime is reused)."""
     d = tmp_path_factory.mktemp("hosts")
     out = {}
-    for name, target, extra in (("x86_64-linux", PLATFORMS["x86_64-linux"].target, ["-ldl"]),
-                                ("x86_64-windows", PLATFORMS["x86_64-windows"].target, [])):
+    for name, target, extra in (
+        ("x86_64-linux", PLATFORMS["x86_64-linux"].target, ["-ldl"]),
+        ("x86_64-windows", PLATFORMS["x86_64-windows"].target, []),
+    ):
         exe = d / ("fmi_host.exe" if "windows" in name else "fmi_host")
-        command = [*zig_command(), "cc", "-target", target, "-O2", "-s", "-std=c99", "-Wall", "-Wextra", "-Werror",
-                   "-I", str(fmi_headers_dir()), str(HOST_SOURCE), "-o", str(exe), *extra]
+        command = [
+            *zig_command(),
+            "cc",
+            "-target",
+            target,
+            "-O2",
+            "-s",
+            "-std=c99",
+            "-Wall",
+            "-Wextra",
+            "-Werror",
+            "-I",
+            str(fmi_headers_dir()),
+            str(HOST_SOURCE),
+            "-o",
+            str(exe),
+            *extra,
+        ]
         result = subprocess.run(command, capture_output=True, text=True, cwd=d, env=zig_environment())
         assert result.returncode == 0, result.stderr
         out[name] = exe
@@ -184,10 +231,14 @@ def hosts(tmp_path_factory) -> dict[str, Path]:
 
 
 def _wine_programs() -> tuple[str, str] | None:
-    wine = shutil.which("wine64") or shutil.which("wine") or next(
-        (p for p in ("/usr/lib/wine/wine64", "/usr/lib/wine/wine") if os.access(p, os.X_OK)), None)
+    wine = (
+        shutil.which("wine64")
+        or shutil.which("wine")
+        or next((p for p in ("/usr/lib/wine/wine64", "/usr/lib/wine/wine") if os.access(p, os.X_OK)), None)
+    )
     server = shutil.which("wineserver") or next(
-        (p for p in ("/usr/lib/wine/wineserver64", "/usr/lib/wine/wineserver") if os.access(p, os.X_OK)), None)
+        (p for p in ("/usr/lib/wine/wineserver64", "/usr/lib/wine/wineserver") if os.access(p, os.X_OK)), None
+    )
     return (wine, server) if wine and server else None
 
 
@@ -199,14 +250,31 @@ def wine(tmp_path_factory):
     if programs is None:
         pytest.skip(WINE_MISSING)
     prefix = tmp_path_factory.mktemp("wineprefix")
-    env = {**os.environ, "WINEPREFIX": str(prefix), "WINEDEBUG": "-all", "WINEARCH": "win64",
-           "WINEDLLOVERRIDES": "mscoree,mshtml="}     # no Mono or Gecko installer
+    env = {
+        **os.environ,
+        "WINEPREFIX": str(prefix),
+        "WINEDEBUG": "-all",
+        "WINEARCH": "win64",
+        "WINEDLLOVERRIDES": "mscoree,mshtml=",
+    }  # no Mono or Gecko installer
     env.pop("DISPLAY", None)
     # The prefix first (its processes must not hold a captured pipe open), then one wineserver for every run.
-    subprocess.run([programs[0], "wineboot.exe", "--init"], env=env, stdin=subprocess.DEVNULL,
-                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=600, check=True)
-    server = subprocess.Popen([programs[1], "-f", "-p"], env=env, stdin=subprocess.DEVNULL,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    subprocess.run(
+        [programs[0], "wineboot.exe", "--init"],
+        env=env,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        timeout=600,
+        check=True,
+    )
+    server = subprocess.Popen(
+        [programs[1], "-f", "-p"],
+        env=env,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         yield programs[0], env
     finally:
@@ -225,8 +293,15 @@ def _host_arguments(md, library: str, inputs) -> tuple[list[str], str]:
     t, u = inputs
     save_at = len(t) // 3
     text = "".join(f"{float(a).hex()} {float(b).hex()}\n" for a, b in zip(t, u))
-    return [md.fmiVersion[0], library, md.guid, str(inp.valueReference), str(out.valueReference), str(state),
-            str(save_at)], text
+    return [
+        md.fmiVersion[0],
+        library,
+        md.guid,
+        str(inp.valueReference),
+        str(out.valueReference),
+        str(state),
+        str(save_at),
+    ], text
 
 
 def _runs(stdout: str) -> list[np.ndarray]:
@@ -289,10 +364,10 @@ def test_windows_binary_under_wine_equals_linux(built, cases, hosts, linux_runs,
 def _pe(data: bytes):
     """(exported names, imported DLL names) of a PE32+ file (the export and import directories)."""
     pe = struct.unpack_from("<I", data, 0x3C)[0]
-    assert data[pe:pe + 4] == b"PE\0\0"
+    assert data[pe : pe + 4] == b"PE\0\0"
     sections, optional_size = struct.unpack_from("<H", data, pe + 6)[0], struct.unpack_from("<H", data, pe + 20)[0]
     optional = pe + 24
-    assert struct.unpack_from("<H", data, optional)[0] == 0x20B          # PE32+
+    assert struct.unpack_from("<H", data, optional)[0] == 0x20B  # PE32+
     table = [struct.unpack_from("<IIII", data, optional + optional_size + 40 * i + 8) for i in range(sections)]
 
     def offset(rva):
@@ -300,11 +375,13 @@ def _pe(data: bytes):
 
     def string(rva):
         start = offset(rva)
-        return data[start:data.index(b"\0", start)].decode()
+        return data[start : data.index(b"\0", start)].decode()
 
     export_rva, import_rva = (struct.unpack_from("<I", data, optional + 112 + 8 * i)[0] for i in (0, 1))
-    count, names_rva = struct.unpack_from("<I", data, offset(export_rva) + 24)[0], \
-        struct.unpack_from("<I", data, offset(export_rva) + 32)[0]
+    count, names_rva = (
+        struct.unpack_from("<I", data, offset(export_rva) + 24)[0],
+        struct.unpack_from("<I", data, offset(export_rva) + 32)[0],
+    )
     exports = {string(struct.unpack_from("<I", data, offset(names_rva) + 4 * i)[0]) for i in range(count)}
     imports, at = [], offset(import_rva)
     while struct.unpack_from("<I", data, at + 12)[0]:
@@ -382,10 +459,18 @@ def test_macos_binaries_have_their_architecture_every_fmi_function_and_only_libs
     version = int(md.fmiVersion[0])
     functions = _fmi_functions(version)
     identifier = md.coSimulation.modelIdentifier
-    files = ({"darwin64": {"x86_64", "arm64"}} if version == 2 else {"x86_64-darwin": {"x86_64"},
-                                                                    "aarch64-darwin": {"arm64"}})
-    loads = (mach_o.LC_LOAD_DYLIB, mach_o.LC_LOAD_WEAK_DYLIB, mach_o.LC_REEXPORT_DYLIB, mach_o.LC_LAZY_LOAD_DYLIB,
-             mach_o.LC_LOAD_UPWARD_DYLIB)
+    files = (
+        {"darwin64": {"x86_64", "arm64"}}
+        if version == 2
+        else {"x86_64-darwin": {"x86_64"}, "aarch64-darwin": {"arm64"}}
+    )
+    loads = (
+        mach_o.LC_LOAD_DYLIB,
+        mach_o.LC_LOAD_WEAK_DYLIB,
+        mach_o.LC_REEXPORT_DYLIB,
+        mach_o.LC_LAZY_LOAD_DYLIB,
+        mach_o.LC_LOAD_UPWARD_DYLIB,
+    )
     for folder, architectures in files.items():
         macho = MachO(str(_library(md, unzipdir, folder, ".dylib")))
         assert bool(macho.fat) == (len(architectures) > 1)
@@ -397,10 +482,13 @@ def test_macos_binaries_have_their_architecture_every_fmi_function_and_only_libs
             dylibs = [data.rstrip(b"\0").decode() for lc, cmd, data in header.commands if lc.cmd in loads]
             assert dylibs == ["/usr/lib/libSystem.B.dylib"], (arch, dylibs)
             assert commands[mach_o.LC_ID_DYLIB][1].rstrip(b"\0").decode() == f"@rpath/{identifier}.dylib"
-            minos = commands[mach_o.LC_BUILD_VERSION][0].minos if mach_o.LC_BUILD_VERSION in commands else \
-                commands[mach_o.LC_VERSION_MIN_MACOSX][0].version
+            minos = (
+                commands[mach_o.LC_BUILD_VERSION][0].minos
+                if mach_o.LC_BUILD_VERSION in commands
+                else commands[mach_o.LC_VERSION_MIN_MACOSX][0].version
+            )
             assert minos <= (11 << 16 if arch == "arm64" else 10 << 16 | 13 << 8), hex(minos)
-            assert (mach_o.LC_CODE_SIGNATURE in commands) or arch == "x86_64"   # Apple Silicon loads signed code only
+            assert (mach_o.LC_CODE_SIGNATURE in commands) or arch == "x86_64"  # Apple Silicon loads signed code only
             exported = {n.removeprefix("_") for n in _exports(macho.filename, header, commands)}
             assert exported - LINKER_SYMBOLS == functions, (arch, exported ^ functions)
             symbols = SymbolTable(macho, header)
@@ -440,18 +528,31 @@ def test_export_without_a_system_compiler_writes_every_binary(tmp_path):
 
 def test_platforms_option_chooses_the_binaries(tmp_path):
     save_model(ri2(), tmp_path / "model.json")
-    result = _duhem("export", tmp_path / "model.json", "-o", tmp_path / "c.fmu", "--inverse", "--fmi-version", "3",
-                    "--platforms", "darwin,windows", "--json")
+    result = _duhem(
+        "export",
+        tmp_path / "model.json",
+        "-o",
+        tmp_path / "c.fmu",
+        "--inverse",
+        "--fmi-version",
+        "3",
+        "--platforms",
+        "darwin,windows",
+        "--json",
+    )
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout)["platforms"] == ["x86_64-windows", "x86_64-darwin", "aarch64-darwin"]
     with zipfile.ZipFile(tmp_path / "c.fmu") as zf:
         assert sorted(n for n in zf.namelist() if n.startswith("binaries/")) == [
-            "binaries/aarch64-darwin/duhem_compensator.dylib", "binaries/x86_64-darwin/duhem_compensator.dylib",
-            "binaries/x86_64-windows/duhem_compensator.dll"]
+            "binaries/aarch64-darwin/duhem_compensator.dylib",
+            "binaries/x86_64-darwin/duhem_compensator.dylib",
+            "binaries/x86_64-windows/duhem_compensator.dll",
+        ]
     result = _duhem("export", tmp_path / "model.json", "-o", tmp_path / "m.fmu", "--platforms", "linux,solaris")
     assert result.returncode == 1 and result.stderr.count("\n") == 1 and "unknown platform 'solaris'" in result.stderr
-    result = _duhem("export", tmp_path / "model.json", "-o", tmp_path / "m.fmu", "--backend", "python",
-                    "--platforms", "linux")
+    result = _duhem(
+        "export", tmp_path / "model.json", "-o", tmp_path / "m.fmu", "--backend", "python", "--platforms", "linux"
+    )
     assert result.returncode == 1 and "apply to the native backend" in result.stderr
     assert not (tmp_path / "m.fmu").exists()
 
@@ -460,14 +561,18 @@ def test_cc_compiles_this_machines_binary_with_the_system_compiler(tmp_path):
     if host_platform() != "x86_64-linux" or shutil.which("gcc") is None:
         pytest.skip("needs gcc on x86_64 Linux")
     save_model(ri2(), tmp_path / "model.json")
-    result = _duhem("export", tmp_path / "model.json", "-o", tmp_path / "m.fmu", "--cc", "gcc",
-                    "--platforms", "linux,windows")
+    result = _duhem(
+        "export", tmp_path / "model.json", "-o", tmp_path / "m.fmu", "--cc", "gcc", "--platforms", "linux,windows"
+    )
     assert result.returncode == 0, result.stderr
     with zipfile.ZipFile(tmp_path / "m.fmu") as zf:
         assert sorted(n for n in zf.namelist() if n.startswith("binaries/")) == [
-            "binaries/linux64/semilinear_duhem.so", "binaries/win64/semilinear_duhem.dll"]
+            "binaries/linux64/semilinear_duhem.so",
+            "binaries/win64/semilinear_duhem.dll",
+        ]
         assert b"GCC: (" in zf.read("binaries/linux64/semilinear_duhem.so")
         assert b"GCC: (" not in zf.read("binaries/win64/semilinear_duhem.dll")
-    result = _duhem("export", tmp_path / "model.json", "-o", tmp_path / "w.fmu", "--cc", "gcc",
-                    "--platforms", "windows")
+    result = _duhem(
+        "export", tmp_path / "model.json", "-o", tmp_path / "w.fmu", "--cc", "gcc", "--platforms", "windows"
+    )
     assert result.returncode == 1 and "not among the platforms" in result.stderr
