@@ -1,6 +1,7 @@
 """The README is a quickstart and the docs hold together: README.md at most 150 lines, opening with the two
 commands; every relative link in README.md and docs/*.md points at an existing file (and, into a Markdown file, at
 an existing heading)."""
+
 import re
 from pathlib import Path
 
@@ -41,9 +42,9 @@ def test_readme_is_at_most_150_lines():
 
 def test_readme_opens_with_the_two_commands():
     text = README.read_text()
-    first_block = text[text.index("```"):]
+    first_block = text[text.index("```") :]
     assert first_block.startswith(OPENING), "README.md must open with the make demo / make test block"
-    before = text[:text.index("```")].strip().splitlines()
+    before = text[: text.index("```")].strip().splitlines()
     assert len(before) == 1 and before[0].startswith("# "), "only the title may come before the two commands"
 
 
@@ -57,7 +58,7 @@ def test_readme_links_the_docs():
 def test_relative_links_point_at_existing_files_and_headings(path):
     broken = []
     for link in _links(path.read_text()):
-        if re.match(r"^[a-z][a-z0-9+.-]*:", link):      # http:, https:, mailto:
+        if re.match(r"^[a-z][a-z0-9+.-]*:", link):  # http:, https:, mailto:
             continue
         target, _, fragment = link.partition("#")
         file = (path.parent / target).resolve() if target else path

@@ -2,6 +2,7 @@
 imports alike, and never the bare top package `fitter`), `fitter.core` (shipped inside the FMUs) only from numpy
 and the standard library, and no package's modules import each other in a cycle at module level (an import
 inside a function, made when it runs, is how a cycle is broken on purpose)."""
+
 import ast
 import sys
 from pathlib import Path
@@ -9,8 +10,21 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1] / "fitter"
-ORDER = ["core", "data", "progress", "identification", "baselines", "diagnosis", "fmu", "reports", "cli_support",
-         "paper", "estimator", "batch", "cli"]
+ORDER = [
+    "core",
+    "data",
+    "progress",
+    "identification",
+    "baselines",
+    "diagnosis",
+    "fmu",
+    "reports",
+    "cli_support",
+    "paper",
+    "estimator",
+    "batch",
+    "cli",
+]
 
 
 def _module_name(path: Path) -> str:
@@ -36,7 +50,7 @@ def _imports(path: Path, top_level: bool = False) -> set[str]:
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ""
             if node.level:
-                anchor = package.split(".")[:len(package.split(".")) - (node.level - 1)]
+                anchor = package.split(".")[: len(package.split(".")) - (node.level - 1)]
                 base = ".".join(anchor + ([base] if base else []))
             names.add(base)
             names |= {f"{base}.{a.name}" for a in node.names if _is_module(f"{base}.{a.name}")}
@@ -48,6 +62,17 @@ def _package(module: str) -> str:
 
 
 MODULES = sorted(p for p in ROOT.rglob("*.py") if p.parent != ROOT or p.name != "__init__.py")
+
+
+MAX_LINES = 600
+"""A module holds one responsibility: at most this many lines (as ruff formats them)."""
+
+
+def test_no_module_of_the_package_is_over_the_line_limit():
+    """Every module of `fitter` (each file ``.py`` in it, ``__init__`` included) at most `MAX_LINES` lines."""
+    lengths = {str(p.relative_to(ROOT)): len(p.read_text().splitlines()) for p in ROOT.rglob("*.py")}
+    assert len(lengths) > 80
+    assert {name: n for name, n in lengths.items() if n > MAX_LINES} == {}
 
 
 @pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(ROOT)))
@@ -62,8 +87,9 @@ def test_module_imports_only_from_lower_packages(path):
             assert ORDER.index(_package(name)) <= rank, f"{rel} imports {name} (above {own})"
         if own == "core":
             top = name.split(".")[0]
-            assert top in {"numpy", "__future__"} or top in sys.stdlib_module_names or name.startswith(
-                "fitter.core"), f"{rel}: fitter.core must need only numpy and the standard library ({name})"
+            assert top in {"numpy", "__future__"} or top in sys.stdlib_module_names or name.startswith("fitter.core"), (
+                f"{rel}: fitter.core must need only numpy and the standard library ({name})"
+            )
 
 
 def test_no_module_imports_the_top_level_script():
@@ -78,7 +104,7 @@ def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
         state[node] = 1
         for other in sorted(graph.get(node, ())):
             if state.get(other) == 1:
-                return stack[stack.index(other):] + [other]
+                return stack[stack.index(other) :] + [other]
             if other not in state and (found := visit(other, stack + [other])):
                 return found
         state[node] = 2
@@ -92,8 +118,10 @@ def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
 
 def test_no_import_cycle_at_module_level():
     modules = {_module_name(p): p for p in ROOT.rglob("*.py")}
-    graph = {name: {m for m in _imports(path, top_level=True) if m in modules and m != name}
-             for name, path in modules.items()}
+    graph = {
+        name: {m for m in _imports(path, top_level=True) if m in modules and m != name}
+        for name, path in modules.items()
+    }
     # a package's __init__ importing its own modules is how a package is built, not a cycle
     for name in graph:
         graph[name] = {m for m in graph[name] if not (name.startswith(m + ".") and modules[m].name == "__init__.py")}

@@ -19,6 +19,7 @@ What is checked:
 OMSimulator, the system simulator the issue names, does not install here: its package on the index is a
 source distribution that downloads its binaries from build.openmodelica.org while it builds.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -51,8 +52,13 @@ def fitted(tmp_path_factory):
     t = H * np.arange(len(u))
     fit = fit_recordings([noisy_recording(ri2(), t, u, noise=0.002, seed=5)], kind="ri", order=2)
     d = tmp_path_factory.mktemp("system")
-    return (fit.model, t, u, build_fmu(fit.model, d / "plant.fmu", backend="native"),
-            build_fmu(fit.model, d / "comp.fmu", backend="native", inverse=True))
+    return (
+        fit.model,
+        t,
+        u,
+        build_fmu(fit.model, d / "plant.fmu", backend="native"),
+        build_fmu(fit.model, d / "comp.fmu", backend="native", inverse=True),
+    )
 
 
 class System:
@@ -60,19 +66,24 @@ class System:
     last-value observer."""
 
     def __init__(self, fmus: dict[str, str]):
-        self.execution = CosimExecution.from_step_size(step_size=int(round(H * 1e9)))    # nanoseconds
-        self.index = {name: self.execution.add_local_slave(CosimLocalSlave(fmu_path=path, instance_name=name))
-                      for name, path in fmus.items()}
-        self.refs = {name: {v.name.decode(): v.reference for v in self.execution.slave_variables(i)}
-                     for name, i in self.index.items()}
+        self.execution = CosimExecution.from_step_size(step_size=int(round(H * 1e9)))  # nanoseconds
+        self.index = {
+            name: self.execution.add_local_slave(CosimLocalSlave(fmu_path=path, instance_name=name))
+            for name, path in fmus.items()
+        }
+        self.refs = {
+            name: {v.name.decode(): v.reference for v in self.execution.slave_variables(i)}
+            for name, i in self.index.items()
+        }
         self.manipulator = CosimManipulator.create_override()
         self.observer = CosimObserver.create_last_value()
         self.execution.add_manipulator(manipulator=self.manipulator)
         self.execution.add_observer(observer=self.observer)
 
     def connect(self, source: str, output: str, target: str, input_: str) -> None:
-        self.execution.connect_real_variables(self.index[source], self.refs[source][output],
-                                              self.index[target], self.refs[target][input_])
+        self.execution.connect_real_variables(
+            self.index[source], self.refs[source][output], self.index[target], self.refs[target][input_]
+        )
 
     def run(self, driven: tuple[str, str], values, recorded: tuple[str, str]) -> np.ndarray:
         """Set `driven` to each value before a step; `recorded` after it."""
@@ -91,16 +102,16 @@ def test_fitted_fmu_in_the_system_gives_the_in_process_simulation(fitted):
     assert model.first_input == u[0] == 1.0
     y_fmu = System({"plant": plant}).run(("plant", "u"), u, ("plant", "y"))
     y = simulate(model, t, u).y
-    assert np.max(np.abs(y_fmu - y)) <= 1e-9 * np.ptp(y)       # y after the step from t_k: y(t_k)
-    assert abs(y_fmu[0] - y[0]) <= 1e-12 * np.ptp(y)           # started at first_input, no start value set
+    assert np.max(np.abs(y_fmu - y)) <= 1e-9 * np.ptp(y)  # y after the step from t_k: y(t_k)
+    assert abs(y_fmu[0] - y[0]) <= 1e-12 * np.ptp(y)  # started at first_input, no start value set
 
 
 def test_compensator_drives_the_plant_in_the_system(fitted):
     """Compensator FMU -> plant FMU through a connection: the plant's output is the reference, one step late."""
     model, t, u, plant, comp = fitted
-    y_ref = simulate(model, t, u).y          # a reference the plant can follow, starting where it starts
+    y_ref = simulate(model, t, u).y  # a reference the plant can follow, starting where it starts
     system = System({"comp": comp, "plant": plant})
     system.connect("comp", "u", "plant", "u")
     y = system.run(("comp", "y_ref"), y_ref, ("plant", "y"))
     assert np.max(np.abs(y[1:] - y_ref[:-1])) <= 1e-6 * np.ptp(y_ref)
-    assert np.max(np.abs(y - y_ref)) > 1e-3 * np.ptp(y_ref)            # the lag is real, not a loose tolerance
+    assert np.max(np.abs(y - y_ref)) > 1e-3 * np.ptp(y_ref)  # the lag is real, not a loose tolerance

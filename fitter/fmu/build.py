@@ -55,6 +55,7 @@ The native backend builds it from ``fmu_src/native/inverse_model.c``.
 The GUID is deterministic: a UUID5 of the backend, the code hash and the
 model JSON, so the same model exported by the same code gets the same GUID.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -76,8 +77,15 @@ from fitter.fmu.model_description import FMI_VERSIONS, converges, model_descript
 from fitter.fmu.variables import compensator_variables, model_variables, reference_start
 from fitter.fmu.native import build_native_compensator, build_native_fmu
 
-__all__ = ["build_fmu", "FmuBuildError", "MODEL_IDENTIFIER", "COMPENSATOR_IDENTIFIER", "BACKENDS", "FMI_VERSIONS",
-           "PYTHON_HOST_NEEDS"]
+__all__ = [
+    "build_fmu",
+    "FmuBuildError",
+    "MODEL_IDENTIFIER",
+    "COMPENSATOR_IDENTIFIER",
+    "BACKENDS",
+    "FMI_VERSIONS",
+    "PYTHON_HOST_NEEDS",
+]
 
 MODEL_IDENTIFIER = "semilinear_duhem"
 COMPENSATOR_IDENTIFIER = "duhem_compensator"
@@ -87,9 +95,11 @@ _CORE_DIR = Path(fitter.core.__file__).resolve().parent
 _GUID_NAMESPACE = uuid.UUID("5b0c1f4e-3a9d-4c1e-9a57-2f3f8d6f1e21")
 _PYTHON_OPTIONS = ("model_name", "description", "version", "author")
 
-PYTHON_HOST_NEEDS = ("note: a python-backend FMU runs only in a host that can load libpython3 and import numpy and "
-                     "pythonfmu (this venv's Python on its path): fmusim, Simulink, Dymola and the FMI Compliance "
-                     "Checker need --backend native")
+PYTHON_HOST_NEEDS = (
+    "note: a python-backend FMU runs only in a host that can load libpython3 and import numpy and "
+    "pythonfmu (this venv's Python on its path): fmusim, Simulink, Dymola and the FMI Compliance "
+    "Checker need --backend native"
+)
 """What a host needs for a python-backend FMU, in one line (printed by `duhem export`/`fit`/`diagnose`)."""
 
 
@@ -128,10 +138,17 @@ def _stage(model, staging: Path, code: str, inverse_start: float | None = None) 
     shutil.copytree(_CORE_DIR, staging / kernel, ignore=shutil.ignore_patterns("__pycache__"))
     save_model(model, staging / "model.json")
     variables = model_variables(model) if inverse_start is None else compensator_variables(model, inverse_start)
-    write_json(staging / "duhem_fmu.json",
-               {"model_identifier": MODEL_IDENTIFIER if inverse_start is None else COMPENSATOR_IDENTIFIER,
-                "kernel_package": kernel, "model_file": "model.json", "inverse": inverse_start is not None,
-                "variables": [v.to_json() for v in variables]}, indent=1)
+    write_json(
+        staging / "duhem_fmu.json",
+        {
+            "model_identifier": MODEL_IDENTIFIER if inverse_start is None else COMPENSATOR_IDENTIFIER,
+            "kernel_package": kernel,
+            "model_file": "model.json",
+            "inverse": inverse_start is not None,
+            "variables": [v.to_json() for v in variables],
+        },
+        indent=1,
+    )
     return script, [staging / kernel, staging / "model.json", staging / "duhem_fmu.json"]
 
 
@@ -149,8 +166,7 @@ def _isolated_imports(code: str):
 
 def _rewrite_zip(built: Path, target: Path, xml: str, identifier: str = MODEL_IDENTIFIER) -> None:
     """Copy the pythonfmu zip to `target`, with our modelDescription.xml."""
-    with zipfile.ZipFile(built) as src, \
-            zipfile.ZipFile(target, "w", compression=zipfile.ZIP_DEFLATED) as dst:
+    with zipfile.ZipFile(built) as src, zipfile.ZipFile(target, "w", compression=zipfile.ZIP_DEFLATED) as dst:
         for item in src.infolist():
             if item.filename != "modelDescription.xml":
                 dst.writestr(item.filename, src.read(item.filename))
@@ -171,21 +187,31 @@ def _build_python(model, out_path: Path, inverse_start: float | None = None, **o
         script, project_files = _stage(model, staging, code, inverse_start)
         model_json = (staging / "model.json").read_text(encoding="utf-8")
         with _isolated_imports(code):
-            built = FmuBuilder.build_FMU(script, dest=Path(tmp) / "pythonfmu.fmu",
-                                         project_files=project_files)
+            built = FmuBuilder.build_FMU(script, dest=Path(tmp) / "pythonfmu.fmu", project_files=project_files)
         identifier = MODEL_IDENTIFIER if inverse_start is None else COMPENSATOR_IDENTIFIER
         xml = model_description_xml(
-            model, model_identifier=identifier,
+            model,
+            model_identifier=identifier,
             guid=_guid(model_json, code, "python" if inverse_start is None else "python:inverse"),
-            backend="python", generation_tool=f"semilinear-duhem {package_version()} "
-                                              f"(pythonfmu {pythonfmu_version})", inverse_start=inverse_start,
-            **opts)
+            backend="python",
+            generation_tool=f"semilinear-duhem {package_version()} (pythonfmu {pythonfmu_version})",
+            inverse_start=inverse_start,
+            **opts,
+        )
         _rewrite_zip(Path(built), out_path, xml, identifier)
 
 
-def build_fmu(model_or_json_path, out_path: str | os.PathLike, *, backend: str = "python",
-              allow_unstable: bool = False, fmi_version: int = 2, inverse: bool = False,
-              measurement: str = "refuse", **opts) -> str:
+def build_fmu(
+    model_or_json_path,
+    out_path: str | os.PathLike,
+    *,
+    backend: str = "python",
+    allow_unstable: bool = False,
+    fmi_version: int = 2,
+    inverse: bool = False,
+    measurement: str = "refuse",
+    **opts,
+) -> str:
     """Build an FMI 2.0 or 3.0 Co-Simulation FMU of a model; return the FMU's absolute path.
 
     Parameters
@@ -234,19 +260,22 @@ def build_fmu(model_or_json_path, out_path: str | os.PathLike, *, backend: str =
     if backend == "python":
         unknown = sorted(set(opts) - set(_PYTHON_OPTIONS))
         if unknown:
-            raise TypeError(f"unknown option(s) for the python backend: {', '.join(unknown)} "
-                            f"(known: {', '.join(_PYTHON_OPTIONS)})")
+            raise TypeError(
+                f"unknown option(s) for the python backend: {', '.join(unknown)} (known: {', '.join(_PYTHON_OPTIONS)})"
+            )
     model = _load(model_or_json_path)
     if not converges(model) and not allow_unstable:
-        raise FmuBuildError("the model's convergence condition is violated (fit_info.convergence: "
-                            f"{model.fit_info['convergence'].get('quantity')} = "
-                            f"{model.fit_info['convergence'].get('value')}, raw-input spectral radius "
-                            f"{model.fit_info['convergence'].get('rho_raw_input_per_recording')}): a wrong initial "
-                            "state need not die out; not exported (allow_unstable / --allow-unstable exports it "
-                            "with a warning in its description)")
+        raise FmuBuildError(
+            "the model's convergence condition is violated (fit_info.convergence: "
+            f"{model.fit_info['convergence'].get('quantity')} = "
+            f"{model.fit_info['convergence'].get('value')}, raw-input spectral radius "
+            f"{model.fit_info['convergence'].get('rho_raw_input_per_recording')}): a wrong initial "
+            "state need not die out; not exported (allow_unstable / --allow-unstable exports it "
+            "with a warning in its description)"
+        )
     inverse_start = None
     if inverse:
-        model = Compensator(model, measurement=measurement).plant    # checks the input range and the effects
+        model = Compensator(model, measurement=measurement).plant  # checks the input range and the effects
         inverse_start = reference_start(model)
     out = Path(out_path).resolve()
     with atomic_file(out) as tmp:

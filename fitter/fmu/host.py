@@ -9,6 +9,7 @@ it.
 every sample t_k it sets u(t_k), reads y(t_k), then steps to t_{k+1}.  With
 that host the FMU reproduces `fitter.core.simulate` of the sampled input.
 """
+
 from __future__ import annotations
 
 import os
@@ -34,8 +35,7 @@ _FMI2_FATAL = 4
 _MODEL_MEMBER = "resources/model.json"
 """Where an FMU exported by duhem carries its model (`fitter.fmu.build`)."""
 
-__all__ = ["simulate_fmu", "validate_fmu_file", "check_fmu_file", "collecting_callbacks", "FmuFileError",
-           "FmuRunError"]
+__all__ = ["simulate_fmu", "validate_fmu_file", "check_fmu_file", "collecting_callbacks", "FmuFileError", "FmuRunError"]
 
 
 class FmuRunError(DuhemError, RuntimeError):
@@ -91,19 +91,24 @@ def _model_description(path: str, z: zipfile.ZipFile, names: set[str]) -> tuple[
         root = ElementTree.fromstring(_read(path, z, "modelDescription.xml"))
     except ElementTree.ParseError as exc:
         line, column = exc.position
-        raise FmuFileError(f"{path}: modelDescription.xml is not well-formed XML: line {line}, column {column + 1}: "
-                           f"{expat_errors.messages.get(exc.code, 'syntax error')}") from None
+        raise FmuFileError(
+            f"{path}: modelDescription.xml is not well-formed XML: line {line}, column {column + 1}: "
+            f"{expat_errors.messages.get(exc.code, 'syntax error')}"
+        ) from None
     version = root.get("fmiVersion")
     if root.tag != "fmiModelDescription" or not version:
-        raise FmuFileError(f"{path}: modelDescription.xml is not an FMI model description (root element "
-                           f"<{root.tag}>, fmiVersion {version!r})")
+        raise FmuFileError(
+            f"{path}: modelDescription.xml is not an FMI model description (root element "
+            f"<{root.tag}>, fmiVersion {version!r})"
+        )
     if version != "2.0" and not version.startswith("3."):
         raise FmuFileError(f"{path}: modelDescription.xml declares fmiVersion {version!r}: not an FMI 2.0 or 3.0 FMU")
     try:
         md = read_model_description(path, validate=True)
     except Exception as exc:  # fmpy raises ValidationError (its schema) or a plain Exception
-        raise FmuFileError(f"{path}: modelDescription.xml does not follow the FMI {version} schema: "
-                           f"{_schema_problem(exc)}") from None
+        raise FmuFileError(
+            f"{path}: modelDescription.xml does not follow the FMI {version} schema: {_schema_problem(exc)}"
+        ) from None
     if md.coSimulation is None:
         raise FmuFileError(f"{path}: modelDescription.xml has no <CoSimulation> element: not a Co-Simulation FMU")
     return version, md.coSimulation.modelIdentifier
@@ -124,8 +129,9 @@ def _binary(path: str, names: set[str], version: str, identifier: str) -> str:
     member = f"binaries/{folder}/{identifier}{fmpy.sharedLibraryExtension}"
     if member not in names:
         present = sorted({n.split("/")[1] for n in names if n.startswith("binaries/") and n.count("/") >= 2})
-        raise FmuFileError(f"{path}: no binary for this platform ({member} is missing; binaries for: "
-                           f"{', '.join(present) or 'none'})")
+        raise FmuFileError(
+            f"{path}: no binary for this platform ({member} is missing; binaries for: {', '.join(present) or 'none'})"
+        )
     return member
 
 
@@ -185,8 +191,7 @@ def _value_references(md) -> tuple[int, int]:
 
 def _parameter_references(md, values: Mapping[str, float], fmu_path) -> dict[int, float]:
     """{value reference: value} of the real parameters named in `values`; FmuRunError naming an unknown one."""
-    params = {v.name: v.valueReference for v in md.modelVariables
-              if v.causality == "parameter" and v.type == "Real"}
+    params = {v.name: v.valueReference for v in md.modelVariables if v.causality == "parameter" and v.type == "Real"}
     unknown = [n for n in values if n not in params]
     if unknown:
         raise FmuRunError(f"{fmu_path}: no real parameter named {', '.join(unknown)}")
@@ -201,8 +206,12 @@ def collecting_callbacks(messages: MutableSequence[str]):
     with ``loggingOn=True``: pythonfmu FMUs pass even their fatal errors to the
     logger only when logging is on.
     """
-    from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                           fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+    from fmpy.fmi2 import (
+        fmi2CallbackAllocateMemoryTYPE,
+        fmi2CallbackFreeMemoryTYPE,
+        fmi2CallbackFunctions,
+        fmi2CallbackLoggerTYPE,
+    )
     from fmpy import calloc, free
     from fmpy.logging import addLoggerProxy
 
@@ -236,15 +245,17 @@ def _release(fmu, instantiated: bool) -> None:
 
 
 _GUID_REFUSED = re.compile(r'GUID "([^"]*)" does not match this FMU\'s "([^"]*)"')
-"""The native binary's refusal of a GUID other than its own (fmi2Instantiate, `fmu_src/native/fmi2_framework.c`)."""
+"""The native binary's refusal of a GUID other than its own (fmi2Instantiate, `fmu_src/native/cosimulation.c`)."""
 
 
 def _run_failure(fmu_path, exc: Exception, log: str, guid: str) -> str:
     """The message of a failed FMU run: a GUID refusal names both GUIDs, otherwise fmpy's error and the log's tail."""
     refused = _GUID_REFUSED.search(log)
     if refused:
-        return (f"{fmu_path}: GUID mismatch: modelDescription.xml gives {guid}, the binary was built for "
-                f"{refused[2]} (the archive mixes two exports, or was edited): export the FMU again")
+        return (
+            f"{fmu_path}: GUID mismatch: modelDescription.xml gives {guid}, the binary was built for "
+            f"{refused[2]} (the archive mixes two exports, or was edited): export the FMU again"
+        )
     return f"{fmu_path}: {exc}" + (f" FMU log: {log}" if log else "")
 
 
@@ -265,17 +276,20 @@ def simulate_fmu(fmu_path: str | os.PathLike, t, u, start: Mapping[str, float] |
         raise FileNotFoundError(f"{fmu_path}: no such FMU file")
     md = read_model_description(str(fmu_path))
     if md.fmiVersion != "2.0":
-        raise FmuRunError(f"{fmu_path}: an FMI {md.fmiVersion} FMU: this host drives FMI 2.0 FMUs (export for FMI 2.0 "
-                          f"to simulate or validate it here)")
+        raise FmuRunError(
+            f"{fmu_path}: an FMI {md.fmiVersion} FMU: this host drives FMI 2.0 FMUs (export for FMI 2.0 "
+            f"to simulate or validate it here)"
+        )
     if md.coSimulation is None:
         raise FmuRunError(f"{fmu_path}: not a Co-Simulation FMU")
     vr_u, vr_y = _value_references(md)
     vr_start = _parameter_references(md, start or {}, fmu_path)
     unzipdir = extract(str(fmu_path))
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="duhem")
+    fmu = FMU2Slave(
+        guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier, instanceName="duhem"
+    )
     y = np.empty(len(u))
-    messages: deque[str] = deque(maxlen=3)     # the log's tail for an error message; not one entry per call
+    messages: deque[str] = deque(maxlen=3)  # the log's tail for an error message; not one entry per call
     callbacks = collecting_callbacks(messages)
     instantiated = fatal = False
     try:
@@ -291,8 +305,7 @@ def simulate_fmu(fmu_path: str | os.PathLike, t, u, start: Mapping[str, float] |
             fmu.setReal([vr_u], [float(u[k])])
             y[k] = fmu.getReal([vr_y])[0]
             if k + 1 < len(u):
-                fmu.doStep(currentCommunicationPoint=float(t[k]),
-                           communicationStepSize=float(t[k + 1] - t[k]))
+                fmu.doStep(currentCommunicationPoint=float(t[k]), communicationStepSize=float(t[k + 1] - t[k]))
         fmu.terminate()
     except Exception as exc:  # fmpy raises FMICallException (and OSError on load)
         fatal = getattr(exc, "status", None) == _FMI2_FATAL

@@ -9,6 +9,7 @@ and is renamed last.  Every command that reads a model JSON
 not the one written with it (re-exported or replaced since: a note, not an
 error, since exporting a model again is legitimate).
 """
+
 from __future__ import annotations
 
 import json
@@ -51,5 +52,7 @@ def check_fmu_pair(json_path: str | os.PathLike, model) -> str | None:
     recover_pair(json_path, fmu, recorded_fmu_digest)
     if not fmu.is_file() or file_digest(fmu) == rec.get("sha256"):
         return None
-    return (f"{fmu} is not the FMU that 'duhem fit' wrote with {json_path} (exported again or replaced "
-            f"since); the model in {json_path} is used")
+    return (
+        f"{fmu} is not the FMU that 'duhem fit' wrote with {json_path} (exported again or replaced "
+        f"since); the model in {json_path} is used"
+    )

@@ -40,6 +40,7 @@ global cache.  `zig_environment` keeps ``ZIG_GLOBAL_CACHE_DIR`` and
 directory in the system temp directory; zig locks its cache, so concurrent
 exports share it safely.  A warm export compiles each target in about 0.3 s.
 """
+
 from __future__ import annotations
 
 import importlib.util
@@ -53,9 +54,22 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Sequence
 
-__all__ = ["Platform", "PLATFORMS", "ALIASES", "NativeBuildError", "parse_platforms", "host_platform",
-           "fmi2_folders", "check_zig", "zig_command", "zig_environment", "compile_library",
-           "compile_libraries", "fat_macho", "thin_macho_architecture"]
+__all__ = [
+    "Platform",
+    "PLATFORMS",
+    "ALIASES",
+    "NativeBuildError",
+    "parse_platforms",
+    "host_platform",
+    "fmi2_folders",
+    "check_zig",
+    "zig_command",
+    "zig_environment",
+    "compile_library",
+    "compile_libraries",
+    "fat_macho",
+    "thin_macho_architecture",
+]
 
 
 class NativeBuildError(OSError):
@@ -76,19 +90,25 @@ class Platform:
         return self.name.split("-", 1)[1]
 
 
-PLATFORMS: dict[str, Platform] = {p.name: p for p in (
-    Platform("x86_64-linux", "linux64", "x86_64-linux-gnu.2.17", ".so"),
-    Platform("x86_64-windows", "win64", "x86_64-windows-gnu", ".dll"),
-    Platform("x86_64-darwin", "darwin64", "x86_64-macos.10.13", ".dylib"),
-    Platform("aarch64-darwin", "darwin64", "aarch64-macos.11.0", ".dylib"),
-)}
+PLATFORMS: dict[str, Platform] = {
+    p.name: p
+    for p in (
+        Platform("x86_64-linux", "linux64", "x86_64-linux-gnu.2.17", ".so"),
+        Platform("x86_64-windows", "win64", "x86_64-windows-gnu", ".dll"),
+        Platform("x86_64-darwin", "darwin64", "x86_64-macos.10.13", ".dylib"),
+        Platform("aarch64-darwin", "darwin64", "aarch64-macos.11.0", ".dylib"),
+    )
+}
 """Every platform the native backend builds, in the order of the FMU's binaries."""
 
 ALIASES: dict[str, tuple[str, ...]] = {
     "all": tuple(PLATFORMS),
-    "linux": ("x86_64-linux",), "linux64": ("x86_64-linux",),
-    "windows": ("x86_64-windows",), "win64": ("x86_64-windows",),
-    "darwin": ("x86_64-darwin", "aarch64-darwin"), "macos": ("x86_64-darwin", "aarch64-darwin"),
+    "linux": ("x86_64-linux",),
+    "linux64": ("x86_64-linux",),
+    "windows": ("x86_64-windows",),
+    "win64": ("x86_64-windows",),
+    "darwin": ("x86_64-darwin", "aarch64-darwin"),
+    "macos": ("x86_64-darwin", "aarch64-darwin"),
     "darwin64": ("x86_64-darwin", "aarch64-darwin"),
 }
 """Other names accepted by `parse_platforms`: ``all``, an OS, or an FMI 2.0 folder."""
@@ -100,8 +120,15 @@ def host_platform() -> str | None:
     """The `PLATFORMS` name of this machine, None if it is none of them."""
     import platform
 
-    system = ("linux" if sys.platform.startswith("linux") else "darwin" if sys.platform == "darwin"
-              else "windows" if sys.platform == "win32" else sys.platform)
+    system = (
+        "linux"
+        if sys.platform.startswith("linux")
+        else "darwin"
+        if sys.platform == "darwin"
+        else "windows"
+        if sys.platform == "win32"
+        else sys.platform
+    )
     name = f"{_ARCHITECTURES.get(platform.machine().lower(), platform.machine().lower())}-{system}"
     return name if name in PLATFORMS else None
 
@@ -120,16 +147,17 @@ def parse_platforms(platforms: str | Iterable[str] | None) -> tuple[str, ...]:
         name = raw.strip().lower()
         if name == "host":
             if host_platform() is None:
-                raise ValueError(f"this machine ({sys.platform}) is none of the platforms "
-                                 f"{', '.join(PLATFORMS)}")
+                raise ValueError(f"this machine ({sys.platform}) is none of the platforms {', '.join(PLATFORMS)}")
             chosen.add(host_platform())
         elif name in PLATFORMS:
             chosen.add(name)
         elif name in ALIASES:
             chosen.update(ALIASES[name])
         elif name:
-            raise ValueError(f"unknown platform {raw.strip()!r} (expected a comma list of "
-                             f"{', '.join([*PLATFORMS, *ALIASES, 'host'])})")
+            raise ValueError(
+                f"unknown platform {raw.strip()!r} (expected a comma list of "
+                f"{', '.join([*PLATFORMS, *ALIASES, 'host'])})"
+            )
     if not chosen:
         raise ValueError("no platform chosen")
     return tuple(name for name in PLATFORMS if name in chosen)
@@ -153,7 +181,8 @@ def check_zig() -> None:
         raise NativeBuildError(
             "the native FMU backend compiles its C with zig, from the Python package 'ziglang' (a "
             "dependency of semilinear-duhem), which is not installed: 'pip install ziglang', or export "
-            "with '--backend python' (the simulator must then provide Python with numpy)")
+            "with '--backend python' (the simulator must then provide Python with numpy)"
+        )
 
 
 def zig_command() -> list[str]:
@@ -197,8 +226,15 @@ def _target_flags(platform: Platform, output: Path) -> list[str]:
     return []
 
 
-def compile_library(platform: str, flags: Sequence[str], include: Path, c_files: Sequence[Path],
-                    output: Path, workdir: Path, libraries: Sequence[str] = ("m",)) -> Path:
+def compile_library(
+    platform: str,
+    flags: Sequence[str],
+    include: Path,
+    c_files: Sequence[Path],
+    output: Path,
+    workdir: Path,
+    libraries: Sequence[str] = ("m",),
+) -> Path:
     """Compile `c_files` into the shared library `output` of `platform` (a `PLATFORMS` name) with zig.
 
     `flags` are the optimisation flags; the library is stripped and exports
@@ -207,24 +243,42 @@ def compile_library(platform: str, flags: Sequence[str], include: Path, c_files:
     """
     spec = PLATFORMS[platform]
     workdir.mkdir(parents=True, exist_ok=True)
-    command = [*zig_command(), "cc", "-target", spec.target, *flags, "-shared", "-fvisibility=hidden", "-s",
-               *_target_flags(spec, output), "-I", str(include), *map(str, c_files), "-o", str(output),
-               *[f"-l{name}" for name in libraries]]
+    command = [
+        *zig_command(),
+        "cc",
+        "-target",
+        spec.target,
+        *flags,
+        "-shared",
+        "-fvisibility=hidden",
+        "-s",
+        *_target_flags(spec, output),
+        "-I",
+        str(include),
+        *map(str, c_files),
+        "-o",
+        str(output),
+        *[f"-l{name}" for name in libraries],
+    ]
     result = subprocess.run(command, capture_output=True, text=True, cwd=workdir, env=zig_environment())
     if result.returncode != 0 or not output.is_file():
-        raise NativeBuildError(f"zig cc failed for {platform} ({' '.join(command)}):\n"
-                               f"{(result.stderr or result.stdout).strip()}")
+        raise NativeBuildError(
+            f"zig cc failed for {platform} ({' '.join(command)}):\n{(result.stderr or result.stdout).strip()}"
+        )
     return output
 
 
-def compile_libraries(platforms: Sequence[str], flags: Sequence[str], include: Path, c_files: Sequence[Path],
-                      directory: Path, stem: str) -> dict[str, Path]:
+def compile_libraries(
+    platforms: Sequence[str], flags: Sequence[str], include: Path, c_files: Sequence[Path], directory: Path, stem: str
+) -> dict[str, Path]:
     """`compile_library` for each of `platforms`, concurrently (one compiler a core), into
     ``directory/<platform>/<stem><suffix>``; platform -> library."""
+
     def build(name: str) -> Path:
         folder = directory / name
-        return compile_library(name, flags, include, c_files, folder / f"{stem}{PLATFORMS[name].suffix}",
-                               folder / "work")
+        return compile_library(
+            name, flags, include, c_files, folder / f"{stem}{PLATFORMS[name].suffix}", folder / "work"
+        )
 
     workers = max(1, min(len(platforms), os.cpu_count() or 1))
     with ThreadPoolExecutor(max_workers=workers) as pool:
@@ -236,7 +290,7 @@ def compile_libraries(platforms: Sequence[str], flags: Sequence[str], include: P
 _MH_MAGIC_64 = 0xFEEDFACF
 _FAT_MAGIC = 0xCAFEBABE
 _CPU_NAMES = {0x01000007: "x86_64", 0x0100000C: "arm64"}
-_FAT_ALIGN = 14    # 16 KiB, the arm64 page: what lipo uses for arm64 slices
+_FAT_ALIGN = 14  # 16 KiB, the arm64 page: what lipo uses for arm64 slices
 
 
 def thin_macho_architecture(data: bytes) -> tuple[int, int]:

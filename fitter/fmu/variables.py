@@ -37,6 +37,7 @@ value references, as ``Float64``/``Int32``/``String``, and the
 independent variable ``time`` that FMI 3.0 requires follows the last
 parameter (`time_variable`).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -47,18 +48,34 @@ import numpy as np
 from fitter.core.effects import REGISTRY
 from fitter.core.rates import TabulatedRate
 
-__all__ = ["FmiVariable", "model_variables", "compensator_variables", "time_variable", "start_state_values",
-           "reference_start", "model_effects", "interface_variables", "U_REF", "Y_REF"]
+__all__ = [
+    "FmiVariable",
+    "model_variables",
+    "compensator_variables",
+    "time_variable",
+    "start_state_values",
+    "reference_start",
+    "model_effects",
+    "interface_variables",
+    "U_REF",
+    "Y_REF",
+]
 
 U_REF = 0
 Y_REF = 1
 
 _PARAM_TEXT = {
-    "A_plus": "A+ (rising input), eq (1)", "A_minus": "A- (falling input), eq (1)",
-    "B_plus": "B+ (rising input), eq (1)", "B_minus": "B- (falling input), eq (1)",
-    "E_plus": "E+ affine term (rising input)", "E_minus": "E- affine term (falling input)",
-    "A": "A, eq (18)", "B": "B, eq (18)", "E": "E affine term of eq (18)",
-    "C": "output row C, eq (2)", "D": "feedthrough D of y = C x + D u",
+    "A_plus": "A+ (rising input), eq (1)",
+    "A_minus": "A- (falling input), eq (1)",
+    "B_plus": "B+ (rising input), eq (1)",
+    "B_minus": "B- (falling input), eq (1)",
+    "E_plus": "E+ affine term (rising input)",
+    "E_minus": "E- affine term (falling input)",
+    "A": "A, eq (18)",
+    "B": "B, eq (18)",
+    "E": "E affine term of eq (18)",
+    "C": "output row C, eq (2)",
+    "D": "feedthrough D of y = C x + D u",
     "x0": "start state x(0)",
 }
 
@@ -85,8 +102,14 @@ class FmiVariable:
     initial: str | None = None
 
     def to_json(self) -> dict:
-        return {"name": self.name, "valueReference": self.value_reference, "type": self.type,
-                "causality": self.causality, "path": list(self.path), "start": self.start}
+        return {
+            "name": self.name,
+            "valueReference": self.value_reference,
+            "type": self.type,
+            "causality": self.causality,
+            "path": list(self.path),
+            "start": self.start,
+        }
 
 
 def _signal_text(role: str, signal) -> str:
@@ -96,9 +119,17 @@ def _signal_text(role: str, signal) -> str:
 
 
 def _parameter(name: str, vr: int, path: tuple, value: Any, text: str) -> FmiVariable:
-    return FmiVariable(name=name, value_reference=vr, type="Real", causality="parameter",
-                       variability="fixed", start=float(value), description=text, path=path,
-                       initial="exact")
+    return FmiVariable(
+        name=name,
+        value_reference=vr,
+        type="Real",
+        causality="parameter",
+        variability="fixed",
+        start=float(value),
+        description=text,
+        path=path,
+        initial="exact",
+    )
 
 
 def _array_parameters(key: str, value: np.ndarray, path: tuple, vr: int, text: str) -> list:
@@ -125,45 +156,95 @@ def model_variables(model) -> list[FmiVariable]:
     `TabulatedRate` (a callable g has no parameters to export).
     """
     if model.kind == "rd" and not isinstance(model.g, TabulatedRate):
-        raise TypeError("rate-dependent model: g must be a TabulatedRate to be exported "
-                        "(tabulate it with TabulatedRate.from_function)")
+        raise TypeError(
+            "rate-dependent model: g must be a TabulatedRate to be exported "
+            "(tabulate it with TabulatedRate.from_function)"
+        )
     sig = model.signals
     variables = [
-        FmiVariable("u", U_REF, "Real", "input", "continuous", model.first_input or 0.0,
-                    _signal_text("hysteresis input", sig.input), unit=sig.input.unit),
-        FmiVariable("y", Y_REF, "Real", "output", "continuous", None,
-                    _signal_text("hysteresis output y = C x + D u", sig.output),
-                    unit=sig.output.unit, initial="calculated"),
-        FmiVariable("order", 2, "Integer", "local", "constant", model.order,
-                    "model order n (length of the state x); structural, cannot be changed",
-                    path=("order",), initial="exact"),
-        FmiVariable("kind", 3, "String", "local", "constant", model.kind,
-                    "model kind: ri = rate-independent, eqs (1)-(2); rd = rate-dependent, "
-                    "eqs (18)-(19); structural, cannot be changed", path=("kind",), initial="exact"),
+        FmiVariable(
+            "u",
+            U_REF,
+            "Real",
+            "input",
+            "continuous",
+            model.first_input or 0.0,
+            _signal_text("hysteresis input", sig.input),
+            unit=sig.input.unit,
+        ),
+        FmiVariable(
+            "y",
+            Y_REF,
+            "Real",
+            "output",
+            "continuous",
+            None,
+            _signal_text("hysteresis output y = C x + D u", sig.output),
+            unit=sig.output.unit,
+            initial="calculated",
+        ),
+        FmiVariable(
+            "order",
+            2,
+            "Integer",
+            "local",
+            "constant",
+            model.order,
+            "model order n (length of the state x); structural, cannot be changed",
+            path=("order",),
+            initial="exact",
+        ),
+        FmiVariable(
+            "kind",
+            3,
+            "String",
+            "local",
+            "constant",
+            model.kind,
+            "model kind: ri = rate-independent, eqs (1)-(2); rd = rate-dependent, "
+            "eqs (18)-(19); structural, cannot be changed",
+            path=("kind",),
+            initial="exact",
+        ),
     ]
     for key in model.PARAMS:
         value = np.asarray(getattr(model, key), dtype=float)
-        variables += _array_parameters(key, value, ("parameters", key), len(variables),
-                                       _PARAM_TEXT[key])
+        variables += _array_parameters(key, value, ("parameters", key), len(variables), _PARAM_TEXT[key])
     if model.kind == "rd":
-        variables += _array_parameters("g_v", model.g.v, ("g", "v"), len(variables),
-                                       "rate table: input slope du/dt of node k (g(0) = 0 implied)")
-        variables += _array_parameters("g_g", model.g.g, ("g", "g"), len(variables),
-                                       "rate table: g(du/dt) at node k; PCHIP between nodes, "
-                                       "constant beyond the outermost nodes")
+        variables += _array_parameters(
+            "g_v", model.g.v, ("g", "v"), len(variables), "rate table: input slope du/dt of node k (g(0) = 0 implied)"
+        )
+        variables += _array_parameters(
+            "g_g",
+            model.g.g,
+            ("g", "g"),
+            len(variables),
+            "rate table: g(du/dt) at node k; PCHIP between nodes, constant beyond the outermost nodes",
+        )
     for i, effect in enumerate(model_effects(model)):
         for name, value in effect.parameters.items():
-            variables.append(_parameter(f"{effect.effect}.{name}", len(variables),
-                                        ("effects", i, "parameters", name), value,
-                                        f"effect '{effect.effect}': parameter {name} "
-                                        "(fitter.core.effects)"))
+            variables.append(
+                _parameter(
+                    f"{effect.effect}.{name}",
+                    len(variables),
+                    ("effects", i, "parameters", name),
+                    value,
+                    f"effect '{effect.effect}': parameter {name} (fitter.core.effects)",
+                )
+            )
     chain = list(REGISTRY)
     for i, effect in sorted(enumerate(model_effects(model)), key=lambda item: chain.index(item[1].effect)):
         for name, value in (effect.start or {}).items():
-            variables.append(_parameter(f"{effect.effect}.start.{name}", len(variables),
-                                        ("effects", i, "start", name), value,
-                                        f"effect '{effect.effect}': its state {name} at the start time "
-                                        "(the stored start, fitter.core.effects)"))
+            variables.append(
+                _parameter(
+                    f"{effect.effect}.start.{name}",
+                    len(variables),
+                    ("effects", i, "start", name),
+                    value,
+                    f"effect '{effect.effect}': its state {name} at the start time "
+                    "(the stored start, fitter.core.effects)",
+                )
+            )
     return variables
 
 
@@ -171,8 +252,11 @@ def start_state_values(model) -> dict[str, float]:
     """The FMU's start-state parameters at `model`'s start: {variable name: value} of its x0 and of its effects'
     stored start (`model_variables`), for an FMU of a model that differs from `model` only there (and stores
     an effect start when `model` does)."""
-    return {v.name: float(_at(model, v.path)) for v in model_variables(model)
-            if v.path[:2] == ("parameters", "x0") or v.path[2:3] == ("start",)}
+    return {
+        v.name: float(_at(model, v.path))
+        for v in model_variables(model)
+        if v.path[:2] == ("parameters", "x0") or v.path[2:3] == ("start",)
+    }
 
 
 def _at(model, path: tuple):
@@ -198,12 +282,27 @@ def compensator_variables(model, y_ref_start: float) -> list[FmiVariable]:
     """`model_variables` of the compensator of `model`: u (vr 0) an output, y_ref (vr 1) the input."""
     sig = model.signals
     variables = model_variables(model)
-    variables[0] = FmiVariable("u", U_REF, "Real", "output", "continuous", None,
-                               _signal_text("compensator output: the input to apply to the plant", sig.input),
-                               unit=sig.input.unit, initial="calculated")
-    variables[1] = FmiVariable("y_ref", Y_REF, "Real", "input", "continuous", float(y_ref_start),
-                               _signal_text("reference: the output the plant is to follow", sig.output),
-                               unit=sig.output.unit)
+    variables[0] = FmiVariable(
+        "u",
+        U_REF,
+        "Real",
+        "output",
+        "continuous",
+        None,
+        _signal_text("compensator output: the input to apply to the plant", sig.input),
+        unit=sig.input.unit,
+        initial="calculated",
+    )
+    variables[1] = FmiVariable(
+        "y_ref",
+        Y_REF,
+        "Real",
+        "input",
+        "continuous",
+        float(y_ref_start),
+        _signal_text("reference: the output the plant is to follow", sig.output),
+        unit=sig.output.unit,
+    )
     return variables
 
 
@@ -216,5 +315,4 @@ def interface_variables(model, inverse_start: float | None) -> tuple[list[FmiVar
 
 def time_variable(variables: Sequence[FmiVariable]) -> FmiVariable:
     """The independent variable ``time`` of an FMI 3.0 FMU: value reference after `variables`."""
-    return FmiVariable("time", len(variables), "Real", "independent", "continuous", None,
-                       "simulation time", unit="s")
+    return FmiVariable("time", len(variables), "Real", "independent", "continuous", None, "simulation time", unit="s")
