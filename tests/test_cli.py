@@ -454,11 +454,11 @@ def test_diagnose_reads_files_on_their_own_clocks_as_separate_runs(tmp_path):
         "starts at t = 0.0 before",
         "--one-clock",
     )
-    data = json.loads(ok(invoke("diagnose", *files, "--base-order", "1", "--json", "-")).stdout)
+    text = ok(invoke("diagnose", *files, "--base-order", "1", "--json", str(tmp_path / "d.json"))).stdout
+    data = json.loads((tmp_path / "d.json").read_text())
     assert data["separate"] is True and data["verdict"] == "nothing_missing"
     assert data["summary"].startswith("The files are read as separate runs")
     assert set(data["extended"]["heldout_nrmse_per_recording"]) == {r.name for r in recs[:2]}
-    text = ok(invoke("diagnose", *files, "--base-order", "1")).stdout
     row = next(line for line in text.splitlines() if recs[1].name in line and "│" in line)
     assert f"{data['baseline']['references'][recs[1].name]:.4g}" in row  # its reference, fitted
 
