@@ -31,20 +31,14 @@ class Diagnosis:
     noise: dict | None = None  # how noise_rms was estimated (`fitter.diagnosis.noise_floor.noise_floor`)
 
     def to_json(self) -> dict:
-        """The JSON-able form (without the model outputs)."""
-        return {
-            "verdict": self.verdict,
-            "separate": self.separate,
-            "noise_rms": self.noise_rms,
-            "noise": self.noise,
-            "baseline": self.baseline,
-            "mismatch": self.mismatch,
-            "findings": self.findings,
-            "candidates": self.candidates,
-            "extended": self.extended,
-            "validation": self.validation,
-            "comparison": self.comparison,
-            "summary": self.paragraph,
-            "base_model": self.base_model.to_dict(),
-            "extended_model": self.extended_model.to_dict(),
-        }
+        """The JSON-able form (without the model outputs): the keys of `JSON_KEYS` in that order, the paragraph
+        as ``summary`` and the models as their dicts."""
+        out = {key: getattr(self, key) for key in JSON_KEYS}
+        out["summary"] = out.pop("paragraph")
+        out["base_model"], out["extended_model"] = self.base_model.to_dict(), self.extended_model.to_dict()
+        return out
+
+
+JSON_KEYS = ("verdict", "separate", "noise_rms", "noise", "baseline", "mismatch", "findings", "candidates")
+JSON_KEYS += ("extended", "validation", "comparison", "paragraph")
+"""The fields of `Diagnosis` in ``--json``, in order (then ``base_model``, ``extended_model``)."""
