@@ -1,7 +1,7 @@
 """The native FMI 3.0 Co-Simulation FMU (``fmi_version=3``), loaded and driven with fmpy.
 
 It is the FMI 2.0 FMU's model file and generated data behind the FMI 3.0
-framework (fmu_src/native/fmi3_framework.c): its outputs must equal the FMI
+framework (fmu_src/native/cosimulation.c, FMI_VERSION 3): its outputs must equal the FMI
 2.0 FMU's to 1e-12 at every output time, in a sample-and-step host and in
 fmpy's `simulate_fmu`; fmpy's validator must find nothing; misuse of the
 state machine must be refused with fmi3Error and a logged message, never a
