@@ -41,6 +41,7 @@ bench: install
 	$(BIN)/python bench/fmu_throughput.py
 	$(BIN)/python bench/real_data.py
 	$(BIN)/python bench/real_fit_speed.py
+	$(BIN)/python bench/effect_fit_speed.py
 	$(BIN)/python bench/diagnose_generality.py
 	$(BIN)/python bench/export_agreement.py
 	$(BIN)/python bench/compensation.py
