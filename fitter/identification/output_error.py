@@ -121,14 +121,11 @@ def fitted_initial_state(
     parts are kept in `memo` (a dict per recording, `_remembered`) and reused while their parameters repeat.
     Raises `KernelError` when the simulation overflows."""
     n = model.order
-    if getattr(model, "effects", None) and all(e.spec.additive for e in model.effects):
+    if _all_additive(model):
         ybare, G = _remembered(
             memo, "base", _base_key(model), lambda: _affine_output(model.replace(effects=[]), t, u, cache)
         )
-        terms = _remembered(
-            memo, "effects", _effects_key(model, effect_state), lambda: _additive_terms(model, t, u, effect_state)
-        )
-        base = ybare + terms
+        base = ybare + _terms(model, t, u, effect_state, memo)
     elif getattr(model, "effects", None):
         ys = [
             simulate(model, t, u, x0=x, flow_cache=cache, effect_state=effect_state).y
@@ -179,16 +176,24 @@ def _settled(model, t, u, cache: dict, memo: dict | None):
 def _model_output(model, t, u, cache: dict, effect_state, memo: dict | None) -> np.ndarray:
     """The model's output from its own x0 (``"model"``): with additive effects, the base's output plus the
     effects' terms, each kept in `memo`."""
-    if memo is None or not getattr(model, "effects", None) or not all(e.spec.additive for e in model.effects):
+    if memo is None or not _all_additive(model):
         return simulate(model, t, u, flow_cache=cache, effect_state=effect_state).y
     key = (*_base_key(model), np.asarray(model.x0, dtype=float).tobytes())
     ybare = _remembered(
         memo, "base_from_x0", key, lambda: simulate(model.replace(effects=[]), t, u, flow_cache=cache).y
     )
-    terms = _remembered(
-        memo, "effects", _effects_key(model, effect_state), lambda: _additive_terms(model, t, u, effect_state)
-    )
-    return ybare + terms
+    return ybare + _terms(model, t, u, effect_state, memo)
+
+
+def _all_additive(model) -> bool:
+    """Whether the model has effects and every one is additive (`EffectSpec.additive`)."""
+    return bool(getattr(model, "effects", None)) and all(e.spec.additive for e in model.effects)
+
+
+def _terms(model, t, u, effect_state, memo: dict | None) -> np.ndarray:
+    """`_additive_terms`, kept in `memo` under the effects' parameters and start."""
+    key = _effects_key(model, effect_state)
+    return _remembered(memo, "effects", key, lambda: _additive_terms(model, t, u, effect_state))
 
 
 def _additive_terms(model, t, u, effect_state) -> np.ndarray:
@@ -330,7 +335,7 @@ def simulate_from(
     the first sample where it is not the model's own start (settled, or with a fitted reference,
     `fitted_initial_state`), else None.
     """
-    cache = flows(model)
+    cache = flows(model) if memo is None else _remembered(memo, "flows", _base_key(model), lambda: flows(model))
     state = _settled(model, t, u, cache, memo) if settle and getattr(model, "effects", None) else None
     if mode == "model":
         return 0, np.array(model.x0, dtype=float), _model_output(model, t, u, cache, state, memo), np.nan, state
