@@ -17,7 +17,7 @@
 
 The FMUs are built once per module.  zig's first compile for a target fills its cache
 (``~/.cache/zig``, `fitter.fmu.toolchain.zig_environment`): about 1.5 minutes for Windows' C runtime on
-two cores, then about 0.3 s a binary.
+two cores, then about 0.3 s a binary, in every later environment too (`fitter.fmu.toolchain.stable_lib_dir`).
 """
 
 from __future__ import annotations
@@ -159,6 +159,29 @@ def test_platform_names():
     for bad in ("bogus", "", "linux,solaris"):
         with pytest.raises(ValueError):
             parse_platforms(bad)
+
+
+def test_zig_runs_on_its_lib_directory_at_a_path_shared_by_every_environment(tmp_path, monkeypatch):
+    """zig keys its compiled C runtimes on its lib directory's path: `zig_environment` gives it the wheel's lib
+    at ``<cache>/lib-<version>``, the same files (hard links here), made once and kept (a second call leaves it
+    as it is and no staging directory behind); a ZIG_LIB_DIR the user set is kept."""
+    import importlib.metadata
+    import importlib.util
+
+    monkeypatch.delenv("ZIG_LIB_DIR", raising=False)
+    monkeypatch.setenv("ZIG_GLOBAL_CACHE_DIR", str(tmp_path))
+    lib = Path(zig_environment()["ZIG_LIB_DIR"])
+    assert lib == tmp_path / f"lib-{importlib.metadata.version('ziglang')}"
+    wheel = Path(importlib.util.find_spec("ziglang").submodule_search_locations[0]) / "lib"
+    for name in ("std/std.zig", "libc/include/generic-glibc/stdio.h"):
+        assert (lib / name).read_bytes() == (wheel / name).read_bytes()
+    assert sum(1 for _ in lib.rglob("*")) == sum(1 for _ in wheel.rglob("*"))
+    stamp = (lib.stat().st_ino, lib.stat().st_mtime_ns)
+    assert Path(zig_environment()["ZIG_LIB_DIR"]) == lib
+    assert (lib.stat().st_ino, lib.stat().st_mtime_ns) == stamp
+    assert sorted(p.name for p in tmp_path.iterdir()) == [lib.name]
+    monkeypatch.setenv("ZIG_LIB_DIR", str(wheel))
+    assert zig_environment()["ZIG_LIB_DIR"] == str(wheel)
 
 
 @pytest.mark.parametrize("name", CASES)

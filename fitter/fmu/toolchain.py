@@ -39,12 +39,21 @@ global cache.  `zig_environment` keeps ``ZIG_GLOBAL_CACHE_DIR`` and
 ``$XDG_CACHE_HOME/zig`` (``~/.cache/zig``) when that is writable, else at a
 directory in the system temp directory; zig locks its cache, so concurrent
 exports share it safely.  A warm export compiles each target in about 0.3 s.
+zig keys the cached C runtimes on the real path of its own ``lib`` directory,
+which the wheel puts inside the virtual environment: every new environment
+would compile them again (75-100 s for Windows alone).  `zig_environment`
+therefore points ``ZIG_LIB_DIR`` (unless set) at a copy of that directory at a
+path fixed by the wheel's version, ``<cache>/lib-<version>`` (`stable_lib_dir`:
+hard links where the file system allows, so it costs no space), made once,
+atomically, and shared by every environment with that zig.
 """
 
 from __future__ import annotations
 
+import importlib.metadata
 import importlib.util
 import os
+import shutil
 import struct
 import subprocess
 import sys
@@ -65,6 +74,7 @@ __all__ = [
     "check_zig",
     "zig_command",
     "zig_environment",
+    "stable_lib_dir",
     "compile_library",
     "compile_libraries",
     "fat_macho",
@@ -215,7 +225,41 @@ def zig_environment() -> dict[str, str]:
         cache = str(candidate)
     env["ZIG_GLOBAL_CACHE_DIR"] = cache
     env.setdefault("ZIG_LOCAL_CACHE_DIR", cache)
+    if not env.get("ZIG_LIB_DIR"):
+        lib = stable_lib_dir(Path(cache))
+        if lib is not None:
+            env["ZIG_LIB_DIR"] = str(lib)
     return env
+
+
+def stable_lib_dir(cache: Path) -> Path | None:
+    """``cache/lib-<ziglang version>``: the ``ziglang`` wheel's ``lib`` directory at a path that does not depend
+    on the environment it is installed in (module docstring), made on first use; None when it cannot be made
+    (zig then uses its own, and compiles the C runtimes once per environment).
+
+    The copy is of hard links where `cache` is on the wheel's file system, else of the files (234 MB for zig
+    0.17); it is built under a temporary name and renamed into place, so a reader never sees half of it and
+    concurrent first uses leave one copy.
+    """
+    check_zig()
+    source = Path(importlib.util.find_spec("ziglang").submodule_search_locations[0]) / "lib"
+    target = cache / f"lib-{importlib.metadata.version('ziglang')}"
+    if target.is_dir():
+        return target
+    staging = Path(tempfile.mkdtemp(prefix=f".{target.name}-", dir=cache))
+    try:
+        try:
+            shutil.copytree(source, staging / "lib", copy_function=os.link)
+        except OSError:
+            shutil.rmtree(staging / "lib", ignore_errors=True)
+            shutil.copytree(source, staging / "lib")
+        os.rename(staging / "lib", target)
+    except OSError:
+        if not target.is_dir():
+            return None
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return target
 
 
 def _target_flags(platform: Platform, output: Path) -> list[str]:
