@@ -10,6 +10,8 @@ pytest puts tests/ on sys.path) and request the session fixture `fmu_cache`,
 which builds each (model, backend) FMU once per session, and `holder`, another process holding an
 output's lock (`fitter.core.files.output_lock`).  The diagnosis' fits run in the test's own process
 (``DUHEM_WORKERS=1``, `fitter.diagnosis.workers`); one test runs it on two processes and compares.
+Native FMUs carry this machine's binary alone (``DUHEM_PLATFORMS=host``, `fitter.fmu.toolchain.PLATFORMS_ENV`)
+unless a test asks for others: `tests/test_platforms.py` builds and checks every platform's.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from fitter.data.recordings import Recording
 from fitter.paper import example3
 
 os.environ.setdefault("DUHEM_WORKERS", "1")  # the suite runs on pytest-xdist's workers already (one per core)
+os.environ.setdefault("DUHEM_PLATFORMS", "host")  # native FMUs: this machine's binary; tests/test_platforms.py: all
 
 
 def ri_model(order: int, effects=()) -> RateIndependentModel:

@@ -217,6 +217,8 @@ def test_exported_fmus(work):
     with zipfile.ZipFile(work["dir"] / "native.fmu") as z:
         names = z.namelist()
     assert "binaries/linux64/semilinear_duhem.so" in names and "sources/duhem_model.c" in names
+    assert {n.split("/")[1] for n in names if n.startswith("binaries/")} == {"linux64"}  # DUHEM_PLATFORMS=host
+    assert work["native"]["platforms"] == ["x86_64-linux"]
     assert not any(n.startswith("resources/pythonfmu/") for n in names)
     with zipfile.ZipFile(work["dir"] / "python.fmu") as z:
         assert any(n.startswith("resources/pythonfmu/") for n in z.namelist())
@@ -640,6 +642,7 @@ def test_no_zig_names_the_python_backend(bad, args, monkeypatch):
 
 def test_build_fmu_script_defaults_to_native_without_a_system_compiler(bad, monkeypatch):
     monkeypatch.setenv("CC", NO_CC["CC"])
+    monkeypatch.delenv("DUHEM_PLATFORMS")  # the suite's host-only default: the script's own is every platform
     assert build_fmu.main([str(bad / "model.json"), "-o", str(bad / "out.fmu")]) == 0
     with zipfile.ZipFile(bad / "out.fmu") as fmu:
         names = set(fmu.namelist())

@@ -43,7 +43,14 @@ from fitter.core import Compensator, load_model, save_model, simulate
 from fitter.data.recordings import load_recording
 from fitter.fmu.build import build_fmu
 from fitter.fmu.native_sources import fmi_headers_dir
-from fitter.fmu.toolchain import PLATFORMS, host_platform, parse_platforms, zig_command, zig_environment
+from fitter.fmu.toolchain import (
+    PLATFORMS,
+    PLATFORMS_ENV,
+    host_platform,
+    parse_platforms,
+    zig_command,
+    zig_environment,
+)
 from test_fmu_native import ALL_EFFECTS, rd_model, ri_model
 from test_inverse import rd1, ri2
 
@@ -130,7 +137,7 @@ def built(cases, tmp_path_factory) -> dict:
     d = tmp_path_factory.mktemp("platforms")
     out = {}
     for name, (model, options, _, _) in cases.items():
-        path = build_fmu(model, d / f"{name}.fmu", backend="native", **options)
+        path = build_fmu(model, d / f"{name}.fmu", backend="native", platforms="all", **options)
         unzipdir = d / name
         with zipfile.ZipFile(path) as zf:
             zf.extractall(unzipdir)
@@ -151,8 +158,15 @@ def _fmi_functions(version: int) -> set[str]:
 # --------------------------------------------------------------------------- layout, validation
 
 
-def test_platform_names():
+def test_platform_names(monkeypatch):
+    monkeypatch.delenv(PLATFORMS_ENV)
     assert parse_platforms(None) == parse_platforms("all") == tuple(PLATFORMS)
+    monkeypatch.setenv(PLATFORMS_ENV, "darwin")
+    assert parse_platforms(None) == ("x86_64-darwin", "aarch64-darwin")
+    assert parse_platforms("windows") == ("x86_64-windows",)
+    monkeypatch.setenv(PLATFORMS_ENV, "linux,bogus")
+    with pytest.raises(ValueError, match="DUHEM_PLATFORMS='linux,bogus': unknown platform 'bogus'"):
+        parse_platforms(None)
     assert parse_platforms("darwin, linux") == ("x86_64-linux", "x86_64-darwin", "aarch64-darwin")
     assert parse_platforms(["win64", "x86_64-windows"]) == ("x86_64-windows",)
     assert parse_platforms("host") == (host_platform(),)
@@ -537,7 +551,7 @@ def _duhem(*arguments, env=None) -> subprocess.CompletedProcess:
 
 def test_export_without_a_system_compiler_writes_every_binary(tmp_path):
     save_model(_demo_model(), tmp_path / "model.json")
-    env = {k: v for k, v in os.environ.items() if k not in ("CC", "CXX", "LD")}
+    env = {k: v for k, v in os.environ.items() if k not in ("CC", "CXX", "LD", PLATFORMS_ENV)}
     env["PATH"] = _path_without_compilers(tmp_path)
     for arguments, folders in (((), FMI2_FOLDERS), (("--fmi-version", "3", "--inverse"), FMI3_FOLDERS)):
         if "--inverse" in arguments:

@@ -36,7 +36,7 @@ from fitter.data.metrics import compare
 from fitter.data.recordings import load_recordings
 from fitter.fmu.build import build_fmu
 from fitter.fmu.host import simulate_fmu
-from fitter.fmu.toolchain import PLATFORMS
+from fitter.fmu.toolchain import PLATFORMS, parse_platforms
 from fitter.fmu.variables import start_state_values
 from fitter.identification.exported import own_start, range_warnings, started
 from fitter.progress import stderr_progress
@@ -69,7 +69,8 @@ from fitter.reports.validation_plot import write_validation_plot
     metavar="LIST",
     callback=platforms,
     help=f"native backend: the binaries, a comma list of {', '.join(PLATFORMS)} (or linux, windows, "
-    "darwin, host); default all, compiled with zig (package ziglang), no system compiler needed",
+    "darwin, host); default all (or $DUHEM_PLATFORMS), compiled with zig (package ziglang), no system "
+    "compiler needed",
 )
 @click.option(
     "--cc",
@@ -124,7 +125,7 @@ def export(model, out, backend, fmi_version, allow_unstable, inverse, measuremen
                 "kind": m.kind,
                 "order": m.order,
                 "inverse": inverse,
-                "platforms": list(platforms or PLATFORMS) if backend == "native" else None,
+                "platforms": list(platforms or parse_platforms(None)) if backend == "native" else None,
             }
         )
     else:

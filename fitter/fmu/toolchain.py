@@ -69,6 +69,7 @@ __all__ = [
     "ALIASES",
     "NativeBuildError",
     "parse_platforms",
+    "PLATFORMS_ENV",
     "host_platform",
     "fmi2_folders",
     "check_zig",
@@ -143,14 +144,25 @@ def host_platform() -> str | None:
     return name if name in PLATFORMS else None
 
 
+PLATFORMS_ENV = "DUHEM_PLATFORMS"
+"""The environment variable naming the default platforms (as ``--platforms``; unset: all): ``host`` makes
+every export compile this machine's binary alone, a third of the time (the test suite sets it)."""
+
+
 def parse_platforms(platforms: str | Iterable[str] | None) -> tuple[str, ...]:
-    """The platform names of `platforms` (None: all; a comma list or names, `PLATFORMS` keys or `ALIASES`,
-    ``host`` for this machine's), without repeats, in `PLATFORMS` order.
+    """The platform names of `platforms` (None: ``$DUHEM_PLATFORMS`` when set, else all; a comma list or names,
+    `PLATFORMS` keys or `ALIASES`, ``host`` for this machine's), without repeats, in `PLATFORMS` order.
 
     Raises ValueError on an unknown name or an empty selection.
     """
     if platforms is None:
-        return tuple(PLATFORMS)
+        default = os.environ.get(PLATFORMS_ENV, "").strip()
+        if not default:
+            return tuple(PLATFORMS)
+        try:
+            return parse_platforms(default)
+        except ValueError as error:
+            raise ValueError(f"{PLATFORMS_ENV}={default!r}: {error}") from None
     names = platforms.split(",") if isinstance(platforms, str) else list(platforms)
     chosen = set()
     for raw in names:
