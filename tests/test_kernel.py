@@ -454,3 +454,27 @@ def test_integration_in_pieces_equals_one_pass(monkeypatch, A_plus):
     c, Phi = affine_response(model, t, u)
     Phi_N, c_N = period_map(model, t, u)
     assert np.array_equal(Phi_N, Phi[-1]) and np.array_equal(c_N, c[-1])
+
+
+@pytest.mark.parametrize("growth", [0.0, 0.02], ids=["decaying (scan)", "some steps grow (chunks)"])
+@pytest.mark.parametrize("dtype", [float, complex])
+def test_linear_recurrence_equals_the_step_by_step_loop(dtype, growth):
+    """w_{k+1} = e^{z_k} w_k + f_k over 2000 steps, most of them decaying by up to e^-40 (a switching effect's
+    fully switched intervals: about 270 chunks of the cumulative-sum form), solved by `linear_recurrence`
+    (the doubling scan when no step grows, the chunks when some do) equals the plain loop to 1e-12."""
+    from fitter.core.flow import linear_recurrence
+
+    rng = np.random.default_rng(11)
+    N, m = 2000, 3
+    z = -rng.uniform(0.0, 40.0, (N, m)) * (rng.uniform(size=(N, 1)) < 0.5) + growth
+    if dtype is complex:
+        z = z + 1j * rng.uniform(-2.0, 2.0, (N, m))
+    f = rng.normal(size=(N, m)).astype(dtype)
+    w0 = np.array([1.0, -2.0, 0.5], dtype=dtype)
+    expected, w = np.empty_like(f), w0
+    for k in range(N):
+        w = np.exp(z[k]) * w + f[k]
+        expected[k] = w
+    got = linear_recurrence(w0, z, np.exp(z), f)
+    assert got.dtype == f.dtype
+    assert np.max(np.abs(got - expected)) < 1e-12 * np.max(np.abs(expected))
