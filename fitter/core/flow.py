@@ -354,11 +354,10 @@ def linear_recurrence(w0: np.ndarray, z: np.ndarray, a: np.ndarray, f: np.ndarra
 def _decaying_scan(w0: np.ndarray, a: np.ndarray, f: np.ndarray) -> np.ndarray:
     """w_1..w_N of w_{k+1} = a_k w_k + f_k by a Hillis-Steele scan of the maps (a, f): after the pass of
     distance d, entry k holds the composition of the maps k-2d+1..k (products of the a's, |a| <= 1, never
-    overflow); w_0 is folded into the first map, whose factor is then 0."""
+    overflow); w_0 is folded into the first map's constant."""
     F = f.astype(np.result_type(f, a, w0), copy=True)
     A = np.broadcast_to(a, F.shape).astype(F.dtype, copy=True)
     F[0] = F[0] + A[0] * w0
-    A[0] = 0.0
     d = 1
     while d < len(F):
         F[d:] = F[d:] + A[d:] * F[:-d]
