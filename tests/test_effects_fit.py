@@ -78,19 +78,26 @@ def test_switching_fitted_with_the_base_reaches_the_noise_and_is_saved(tmp_path)
     """Without the effect an order-1 Duhem model cannot follow a loop that switches more when slower (> 2 %);
     with it (`duhem fit --effects switching` on the CSV files, its fit_recordings call watched: one fit for the
     library's result and the command's output) the fit reaches the noise (0.2 %) on both rates, and one
-    population is the truth's (the other may take a share of the base's smooth part).  The command prints the
-    fitted effect and how its state started, and saves the model of that fit, which follows the first
-    recording near the noise."""
+    population is the truth's (the other may take a share of the base's smooth part).  With
+    `--faithful-minor-loops` the barrier holds through the joint refinement: the summary says the fit was
+    constrained and its minor loops stay near the data.  The command prints the fitted effect and how its state
+    started, and saves the model of that fit, which follows the first recording near the noise.  (The fit
+    without the barrier: `test_closed_loops_start_settled_and_the_model_runs_from_where_the_fit_started`.)"""
     recs = _recordings()
     plain = fit_recordings(recs, kind="ri", order=1)
     for rec in recs:
         assert compare(rec, simulate(plain.model, rec.t, rec.u).y)["nrmse"] > 0.02
     out = tmp_path / "m.json"
     res, extended = _cli_fit(
-        [*_csv_files(recs, tmp_path), "--kind", "ri", "--order", "1", "--effects", "switching", "-o", str(out)]
+        [
+            *_csv_files(recs, tmp_path),
+            *("--kind", "ri", "--order", "1", "--effects", "switching", "--faithful-minor-loops", "-o", str(out)),
+        ]
     )
     nrmse = [r["nrmse"] for r in extended.summary["recordings"]]
     assert max(nrmse) < 0.0025, nrmse
+    loops = extended.summary["minor_loops"]
+    assert loops["constrained"] is True and loops["faithful"] is True, loops
     fitted = extended.summary["effects"]["fitted"][0]
     assert fitted["effect"] == "switching"
     p = fitted["parameters"]
@@ -111,37 +118,6 @@ def test_switching_fitted_with_the_base_reaches_the_noise_and_is_saved(tmp_path)
     assert model.effects[0].parameters == pytest.approx(extended.model.effects[0].parameters, rel=1e-12)
     y = simulate(model, recs[0].t, recs[0].u).y
     assert compare(recs[0], y)["nrmse"] < 0.006
-
-
-def test_cli_fit_effects_with_faithful_minor_loops(tmp_path):
-    """`--effects` with `--faithful-minor-loops`: the barrier holds through the joint refinement (the summary
-    says the fit was constrained and its minor loops stay near the data) and the switching still takes the
-    loop to the noise (0.2 %)."""
-    recs = _recordings()
-    paths = _csv_files(recs, tmp_path)
-    out = tmp_path / "m.json"
-    res = CliRunner().invoke(
-        main,
-        [
-            "fit",
-            *paths,
-            "--kind",
-            "ri",
-            "--order",
-            "1",
-            "--effects",
-            "switching",
-            "--faithful-minor-loops",
-            "-o",
-            str(out),
-            "--json",
-        ],
-    )
-    assert res.exit_code == 0, res.output
-    info = json.loads(res.stdout)["summary"]
-    assert info["minor_loops"]["constrained"] is True and info["minor_loops"]["faithful"] is True
-    assert max(r["nrmse"] for r in info["recordings"]) < 0.0025
-    assert [e.effect for e in load_model(out).effects] == ["switching"]
 
 
 @pytest.mark.parametrize(
@@ -253,7 +229,6 @@ def test_each_recordings_reference_is_fitted_with_its_initial_state(tmp_path):
 def test_cli_fit_holds_a_known_parameter(tmp_path):
     """``--hold measurement_drift.rate=0``: the references alone (the rate not fitted, exactly 0 in the model),
     the fit at the noise, the held value in the summary and printed."""
-    import json
 
     paths = _csv_files(_referenced(), tmp_path)
     out = tmp_path / "m.json"

@@ -169,14 +169,16 @@ def _key_error(key: str, expected: str, got: str) -> ModelFileError:
 
 def _array(key: str, value: Any, expected: str) -> np.ndarray:
     """`value` as a float array of finite numbers; anything else (a string, null, an object, a ragged
-    list, NaN) is a `ModelFileError` naming `key` and `expected`."""
-    if next(_bad_entries(value), _NUMBERS) is not _NUMBERS:
-        raise _key_error(key, expected, _describe(value))
+    list, NaN) is a `ModelFileError` naming `key` and `expected`.  A float array (a fit's parameters) goes
+    straight to the finiteness check."""
+    if not (isinstance(value, np.ndarray) and value.dtype.kind == "f"):
+        if next(_bad_entries(value), _NUMBERS) is not _NUMBERS:
+            raise _key_error(key, expected, _describe(value))
     try:
         a = np.array(value, dtype=float)
     except ValueError:
         raise _key_error(key, expected, "a ragged list") from None
-    if not np.all(np.isfinite(a)):
+    if not np.isfinite(a).all():
         raise _key_error(key, expected, "NaN or infinity")
     return a
 
