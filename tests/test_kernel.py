@@ -462,7 +462,7 @@ def test_linear_recurrence_equals_the_step_by_step_loop(dtype, growth):
     """w_{k+1} = e^{z_k} w_k + f_k over 2000 steps, most of them decaying by up to e^-40 (a switching effect's
     fully switched intervals: about 270 chunks of the cumulative-sum form), solved by `linear_recurrence`
     (the doubling scan when no step grows, the chunks when some do) equals the plain loop to 1e-12."""
-    from fitter.core.flow import linear_recurrence
+    from fitter.core.recurrence import linear_recurrence
 
     rng = np.random.default_rng(11)
     N, m = 2000, 3

@@ -9,7 +9,8 @@ from statistics import NormalDist
 
 import numpy as np
 
-from ..flow import branches, linear_recurrence
+from ..flow import branches
+from ..recurrence import linear_recurrence
 from .spec import INF, Chain, EffectContext, EffectSpec, ParameterSpec
 
 
