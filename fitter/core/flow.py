@@ -472,7 +472,7 @@ def _segmented_cumsum(x: np.ndarray, head: np.ndarray) -> np.ndarray:
     passes, about 3 ns an entry each), whichever is estimated cheaper.
     """
     first = np.flatnonzero(head)
-    ends = np.append(first[1:], len(x))
+    ends = np.r_[first[1:], len(x)]
     passes = max(1, int(np.ceil(np.log2(max(int(np.max(ends - first)), 2)))))
     if len(first) * 1000 <= passes * x.size:
         out = np.empty_like(x)
@@ -500,10 +500,9 @@ def _integrate_modal(used: dict, force: dict, X0: np.ndarray, branch, p, r, S) -
         z[sel], fb = flow.modal_terms(p[sel], r[sel], S[sel], force[b])
         f[sel] = fb if fb.ndim == f.ndim else _columns(fb, extra)
     chunk = np.floor(np.cumsum(np.abs(z.real).max(axis=1)) / CHUNK_SPAN)
-    head = np.empty(N, dtype=bool)
-    head[0], head[1:] = True, (branch[1:] != branch[:-1]) | (chunk[1:] != chunk[:-1])
+    head = np.r_[True, (branch[1:] != branch[:-1]) | (chunk[1:] != chunk[:-1])]
     first = np.flatnonzero(head)
-    last = np.append(first[1:] - 1, N - 1)
+    last = np.r_[first[1:] - 1, N - 1]
     L = _segmented_cumsum(np.where(head[:, None], 0, z), head)
     F = _segmented_cumsum(np.where(_columns(head, 1 + extra), 0, f * _columns(np.exp(-L), extra)), head)
     # segment s maps its entry state x_s to its exit state: in modal coordinates w = V^-1 x_s,
@@ -541,20 +540,10 @@ def _integrate_dense(used: dict, force: dict, X0: np.ndarray, branch, p, r, S) -
     return _affine_scan(M, g, X0)
 
 
-_LOOP_MAPS = 24
-"""`_affine_scan` chains this many maps or fewer one by one (measured: faster up to about 24 maps of n <= 4)."""
-
-
 def _affine_scan(M: np.ndarray, g: np.ndarray, X0: np.ndarray, block: int = 32) -> np.ndarray:
     """States x_1..x_K of x_{k+1} = M_k x_k + g_k from x_0 = X0 ((n,) or (n, m)): prefix compositions
-    within blocks of `block` maps (log2(block) stacked products), the blocks chained in order; up to
-    `_LOOP_MAPS` maps (a few loops' segments), one after another (cheaper than the scan's fixed cost)."""
+    within blocks of `block` maps (log2(block) stacked products), the blocks chained in order."""
     K, n = len(M), X0.shape[0]
-    if K <= _LOOP_MAPS:
-        out, x = np.empty((K,) + X0.shape), X0
-        for k in range(K):
-            x = out[k] = M[k] @ x + g[k]
-        return out
     nb = -(-K // block)
     Mp = np.broadcast_to(np.eye(n), (nb * block, n, n)).copy()
     gp = np.zeros((nb * block, n) + X0.shape[1:])
