@@ -33,22 +33,22 @@ from .flow import (
     phi2,
 )
 
-__all__ = [
-    "AffineFlow",
-    "check_finite",
-    "check_increasing",
-    "expm",
+__all__ = [  # the simulation, then the flows and checks of `fitter.core.flow` it re-exports
+    "simulate",
+    "state_response",
+    "state_blocks",
+    "Simulation",
     "flows",
+    "AffineFlow",
     "integrate",
     "integrate_blocks",
     "interval_coefficients",
     "one_interval",
+    "expm",
     "phi1",
     "phi2",
-    "simulate",
-    "state_blocks",
-    "state_response",
-    "Simulation",
+    "check_finite",
+    "check_increasing",
     "KernelError",
 ]
 
