@@ -58,7 +58,9 @@ from fitter.progress import Progress, silent
 
 __all__ = ["fit_effects", "check_effects", "check_held", "SCREEN_NFEV", "MAX_NFEV", "REFINED", "RACE_NFEV"]
 
-SCREEN_NFEV = 100
+SCREEN_NFEV = 40
+"""Iterations of each screened start: enough to rank them (measured at 100, 40 and 20: the same fit on the tests'
+two switching data sets; piezo.best 0.680 / 0.819 / 0.873 % at 100, 0.663 / 0.816 / 0.857 % at 40)."""
 MAX_NFEV = 400
 REFINED = 2
 RACE_NFEV = 100
