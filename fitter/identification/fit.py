@@ -44,9 +44,10 @@ Pipeline of `fit_recordings`
 6. **Effects** (``effects``, `fitter.identification.effects_fit`): the best
    rate-independent and the best rate-dependent candidate (lowest BIC within
    the barrier) are each refined jointly with the named effects of the
-   catalogue on the raw recordings; the lower BIC on every sample (the
-   effects' parameters counted) is kept, and the summary's ``effects`` lists
-   both.  The effect chain of a recording that is a closed loop starts
+   catalogue on the raw recordings up to the end of their race
+   (`effects_fit.race_effects`); the one of lower BIC on every sample (the
+   effects' parameters counted) is refined on to convergence and kept, and
+   the summary's ``effects`` lists both.  The effect chain of a recording that is a closed loop starts
    settled on it, and the model stores the first recording's
    (`fitter.identification.effects_fit`).
 
@@ -78,7 +79,7 @@ from fitter.identification.fit_data import (
     prepare_for_fit,
     rate_levels,
 )
-from fitter.identification.effects_fit import check_effects, check_held, fit_effects
+from fitter.identification.effects_fit import check_effects, check_held, race_effects
 from fitter.identification.exported import (
     NRMSE_CONVENTION,
     X0_POLICIES,
@@ -401,29 +402,45 @@ def _with_effects(
     held: dict[str, float],
     progress: Progress,
 ) -> _Extended:
-    """Module docstring, item 6: the best candidate of each kind extended by `effects`; the lowest BIC
-    N ln(RSS/N) + p ln N on every raw sample (p: the base's and the effects' parameters) is kept."""
-    best, tried = None, []
+    """Module docstring, item 6: the best candidate of each kind extended by `effects`, each raced
+    (`effects_fit.race_effects`), the one of lowest BIC N ln(RSS/N) + p ln N on every raw sample (p: the
+    base's and the effects' parameters) after its race finished (`RacedEffects.finish`) and kept; ``tried``
+    gives every kind's BIC, the others' at the end of their race (``finished`` false)."""
+    raced = []
     for kind in ("ri", "rd"):
         of_kind = [c for c in eligible if c.param.kind == kind]
         if not of_kind:
             continue
         cand = min(of_kind, key=lambda c: c.bic)
         progress(f"{kind}{cand.param.n} with {', '.join(effects)}", None)
-        model, res, fam = fit_effects(
-            _base_model(cand, data, recordings),
-            recordings,
-            effects,
-            _physical_barrier(cand.param, data, recordings),
-            progress,
-            held,
-        )
-        n = int(sum(len(r) for r in res.residuals))
-        bic = float(n * np.log(res.rss / n) + (cand.param.size + fam.size - fam.n_base) * np.log(n))
-        tried.append({"base": f"{kind}{cand.param.n}", "bic": bic, "rss": res.rss, "samples": n})
-        if best is None or bic < best[0]:
-            best = (bic, _Extended(cand, model, res, fam, tried))
-    return best[1]
+        base = _base_model(cand, data, recordings)
+        race = race_effects(base, recordings, effects, _physical_barrier(cand.param, data, recordings), progress, held)
+        raced.append((_effects_bic(cand, race.best, race.fam), cand, race))
+    chosen = min(raced, key=lambda r: r[0])
+    model, res, fam = chosen[2].finish(progress)
+    tried = [
+        _tried(cand, race.best, race.fam, False) if race is not chosen[2] else _tried(cand, res, fam, True)
+        for _, cand, race in raced
+    ]
+    return _Extended(chosen[1], model, res, fam, tried)
+
+
+def _effects_bic(cand: _Candidate, res: RefineResult, fam: WithEffects) -> float:
+    """N ln(RSS/N) + p ln N of a base extended by effects, p the base's and the effects' parameters."""
+    n = int(sum(len(r) for r in res.residuals))
+    return float(n * np.log(res.rss / n) + (cand.param.size + fam.size - fam.n_base) * np.log(n))
+
+
+def _tried(cand: _Candidate, res: RefineResult, fam: WithEffects, finished: bool) -> dict:
+    """One entry of the summary's ``effects.tried``."""
+    n = int(sum(len(r) for r in res.residuals))
+    return {
+        "base": f"{cand.param.kind}{cand.param.n}",
+        "bic": _effects_bic(cand, res, fam),
+        "rss": res.rss,
+        "samples": n,
+        "finished": finished,
+    }
 
 
 def _physical_barrier(param: RICanonical | RDCanonical, data: FitData, recordings) -> Callable[[object], np.ndarray]:
