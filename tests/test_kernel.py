@@ -372,6 +372,33 @@ def test_phi_blocks_are_the_blocks_of_the_augmented_exponential():
     assert np.isnan(F0[0]).all() and np.isnan(F2[0]).all() and np.isfinite(F1[1]).all()
 
 
+def test_taylor_degree_is_the_least_whose_tail_is_below_the_bound():
+    """`taylor_degree`: the least m >= 2 with theta^(m-1) / (m+1)! <= 2^-56 (15 at theta = 0.5, 7 at 5e-3, 2
+    at 0), checked against the bound itself; the blocks cut there are those of the full degree-18 series to
+    2e-16 of each block's scale."""
+    from math import factorial
+
+    from fitter.core import flow
+
+    theta = np.r_[0.0, 1e-18, np.geomspace(1e-9, 0.5, 60)]
+    m = flow.taylor_degree(theta)
+    assert m[0] == 2 and m[-1] == 15 and flow.taylor_degree(np.array([5e-3]))[0] == 7
+    for th, k in zip(theta, m):
+        assert th ** (k - 1) / factorial(k + 1) <= 2.0**-56 * (1 + 1e-12)
+        assert k == 2 or th ** (k - 2) / factorial(k) > 2.0**-56 * (1 - 1e-12)
+    rng = np.random.default_rng(3)
+    AS = rng.standard_normal((30, 4, 4)) * np.geomspace(1e-5, 3.0, 30)[:, None, None]
+    cut = flow.phi_blocks(AS)
+    full_degree = flow.taylor_degree
+    try:
+        flow.taylor_degree = lambda th: np.full(np.shape(th), flow.TAYLOR_DEGREE)
+        full = flow.phi_blocks(AS)
+    finally:
+        flow.taylor_degree = full_degree
+    for F, G in zip(cut, full):
+        assert np.all(np.abs(F - G) <= 2e-16 * np.abs(G).max(axis=(1, 2), keepdims=True))
+
+
 def test_input_range_holds_the_input_at_its_edges_and_bounds_an_unstable_branch(tmp_path):
     """Beyond input_range the model acts on the held edge value: the state stops, y stays at the edge's value;
     inside it nothing changes.  The loop converges on [-1, 1] (rho = e^(2 * 2 - 3 * 2)), but its rising branch

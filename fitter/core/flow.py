@@ -133,6 +133,10 @@ def expm(M: np.ndarray) -> np.ndarray:
 
 
 _SMALL_STACK = 64
+TAYLOR_DEGREE = 18
+"""The highest degree of `phi_blocks`' Taylor series (the degree of `scipy.linalg.expm`'s, reached
+only where `taylor_degree`'s bound asks for it)."""
+TAYLOR_TAIL = 2.0**-56
 """Up to this many matrices, `_product` forms all the terms at once and sums them with one call."""
 
 
@@ -152,14 +156,37 @@ def _product(L: np.ndarray, R: np.ndarray) -> np.ndarray:
     return P
 
 
+def taylor_degree(theta: np.ndarray) -> np.ndarray:
+    """The degree m of `phi_blocks`' Taylor series for scaled blocks a of 1-norm theta <= 0.5: the least
+    m >= 2 with theta^(m-1) / (m+1)! <= `TAYLOR_TAIL`, at most `TAYLOR_DEGREE`.
+
+    The first omitted terms are T2_(m+1) = c^2 a^(m-1) / (m+1)!, T1_(m+1) = c a^m / (m+1)! and
+    T0_(m+1) = a^(m+1) / (m+1)!, against blocks F2 ~ c^2 / 2, F1 ~ c, F0 ~ I; the later terms shrink
+    by theta / (k+2) <= 1/8 each, so the tail is below 2.3 theta^(m-1) / (m+1)! of F2 (1.5e-17 at
+    the tail bound 2^-56): 15 at theta = 0.5, 7 for a step with theta = 5e-3 (18 before: the cost of
+    a native FMU step at order 4 was mostly its Taylor terms).  The bound's products are the
+    native FMU's (`taylor_degree` in duhem_model.c), so both choose the same degree."""
+    theta = np.asarray(theta, dtype=float)
+    bound = theta / 6.0  # theta^(m-1) / (m+1)! at m = 2
+    m = np.full(theta.shape, 2, dtype=np.int64)
+    for k in range(2, TAYLOR_DEGREE):
+        more = ~(bound <= TAYLOR_TAIL)
+        if not more.any():
+            break
+        m = np.where(more, k + 1, m)
+        bound = np.where(more, bound * (theta / (k + 2)), bound)
+    return m
+
+
 def phi_blocks(AS: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """F0 = e^{AS}, F1 = phi1(AS), F2 = phi2(AS) for a stack (N, n, n) of matrices AS: the top
     blocks of
 
         e^X = [[F0, F1, F2], [0, I, I], [0, 0, I]],   X = [[AS, I, 0], [0, 0, I], [0, 0, 0]]   (3n x 3n)
 
-    (Van Loan 1978), computed as `expm` computes e^X (scaling to 1-norm <= 0.5, degree-18 Taylor
-    series, squaring) but on the n x n blocks, O(n^3) instead of O((3n)^3):
+    (Van Loan 1978), computed as `expm` computes e^X (scaling to 1-norm <= 0.5, Taylor
+    series, squaring) but on the n x n blocks, O(n^3) instead of O((3n)^3), and the series cut at
+    the degree its terms need (`taylor_degree`):
 
     * scaling: the 1-norm of X is max(|AS|_1, 1) (the identity blocks' columns sum to 1); with s
       the least number of halvings bringing it to <= 0.5, Y = X / 2^s = [[a, cI, 0], [0, 0, cI],
@@ -167,22 +194,24 @@ def phi_blocks(AS: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     * Taylor: Y^k = [[a^k, c a^(k-1), c^2 a^(k-2)], [0, 0, [k = 1] cI], [0, 0, 0]]
       (a^-1 = a^-2 = 0), so the terms T_k = T_(k-1) Y / k have the top blocks
       T0_k = T0_(k-1) a / k, T1_k = (c T0_(k-1)) / k, T2_k = (c T1_(k-1)) / k, and
-      e^Y = sum_(k<=18) T_k = [[F0, F1, F2], [0, I, cI], [0, 0, I]];
+      e^Y = sum_(k<=m) T_k (m = `taylor_degree`) = [[F0, F1, F2], [0, I, cI], [0, 0, I]];
     * squaring: [[F0, F1, F2], [0, I, cI], [0, 0, I]]^2
       = [[F0 F0, F0 F1 + F1, F0 F2 + c F1 + F2], [0, I, 2c I], [0, 0, I]], s times, c doubling up
       to 1 (in the phi-functions, the doubling formulas phi1(2z) = (e^z + 1) phi1(z) / 2 and
       phi2(2z) = (e^z phi2(z) + phi1(z) + phi2(z)) / 4; Skaflestad & Wright 2009).
 
     Every entry is the sum of the 3n x 3n product with its zero terms dropped, in the same order:
-    the numbers of the 3n x 3n algorithm with its products summed in ascending order (`_product`),
-    and those of the native FMU's `phi_blocks` (duhem_model.c), operation for operation.  A stack
-    entry with a NaN or infinite entry gives NaN blocks.  The work arrays are laid out (n, n, N),
-    so that every numpy operation runs over the stack, and [T0, T1, T2], [F0, F1, F2] are
-    stacked, so that a Taylor term costs few numpy calls (one interval, `AffineFlow.step`).
+    the numbers of the 3n x 3n algorithm cut at the same degree with its products summed in
+    ascending order (`_product`), and those of the native FMU's `phi_blocks` (duhem_model.c),
+    operation for operation.  A stack entry with a NaN or infinite entry gives NaN blocks.  The
+    work arrays are laid out (n, n, N), so that every numpy operation runs over the stack, and
+    [T0, T1, T2], [F0, F1, F2] are stacked, so that a Taylor term costs few numpy calls (one
+    interval, `AffineFlow.step`).
     """
     AS = np.asarray(AS, dtype=float)
     n = AS.shape[-1]
-    norm = np.maximum(np.abs(AS).sum(axis=-2).max(axis=-1, initial=0.0), 1.0)
+    column = np.abs(AS).sum(axis=-2).max(axis=-1, initial=0.0)
+    norm = np.maximum(column, 1.0)
     finite = np.isfinite(norm)
     # s: the least s >= 0 with norm / 2^s <= 0.5, from the exact binary exponent (norm = m 2^e,
     # 0.5 <= m < 1): s = e when m = 0.5, else e + 1 (what halving norm until <= 0.5 counts)
@@ -194,17 +223,18 @@ def phi_blocks(AS: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     scale = np.exp2(s.astype(float))
     a = np.ascontiguousarray(np.where(finite[order, None, None], AS[order], 0.0).transpose(1, 2, 0)) / scale
     c = 1.0 / scale
+    degree = taylor_degree(np.where(finite, column, 0.0)[order] / scale)
     # k = 1: T0 = I a / 1 = a, T1 = (c I) / 1, T2 = 0; F = I + T (F0 = I + T0, F1 = T1, F2 = T2)
     T = np.zeros((3,) + a.shape)
     T[0] = a
     T[1] = np.eye(n)[:, :, None] * c
     F = T.copy()
     F[0] += np.eye(n)[:, :, None]
-    for k in range(2, 19):
+    for k in range(2, int(degree.max(initial=2)) + 1):
         P = _product(T[0], a)
         T[1:] = T[:2] * c / k  # T2 = (c T1) / k, T1 = (c T0) / k, from the previous T0, T1
         np.divide(P, k, out=T[0])  # T0 = (T0 a) / k
-        F += T
+        F += np.where(k <= degree, T, 0.0)  # a stack entry past its degree adds nothing
     F0, F1, F2 = F
     counts = np.searchsorted(-s, -np.arange(1, int(s.max(initial=0)) + 1), side="right")
     for m in counts:

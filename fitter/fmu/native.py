@@ -35,7 +35,7 @@ validate` compares the FMU with its in-process simulation).
 The math equals the Python kernel's (`fitter.core.stepper.Stepper` on
 `fitter.core.kernel`, `fitter.core.rates`, `fitter.core.effects`): the flow of
 eq (K) of the kernel is the matrix exponential of the augmented matrix
-(scaling and squaring of the kernel's degree-18 Taylor series); the rate
+(scaling and squaring of the kernel's Taylor series, `flow.phi_blocks`); the rate
 function's PCHIP slopes are computed by the same rules.
 """
 

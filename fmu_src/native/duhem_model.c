@@ -31,7 +31,8 @@
  * where S = 0); for the rate-dependent model v = (u - u_a)/(t - t_a),
  * p = u_a, S = g(v) (t - t_a), r = v / g(v) (r = 0 when g(v) = 0, where
  * S = 0).  The matrix exponential is the kernel's (flow.phi_blocks): scaling to 1-norm <= 0.5,
- * degree-18 Taylor series, squaring, computed on the n x n blocks (phi_blocks).
+ * Taylor series of the degree its terms need (taylor_degree), squaring, computed on the n x n blocks
+ * (phi_blocks).
  *
  * Rate function: TabulatedRate, a PCHIP (Fritsch-Carlson slopes, limited
  * three-point end slopes) through (0, 0), separately on v <= 0 and v >= 0,
@@ -58,7 +59,8 @@
 #include "model_data.h"
 
 #define N DUHEM_ORDER
-#define TAYLOR_DEGREE 18
+#define TAYLOR_DEGREE 18 /* flow.TAYLOR_DEGREE */
+#define TAYLOR_TAIL 1.387778780781445675529539585113525390625e-17 /* 2^-56, flow.TAYLOR_TAIL */
 #define EXPM_NORM_LIMIT 1e250
 
 #if DUHEM_KIND == DUHEM_RATE_INDEPENDENT
@@ -145,8 +147,9 @@ static void product(double L[N][N], double R[N][N], double P[N][N])
  *   e^X = [[F0, F1, F2], [0, I, I], [0, 0, I]],   X = [[A S, I, 0], [0, 0, I], [0, 0, 0]]  (3n x 3n),
  *   F0 = e^{AS}, F1 = phi1(AS), F2 = phi2(AS)      (Van Loan 1978, block-triangular exponentials),
  *
- * by the kernel's expm of X (scaling to 1-norm <= 0.5, degree-18 Taylor series, squaring) restated
- * on the n x n blocks, O(n^3) a step instead of O((3n)^3); -1 when A S is not finite or too large.
+ * by the kernel's expm of X (scaling to 1-norm <= 0.5, Taylor series, squaring) restated on the n x n
+ * blocks, O(n^3) a step instead of O((3n)^3), the series cut at the degree its terms need
+ * (taylor_degree); -1 when A S is not finite or too large.
  *
  * Scaling: the 1-norm of X is max(|A S|_1, 1) (the identity blocks' columns sum to 1), s the least
  * number of halvings that brings it to <= 0.5, and
@@ -154,7 +157,7 @@ static void product(double L[N][N], double R[N][N], double P[N][N])
  * Taylor: Y^k = [[a^k, c a^(k-1), c^2 a^(k-2)], [0, 0, [k = 1] cI], [0, 0, 0]] (a^-1 = a^-2 = 0), so the
  * terms T_k = T_(k-1) Y / k have the top blocks
  *   T0_k = T0_(k-1) a / k,   T1_k = (c T0_(k-1)) / k,   T2_k = (c T1_(k-1)) / k,
- * and e^Y = sum_(k<=18) T_k = [[F0, F1, F2], [0, I, cI], [0, 0, I]].
+ * and e^Y = sum_(k<=degree) T_k = [[F0, F1, F2], [0, I, cI], [0, 0, I]].
  * Squaring (block product of two such matrices):
  *   [[F0, F1, F2], [0, I, cI], [0, 0, I]]^2 = [[F0 F0, F0 F1 + F1, F0 F2 + c F1 + F2], [0, I, 2c I], [0, 0, I]],
  * s times, c doubling each time up to 1; in the phi-functions these are the doubling formulas
@@ -162,10 +165,25 @@ static void product(double L[N][N], double R[N][N], double P[N][N])
  * Wright 2009).  Every block entry is the same sum, in the same order, as the 3n x 3n products with
  * their zero terms skipped, so the numbers are those of the 3n x 3n algorithm.
  */
+/*
+ * The Taylor degree for scaled blocks of 1-norm theta <= 0.5 (flow.taylor_degree, the same products):
+ * the least m >= 2 with theta^(m-1) / (m+1)! <= TAYLOR_TAIL, at most TAYLOR_DEGREE.
+ */
+static int taylor_degree(double theta)
+{
+    double bound = theta / 6.0;
+    int m = 2;
+    while (m < TAYLOR_DEGREE && !(bound <= TAYLOR_TAIL)) {
+        bound = bound * (theta / (m + 2));
+        m++;
+    }
+    return m;
+}
+
 static int phi_blocks(const double *A, double S, double F0[N][N], double F1[N][N], double F2[N][N])
 {
-    double a[N][N], T0[N][N], T1[N][N], T2[N][N], P[N][N], norm = 1.0, scale = 1.0, c;
-    int i, j, k, s = 0;
+    double a[N][N], T0[N][N], T1[N][N], T2[N][N], P[N][N], norm = 1.0, widest = 0.0, scale = 1.0, c;
+    int i, j, k, s = 0, degree;
     for (j = 0; j < N; j++) {
         double column = 0.0;
         for (i = 0; i < N; i++) {
@@ -174,6 +192,7 @@ static int phi_blocks(const double *A, double S, double F0[N][N], double F1[N][N
         }
         if (!(column <= EXPM_NORM_LIMIT)) return -1;
         if (column > norm) norm = column;
+        if (column > widest) widest = column;
     }
     while (norm > 0.5) {
         norm *= 0.5;
@@ -181,13 +200,14 @@ static int phi_blocks(const double *A, double S, double F0[N][N], double F1[N][N
         s++;
     }
     c = 1.0 / scale;
+    degree = taylor_degree(widest / scale);
     for (i = 0; i < N; i++)
         for (j = 0; j < N; j++) {
             a[i][j] /= scale;
             T0[i][j] = F0[i][j] = (i == j ? 1.0 : 0.0);
             T1[i][j] = F1[i][j] = T2[i][j] = F2[i][j] = 0.0;
         }
-    for (k = 1; k <= TAYLOR_DEGREE; k++) {
+    for (k = 1; k <= degree; k++) {
         product(T0, a, P);
         for (i = 0; i < N; i++)
             for (j = 0; j < N; j++) {
