@@ -544,6 +544,35 @@ def test_clean_bouc_wen_loops_are_explained():
     assert d.verdict in ("nothing_missing", "effects_found") and d.extended["remainder"]["explained"]
 
 
+def test_a_partial_loop_shape_finding_is_not_claimed_as_the_materials():
+    """A Bouc-Wen loop of exponent 2 (made here with numpy; y = 0.4 u + z, dz/du = (1 - (0.7 s sign(z) + 0.3)
+    |z|^2) / 0.3, s = sign(du), 20 Euler substeps a sample; triangles of amplitude 1 and 0.6, noise 0.3 % of the
+    range) on the first-order base: saturation removes most of the residual but leaves a structured remainder,
+    so its origin is ``loop_shape`` (another hysteresis class draws the same flattening), it is no material
+    effect, and the paragraph says so; a concealed saturation that reaches the noise stays the material's
+    (`test_concealed_effect_is_the_first_finding`)."""
+
+    def triangle(amp: float, m: int) -> np.ndarray:
+        return amp * np.interp(np.mod(np.linspace(0, 2, 2 * m + 1), 1), [0, 0.25, 0.75, 1], [0, 1, -1, 0])
+
+    u = np.r_[triangle(1.0, 150), triangle(0.6, 150)]
+    z, y = 0.0, np.empty(len(u))
+    for k in range(len(u)):
+        du = (u[k] - u[k - 1]) / 20 if k else 0.0
+        for _ in range(20 if k else 0):
+            z += du * (1 - (0.7 * np.sign(du) * np.sign(z) + 0.3) * abs(z) ** 2) / 0.3
+        y[k] = 0.4 * u[k] + z
+    y = y + 0.003 * np.ptp(y) * np.random.default_rng(0).standard_normal(len(y))
+    t, half = 0.01 * np.arange(len(u)), len(u) // 2
+    recs = [_rec(t[:half], u[:half], y[:half], "large"), _rec(t[half:], u[half:], y[half:], "small")]
+    d = diagnose(recs, base_order=1, candidates=("saturation",))
+    (f,) = d.findings
+    assert f["effect"] == "saturation" and f["explained_fraction"] > 0.5 and f["partial"]
+    assert f["origin"] == "loop_shape" and d.verdict == "unexplained"
+    assert d.extended["material_effects"] == [] and d.extended["loop_shape_effects"] == ["saturation"]
+    assert "not claimed as the material's saturation" in d.paragraph
+
+
 def test_a_linear_drift_that_a_loop_never_settling_absorbs_is_not_nothing_missing():
     """The same loops with the output drifting by 10 % of its range over the recording: an order-2 base fits
     it to the noise with a loop that keeps climbing (far from settled when the recording ends), so it is not

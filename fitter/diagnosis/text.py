@@ -73,6 +73,13 @@ def summary_paragraph(d: Diagnosis) -> str:
                 f" The recording carries {REGISTRY[f['effect']].description}; modelled as "
                 f"{f['effect']} ({params}) it {gain}. This is reported apart from the material's physics."
             )
+        elif f.get("origin") == "loop_shape":
+            text += (
+                f" The loop's shape differs from the base model's: {f['effect'].replace('_', ' ')} ({params}) "
+                f"{gain}, but the extended model does not reach the noise, and a hysteresis of another class "
+                "than the base's (a Bouc-Wen or a Preisach loop) draws such shapes too: this is the loop's "
+                f"shape, not claimed as the material's {f['effect'].replace('_', ' ')}."
+            )
         else:
             text += f" The model had no {f['effect'].replace('_', ' ')}; adding it ({params}) {gain}."
         text += _consistency_text(f)

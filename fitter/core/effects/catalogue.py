@@ -65,6 +65,7 @@ class Backlash(EffectSpec):
     description = "mechanical play: the input must travel b across a dead band before the output follows"
     stage = "input"
     timed = False
+    loop_shape = True
     parameters = (ParameterSpec("b", 0.0, INF),)
     state = ("w",)
     example = {"b": 0.1}
@@ -415,6 +416,7 @@ class Saturation(EffectSpec):
     description = "saturation: the output flattens smoothly (tanh) away from a centre y_c"
     stage = "output"
     timed = False
+    loop_shape = True
     parameters = (ParameterSpec("y_c", -INF, INF), ParameterSpec("beta", 0.0, INF))
     example = {"y_c": 0.0, "beta": 0.4}
     strength = "beta"

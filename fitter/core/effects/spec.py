@@ -152,6 +152,10 @@ class EffectSpec(ABC):
     reverses : its output is a state the input drives both ways (domains switching back and forth):
         `duhem diagnose` takes it only when its fitted output swings both ways
         (`fitter.diagnosis.statistics.reversal_report`), since a one-way swing is a drift in time
+    loop_shape : a rate-independent change of the loop's shape (a dead band, a flattening): a hysteresis of
+        another class than the base's (a Bouc-Wen or Preisach loop) draws such shapes too, so `duhem diagnose`
+        claims it as the material's only when the extended model reaches the noise (a partial finding of it
+        is reported as the loop's shape, `fitter.diagnosis.procedure`)
     searched : `duhem diagnose` tests it by default (`fitter.diagnosis.procedure.CANDIDATES`); an effect that
         can stand in for other physics is tested only when named (``--candidates``) or fitted when named
         (``duhem fit --effects``)
@@ -172,6 +176,7 @@ class EffectSpec(ABC):
     follows_output: bool = False
     offset: str | None = None
     reverses: bool = False
+    loop_shape: bool = False
     searched: bool = True
 
     @property
