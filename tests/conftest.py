@@ -9,7 +9,7 @@ Test modules import the plain functions (``from conftest import ri_model``;
 pytest puts tests/ on sys.path) and request the session fixture `fmu_cache`,
 which builds each (model, backend) FMU once per session, and `holder`, another process holding an
 output's lock (`fitter.core.files.output_lock`).  The diagnosis' fits run in the test's own process
-(``DUHEM_WORKERS=1``, `fitter.diagnosis.workers`); one test runs it on two processes and compares.
+(``DUHEM_WORKERS=1``, `fitter.workers`); one test runs it on two processes and compares.
 Native FMUs carry this machine's binary alone (``DUHEM_PLATFORMS=host``, `fitter.fmu.toolchain.PLATFORMS_ENV`)
 unless a test asks for others: `tests/test_platforms.py` builds and checks every platform's.
 """

@@ -781,7 +781,7 @@ def test_switching_must_swing_both_ways_to_be_switching():
 
 
 def test_the_diagnosis_is_the_same_on_two_processes(monkeypatch):
-    """The candidates of a round and the held-out refits run on forked processes (`fitter.diagnosis.workers`);
+    """The candidates of a round and the held-out refits run on forked processes (`fitter.workers`);
     every fit is deterministic, so two processes give the JSON of one, number for number."""
     recs, _ = synthetic_experiment("viscous", seed=1, samples=200)
     runs = {}
@@ -794,7 +794,7 @@ def test_the_diagnosis_is_the_same_on_two_processes(monkeypatch):
 
 
 def test_workers_come_from_the_environment(monkeypatch):
-    from fitter.diagnosis.workers import parallel_map, workers
+    from fitter.workers import parallel_map, workers
 
     monkeypatch.setenv("DUHEM_WORKERS", "3")
     assert workers() == 3

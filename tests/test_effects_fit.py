@@ -226,6 +226,24 @@ def test_each_recordings_reference_is_fitted_with_its_initial_state(tmp_path):
     assert abs(compare(recs[1], y)["nrmse"] - rows[1]["nrmse_x0_fitted"]) < 1e-9
 
 
+def test_an_effect_fit_is_the_same_on_two_processes(monkeypatch):
+    """The screened starts and the raced refinements run on forked processes (`fitter.workers`): on two the
+    fit's parameters, RSS and model are those of one, to the last digit (each refinement is deterministic)."""
+    import fitter.identification.effects_fit as effects_fit
+
+    recs, maps = _referenced(), []
+    calls = effects_fit.parallel_map
+    monkeypatch.setattr(effects_fit, "parallel_map", lambda f, items: maps.append(len(items)) or calls(f, items))
+    fits = []
+    for n in ("1", "2"):
+        monkeypatch.setenv("DUHEM_WORKERS", n)
+        fits.append(fit_recordings(recs, kind="ri", order=1, effects=["saturation", "measurement_drift"]))
+    assert maps[0] > 1 and maps == maps[:2] * 2  # screening and race, each over several items, both runs
+    one, two = (f.summary["effects"] for f in fits)
+    assert one["parameters"] == two["parameters"] and one["tried"] == two["tried"]
+    assert fits[0].model.to_dict() == fits[1].model.to_dict()
+
+
 def test_cli_fit_holds_a_known_parameter(tmp_path):
     """``--hold measurement_drift.rate=0``: the references alone (the rate not fitted, exactly 0 in the model),
     the fit at the noise, the held value in the summary and printed."""

@@ -14,6 +14,7 @@ ORDER = [
     "core",
     "data",
     "progress",
+    "workers",
     "identification",
     "baselines",
     "diagnosis",

@@ -14,7 +14,7 @@ lowers the prediction error of every recording, and of a typical one (the
 geometric mean of the ratios) by at least `HELD_OUT_GAIN`: an effect that only bends the fit toward noise or
 toward one recording's peculiarity does not predict the others better.
 With a single recording there is nothing to hold out (None).  The recordings' refits run on several
-processes (`fitter.diagnosis.workers`).
+processes (`fitter.workers`).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import numpy as np
 from fitter.data.metrics import nrmse
 from fitter.diagnosis.experiment import JoinedExperiment
 from fitter.diagnosis.fitting import Fit, refit
-from fitter.diagnosis.workers import parallel_map
+from fitter.workers import parallel_map
 
 __all__ = ["HELD_OUT_GAIN", "confirmed", "held_out_nrmse", "held_out_residual", "held_out_rss", "prediction_error"]
 

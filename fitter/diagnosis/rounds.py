@@ -30,7 +30,7 @@ from fitter.diagnosis.statistics import (
     memory_response_report,
     reversal_report,
 )
-from fitter.diagnosis.workers import parallel_map
+from fitter.workers import parallel_map
 from fitter.identification.refine import effective_samples
 
 __all__ = ["bic", "candidate_round", "freedoms"]
@@ -52,7 +52,7 @@ def candidate_round(
     tick: Callable[[str], None],
 ) -> list[tuple[dict, Fit]]:
     """Fit and test each candidate on top of `current` (base + the effects found; the candidates' fits and
-    held-out refits on several processes, `fitter.diagnosis.workers`); sorted by BIC (`bic`, the effect's
+    held-out refits on several processes, `fitter.workers`); sorted by BIC (`bic`, the effect's
     parameters counted: `fitter.diagnosis.procedure`, step 4)."""
     for name in names:
         tick(f"testing {name}")

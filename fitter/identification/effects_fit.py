@@ -29,7 +29,9 @@ own output range (`_balanced`: the NRMSE each recording is judged by):
    of lowest objective, unless it has converged, goes on to `MAX_NFEV` in all
    (scipy's count: each also takes one evaluation per free parameter for the
    Jacobian; a held-out pair once ran on for over 25 minutes at 3000).
-   `race_effects` runs steps 1-2 and stops after the race; `RacedEffects.finish`
+   The screened starts, and the raced refinements, are independent: they run
+   on up to `fitter.workers.workers()` forked processes (the same result on
+   any number).  `race_effects` runs steps 1-2 and stops after the race; `RacedEffects.finish`
    runs the winner on.  `fitter.identification.fit` races one base of each kind
    so and finishes only the one of lowest BIC after its race (on the piezo
    triangles the rate-dependent base's finish cost 64 s and ended at 2.8x the
@@ -60,6 +62,7 @@ from fitter.identification.output_error import Recordings
 from fitter.identification.refine import Options, RefineResult, refine
 from fitter.identification.parametrisation import StateSpace, WithEffects
 from fitter.progress import Progress, silent
+from fitter.workers import parallel_map
 
 __all__ = [
     "race_effects",
@@ -194,24 +197,21 @@ def race_effects(
     screen_free = free & np.array([not k.startswith("A") for k in kinds])
     pen = None if penalty is None else (lambda th: penalty(fam.build(th)))
     base = fam.base.theta(template)
-    screened = []
-    for k, start in enumerate(fam.starts()):
+    starts = fam.starts()
+
+    def screen(k: int) -> RefineResult:
         progress(f"effects {', '.join(names)}: start {k + 1}", None)
-        screened.append(
-            refine(
-                fam,
-                np.r_[base, start],
-                problem,
-                replace(OPTIONS, max_nfev=SCREEN_NFEV, covariance=False),
-                free=screen_free,
-            )
-        )
-    screened.sort(key=lambda r: r.rss)
+        options = replace(OPTIONS, max_nfev=SCREEN_NFEV, covariance=False)
+        return refine(fam, np.r_[base, starts[k]], problem, options, free=screen_free)
+
+    screened = sorted(parallel_map(screen, range(len(starts))), key=lambda r: r.rss)
     raced = RacedEffects(fam, recordings, problem, free, pen, screened[0])
-    runs = []
-    for k, res in enumerate(screened[:REFINED]):
+
+    def run_race(k: int) -> RefineResult:
         progress(f"effects {', '.join(names)}: joint refinement {k + 1}", None)
         race = replace(OPTIONS, max_nfev=RACE_NFEV)
-        runs.append(refine(fam, res.theta, problem, race, free=free, penalty=pen, progress=progress))
+        return refine(fam, screened[k].theta, problem, race, free=free, penalty=pen, progress=progress)
+
+    runs = parallel_map(run_race, range(min(REFINED, len(screened))))
     raced.best = min(runs, key=raced.objective)
     return raced

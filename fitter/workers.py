@@ -1,13 +1,16 @@
-"""The diagnosis' independent fits on several processes: the candidates of a round, the held-out refits.
+"""Independent fits on several processes: the diagnosis' candidates of a round and its held-out refits, an
+effect fit's screened starts and raced refinements.
 
-Each candidate effect of a round is fitted on the same base, independently of
-the others (`fitter.diagnosis.rounds.candidate_round`), and each recording's
-held-out refit is independent of the others' (`fitter.diagnosis.held_out`):
+Each candidate effect of a diagnosis round is fitted on the same base, independently of
+the others (`fitter.diagnosis.rounds.candidate_round`), each recording's
+held-out refit is independent of the others' (`fitter.diagnosis.held_out`), and so are the screened starts
+and the raced refinements of ``duhem fit --effects`` (`fitter.identification.effects_fit`):
 `parallel_map` runs them on up to `workers()` processes.  The processes are
 forked, so they inherit the experiment and the fits made so far; only the
-item (an effect name, a recording index) goes to a process and only its
-result (a `Fit`) comes back.  Every fit is deterministic, so the diagnosis
-is the same on any number of processes (tested).
+item (an effect name, a recording index, a start) goes to a process and only its
+result (a `Fit`, a `RefineResult`) comes back.  Every fit is deterministic, so the result
+is the same on any number of processes (tested).  A map inside a worker, or in a daemonic process (a Dask
+worker of ``duhem batch``, which may not have children), runs in that process.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from typing import Callable, Sequence, TypeVar
 __all__ = ["WORKERS_ENV", "parallel_map", "workers"]
 
 WORKERS_ENV = "DUHEM_WORKERS"
-"""Environment variable: the number of processes of the diagnosis' fits (default: the machine's cores)."""
+"""Environment variable: the number of processes of the independent fits (default: the machine's cores)."""
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -29,7 +32,7 @@ _IN_WORKER = False
 
 
 def workers() -> int:
-    """Processes for the diagnosis' fits: ``DUHEM_WORKERS`` when set (a whole number >= 1), else the cores."""
+    """Processes for the independent fits: ``DUHEM_WORKERS`` when set (a whole number >= 1), else the cores."""
     value = os.environ.get(WORKERS_ENV, "").strip()
     if value:
         try:
@@ -48,7 +51,12 @@ def _call(item):
 def parallel_map(function: Callable[[T], R], items: Sequence[T]) -> list[R]:
     """[function(item) for item in items], on up to `workers()` forked processes (in order)."""
     n = min(workers(), len(items))
-    if n <= 1 or _IN_WORKER or "fork" not in multiprocessing.get_all_start_methods():
+    if (
+        n <= 1
+        or _IN_WORKER
+        or multiprocessing.current_process().daemon
+        or "fork" not in multiprocessing.get_all_start_methods()
+    ):
         return [function(item) for item in items]
     global _TASK
     _TASK = function
