@@ -1,6 +1,7 @@
-"""Benchmark an effect fit: `duhem fit --effects switching` on two rates, with and without the recordings' memo.
+"""Benchmark an effect fit: `duhem fit --effects switching` on two rates, with and without the recordings' memo,
+on one process and on two.
 
-    python bench/effect_fit_speed.py            # ratio of the memoised fit's wall time to the unmemoised one's
+    python bench/effect_fit_speed.py     # wall-time ratios: memo / no memo (one process), two processes / one
 
 The experiment: an order-1 rate-independent base with one switching population (S 0.6, thresholds +0.55 /
 -0.5, width 0.06) under a triangle of periods 2 s and 20 s (1.5 cycles from u = 0, 301 samples each), 0.2 %
@@ -10,11 +11,14 @@ starts and two joint refinements of 18 free parameters, each Jacobian by forward
 The peer is the same fit in the same run with `fitter.identification.output_error._remembered` replaced by a
 plain call (every evaluation simulates the base and the effects afresh, as before the memo).  Both fits must
 end at the same NRMSE to 1e-6 (the memo changes residuals at the rounding level only); the script prints both
-wall times, the ratio and the NRMSE per recording.
+wall times, the ratio and the NRMSE per recording.  Then the memoised fit again with ``DUHEM_WORKERS=2`` (the
+screened starts and the raced refinements on two forked processes, `fitter.workers`) against the one-process
+run: the same NRMSE exactly, and the ratio of wall times.
 """
 
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -50,6 +54,7 @@ def timed_fit(recs: list[Recording]) -> tuple[float, list[float]]:
 
 def main() -> None:
     recs = recordings()
+    os.environ["DUHEM_WORKERS"] = "1"
     memo_s, memo_nrmse = timed_fit(recs)
     kept = output_error._remembered
     output_error._remembered = lambda memo, kind, key, compute: compute()
@@ -61,6 +66,10 @@ def main() -> None:
     print("NRMSE per recording: memo " + " ".join(f"{v:.4%}" for v in memo_nrmse))
     print("                  without " + " ".join(f"{v:.4%}" for v in plain_nrmse))
     assert max(abs(a - b) for a, b in zip(memo_nrmse, plain_nrmse)) < 1e-6, "the memo changed the fit"
+    os.environ["DUHEM_WORKERS"] = "2"
+    two_s, two_nrmse = timed_fit(recs)
+    print(f"two processes {two_s:.1f} s, one {memo_s:.1f} s, ratio {two_s / memo_s:.2f}")
+    assert two_nrmse == memo_nrmse, "two processes changed the fit"
 
 
 if __name__ == "__main__":
