@@ -979,3 +979,19 @@ def test_an_output_that_is_an_input_is_refused_and_the_input_kept(tmp_path, fmu_
     line = assert_clean_failure(invoke(*args), tmp_path, set(before), "is one of this command's inputs")
     assert "write the output to another path" in line
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
+def test_a_fit_stopped_by_its_budget_says_so(work, monkeypatch):
+    """``optimiser.budget_hit`` in the summary and a note in the printed summary when the refinement stopped at
+    its evaluation budget (here 4 evaluations in all, 1 after the race), none when it converged (the default
+    budget on the fixture's first-order data)."""
+    import fitter.identification.fit as fit_module
+
+    assert work["fit"]["summary"]["optimiser"]["budget_hit"] is False
+    assert "evaluation budget" not in ok(invoke("fit", work["rec"], "-o", work["dir"] / "m1.json", "--order", 1)).stdout
+    monkeypatch.setattr(fit_module, "MAX_NFEV", fit_module.RACE_NFEV + 1)
+    out = work["dir"] / "budget.json"
+    summary = json.loads(ok(invoke("fit", work["rec"], "-o", out, "--kind", "ri", "--order", 1, "--json")).stdout)
+    assert summary["summary"]["optimiser"]["budget_hit"] is True
+    text = ok(invoke("fit", work["rec"], "-o", out, "--kind", "ri", "--order", 1)).stdout
+    assert "note: the refinement of the chosen base stopped at its evaluation budget (1 in its last stage)" in text

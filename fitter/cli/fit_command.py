@@ -185,6 +185,7 @@ def fit(
     )
     if summary.get("why"):
         click.echo(f"chosen: {summary['why']}")
+    _budget_lines(summary)
     effects = summary.get("effects") or {}
     held = effects.get("held") or {}
     for e in effects.get("fitted", []):
@@ -283,3 +284,18 @@ def _comparison_tables(comp: dict) -> None:
             ["recording", *names],
             [[r, *[comp["baselines"][n]["per_recording"][r] for n in names]] for r in recs],
         )
+
+
+def _budget_lines(summary: dict) -> None:
+    """A line per refinement that stopped at its evaluation budget before its tolerances were met (the
+    summary's ``optimiser.budget_hit``): the fit is where the budget stopped it, which the scores show."""
+    stages = (
+        ("the chosen base", summary.get("optimiser")),
+        ("the base with the effects", (summary.get("effects") or {}).get("optimiser")),
+    )
+    for what, opt in stages:
+        if opt and opt.get("budget_hit"):
+            click.echo(
+                f"note: the refinement of {what} stopped at its evaluation budget ({opt['nfev']} in its last "
+                "stage) before its tolerances were met; the scores below are where it stopped"
+            )

@@ -207,8 +207,10 @@ def _candidate(param, starts, data: FitData, info, progress: Progress) -> _Candi
     if race:
         more = run(best.theta, replace(FIT_OPTIONS, max_nfev=MAX_NFEV - RACE_NFEV))
         if not (more is not None and objective(more) <= objective(best)):
+            hit = more is not None and more.budget_hit
             del more  # freed before the one-evaluation run that gives the race's best its covariance
             more = run(best.theta, replace(FIT_OPTIONS, max_nfev=1))
+            more = None if more is None else replace(more, budget_hit=hit)
         best = more if more is not None else best
     if param.kind == "rd" and param.n >= GLOBAL_FROM_ORDER:
         best = _global_stage(param, best, run, objective)
@@ -549,7 +551,7 @@ def _result(
             "u0": float(r0.u[0]),
             "fit": X0_TEXT[data.x0_mode],
         },
-        "optimiser": {"success": res.success, "nfev": res.nfev, "message": res.message},
+        "optimiser": {"success": res.success, "nfev": res.nfev, "message": res.message, "budget_hit": res.budget_hit},
         "preparation": [dict(p.to_dict(), notes=n) for p, n in zip(data.preps, data.notes)],
     }
     if extended is not None:

@@ -88,7 +88,7 @@ def effects_summary(extended: _Extended, recordings) -> dict:
         "parameters": {
             k: {"value": v, "stderr": e} for k, v, e in zip(fam.names(), res.theta.tolist(), res.stderr().tolist())
         },
-        "optimiser": {"success": res.success, "nfev": res.nfev, "message": res.message},
+        "optimiser": {"success": res.success, "nfev": res.nfev, "message": res.message, "budget_hit": res.budget_hit},
         "method": "the best rate-independent and rate-dependent candidates each refined jointly with the "
         "effects by output error up to the end of their race, the one of lower BIC then to convergence ('tried': "
         "'finished') on every raw sample (x0 fitted per recording; the effects of a "

@@ -88,6 +88,8 @@ class RefineResult:
     rho: list[float] = field(default_factory=list)
     states: list = field(default_factory=list)
     info_scale: float = 1.0
+    budget_hit: bool = False
+    """The solver stopped at its evaluation budget (`Options.max_nfev`) before its tolerances were met."""
 
     @property
     def rss(self) -> float:
@@ -216,6 +218,7 @@ def refine(
         rho=[float(i[3]) for i in info],
         states=[i[4] for i in info],
         info_scale=len(weighted) / len(J),
+        budget_hit=int(sol.status) == 0,
     )
 
 
