@@ -49,3 +49,4 @@ bench: install
 	$(BIN)/python bench/batch.py
 	$(BIN)/python bench/long_recordings.py
 	$(BIN)/python bench/export_platforms.py
+	$(BIN)/python bench/speed_summary.py --out out/bench/speed.md

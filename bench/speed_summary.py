@@ -1,0 +1,140 @@
+"""Issue 35's speed figures in one table, each as a ratio to its peer measured in the same run.
+
+    python bench/speed_summary.py [--out out/bench/speed.md] [--skip-long] [--steps 20000]
+
+Rows (each runs the other benches' own code, nothing is re-implemented here):
+
+* **piezo, one model for the three triangle rates** with switching and a reference per record
+  (`bench/real_data.py`'s piezo.best step, ``fit_recordings(..., effects=PIEZO_EFFECTS, held=PIEZO_HELD)``),
+  wall time against the three classical models fitted to each record alone on the same records (Preisach,
+  Prandtl-Ishlinskii, Bouc-Wen: `fitter.baselines`, the sum of their fits' times); target 30 s.  Skipped when
+  ``../shared/data`` is absent.
+* **an effect fit on two processes** against the same fit on one (`bench/effect_fit_speed.py`'s experiment,
+  ``DUHEM_WORKERS`` 2 and 1).
+* **the native FMU** (FMI 2.0) of orders 1-4, rate independent, steps per second in fmpy's loop against the
+  trivial ``y = k u`` FMU (`bench/fmu_throughput.py`, alternating runs, best of 5); target >= 0.8.
+* **a long recording** (1e6 samples, `bench/long_recordings.py`): ``duhem fit`` on the whole file against the
+  same on its first tenth, wall time and the NRMSE on the whole file; targets: score ratio <= 1.05, whole fit
+  <= 120 s and <= 400 MB (``--skip-long`` leaves it out: about a minute and a 40 MB file).
+* **the paper's rate-dependent Examples 2 and 3**: the improved estimator's identification time against the
+  paper-literal estimator's on the same records (`fitter.identification.rd_triangles`).
+
+The table goes to stdout and, with ``--out``, to a Markdown file (``make bench`` writes ``out/bench/speed.md``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent
+sys.path.insert(0, str(ROOT.parent))
+sys.path.insert(0, str(ROOT))
+
+import effect_fit_speed  # noqa: E402
+import fmu_throughput  # noqa: E402
+import long_recordings  # noqa: E402
+import real_data  # noqa: E402
+
+from fitter.baselines import BASELINES  # noqa: E402
+from fitter.identification.fit import fit_recordings  # noqa: E402
+from fitter.identification.rd_triangles import identify_rd_triangles  # noqa: E402
+from fitter.paper import example2, example3  # noqa: E402
+
+Row = tuple[str, float, str, float, str]
+"""(figure, seconds or rate, peer, the peer's, target): the ratio is the first over the second."""
+
+
+def _timed(function, *args, **kwargs) -> float:
+    """Wall seconds of function(*args, **kwargs)."""
+    t0 = time.perf_counter()
+    function(*args, **kwargs)
+    return time.perf_counter() - t0
+
+
+def piezo_rows() -> list[Row]:
+    """piezo.best's fit against the classical models fitted per record (empty without the shared data)."""
+    if not real_data.DATA.is_dir():
+        return []
+    recs = real_data.piezo_recordings()
+    best = _timed(
+        lambda: fit_recordings(list(recs.values()), effects=real_data.PIEZO_EFFECTS, held=real_data.PIEZO_HELD)
+    )
+    classical = sum(_timed(cls().fit, [rec]) for cls in BASELINES.values() for rec in recs.values())
+    return [("piezo.best fit [s]", best, "Preisach + PI + Bouc-Wen per record [s]", classical, "<= 30 s")]
+
+
+def effect_fit_rows() -> list[Row]:
+    """The switching fit of `effect_fit_speed` on two processes against one."""
+    recs, seconds = effect_fit_speed.recordings(), {}
+    for n in ("1", "2"):
+        os.environ["DUHEM_WORKERS"] = n
+        seconds[n] = effect_fit_speed.timed_fit(recs)[0]
+    os.environ.pop("DUHEM_WORKERS")
+    return [("effect fit, two processes [s]", seconds["2"], "one process [s]", seconds["1"], "< 1")]
+
+
+def fmu_rows(steps: int) -> list[Row]:
+    """Native FMI 2.0 FMUs of orders 1-4 against the trivial FMU, steps per second."""
+    native = next(b for b in fmu_throughput.BACKENDS if b.name == "native")
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        trivial = native.build_trivial(Path(tmp) / "trivial.fmu")
+        for n in (1, 2, 3, 4):
+            path = native.build_model(fmu_throughput.bench_model("ri", n), Path(tmp) / f"ri{n}.fmu")
+            model, peer = fmu_throughput.paired_steps_per_second(path, trivial, steps, 5)
+            rows.append((f"native FMU ri{n} [steps/s]", model, "trivial FMU [steps/s]", peer, ">= 0.8"))
+    return rows
+
+
+def long_rows() -> list[Row]:
+    """The 1e6-sample fit on the whole file against its first tenth."""
+    with tempfile.TemporaryDirectory() as tmp:
+        r = long_recordings.measure(1_000_000, Path(tmp))
+    whole, tenth = r["whole"], r["tenth"]
+    return [
+        ("1e6 samples: fit on the whole [s]", whole["seconds"], "on the first tenth [s]", tenth["seconds"], "<= 120 s"),
+        ("  its NRMSE on the whole file", whole["nrmse"], "the tenth's model's", tenth["nrmse"], "<= 1.05"),
+        ("  its peak memory [MB]", whole["peak_mb"], "the tenth's fit's [MB]", tenth["peak_mb"], "<= 400 MB"),
+    ]
+
+
+def paper_rows() -> list[Row]:
+    """Examples 2 and 3 identified by the improved and by the literal estimator."""
+    cases = ((example2.records(example2.NOISE_PP, 0), {}), (example3.records(), {"order": example3.ORDER}))
+    seconds = {
+        est: sum(_timed(identify_rd_triangles, recs, estimator=est, **kw) for recs, kw in cases)
+        for est in ("improved", "literal")
+    }
+    return [("paper Ex. 2-3, improved estimator [s]", seconds["improved"], "literal [s]", seconds["literal"], "-")]
+
+
+def table(rows: list[Row]) -> str:
+    """The rows as a Markdown table with the ratio column."""
+    lines = ["| figure | value | peer | peer's | ratio | target |", "|---|---|---|---|---|---|"]
+    for figure, value, peer, other, target in rows:
+        lines.append(f"| {figure} | {value:.4g} | {peer} | {other:.4g} | {value / other:.3g} | {target} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default=None, help="also write the table to this Markdown file")
+    parser.add_argument("--skip-long", action="store_true", help="leave out the 1e6-sample recording")
+    parser.add_argument("--steps", type=int, default=20000, help="co-simulation steps per FMU run")
+    args = parser.parse_args()
+    rows = piezo_rows() + effect_fit_rows() + fmu_rows(args.steps)
+    rows += ([] if args.skip_long else long_rows()) + paper_rows()
+    text = table(rows)
+    print(text)
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
