@@ -151,9 +151,8 @@ class RacedEffects:
     best: RefineResult
 
     def objective(self, res: RefineResult | None = None) -> float:
-        """What the refinement minimises: the output error's cost plus the barrier's."""
-        res = self.best if res is None else res
-        return res.cost + (0.0 if self.pen is None else 0.5 * float(np.sum(self.pen(res.theta) ** 2)))
+        """What the refinement minimises (`_objective`), of `res` or of `best`."""
+        return _objective(self.best if res is None else res, self.pen)
 
     def finish(self, progress: Progress = silent) -> tuple[object, RefineResult, WithEffects]:
         """The refinement run on to `MAX_NFEV` in all unless converged; returns the extended model (x0
@@ -205,7 +204,6 @@ def race_effects(
         return refine(fam, np.r_[base, starts[k]], problem, options, free=screen_free)
 
     screened = sorted(parallel_map(screen, range(len(starts))), key=lambda r: r.rss)
-    raced = RacedEffects(fam, recordings, problem, free, pen, screened[0])
 
     def run_race(k: int) -> RefineResult:
         progress(f"effects {', '.join(names)}: joint refinement {k + 1}", None)
@@ -213,5 +211,9 @@ def race_effects(
         return refine(fam, screened[k].theta, problem, race, free=free, penalty=pen, progress=progress)
 
     runs = parallel_map(run_race, range(min(REFINED, len(screened))))
-    raced.best = min(runs, key=raced.objective)
-    return raced
+    return RacedEffects(fam, recordings, problem, free, pen, min(runs, key=lambda r: _objective(r, pen)))
+
+
+def _objective(res: RefineResult, pen: Callable[[np.ndarray], np.ndarray] | None) -> float:
+    """What a joint refinement minimises: the output error's cost plus the barrier's, 0.5 |pen(theta)|^2."""
+    return res.cost + (0.0 if pen is None else 0.5 * float(np.sum(pen(res.theta) ** 2)))
