@@ -133,11 +133,12 @@ def expm(M: np.ndarray) -> np.ndarray:
 
 
 _SMALL_STACK = 64
+"""Up to this many matrices, `_product` forms all the terms at once and sums them with one call."""
 TAYLOR_DEGREE = 18
 """The highest degree of `phi_blocks`' Taylor series (the degree of `scipy.linalg.expm`'s, reached
 only where `taylor_degree`'s bound asks for it)."""
 TAYLOR_TAIL = 2.0**-56
-"""Up to this many matrices, `_product` forms all the terms at once and sums them with one call."""
+"""`taylor_degree`'s bound on the first omitted term, theta^(m-1) / (m+1)! (duhem_model.c's TAYLOR_TAIL)."""
 
 
 def _product(L: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -224,6 +225,7 @@ def phi_blocks(AS: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     a = np.ascontiguousarray(np.where(finite[order, None, None], AS[order], 0.0).transpose(1, 2, 0)) / scale
     c = 1.0 / scale
     degree = taylor_degree(np.where(finite, column, 0.0)[order] / scale)
+    lowest = int(degree.min(initial=TAYLOR_DEGREE))
     # k = 1: T0 = I a / 1 = a, T1 = (c I) / 1, T2 = 0; F = I + T (F0 = I + T0, F1 = T1, F2 = T2)
     T = np.zeros((3,) + a.shape)
     T[0] = a
@@ -234,7 +236,7 @@ def phi_blocks(AS: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         P = _product(T[0], a)
         T[1:] = T[:2] * c / k  # T2 = (c T1) / k, T1 = (c T0) / k, from the previous T0, T1
         np.divide(P, k, out=T[0])  # T0 = (T0 a) / k
-        F += np.where(k <= degree, T, 0.0)  # a stack entry past its degree adds nothing
+        F += T if k <= lowest else np.where(k <= degree, T, 0.0)  # past its degree, an entry adds nothing
     F0, F1, F2 = F
     counts = np.searchsorted(-s, -np.arange(1, int(s.max(initial=0)) + 1), side="right")
     for m in counts:

@@ -47,9 +47,9 @@ Pipeline of `fit_recordings`
    catalogue on the raw recordings up to the end of their race
    (`effects_fit.race_effects`); the one of lower BIC on every sample (the
    effects' parameters counted) is refined on to convergence and kept, and
-   the summary's ``effects`` lists both.  The effect chain of a recording that is a closed loop starts
-   settled on it, and the model stores the first recording's
-   (`fitter.identification.effects_fit`).
+   the summary's ``effects`` lists both.  The effect chain of a recording
+   that is a closed loop starts settled on it, and the model stores the
+   first recording's (`fitter.identification.effects_fit`).
 
 The summary (scores per recording, convergence, minor loops, why) is built by
 `fitter.identification.fit_summary`.
@@ -551,7 +551,7 @@ def _result(
             "u0": float(r0.u[0]),
             "fit": X0_TEXT[data.x0_mode],
         },
-        "optimiser": {"success": res.success, "nfev": res.nfev, "message": res.message, "budget_hit": res.budget_hit},
+        "optimiser": fit_summary.optimiser(res),
         "preparation": [dict(p.to_dict(), notes=n) for p, n in zip(data.preps, data.notes)],
     }
     if extended is not None:

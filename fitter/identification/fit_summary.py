@@ -21,7 +21,7 @@ from fitter.identification.refine import RefineResult
 if TYPE_CHECKING:  # the fit's own classes, for the hints only (fit imports this module)
     from fitter.identification.fit import _Candidate, _Extended
 
-__all__ = ["raw_range", "per_recording", "convergence", "effects_summary", "minor_loops", "why"]
+__all__ = ["raw_range", "per_recording", "convergence", "optimiser", "effects_summary", "minor_loops", "why"]
 
 
 def raw_range(recordings) -> tuple[float, float]:
@@ -72,6 +72,12 @@ def convergence(best: _Candidate, data: FitData, model, recordings, scores: list
     return out
 
 
+def optimiser(res) -> dict:
+    """The summary's ``optimiser`` of a refinement (`RefineResult`): scipy's success, evaluations and message,
+    and whether it stopped at its evaluation budget (``budget_hit``, `duhem fit` prints a note then)."""
+    return {"success": res.success, "nfev": res.nfev, "message": res.message, "budget_hit": res.budget_hit}
+
+
 def effects_summary(extended: _Extended, recordings) -> dict:
     """The summary's ``effects``: what was fitted with the base, on which base, every base tried, and the
     recordings whose effects started settled (closed loops)."""
@@ -88,7 +94,7 @@ def effects_summary(extended: _Extended, recordings) -> dict:
         "parameters": {
             k: {"value": v, "stderr": e} for k, v, e in zip(fam.names(), res.theta.tolist(), res.stderr().tolist())
         },
-        "optimiser": {"success": res.success, "nfev": res.nfev, "message": res.message, "budget_hit": res.budget_hit},
+        "optimiser": optimiser(res),
         "method": "the best rate-independent and rate-dependent candidates each refined jointly with the "
         "effects by output error up to the end of their race, the one of lower BIC then to convergence ('tried': "
         "'finished') on every raw sample (x0 fitted per recording; the effects of a "
