@@ -16,7 +16,6 @@ the 7-sample scale; for quantised data it estimates the quantisation noise
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import savgol_coeffs, savgol_filter
 
 __all__ = ["NOISE_WINDOW", "noise_rms", "noise_or_zero"]
 
@@ -29,6 +28,8 @@ def noise_rms(y) -> float:
 
     Raises `ValueError` for fewer than ``2 * NOISE_WINDOW`` samples.
     """
+    from scipy.signal import savgol_coeffs, savgol_filter  # here: importing scipy.signal takes 0.8 s
+
     y = np.asarray(y, dtype=float).ravel()
     if y.size < 2 * NOISE_WINDOW:
         raise ValueError(f"noise estimate needs at least {2 * NOISE_WINDOW} samples, got {y.size}")

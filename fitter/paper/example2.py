@@ -84,8 +84,10 @@ def _summary(fit) -> dict:
 
 
 def _seed_run(seed: int) -> dict:
+    """Both estimators' summaries and models on the noisy records of `seed`."""
     recs = records(NOISE_PP, seed)
-    return {est: _summary(identify_rd_triangles(recs, estimator=est)) for est in ESTIMATORS}
+    fits = {est: identify_rd_triangles(recs, estimator=est) for est in ESTIMATORS}
+    return {est: {**_summary(fit), "model": fit.model.to_dict()} for est, fit in fits.items()}
 
 
 def _median(runs: list[dict], est: str, key: str) -> float:
@@ -109,8 +111,6 @@ def run_example2(seeds: int = 20, workers: int = 2) -> dict:
             runs = list(pool.map(_seed_run, range(seeds)))
     else:
         runs = [_seed_run(s) for s in range(seeds)]
-    seed0 = records(NOISE_PP, 0)
-    fit0 = {est: identify_rd_triangles(seed0, estimator=est) for est in ESTIMATORS}
     true = true_model()
     out = {
         "settings": {
@@ -138,9 +138,8 @@ def run_example2(seeds: int = 20, workers: int = 2) -> dict:
                 "median_worst_rel_g_error": _median(runs, est, "worst_rel_g_error"),
                 "per_seed": [{k: r[est][k] for k in ("A_hat", "B_hat", "worst_rel_g_error")} for r in runs],
                 "seed0": {
-                    **_summary(fit0[est]),
-                    "model": fit0[est].model.to_dict(),
-                    "loop_rel_errors": loop_errors(true, fit0[est].model, OMEGAS),
+                    **runs[0][est],
+                    "loop_rel_errors": loop_errors(true, model_from_dict(runs[0][est]["model"]), OMEGAS),
                 },
             },
         }
