@@ -521,6 +521,14 @@ def _segmented_cumsum(x: np.ndarray, head: np.ndarray) -> np.ndarray:
     return v
 
 
+def _stacked_matvec(M: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """M_s x_s for stacks of matrices M (..., n, n) and of vectors (..., n) or column blocks (..., n, m)
+    (matmul: numpy's einsum of the same products takes 3-5 times as long on these small matrices)."""
+    if x.ndim == M.ndim - 1:
+        return np.matmul(M, x[..., None])[..., 0]
+    return np.matmul(M, x)
+
+
 def _integrate_modal(used: dict, force: dict, X0: np.ndarray, branch, p, r, S) -> np.ndarray:
     """States after each interval, all flows modal (see `integrate`)."""
     N, n, extra = len(S), X0.shape[0], X0.ndim - 1
@@ -546,10 +554,10 @@ def _integrate_modal(used: dict, force: dict, X0: np.ndarray, branch, p, r, S) -
     index = np.searchsorted(np.array(keys), branch[first]) if len(keys) > 1 else np.zeros(len(first), int)
     V = np.stack([used[b].V for b in keys])[index]
     Vinv = np.stack([used[b].Vinv for b in keys])[index]
-    M = np.einsum("sij,sj,sjk->sik", V, PL * ez0, Vinv).real
-    c = np.einsum("sij,sj...->si...", V, _columns(PL, extra) * (f0 + FL)).real
+    M = ((V * (PL * ez0)[:, None, :]) @ Vinv).real
+    c = _stacked_matvec(V, _columns(PL, extra) * (f0 + FL)).real
     entry = np.concatenate([X0[None], _affine_scan(M, c, X0)[:-1]])
-    W0 = _columns(ez0, extra) * np.einsum("sij,sj...->si...", Vinv, entry) + f0
+    W0 = _columns(ez0, extra) * _stacked_matvec(Vinv, entry) + f0
     seg = np.cumsum(head) - 1
     W = _columns(np.exp(L), extra) * (W0[seg] + F)
     X = np.empty((N, n) + X0.shape[1:])
@@ -585,7 +593,7 @@ def _affine_scan(M: np.ndarray, g: np.ndarray, X0: np.ndarray, block: int = 32) 
     while d < block:
         P_new, c_new = P.copy(), c.copy()
         P_new[:, d:] = P[:, d:] @ P[:, :-d]
-        c_new[:, d:] = np.einsum("bkij,bkj...->bki...", P[:, d:], c[:, :-d]) + c[:, d:]
+        c_new[:, d:] = _stacked_matvec(P[:, d:], c[:, :-d]) + c[:, d:]
         P, c, d = P_new, c_new, 2 * d
     out = np.empty((nb, block, n) + X0.shape[1:])
     x = X0
