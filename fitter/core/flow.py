@@ -522,11 +522,8 @@ def _segmented_cumsum(x: np.ndarray, head: np.ndarray) -> np.ndarray:
 
 
 def _stacked_matvec(M: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """M_s x_s for stacks of matrices M (..., n, n) and of vectors (..., n) or column blocks (..., n, m)
-    (matmul: numpy's einsum of the same products takes 3-5 times as long on these small matrices)."""
-    if x.ndim == M.ndim - 1:
-        return np.matmul(M, x[..., None])[..., 0]
-    return np.matmul(M, x)
+    """M_s x_s, M (..., n, n), x (..., n) or (..., n, m), by matmul (einsum: 3-5 times as long here)."""
+    return np.matmul(M, x[..., None])[..., 0] if x.ndim == M.ndim - 1 else np.matmul(M, x)
 
 
 def _integrate_modal(used: dict, force: dict, X0: np.ndarray, branch, p, r, S) -> np.ndarray:

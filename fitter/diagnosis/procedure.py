@@ -53,7 +53,14 @@ Procedure (`diagnose`)
    effects that leave nearly the same residual, the one with fewer parameters;
    a flexible effect such as `relaxation`, six parameters, must remove more
    than its extra parameters' worth); the winner is added, and the remaining
-   candidates are tested again on top of it
+   candidates are tested again on top of it (the findings held), a
+   measurement effect that was significant in the first round also refitted
+   jointly with the findings from its own first-round fit
+   (`fitter.diagnosis.fitting.joint_refit`: on the creep trapezoids a
+   relaxation spectrum found first had taken the integrated offset current,
+   which a drift started at zero could not take back; a material candidate
+   is not, since a joint refit of two material effects drew a Bouc-Wen loop
+   with a start-up transient to the noise as creep and saturation),
    while the residual stays above `NOISE_MARGIN` times the noise (at most
    `max_findings`); none is added when the base residual is already within
    `NOISE_MARGIN` of the noise (they are still tested and listed: over many
@@ -324,17 +331,20 @@ def _search(
     their rank, first-round fits by effect).  `first_round`: the base's first round when already run."""
     present = {e.effect for e in base.model.effects}
     candidates = [c for c in candidates if c not in present]
-    current, findings, tested, fits = base, [], [], {}
+    current, findings, tested, fits, starts = base, [], [], {}, {}
     remaining = list(candidates)
     while remaining and len(findings) < max_findings:
         round_results = (
             first_round
             if first_round is not None and not findings
-            else candidate_round(ex, current, remaining, mask, alpha, len(candidates), tick)
+            else candidate_round(
+                ex, current, remaining, mask, alpha, len(candidates), tick, [f["effect"] for f in findings], starts
+            )
         )
         if not findings:
             tested = [dict(r, rank=j + 1) for j, (r, _) in enumerate(round_results)]
             fits = {r["effect"]: f for r, f in round_results}
+            starts = {r["effect"]: f for r, f in round_results if r["significant"] and r["origin"] == "measurement"}
         if rms(current.residual) <= NOISE_MARGIN * noise:
             break  # the model is adequate already: a significant candidate would fit noise
         winner = next(((r, f) for r, f in round_results if r["significant"]), None)

@@ -21,7 +21,7 @@ import numpy as np
 
 from fitter.core.effects import REGISTRY
 from fitter.diagnosis.experiment import JoinedExperiment
-from fitter.diagnosis.fitting import Fit, fit_family
+from fitter.diagnosis.fitting import Fit, fit_family, joint_refit
 from fitter.diagnosis.held_out import confirmed, held_out_rss
 from fitter.diagnosis.statistics import (
     MIN_EXPLAINED,
@@ -50,13 +50,22 @@ def candidate_round(
     alpha: float,
     n_candidates: int,
     tick: Callable[[str], None],
+    found: Sequence[str] = (),
+    starts: dict[str, Fit] | None = None,
 ) -> list[tuple[dict, Fit]]:
-    """Fit and test each candidate on top of `current` (base + the effects found; the candidates' fits and
+    """Fit and test each candidate on top of `current` (base + the effects `found`; the candidates' fits and
     held-out refits on several processes, `fitter.workers`); sorted by BIC (`bic`, the effect's
-    parameters counted: `fitter.diagnosis.procedure`, step 4)."""
+    parameters counted: `fitter.diagnosis.procedure`, step 4).  A candidate with a fit in `starts` (its
+    first-round fit, where it was significant) is also refitted jointly with the found effects from there
+    (`fitting.joint_refit`), and the better of the two fits is tested."""
     for name in names:
         tick(f"testing {name}")
-    results = parallel_map(lambda name: _candidate(ex, current, name, mask, alpha, n_candidates), list(names))
+    starts = starts or {}
+
+    def one(name: str) -> tuple[dict, Fit]:
+        return _candidate(ex, current, name, mask, alpha, n_candidates, found, starts.get(name))
+
+    results = parallel_map(one, list(names))
     if any("held_out_rss" in rep for rep, _ in results):
         without = held_out_rss(ex, current, mask)
         for rep, _ in results:
@@ -76,12 +85,24 @@ def candidate_round(
 
 
 def _candidate(
-    ex: JoinedExperiment, current: Fit, name: str, mask: np.ndarray, alpha: float, n_candidates: int
+    ex: JoinedExperiment,
+    current: Fit,
+    name: str,
+    mask: np.ndarray,
+    alpha: float,
+    n_candidates: int,
+    found: Sequence[str] = (),
+    start: Fit | None = None,
 ) -> tuple[dict, Fit]:
-    """One candidate of `candidate_round`: its joint fit and report (significance by the likelihood ratio); with two
-    or more recordings, one it cannot establish that explains at least `MIN_EXPLAINED` also gets its held-out
-    squared errors (``held_out_rss``), for `candidate_round` to confirm against the model without it."""
+    """One candidate of `candidate_round`: its fit on top of `current` (and, with a `start` and effects
+    `found`, the better of that and their joint refit) and report (significance by the likelihood ratio);
+    with two or more recordings, one it cannot establish that explains at least `MIN_EXPLAINED` also gets
+    its held-out squared errors (``held_out_rss``), for `candidate_round` to confirm against the model
+    without it."""
     fit = fit_family(current.model, [name], current.theta[: current.family.n_base], ex, mask, ex.y - current.residual)
+    if start is not None and found:
+        joint = joint_refit(current, found, name, start, ex, mask)
+        fit = joint if joint.rss < fit.rss else fit
     rep = effect_report(fit, current.rss, effective_samples(fit.residual), freedoms(name, ex))
     rep.update(effect=name, origin=REGISTRY[name].origin)
     rep["significant"] = is_significant(rep, alpha, n_candidates)

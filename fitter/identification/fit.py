@@ -170,7 +170,9 @@ def _barrier_residuals(
     return np.array([1e3 * max(0.0, v + BARRIER_INSIDE) if np.isfinite(v) else 1e3 for v in vals])
 
 
-def _candidate(param, starts, data: FitData, info, progress: Progress) -> _Candidate:
+def _candidate(
+    param, starts, data: FitData, info, progress: Progress, fit_options: Options = FIT_OPTIONS
+) -> _Candidate:
     """Best refinement over the starts, with the convergence barrier.
 
     Rate-independent, with several starts: each first gets `RACE_NFEV` evaluations (no covariance); only
@@ -195,7 +197,7 @@ def _candidate(param, starts, data: FitData, info, progress: Progress) -> _Candi
         return res.cost + 0.5 * float(np.sum(pen(res.theta) ** 2))
 
     race = param.kind == "ri" and len(starts) > 1
-    options = replace(FIT_OPTIONS, max_nfev=RACE_NFEV, covariance=False) if race else FIT_OPTIONS
+    options = replace(fit_options, max_nfev=RACE_NFEV, covariance=False) if race else fit_options
     best = None
     for th0 in starts:  # only the best so far is kept: a result holds residuals on every sample
         res = run(th0, options)
@@ -205,15 +207,15 @@ def _candidate(param, starts, data: FitData, info, progress: Progress) -> _Candi
     if best is None:
         raise FitError(f"{param.kind} order {param.n}: every start failed to simulate")
     if race:
-        more = run(best.theta, replace(FIT_OPTIONS, max_nfev=MAX_NFEV - RACE_NFEV))
+        more = run(best.theta, replace(fit_options, max_nfev=MAX_NFEV - RACE_NFEV))
         if not (more is not None and objective(more) <= objective(best)):
             hit = more is not None and more.budget_hit
             del more  # freed before the one-evaluation run that gives the race's best its covariance
-            more = run(best.theta, replace(FIT_OPTIONS, max_nfev=1))
+            more = run(best.theta, replace(fit_options, max_nfev=1))
             more = None if more is None else replace(more, budget_hit=hit)
         best = more if more is not None else best
     if param.kind == "rd" and param.n >= GLOBAL_FROM_ORDER:
-        best = _global_stage(param, best, run, objective)
+        best = _global_stage(param, best, run, objective, fit_options)
     return _Candidate(param, best, info)
 
 
@@ -222,22 +224,30 @@ def _global_stage(
     best: RefineResult,
     run: Callable[[np.ndarray, Options], RefineResult | None],
     objective: Callable[[RefineResult], float],
+    fit_options: Options = FIT_OPTIONS,
 ) -> RefineResult:
-    """The lowest objective among `best` and `GLOBAL_STARTS` full refinements from perturbed copies of it
-    (`GLOBAL_SCALE`; seeded by the order, so a fit is repeatable)."""
+    """The lowest objective among `best` and `GLOBAL_STARTS` full refinements (`fit_options`) from perturbed
+    copies of it (`GLOBAL_SCALE`; seeded by the order, so a fit is repeatable)."""
     rng = np.random.default_rng(param.n)
     moving = np.ones(param.size, bool)
     moving[list(param.linear_entries())] = False
     for _ in range(GLOBAL_STARTS):
         step = GLOBAL_SCALE * np.maximum(np.abs(best.theta), 1.0) * rng.standard_normal(param.size)
-        res = run(best.theta + step * moving, FIT_OPTIONS)
+        res = run(best.theta + step * moving, fit_options)
         if res is not None and objective(res) < objective(best):
             best = res
     return best
 
 
 def _search(
-    data: FitData, kind: str, orders, q, levels: RateLevels, progress: Progress, faithful: bool = False
+    data: FitData,
+    kind: str,
+    orders,
+    q,
+    levels: RateLevels,
+    progress: Progress,
+    faithful: bool = False,
+    fit_options: Options = FIT_OPTIONS,
 ) -> list[_Candidate]:
     """Candidates of the order (and kind) search of the module docstring, item 5; `faithful`: the
     rate-independent candidates keep their settled minor loops near the data (`fit_recordings`)."""
@@ -249,7 +259,7 @@ def _search(
         lower = ri_fits.get(n - 1)
         lower_model = lower.res.model if lower else None
         starts, info = ri_starts(*loop, n, q, lower_model) if loop is not None else generic_ri_starts(n, lower_model)
-        ri_fits[n] = _candidate(RICanonical(n, faithful), starts, data, info, progress)
+        ri_fits[n] = _candidate(RICanonical(n, faithful), starts, data, info, progress, fit_options)
         if kind in ("auto", "ri"):
             cands.append(ri_fits[n])
         if lower is not None and ri_fits[n].bic > lower.bic and (kind == "ri" or levels.levels < 2):
@@ -263,7 +273,7 @@ def _search(
             starts, info = rd_starts(
                 param, ri.res.model if ri else None, lower.res if lower else None, data.norm, levels.triangle
             )
-            rd_fits[n] = _candidate(param, starts, data, info, progress)
+            rd_fits[n] = _candidate(param, starts, data, info, progress, fit_options)
             cands.append(rd_fits[n])
             if n - 1 in rd_fits and rd_fits[n].bic > rd_fits[n - 1].bic:
                 break
@@ -327,6 +337,7 @@ def fit_recordings(
     effects: Sequence[str] = (),
     held: dict[str, float] | None = None,
     progress: Progress = silent,
+    max_samples: int | None = None,
 ) -> FitResult:
     """Fit a semilinear Duhem model to one or more recordings (see the module docstring).
 
@@ -350,6 +361,9 @@ def fit_recordings(
     held : effect parameters held at known values, ``{"effect.parameter": value}``
         (`fitter.identification.effects_fit.check_held`), not fitted and not counted.
     progress : `fitter.progress.Progress` callback, called with one-line status messages.
+    max_samples : the samples each recording's output error is optimised on in the order and kind search
+        (decimated beyond, every input reversal kept: `fitter.identification.output_error`); default
+        `FIT_OPTIONS`'s.  `duhem diagnose` passes its own budget (`fitter.diagnosis.fitting.SAMPLES`).
 
     Returns
     -------
@@ -370,7 +384,8 @@ def fit_recordings(
         data = prepare_for_fit(recordings)
         levels = rate_levels(data.norm)
         orders = ORDERS if order is None else (order,)
-        cands = _search(data, kind, orders, q, levels, progress, faithful_minor_loops)
+        options = FIT_OPTIONS if max_samples is None else replace(FIT_OPTIONS, max_samples=max_samples)
+        cands = _search(data, kind, orders, q, levels, progress, faithful_minor_loops, options)
         eligible = [c for c in cands if _meets_barrier(c, data, recordings)] or cands
         best = min(eligible, key=lambda c: c.bic)
         extended = _with_effects(eligible, data, recordings, effects, held, progress) if effects else None
