@@ -260,7 +260,9 @@ def fit_family(
     return fit
 
 
-def joint_refit(current: Fit, found: Sequence[str], name: str, start: Fit, ex: JoinedExperiment, mask) -> Fit:
+def joint_refit(
+    current: Fit, found: Sequence[str], name: str, start: Fit, ex: JoinedExperiment, mask: np.ndarray
+) -> Fit:
     """Candidate `name` and the effects found so far (`found`, held in `fit_family`'s template) refitted
     together with the base, in the other order: from `start` (the candidate's own fit on the base, the first
     round), the found effects fitted on top of it (`fit_family`), then all of them jointly: forward selection's
