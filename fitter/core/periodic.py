@@ -94,6 +94,10 @@ class PeriodicResponse:
 def periodic_response(model, t, u) -> PeriodicResponse:
     """Limiting periodic response for one period (t_0..t_N, u_N = u_0) of input.
 
+    One pass of the kernel for a base model: the states are affine in the initial state,
+    x_k = Phi_k x_0 + c_k (`affine_response`), so the periodic states are x_k = Phi_k x* + c_k with
+    x* = (I - Phi_N)^{-1} c_N (the paper's reproduction spent half its identification time simulating
+    again from x*); a model with effects is simulated again from x*.
     Raises `ConvergenceError` when the monodromy's spectral radius is >= 1.
     """
     u = np.asarray(u, dtype=float)
@@ -102,13 +106,28 @@ def periodic_response(model, t, u) -> PeriodicResponse:
     if not np.isclose(u[-1], u[0], rtol=0, atol=1e-9 * max(1.0, np.ptp(u))):
         raise KernelError(f"input is not one period: u[0] = {u[0]} but u[-1] = {u[-1]}")
     cache = flows(model)
-    xs, rho = fixed_point(model, t, u, cache)
+    if getattr(model, "effects", None):
+        xs, rho = fixed_point(model, t, u, cache)
+        return PeriodicResponse(
+            sim=simulate(model, t, u, x0=_periodic(xs, rho), flow_cache=cache), rho=rho, x_periodic=xs
+        )
+    c, Phi = affine_response(model, t, u, cache)
+    xs, rho = _settled(Phi[-1], c[-1])
+    X = c + Phi @ _periodic(xs, rho)
+    t = np.arange(len(u), dtype=float) if t is None else np.asarray(t, dtype=float)
+    return PeriodicResponse(
+        sim=Simulation(t=t, u=u, x=X, y=X @ model.C + model.D * model.model_input(u)), rho=rho, x_periodic=xs
+    )
+
+
+def _periodic(xs: np.ndarray | None, rho: float) -> np.ndarray:
+    """The periodic state `xs` of `fixed_point`, or `ConvergenceError` when there is none (rho >= 1)."""
     if xs is None:
         raise ConvergenceError(
             f"no limiting periodic map: spectral radius of the period map "
             f"is {rho:.6g} >= 1 (condition (5) of Theorem 1 fails)"
         )
-    return PeriodicResponse(sim=simulate(model, t, u, x0=xs, flow_cache=cache), rho=rho, x_periodic=xs)
+    return xs
 
 
 def _span_rho(model, b: float) -> float:
