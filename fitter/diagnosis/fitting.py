@@ -269,10 +269,10 @@ def joint_refit(
     has it, and the other order (from `start`, the found effects fitted on top of it by `fit_family`, as if
     the candidate had been found first).  An effect found first keeps what a later candidate explains better
     unless the later one starts from its own account of the data (a relaxation spectrum that took a drift in
-    time leaves a drift started at zero nothing to explain; on the creep trapezoids the first start gives
-    the drift back, on `tests/test_diagnose_joint.py`'s runs the second).  Returned in `fit_family`'s form
-    (the found effects in the template, the candidate's parameters in theta, its Jacobian there), so that
-    the candidate's tests read it as they read `fit_family`'s."""
+    time leaves a drift started at zero nothing to explain; the creep trapezoids need the first start, the
+    other order alone left their drift in the spectrum; `tests/test_diagnose_joint.py` was built on the
+    second).  Returned in `fit_family`'s form (the found effects in the template, the candidate's parameters in
+    theta, its Jacobian there), so that the candidate's tests read it as they read `fit_family`'s."""
     ctx = ex.effect_context(float(np.mean(ex.y - current.residual)))
     names = [e for e in REGISTRY if e in found or e == name]
     own = next(e for e in start.model.effects if e.effect == name)
