@@ -97,7 +97,7 @@ def simulate(model, t, u, x0=None, flow_cache: dict | None = None, effect_state=
         return Simulation(t=t, u=u, x=X, y=y)
     branch, p, r, S = interval_coefficients(model, t, w)
     X = integrate(fl, x0, branch, p, r, S)
-    y = X @ model.C + model.D * w
+    y = model.output(X, w)
     return Simulation(t=t, u=u, x=X, y=y)
 
 

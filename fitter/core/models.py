@@ -265,6 +265,10 @@ class _ModelBase:
         u0 = x0.get("u0") if isinstance(x0, dict) else None
         return None if u0 is None else float(u0)
 
+    def output(self, X: np.ndarray, w) -> np.ndarray:
+        """y_k = C x_k + D w_k (eqs (2), (19)) of the states X (N, n) at the model input w (`model_input`)."""
+        return X @ self.C + self.D * w
+
     def model_input(self, u):
         """The input the model acts on: u held at the edges of `input_range` (module docstring)."""
         if self.input_range is None:

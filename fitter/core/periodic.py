@@ -116,7 +116,7 @@ def periodic_response(model, t, u) -> PeriodicResponse:
     X = c + Phi @ _periodic(xs, rho)
     t = np.arange(len(u), dtype=float) if t is None else np.asarray(t, dtype=float)
     return PeriodicResponse(
-        sim=Simulation(t=t, u=u, x=X, y=X @ model.C + model.D * model.model_input(u)), rho=rho, x_periodic=xs
+        sim=Simulation(t=t, u=u, x=X, y=model.output(X, model.model_input(u))), rho=rho, x_periodic=xs
     )
 
 

@@ -226,7 +226,7 @@ def run_with_effects(
     branch, p, chain.r, chain.S = interval_coefficients(model, t, chain.w)
     _run_stage("rate", present, chain, starts, ends)
     X = integrate(fl, x0, branch, p, chain.r, chain.S) if base else None
-    chain.y = X @ model.C + model.D * chain.w if base else np.zeros(len(t))
+    chain.y = model.output(X, chain.w) if base else np.zeros(len(t))
     _run_stage("output", present, chain, starts, ends)
     end = tuple(value for spec, _ in present for value in ends[spec.name])
     return X, chain.y, end
