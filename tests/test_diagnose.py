@@ -693,6 +693,42 @@ def test_files_that_differ_only_by_their_instrument_zero_claim_nothing():
         assert abs(refs[r.name] - d0) < 0.02 * span
 
 
+def _zeroed_runs(seed: int) -> list[Recording]:
+    """The default runs as separate files from t = 0, effect-free, each output shifted by its own instrument
+    zero (within +-15 % of the range); seeded noise 0.002."""
+    recs, _ = synthetic_experiment(None, seed=seed, samples=SAMPLES)
+    truth = first_order_ri(**TRUTH_BASE)
+    rng = np.random.default_rng(seed)
+    out = []
+    for r, d0 in zip(recs, [0.0, 0.25, -0.2, 0.12]):
+        t = r.t - r.t[0]
+        y = simulate(truth, t, r.u).y + d0 + rng.normal(0.0, 0.002, len(t))
+        out.append(Recording(t, r.u, y, name=r.name, source=r.source))
+    return out
+
+
+def test_the_base_fit_is_levelled_only_by_references_that_improve_it(monkeypatch):
+    """`fitting.duhem_fit` fits again on the recordings less the references its first fit finds, and keeps that
+    fit only when, refined with the references, it leaves no more than the first: with the true instrument
+    zeros it levels (the levelled fit leaves less), with references the data do not determine (here injected:
+    3e7 output ranges times the file's index, as a ferroelectric loop's first-order base with A ~ 1e-11 split its
+    state and the reference) it keeps the first fit (levelled by those, the refit left 2e11 times as much)."""
+    from fitter.diagnosis import fitting
+    from fitter.identification.fit import fit_recordings
+
+    ex = join_recordings(_zeroed_runs(4))
+    mask = np.ones(len(ex.t), bool)
+    first = fitting.fit_base(ex, fit_recordings(ex.recordings, kind="ri").model, mask).rss
+    levelled = fitting.fit_base(ex, fitting.duhem_fit(ex, mask).model, mask).rss
+    assert levelled < first
+    span = float(np.ptp(ex.y))
+    monkeypatch.setattr(
+        fitting, "output_references", lambda fit, ex: {r.name: 3e7 * span * k for k, r in enumerate(ex.recordings)}
+    )
+    kept = fitting.fit_base(ex, fitting.duhem_fit(ex, mask).model, mask).rss
+    assert kept == pytest.approx(first, rel=1e-9)
+
+
 def test_held_out_confirmation_needs_every_recording_and_a_typical_gain():
     """`confirmed`: every recording's held-out error must fall by 5 %, the geometric mean of the ratios by
     25 %; one recording that the model without the effect predicts badly does not decide for the others."""
