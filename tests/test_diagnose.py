@@ -729,6 +729,21 @@ def test_the_base_fit_is_levelled_only_by_references_that_improve_it(monkeypatch
     assert kept == pytest.approx(first, rel=1e-9)
 
 
+def test_an_effect_confirmed_held_out_needs_its_strengths_two_standard_errors_from_zero():
+    """`determined` (a parameter whose uncertainty is as large as its value makes no finding): every parameter
+    whose null is 0 (a strength) must lie two standard errors from 0; the others (time constants, shares) and
+    parameters without an error (held) are not judged."""
+    from fitter.diagnosis.statistics import determined
+
+    def report(kappa, err):
+        return {"parameters": {"kappa": kappa, "tau": 5.0, "q": 0.3}, "stderr": {"kappa": err, "tau": 50.0, "q": 0.0}}
+
+    null = {"kappa": 0.0, "tau": 1.0, "q": 0.0}
+    assert not determined(report(-3.3e-5, 2.2e-5), null)  # the ferroelectric loop's thermal drift
+    assert determined(report(-3.3e-5, 1.6e-5), null)
+    assert determined(report(23.0, 0.8), null) and not determined(report(1.0, 0.6), null)
+
+
 def test_held_out_confirmation_needs_every_recording_and_a_typical_gain():
     """`confirmed`: every recording's held-out error must fall by 5 %, the geometric mean of the ratios by
     25 %; one recording that the model without the effect predicts badly does not decide for the others."""

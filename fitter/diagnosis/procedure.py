@@ -39,7 +39,8 @@ Procedure (`diagnose`)
    test cannot establish it (a few long loops: an effective sample size of a
    dozen), confirmed on held-out data: with two or more recordings, each
    predicted better by the model with the effect fitted without it
-   (`fitter.diagnosis.held_out.confirmed`; ``confirmed_held_out``).  A creep or a
+   (`fitter.diagnosis.held_out.confirmed`; ``confirmed_held_out``), its strengths two standard errors from 0
+   (`statistics.determined`: a parameter whose uncertainty is as large as its value makes no finding).  A creep or a
    relaxation spectrum must also follow the input
    (`statistics.memory_response_report`): its start transient alone is a
    change in time, a drift, not a memory of the material; one that fits only

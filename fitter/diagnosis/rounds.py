@@ -4,7 +4,8 @@ the current model, tested, and the round ranked by BIC.
 Each candidate is fitted with the base parameters (`fitter.diagnosis.fitting.fit_family`) and tested against the
 model without it (`fitter.diagnosis.statistics`: likelihood ratio with an AR(1) effective sample size, Bonferroni
 over the candidates, at least `MIN_EXPLAINED` of the residual energy removed), or, when that test cannot establish
-it, confirmed on held-out recordings (`fitter.diagnosis.held_out.confirmed`).  A memory (creep, relaxation) must
+it, confirmed on held-out recordings (`fitter.diagnosis.held_out.confirmed`) with its strengths determined
+(`statistics.determined`).  A memory (creep, relaxation) must
 follow the input (`statistics.memory_response_report`) and a reversing effect swing both ways
 (`statistics.reversal_report`).  The round is sorted by
 
@@ -25,6 +26,7 @@ from fitter.diagnosis.fitting import Fit, fit_family, joint_refit
 from fitter.diagnosis.held_out import confirmed, held_out_rss
 from fitter.diagnosis.statistics import (
     MIN_EXPLAINED,
+    determined,
     effect_report,
     is_significant,
     memory_response_report,
@@ -68,10 +70,12 @@ def candidate_round(
     results = parallel_map(one, list(names))
     if any("held_out_rss" in rep for rep, _ in results):
         without = held_out_rss(ex, current, mask)
+        null = {name: REGISTRY[name].null(ex.effect_context(float(np.mean(ex.y)))) for name in names}
         for rep, _ in results:
             if "held_out_rss" in rep:
                 rep["held_out_rss_without"] = without.tolist()
-                rep["significant"] = rep["confirmed_held_out"] = confirmed(np.array(rep["held_out_rss"]), without)
+                rep["confirmed_held_out"] = confirmed(np.array(rep["held_out_rss"]), without)
+                rep["significant"] = rep["confirmed_held_out"] and determined(rep, null[rep["effect"]])
     for rep, fit in results:
         name = rep["effect"]
         if rep["significant"] and REGISTRY[name].memory_taus(rep["parameters"]) is not None:
