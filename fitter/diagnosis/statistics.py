@@ -26,7 +26,7 @@ A parameter whose uncertainty is as large as its value makes no finding (`determ
 held-out data, where the likelihood test could not establish it, is a finding only when each of its strengths
 (the basic-form parameters whose null is 0: a gain, a drift rate, a play) lies `COVERAGE` standard errors
 from 0 (GUM's expanded uncertainty, coverage factor 2).  On a ferroelectric loop with switching found, a thermal
-drift with kappa = -3.3e-5 +- 2.2e-5 (LR 1.6, p = 0.21) predicted the held-out files better by 17-78 %: the
+drift with kappa = -3.3e-5 +- 2.2e-5 (LR 1.6, p = 0.21) predicted the held-out files better by 16-78 %: the
 refits without it from the joint values landed elsewhere, not a gain that kappa made.  An effect the likelihood
 test establishes needs no such check (a relaxation spectrum's k, correlated with its shares and time
 constants, has a standard error many times its value while p < 1e-300).
@@ -104,9 +104,9 @@ ALPHA = 0.01
 MIN_EXPLAINED = 0.02
 NOISE_MARGIN = 1.2
 REVERSAL_MIN = 0.25
+"""Least ratio of the smaller to the larger one-way travel of a reversing effect's output (`reversal_report`)."""
 COVERAGE = 2.0
 """Standard errors by which a strength of an effect confirmed on held-out data must lie from 0 (`determined`)."""
-"""Least ratio of the smaller to the larger one-way travel of a reversing effect's output (`reversal_report`)."""
 START_TRANSIENTS = 6
 """Generic start transients per run in `memory_response_report` (module docstring)."""
 
