@@ -17,6 +17,8 @@ builders, the fmpy host) -> `fitter.reports` -> `fitter.estimator`,
 `fitter.batch` (`duhem batch` on Dask) -> `fitter.cli`.
 """
 
+import importlib
+
 from fitter.core import (
     Compensation,
     Compensator,
@@ -37,14 +39,39 @@ from fitter.core import (
     simulate,
 )
 from fitter.core.effects import Effect
-from fitter.data.recordings import Recording, load_recording, load_recordings
-from fitter.diagnosis import Diagnosis, diagnose
-from fitter.estimator import DuhemEstimator
-from fitter.fmu.build import build_fmu
-from fitter.fmu.host import simulate_fmu, validate_fmu_file
-from fitter.identification.fit import FitResult, fit_recordings
-from fitter.identification.rd_triangles import identify_rd_triangles
-from fitter.identification.ri_loop import identify_ri_loop
+
+_LAZY = {
+    "Recording": "fitter.data.recordings",
+    "load_recording": "fitter.data.recordings",
+    "load_recordings": "fitter.data.recordings",
+    "Diagnosis": "fitter.diagnosis",
+    "diagnose": "fitter.diagnosis",
+    "DuhemEstimator": "fitter.estimator",
+    "build_fmu": "fitter.fmu.build",
+    "simulate_fmu": "fitter.fmu.host",
+    "validate_fmu_file": "fitter.fmu.host",
+    "FitResult": "fitter.identification.fit",
+    "fit_recordings": "fitter.identification.fit",
+    "identify_rd_triangles": "fitter.identification.rd_triangles",
+    "identify_ri_loop": "fitter.identification.ri_loop",
+}
+"""The public names outside `fitter.core`, by the module that holds them: imported on first use (PEP 562), so
+that a command or a worker process imports only the packages it runs (the diagnosis' scipy.stats, the FMU
+host's fmpy) and not the whole library because it touched `fitter.core`."""
+
+
+def __getattr__(name: str):
+    """A name of `_LAZY`, imported from its module on first use."""
+    if name not in _LAZY:
+        raise AttributeError(f"module 'fitter' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_LAZY[name]), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
     "Compensation",

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import importlib
 import math
 import os
 import re
@@ -44,6 +45,10 @@ __all__ = [
 ]
 
 EXIT_ERROR = 1
+EXIT_VALIDATION_FAILED = 3
+"""Exit code of a validation whose NRMSE exceeds its threshold."""
+DEFAULT_THRESHOLD = 0.05
+"""Default `duhem validate` threshold on the NRMSE over all samples (5% of the output range)."""
 _COMMAND_PATH = "fitter.cli_support.command_path"
 """`click.Context.meta` key: the subcommand `GuardedGroup` runs (for a usage error that has no context)."""
 
@@ -174,7 +179,24 @@ def guarded(func: Callable) -> Callable:
 
 
 class GuardedGroup(click.Group):
-    """A click group whose every subcommand, its options' parsing included, runs under `one_line_errors`."""
+    """A click group whose every subcommand, its options' parsing included, runs under `one_line_errors`.
+
+    `lazy` names subcommands by ``"module:attribute"``, imported when the command runs or the help lists it
+    (click's lazily loaded subcommands): ``duhem reproduce-paper`` does not import the diagnosis, the FMU host
+    or Dask."""
+
+    def __init__(self, *args, lazy: dict[str, str] | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.lazy = dict(lazy or {})
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted({*super().list_commands(ctx), *self.lazy})
+
+    def get_command(self, ctx: click.Context, cmd_name: str):
+        if cmd_name in self.lazy and cmd_name not in self.commands:
+            module, attribute = self.lazy[cmd_name].split(":")
+            self.add_command(getattr(importlib.import_module(module), attribute), cmd_name)
+        return super().get_command(ctx, cmd_name)
 
     def make_context(self, info_name, args, parent=None, **extra) -> click.Context:
         with one_line_errors():

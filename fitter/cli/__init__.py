@@ -31,19 +31,25 @@ from __future__ import annotations
 
 import click
 
-from fitter.cli.batch_command import batch
-from fitter.cli.common import DEFAULT_THRESHOLD, EXIT_VALIDATION_FAILED
-from fitter.cli.diagnose_command import diagnose
-from fitter.cli.fit_command import fit
-from fitter.cli.fmu_commands import export, validate
-from fitter.cli.run_commands import compensate, simulate
-from fitter.cli_support import EXIT_ERROR, CliError, GuardedGroup
-from fitter.paper.report import command as reproduce_paper
+from fitter.cli_support import DEFAULT_THRESHOLD, EXIT_ERROR, EXIT_VALIDATION_FAILED, CliError, GuardedGroup
+
+COMMANDS = {
+    "fit": "fitter.cli.fit_command:fit",
+    "export": "fitter.cli.fmu_commands:export",
+    "validate": "fitter.cli.fmu_commands:validate",
+    "simulate": "fitter.cli.run_commands:simulate",
+    "compensate": "fitter.cli.run_commands:compensate",
+    "diagnose": "fitter.cli.diagnose_command:diagnose",
+    "batch": "fitter.cli.batch_command:batch",
+    "reproduce-paper": "fitter.paper.report:command",
+}
+"""The subcommands, each imported when it runs (`GuardedGroup`)."""
+
 
 __all__ = ["main", "CliError", "DEFAULT_THRESHOLD", "EXIT_ERROR", "EXIT_VALIDATION_FAILED"]
 
 
-@click.group("duhem", cls=GuardedGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group("duhem", cls=GuardedGroup, lazy=COMMANDS, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="semilinear-duhem")
 def main() -> None:
     """Identify semilinear Duhem hysteresis models (Oh & Bernstein 2007) and export them as FMUs.
@@ -51,10 +57,3 @@ def main() -> None:
     Typical use: duhem fit rec.csv -o model.json --fmu model.fmu, then
     duhem validate model.fmu rec.csv.
     """
-
-
-main.add_command(reproduce_paper)
-
-
-for _command in (fit, export, validate, simulate, compensate, diagnose, batch, reproduce_paper):
-    main.add_command(_command)

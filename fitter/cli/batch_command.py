@@ -7,8 +7,8 @@ from pathlib import Path
 import click
 
 from fitter.batch import BatchOptions, run_batch
-from fitter.cli.common import DEFAULT_THRESHOLD, check_backend, effect_names, emit_json, held_values, table
-from fitter.cli_support import CliError, FilePath, Number, backend_option
+from fitter.cli.common import check_backend, effect_names, emit_json, held_values, table
+from fitter.cli_support import DEFAULT_THRESHOLD, CliError, FilePath, Number, backend_option
 from fitter.identification.fit import ORDERS
 
 

@@ -22,10 +22,6 @@ from fitter.fmu.pair import check_fmu_pair
 from fitter.fmu.toolchain import parse_platforms
 from fitter.identification.exported import minor_loop_warning
 
-DEFAULT_THRESHOLD = 0.05
-"""Default `duhem validate` threshold on the NRMSE over all samples (5% of the output range)."""
-EXIT_VALIDATION_FAILED = 3
-
 
 # --------------------------------------------------------------------------- console output
 

@@ -9,8 +9,6 @@ import click
 import numpy as np
 
 from fitter.cli.common import (
-    DEFAULT_THRESHOLD,
-    EXIT_VALIDATION_FAILED,
     allow_unstable_option,
     check_fmu_name,
     checked,
@@ -27,7 +25,15 @@ from fitter.cli.common import (
     use_unstable_option,
     warn_minor_loops,
 )
-from fitter.cli_support import CliError, FilePath, Number, backend_option, fmi_version_option
+from fitter.cli_support import (
+    DEFAULT_THRESHOLD,
+    EXIT_VALIDATION_FAILED,
+    CliError,
+    FilePath,
+    Number,
+    backend_option,
+    fmi_version_option,
+)
 from fitter.core.checks import check_agreement, with_convergence
 from fitter.core.files import atomic_file
 from fitter.core.inverse import MEASUREMENT_CHOICES
