@@ -31,7 +31,9 @@ from fitter.core.errors import DuhemError
 
 __all__ = [
     "CliError",
+    "DEFAULT_THRESHOLD",
     "EXIT_ERROR",
+    "EXIT_VALIDATION_FAILED",
     "FilePath",
     "Number",
     "one_line_errors",
