@@ -57,9 +57,8 @@ def _csv_files(recs: list[Recording], folder) -> list[str]:
 def _cli_fit(args: list[str]):
     """`duhem fit ARGS` through the CLI, its own `fit_recordings` call watched (run as it is, its FitResult
     kept): the CLI's result and that FitResult."""
-    import sys
+    import fitter.cli.fit_command as command  # where `duhem fit` looks it up
 
-    command = sys.modules[main.commands["fit"].callback.__module__]  # where `duhem fit` looks it up
     results = []
 
     def watched(*args, **kwargs):
