@@ -35,7 +35,7 @@ from fitter.core.periodic import fixed_point
 from fitter.data.cycles import closed_last_cycle
 from fitter.data.metrics import rms
 from fitter.diagnosis.experiment import JoinedExperiment
-from fitter.diagnosis.fitting import Fit, duhem_fit, fit_base, fit_family
+from fitter.diagnosis.fitting import Fit, duhem_fit, fit_family
 from fitter.diagnosis.held_out import held_out_residual
 from fitter.diagnosis.rounds import bic, candidate_round
 from fitter.diagnosis.statistics import NOISE_MARGIN, remainder_report
@@ -68,11 +68,10 @@ def adequate_base(
     if rms(first.residual) <= NOISE_MARGIN * noise:
         return first, None, None, False
     tick("choosing the base order (BIC)")
-    higher = duhem_fit(ex, mask)
+    higher, high = duhem_fit(ex, mask)
     order = higher.model.order
     if order == 1:
         return first, None, None, False
-    high = fit_base(ex, higher.model, mask)
     k_high = next(c["parameters"] for c in higher.summary["candidates"] if c["order"] == order) + order
     if not _settled_at_noise(high, ex, noise):
         lower = _settled_lower_order(ex, mask, noise, order)
@@ -113,7 +112,7 @@ def _settled_lower_order(ex: JoinedExperiment, mask: np.ndarray, noise: float, o
     that is not settled (a mode the data do not determine), a lower order that reaches it settled is the
     base, and the misfit is not handed to the effects."""
     for k in range(2, order):
-        fit = fit_base(ex, duhem_fit(ex, mask, k).model, mask)
+        fit = duhem_fit(ex, mask, k)[1]
         if _settled_at_noise(fit, ex, noise):
             return fit
     return None

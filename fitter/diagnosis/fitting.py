@@ -58,7 +58,7 @@ from fitter.core.models import RateIndependentModel, Signals
 from fitter.data.cycles import closed_loop
 from fitter.data.recordings import Recording
 from fitter.diagnosis.experiment import JoinedExperiment
-from fitter.identification.fit import fit_recordings
+from fitter.identification.fit import FitResult, fit_recordings
 from fitter.identification.output_error import Recordings
 from fitter.identification.refine import Options, RefineResult, refine
 from fitter.identification.parametrisation import StateSpace, WithEffects
@@ -304,35 +304,35 @@ def fit_base(ex: JoinedExperiment, model, mask: np.ndarray) -> Fit:
     return _refine(fam, np.array([a, -a, bp, bm, ep, em, x0]), ex, mask)
 
 
-def duhem_fit(ex: JoinedExperiment, mask: np.ndarray, order: int | None = None):
+def duhem_fit(ex: JoinedExperiment, mask: np.ndarray, order: int | None = None) -> tuple[FitResult, Fit]:
     """The rate-independent model `duhem fit` makes of the experiment's recordings (`fit_recordings`, kind "ri", the
-    order by BIC or `order`): a `FitResult`. Separate runs each carry their instrument's zero, which `duhem fit`
-    does not fit: the fit is made again on the recordings less the references (`output_references`) that its first
-    model, refined here (`fit_base`), finds (one alternation; a control of order 3 whose files' zeros differ by 15 %
-    of the range got order 2 at 2.8 times the noise, then order 3 at the noise). The levelled fit is taken when,
-    refined on the recordings with their references (`fit_base`), it leaves no more than the first: references the
-    data do not determine level the recordings by nonsense (a first-order base with A ~ 1e-11, the nearly straight
-    branches of a ferroelectric loop: its state's and a reference's columns equal to 9e-10, split into -3.9e7 and
-    1.1e9; every order's levelled fit then left 1e5-1e11 output ranges on the files, 47696 against the first fit's
-    6.6). The order BIC picks on the levelled recordings is not below the first fit's: the piezo triangles' levelled
-    fit picked order 2, whose account with switching predicts the 0.01 Hz record at 11 % where order 3's does at 5 %
-    (an order chosen by held-out prediction would settle this; not done: each order is a whole search). Its search
-    optimises on the diagnosis' samples (`SAMPLES`, `_share`: long separate runs decimated, every input reversal
-    kept; on one clock, or within the share, the same samples as `duhem fit`): on the four creep trapezoids (4 x
-    5000 samples) the two searches at `duhem fit`'s 3000 samples per run took 504 s of a 937 s diagnosis."""
+    order by BIC or `order`): its `FitResult` and its base refined on the experiment (`fit_base`). Separate runs
+    each carry their instrument's zero, which `duhem fit` does not fit: the fit is made again on the recordings less
+    the references (`output_references`) that its first model, refined here (`fit_base`), finds (one alternation; a
+    control of order 3 whose files' zeros differ by 15 % of the range got order 2 at 2.8 times the noise, then order
+    3 at the noise). The levelled fit is taken when, refined on the recordings with their references (`fit_base`),
+    it leaves no more than the first: references the data do not determine level the recordings by nonsense (a
+    first-order base with A ~ 1e-11, the nearly straight branches of a ferroelectric loop: its state's and a
+    reference's columns equal to 9e-10, split into -3.9e7 and 1.1e9; every order's levelled fit then left 1e5-1e11
+    output ranges on the files, 47696 against the first fit's 6.6). The order BIC picks on the levelled recordings
+    is not below the first fit's: the piezo triangles' levelled fit picked order 2, whose account with switching
+    predicts the 0.01 Hz record at 11 % where order 3's does at 5 % (an order chosen by held-out prediction would
+    settle this; not done: each order is a whole search). Its search optimises on the diagnosis' samples (`SAMPLES`,
+    `_share`: long separate runs decimated, every input reversal kept; on one clock, or within the share, the same
+    samples as `duhem fit`): on the four creep trapezoids (4 x 5000 samples) the two searches at `duhem fit`'s 3000
+    samples per run took 504 s of a 937 s diagnosis."""
     share = _share(ex)
     first = fit_recordings(ex.recordings, kind="ri", order=order, max_samples=share)
-    if not ex.separate or len(ex.recordings) < 2:
-        return first
     refined = fit_base(ex, first.model, mask)
     refs = output_references(refined, ex)
     if refs is None:
-        return first
+        return first, refined
     level = [Recording(r.t, r.u, r.y - refs[r.name], r.name, r.input, r.output, r.source) for r in ex.recordings]
     levelled = fit_recordings(level, kind="ri", order=order, max_samples=share)
     if levelled.model.order < first.model.order:
         levelled = fit_recordings(level, kind="ri", order=first.model.order, max_samples=share)
-    return levelled if fit_base(ex, levelled.model, mask).rss <= refined.rss else first
+    again = fit_base(ex, levelled.model, mask)
+    return (levelled, again) if again.rss <= refined.rss else (first, refined)
 
 
 def _grid_basis(ex: JoinedExperiment, a: float) -> np.ndarray:

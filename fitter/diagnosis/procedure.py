@@ -242,8 +242,10 @@ def diagnose(
         base, first_round, alternative, below = adequate_base(ex, first, mask, noise, candidates, alpha, tick)
     else:
         if model is None and base_order != 1:
-            model = duhem_fit(ex, mask, base_order).model
-        base, first_round = (first if model is None else fit_base(ex, model, mask)), None
+            base = duhem_fit(ex, mask, base_order)[1]
+        else:
+            base = first if model is None else fit_base(ex, model, mask)
+        first_round = None
     account = _refined(
         ex,
         _search(

@@ -70,12 +70,12 @@ def candidate_round(
     results = parallel_map(one, list(names))
     if any("held_out_rss" in rep for rep, _ in results):
         without = held_out_rss(ex, current, mask)
-        null = {name: REGISTRY[name].null(ex.effect_context(float(np.mean(ex.y)))) for name in names}
+        ctx = ex.effect_context(float(np.mean(ex.y)))
         for rep, _ in results:
             if "held_out_rss" in rep:
                 rep["held_out_rss_without"] = without.tolist()
                 rep["confirmed_held_out"] = confirmed(np.array(rep["held_out_rss"]), without)
-                rep["significant"] = rep["confirmed_held_out"] and determined(rep, null[rep["effect"]])
+                rep["significant"] = rep["confirmed_held_out"] and determined(rep, REGISTRY[rep["effect"]].null(ctx))
     for rep, fit in results:
         name = rep["effect"]
         if rep["significant"] and REGISTRY[name].memory_taus(rep["parameters"]) is not None:
