@@ -5,11 +5,20 @@ import json
 import numpy as np
 import pytest
 
-from fitter.core import CallableRate, RateDependentModel, load_model, save_model, simulate
+from fitter.core import (
+    CallableRate,
+    ConvergenceError,
+    RateDependentModel,
+    load_model,
+    periodic_response,
+    save_model,
+    simulate,
+)
 from fitter.identification.rd_triangles import ESTIMATORS, bilinear_d2c, identify_rd_triangles
 from fitter.identification.triangle_waves import (
     TriangleWave,
     periodic_triangle_output,
+    periodic_triangle_outputs,
     triangle_response,
     triangle_wave,
 )
@@ -94,6 +103,57 @@ def test_periodic_triangle_output_is_the_limit_of_a_long_simulation():
     last = t >= 11 * 8.0 - 1e-9
     np.testing.assert_allclose(y_long[last], y_periodic[last], atol=1e-9)
     assert np.abs(y_long[:5] - y_periodic[:5]).max() > 1e-3  # the long run starts off the limit
+
+
+def _kernel_periodic_output(model, wave, t):
+    """The kernel's limiting periodic response over the sorted phases and the corners (the stepping path)."""
+    tau = wave.phase(t)
+    grid, inverse = np.unique(np.r_[tau, 0.0, wave.Ta, wave.T], return_inverse=True)
+    return periodic_response(model, grid, wave.value_at_phase(grid)).sim.y[inverse[: len(tau)]]
+
+
+CLOSED_FORM_MODELS = {
+    "first order": asym_model(),
+    "real modes, E and D": RateDependentModel(
+        A=[[-1.0, 0.3], [0.2, -2.5]], B=[0.7, -0.4], C=[1.0, 0.5], E=[0.1, -0.2], D=0.3, g=CallableRate(g_asym)
+    ),
+    "complex modes": RateDependentModel(
+        A=[[-0.4, 2.0, 0.0], [-2.0, -0.4, 0.0], [0.0, 0.0, -3.0]],
+        B=[1.0, 0.5, -0.3],
+        C=[0.2, 1.0, 0.7],
+        E=[0.0, 0.1, 0.05],
+        D=-0.1,
+        g=CallableRate(g_asym),
+    ),
+}
+
+
+@pytest.mark.parametrize("name", CLOSED_FORM_MODELS)
+def test_closed_form_periodic_output_is_the_kernels(name):
+    """The closed form (every phase from its half's corner) against the kernel's periodic response: the same
+    exact solution, to 1e-10 of the output range; at asymmetric slopes, off-grid phases and corners."""
+    model = CLOSED_FORM_MODELS[name]
+    wave = TriangleWave(a=0.7, b=-1.9, u_lo=-1.5, u_hi=2.5, t_min=0.37)
+    t = np.r_[np.sort(np.random.default_rng(0).uniform(0, 3 * wave.T, 400)), wave.t_min + wave.Ta, wave.t_min]
+    y = periodic_triangle_output(model, wave, t)
+    y_kernel = _kernel_periodic_output(model, wave, t)
+    assert np.abs(y - y_kernel).max() <= 1e-10 * np.ptp(y_kernel)
+    twice = periodic_triangle_outputs(model, [wave, wave], [t, t[:50]], [(0.2, 3.0), tuple(g_asym([0.7, -1.9]))])
+    assert np.abs(twice[1] - y[:50]).max() <= 1e-10 * np.ptp(y_kernel)
+    other = _kernel_periodic_output(model.replace(g=CallableRate(lambda v: np.where(v > 0, 0.2, 3.0))), wave, t)
+    assert np.abs(twice[0] - other).max() <= 1e-10 * np.ptp(other) and np.abs(other - y).max() > 1e-3
+
+
+def test_closed_form_periodic_output_refuses_a_divergent_model_and_falls_back_where_g_vanishes():
+    unstable = RateDependentModel(A=[[0.5]], B=[1.0], C=[1.0], g=CallableRate(g_asym))
+    wave = TriangleWave(a=1.0, b=-1.0, u_lo=-1.0, u_hi=1.0)
+    t = np.linspace(0, 4, 41)
+    with pytest.raises(ConvergenceError, match="condition \\(5\\)"):
+        periodic_triangle_output(unstable, wave, t)
+    assert periodic_triangle_outputs(unstable, [wave], [t], [(1.0, 1.0)]) == [None]
+    stalled = asym_model().replace(g=CallableRate(lambda v: np.where(v > 0, 1.0, 0.0)))  # frozen while falling
+    y = periodic_triangle_output(stalled, wave, t)
+    np.testing.assert_allclose(y, _kernel_periodic_output(stalled, wave, t), atol=1e-12)
 
 
 # ----------------------------------------------------------------------------- bilinear transform (35)-(36)

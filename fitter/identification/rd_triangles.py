@@ -87,12 +87,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.sparse import lil_matrix
 
-from fitter.core import CallableRate, ConvergenceError, KernelError, RateDependentModel, TabulatedRate
+from fitter.core import ConvergenceError, RateDependentModel, TabulatedRate
 from fitter.identification.output_error import FAIL
 from fitter.identification.refine import Options, refine
 from fitter.identification.parametrisation import Parametrisation
 from fitter.identification.triangle_records import TOL, Record, fail, parse_record
-from fitter.identification.triangle_waves import periodic_triangle_output
+from fitter.identification.triangle_waves import periodic_triangle_outputs, two_level_rate
 
 __all__ = ["ESTIMATORS", "identify_rd_triangles", "RDIdentification", "WaveFit", "bilinear_d2c"]
 
@@ -250,10 +250,6 @@ class RDIdentification:
 # ----------------------------------------------------------------------------- estimators
 
 
-def _two_level_rate(g_plus: float, g_minus: float) -> CallableRate:
-    return CallableRate(lambda v: np.where(v > 0, g_plus, np.where(v < 0, g_minus, 0.0)))
-
-
 def _model(A, B, C, g) -> RateDependentModel:
     return RateDependentModel(A=A, B=B, C=C, g=g)
 
@@ -319,8 +315,8 @@ def _ramp_exact_start(recs: list[Record], order: int):
 
 class _WaveParameters(Parametrisation):
     """Parameters of the improved estimator, step 3: theta = [alpha (n), beta (n), g_plus of
-    waves 2..p, g_minus of waves 1..p]; `build` gives one model per wave, the common (A, B, C)
-    of the canonical form (49) with the two-level rate function of that wave."""
+    waves 2..p, g_minus of waves 1..p]; `common` gives the common (A, B, C) of the canonical form (49)
+    and each wave's two rates (the wave's model is (A, B, C) with `two_level_rate` of them)."""
 
     def __init__(self, order: int, waves: int):
         self.n, self.p = order, waves
@@ -336,10 +332,11 @@ class _WaveParameters(Parametrisation):
     def pack(self, alpha, beta, gp, gm) -> np.ndarray:
         return np.r_[alpha, beta, gp[1:], gm]
 
-    def build(self, theta: np.ndarray) -> list[RateDependentModel]:
+    def common(self, theta: np.ndarray) -> tuple[RateDependentModel, list[tuple[float, float]]]:
+        """The common (A, B, C) as a model (its g the first wave's) and each wave's (g_plus, g_minus)."""
         alpha, beta, gp, gm = self.unpack(theta)
         A, B, C = _canonical(alpha, beta)
-        return [_model(A, B, C, _two_level_rate(a, b)) for a, b in zip(gp, gm)]
+        return _model(A, B, C, two_level_rate(gp[0], gm[0])), list(zip(gp, gm))
 
     def sparsity(self, sizes: list[int]) -> lil_matrix:
         """Block structure of the Jacobian: wave i depends on (alpha, beta) and its own g values."""
@@ -375,29 +372,27 @@ class _WaveRecords:
 
     def residuals(self, param: _WaveParameters, theta: np.ndarray):
         """y - yhat stacked over the records (the engine's failure value where a record's
-        periodic response does not exist), the per-wave models and the per-record residuals."""
-        models = param.build(theta)
-        parts = []
-        for rec, model in zip(self.recs, models):
-            try:
-                parts.append(rec.y - periodic_triangle_output(model, rec.wave, rec.t))
-            except (ConvergenceError, KernelError, np.linalg.LinAlgError):
-                parts.append(np.full(len(rec.y), FAIL * max(float(np.ptp(rec.y)), 1e-300)))
-        return np.concatenate(parts), models, [(0, None, r, np.nan, None) for r in parts]
+        periodic response does not exist), the common model (`_WaveParameters.common`) and the per-record
+        residuals."""
+        model, rates = param.common(theta)
+        outputs = periodic_triangle_outputs(model, [r.wave for r in self.recs], [r.t for r in self.recs], rates)
+        parts = [
+            rec.y - y if y is not None else np.full(len(rec.y), FAIL * max(float(np.ptp(rec.y)), 1e-300))
+            for rec, y in zip(self.recs, outputs)
+        ]
+        return np.concatenate(parts), model, [(0, None, r, np.nan, None) for r in parts]
 
     def best_beta(self, param: _WaveParameters, alpha, gp, gm) -> np.ndarray:
         """Variable projection: the periodic response is linear in B for fixed A and g."""
         n = param.n
         A, _, C = _canonical(alpha, np.zeros(n))
-        cols = [
-            np.concatenate(
-                [
-                    periodic_triangle_output(_model(A, e, C, _two_level_rate(gp[i], gm[i])), rec.wave, rec.t)
-                    for i, rec in enumerate(self.recs)
-                ]
-            )
-            for e in np.eye(n)
-        ]
+        waves, times, rates = [r.wave for r in self.recs], [r.t for r in self.recs], list(zip(gp, gm))
+        cols = []
+        for e in np.eye(n):
+            outputs = periodic_triangle_outputs(_model(A, e, C, two_level_rate(gp[0], gm[0])), waves, times, rates)
+            if any(y is None for y in outputs):
+                raise ConvergenceError("the start's A has no limiting periodic response (condition (5) fails)")
+            cols.append(np.concatenate(outputs))
         return _lstsq(np.column_stack(cols), np.concatenate([r.y for r in self.recs]))
 
 
