@@ -18,7 +18,7 @@ from fitter.identification.rd_triangles import ESTIMATORS, bilinear_d2c, identif
 from fitter.identification.triangle_waves import (
     TriangleWave,
     periodic_triangle_output,
-    periodic_triangle_outputs,
+    TriangleSamples,
     triangle_response,
     triangle_wave,
 )
@@ -138,7 +138,7 @@ def test_closed_form_periodic_output_is_the_kernels(name):
     y = periodic_triangle_output(model, wave, t)
     y_kernel = _kernel_periodic_output(model, wave, t)
     assert np.abs(y - y_kernel).max() <= 1e-10 * np.ptp(y_kernel)
-    twice = periodic_triangle_outputs(model, [wave, wave], [t, t[:50]], [(0.2, 3.0), tuple(g_asym([0.7, -1.9]))])
+    twice = TriangleSamples([wave, wave], [t, t[:50]]).outputs(model, [(0.2, 3.0), tuple(g_asym([0.7, -1.9]))])
     assert np.abs(twice[1] - y[:50]).max() <= 1e-10 * np.ptp(y_kernel)
     other = _kernel_periodic_output(model.replace(g=CallableRate(lambda v: np.where(v > 0, 0.2, 3.0))), wave, t)
     assert np.abs(twice[0] - other).max() <= 1e-10 * np.ptp(other) and np.abs(other - y).max() > 1e-3
@@ -150,7 +150,7 @@ def test_closed_form_periodic_output_refuses_a_divergent_model_and_falls_back_wh
     t = np.linspace(0, 4, 41)
     with pytest.raises(ConvergenceError, match="condition \\(5\\)"):
         periodic_triangle_output(unstable, wave, t)
-    assert periodic_triangle_outputs(unstable, [wave], [t], [(1.0, 1.0)]) == [None]
+    assert TriangleSamples([wave], [t]).outputs(unstable, [(1.0, 1.0)]) == [None]
     stalled = asym_model().replace(g=CallableRate(lambda v: np.where(v > 0, 1.0, 0.0)))  # frozen while falling
     y = periodic_triangle_output(stalled, wave, t)
     np.testing.assert_allclose(y, _kernel_periodic_output(stalled, wave, t), atol=1e-12)

@@ -85,14 +85,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.sparse import lil_matrix
 
 from fitter.core import ConvergenceError, RateDependentModel, TabulatedRate
 from fitter.identification.output_error import FAIL
 from fitter.identification.refine import Options, refine
 from fitter.identification.parametrisation import Parametrisation
 from fitter.identification.triangle_records import TOL, Record, fail, parse_record
-from fitter.identification.triangle_waves import periodic_triangle_outputs, two_level_rate
+from fitter.identification.triangle_waves import TriangleSamples, two_level_rate
 
 __all__ = ["ESTIMATORS", "identify_rd_triangles", "RDIdentification", "WaveFit", "bilinear_d2c"]
 
@@ -338,26 +337,31 @@ class _WaveParameters(Parametrisation):
         A, B, C = _canonical(alpha, beta)
         return _model(A, B, C, two_level_rate(gp[0], gm[0])), list(zip(gp, gm))
 
-    def sparsity(self, sizes: list[int]) -> lil_matrix:
-        """Block structure of the Jacobian: wave i depends on (alpha, beta) and its own g values."""
+    def groups(self) -> list[np.ndarray]:
+        """Columns of theta that forward differences can move together (`_WaveRecords.jacobian`): each of
+        alpha and beta alone, then all g_plus, then all g_minus (wave i depends on its own rates only)."""
         n, p = self.n, self.p
-        offsets = np.r_[0, np.cumsum(sizes)]
-        S = lil_matrix((offsets[-1], self.size), dtype=int)
-        for i in range(p):
-            rows = slice(offsets[i], offsets[i + 1])
-            S[rows, : 2 * n] = 1
-            if i > 0:
-                S[rows, 2 * n + i - 1] = 1
-            S[rows, 2 * n + p - 1 + i] = 1
-        return S
+        return [np.array([j]) for j in range(2 * n)] + [2 * n + np.arange(p - 1), 2 * n + p - 1 + np.arange(p)]
+
+    def wave_of(self, column: int) -> int | None:
+        """The wave whose rate is theta[column], None for alpha and beta."""
+        n, p = self.n, self.p
+        if column < 2 * n:
+            return None
+        return column - 2 * n + 1 if column < 2 * n + p - 1 else column - (2 * n + p - 1)
 
 
 @dataclass
 class _WaveRecords:
     """The output-error problem of the improved estimator: every sample of every record
-    against the model's limiting periodic output (`periodic_triangle_output`)."""
+    against the model's limiting periodic output (`TriangleSamples`, laid out once)."""
 
     recs: list[Record]
+    samples: TriangleSamples = field(init=False)
+    _last: tuple = field(init=False, default=(None, None))
+
+    def __post_init__(self):
+        self.samples = TriangleSamples([r.wave for r in self.recs], [r.t for r in self.recs])
 
     @property
     def sizes(self) -> list[int]:
@@ -375,21 +379,44 @@ class _WaveRecords:
         periodic response does not exist), the common model (`_WaveParameters.common`) and the per-record
         residuals."""
         model, rates = param.common(theta)
-        outputs = periodic_triangle_outputs(model, [r.wave for r in self.recs], [r.t for r in self.recs], rates)
+        outputs = self.samples.outputs(model, rates)
         parts = [
             rec.y - y if y is not None else np.full(len(rec.y), FAIL * max(float(np.ptp(rec.y)), 1e-300))
             for rec, y in zip(self.recs, outputs)
         ]
-        return np.concatenate(parts), model, [(0, None, r, np.nan, None) for r in parts]
+        stacked = np.concatenate(parts)
+        self._last = (theta.copy(), stacked)
+        return stacked, model, [(0, None, r, np.nan, None) for r in parts]
+
+    def jacobian(self, param: _WaveParameters, theta: np.ndarray) -> np.ndarray:
+        """Forward differences of `residuals` (steps 1e-6 (1 + |theta_j|), as `refine.jacobian`) in
+        2 n + 2 evaluations (Curtis, Powell and Reid's column grouping, `_WaveParameters.groups`): the rates
+        of all waves move at once, and each wave's rows take the difference of its own rate.  The residuals
+        at theta are those of the last evaluation when it was at theta (the optimiser evaluates there first)."""
+        r0 = self._last[1] if np.array_equal(self._last[0], theta) else self.residuals(param, theta)[0]
+        wave_of_row = self.samples.wave_of
+        h = 1e-6 * (1.0 + np.abs(theta))
+        J = np.zeros((len(r0), param.size))
+        for group in param.groups():
+            th = theta.copy()
+            th[group] += h[group]
+            d = self.residuals(param, th)[0] - r0
+            if len(group) == 1:
+                J[:, group[0]] = d / h[group[0]]
+                continue
+            for j in group:
+                rows = wave_of_row == param.wave_of(j)
+                J[rows, j] = d[rows] / h[j]
+        return J
 
     def best_beta(self, param: _WaveParameters, alpha, gp, gm) -> np.ndarray:
         """Variable projection: the periodic response is linear in B for fixed A and g."""
         n = param.n
         A, _, C = _canonical(alpha, np.zeros(n))
-        waves, times, rates = [r.wave for r in self.recs], [r.t for r in self.recs], list(zip(gp, gm))
+        rates = list(zip(gp, gm))
         cols = []
         for e in np.eye(n):
-            outputs = periodic_triangle_outputs(_model(A, e, C, two_level_rate(gp[0], gm[0])), waves, times, rates)
+            outputs = self.samples.outputs(_model(A, e, C, two_level_rate(gp[0], gm[0])), rates)
             if any(y is None for y in outputs):
                 raise ConvergenceError("the start's A has no limiting periodic response (condition (5) fails)")
             cols.append(np.concatenate(outputs))
@@ -409,7 +436,7 @@ def _improved(recs: list[Record], order: int):
         param.pack(alpha0, beta0, g0[:, 0], g0[:, 1]),
         problem,
         _OPTIONS,
-        jac_sparsity=param.sparsity(problem.sizes),
+        jac=lambda theta: problem.jacobian(param, theta),
     )
     alpha, beta, gp, gm = param.unpack(res.theta)
     waves = [

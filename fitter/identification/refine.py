@@ -148,7 +148,6 @@ def refine(
     *,
     penalty: Callable[[np.ndarray], np.ndarray] | None = None,
     free: np.ndarray | None = None,
-    jac_sparsity=None,
     jac: Callable[[np.ndarray], np.ndarray] | None = None,
     progress: Progress = silent,
 ) -> RefineResult:
@@ -165,7 +164,6 @@ def refine(
     penalty : optional theta -> extra residuals (e.g. a convergence barrier), of the theta whose residuals they
         join: with elimination, its linear entries at their least-squares values.
     free : boolean mask of the entries of theta that move (default all).
-    jac_sparsity : sparsity structure of the Jacobian (scipy's argument).
     jac : optional theta -> Jacobian of the problem's residuals in all entries of theta (a problem that
         differentiates more cheaply than by plain forward differences); not with a penalty or elimination.
     progress : `fitter.progress.Progress`, called with a one-line status at the end.
@@ -187,7 +185,6 @@ def refine(
             xtol=options.xtol,
             gtol=options.gtol,
             max_nfev=options.max_nfev,
-            jac_sparsity=jac_sparsity if jac is None else None,
         )
     progress(f"output-error refinement: cost {sol.cost:.4g} after {sol.nfev} evaluations", None)
     theta = obj.full_theta(sol.x)

@@ -20,7 +20,7 @@ __all__ = [
     "triangle_wave",
     "triangle_response",
     "periodic_triangle_output",
-    "periodic_triangle_outputs",
+    "TriangleSamples",
     "two_level_rate",
 ]
 
@@ -100,48 +100,83 @@ def periodic_triangle_output(model: RateDependentModel, wave: TriangleWave, t: n
 
     The times are folded into one period [0, T) from a minimum.  A model without effects whose A is
     diagonalisable and whose rate is positive at both slopes is solved in closed form
-    (`_closed_form_states`); otherwise `periodic_response` over the sorted phases plus the corners
+    (`TriangleSamples`); otherwise `periodic_response` over the sorted phases plus the corners
     (0, T_a, T) gives every sample.  Both are exact at every sample (the input is linear between the
     corners) and agree to rounding (tests/test_rd_identification.py).  Raises `ConvergenceError` when
     rho >= 1.
     """
-    tau = wave.phase(t)
     fl = _closed_form_flow(model)
     rates = None if fl is None else _rates(model, wave)
     if rates is None:
+        tau = wave.phase(t)
         grid, inverse = np.unique(np.r_[tau, 0.0, wave.Ta, wave.T], return_inverse=True)
         y = periodic_response(model, grid, wave.value_at_phase(grid)).sim.y
         return y[inverse[: len(tau)]]
-    (X,) = _closed_form_states(fl, [wave], [rates], [tau])
-    if X is None:
+    (y,) = TriangleSamples([wave], [t]).outputs(model, [rates], fl)
+    if y is None:
         raise ConvergenceError(
             "no limiting periodic map: spectral radius of the period map is >= 1 (condition (5) of Theorem 1 fails)"
         )
-    return model.output(X, wave.value_at_phase(tau))
+    return y
 
 
-def periodic_triangle_outputs(
-    model: RateDependentModel,
-    waves: Sequence[TriangleWave],
-    times: Sequence[np.ndarray],
-    rates: Sequence[tuple[float, float]],
-) -> list[np.ndarray | None]:
-    """`periodic_triangle_output` of the model's A, B, E, C, D under each wave at its times, wave i with the
-    rates ``rates[i]`` = (g(a_i), g(b_i)) at its two slopes (the model's own g is not used); None where there
-    is no limiting periodic output.
+class TriangleSamples:
+    """The samples of one or more triangle waves, laid out once for the closed-form periodic output of
+    many models (an estimator's evaluations): per sample its wave, its half and the time since that
+    half's corner, and its input.
 
-    Every sample of every wave is solved in one pass in closed form (`_closed_form_states`) where it
-    applies; otherwise each wave as `periodic_triangle_output` solves it, with the two-level rate
-    `two_level_rate` of its rates."""
-    taus = [w.phase(t) for w, t in zip(waves, times)]
-    fl = _closed_form_flow(model)
-    if fl is None or not all(np.isfinite(r).all() and min(r) > 0 for r in rates):
-        return [
-            _or_none(periodic_triangle_output, model.replace(g=two_level_rate(*r)), w, t)
-            for w, t, r in zip(waves, times, rates)
-        ]
-    states = _closed_form_states(fl, waves, rates, taus)
-    return [None if X is None else model.output(X, w.value_at_phase(tau)) for w, tau, X in zip(waves, taus, states)]
+    Closed form: on each half of a wave the rate v is constant, so eq (18) is the affine ODE (K) of
+    `fitter.core.flow` with s = g(v) tau: from the half's corner (p the corner's input, r = v / g(v),
+    S = g(v) (tau - corner)) the modal state is w(S) = e^{lambda S} w(0) + f(S) at every phase at once
+    (`AffineFlow.modal_terms`).  The period map is diagonal, w(T) = e^{z_a + z_b} w(0) + e^{z_b} f_a + f_b,
+    so its fixed point is w(0) = (e^{z_b} f_a + f_b) / (1 - e^{z_a + z_b}) elementwise and rho the largest
+    |e^{z_a + z_b}| (condition (5) of Theorem 1).
+    """
+
+    def __init__(self, waves: Sequence[TriangleWave], times: Sequence[np.ndarray]):
+        self.waves, self.times = list(waves), list(times)
+        taus = [w.phase(t) for w, t in zip(waves, times)]
+        self.ends = np.cumsum([0] + [len(tau) for tau in taus])
+        self.wave_of = np.repeat(np.arange(len(taus)), np.diff(self.ends))
+        self.up = np.concatenate([tau <= w.Ta for w, tau in zip(waves, taus)])
+        self.corners = np.array([[w.u_lo, w.a, w.Ta] for w in waves] + [[w.u_hi, w.b, w.Tb] for w in waves])
+        Ta = self.corners[: len(taus), 2]
+        self.since = np.concatenate(taus) - np.where(self.up, 0.0, Ta[self.wave_of])
+        self.half = np.where(self.up, self.wave_of, self.wave_of + len(taus))
+        self.u = np.concatenate([w.value_at_phase(tau) for w, tau in zip(waves, taus)])
+
+    def outputs(
+        self, model: RateDependentModel, rates: Sequence[tuple[float, float]], fl: AffineFlow | None = None
+    ) -> list[np.ndarray | None]:
+        """The periodic output of the model's A, B, E, C, D under each wave, wave i with the rates
+        ``rates[i]`` = (g(a_i), g(b_i)) at its two slopes (the model's own g is not used); None where there
+        is no limiting periodic output.  In closed form where it applies; otherwise each wave as
+        `periodic_triangle_output` solves it with the two-level rate `two_level_rate` of its rates."""
+        g = np.asarray(rates, dtype=float).reshape(-1, 2)
+        fl = _closed_form_flow(model) if fl is None else fl
+        if fl is None or not (np.all(np.isfinite(g)) and np.all(g > 0)):
+            return [
+                _or_none(periodic_triangle_output, model.replace(g=two_level_rate(*r)), w, t)
+                for w, t, r in zip(self.waves, self.times, g)
+            ]
+        X, rho = self._states(fl, np.r_[g[:, 0], g[:, 1]])
+        y = model.output(X, self.u)
+        return [y[a:b] if r < 1 else None for a, b, r in zip(self.ends[:-1], self.ends[1:], rho)]
+
+    def _states(self, fl: AffineFlow, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The periodic states at every sample (class docstring) and each wave's rho; `g` the rates of the
+        rising halves, then of the falling ones."""
+        P = len(self.waves)
+        p, v, span = self.corners.T
+        z, f = fl.modal_terms(p, v / g, g * span)
+        with np.errstate(over="ignore", invalid="ignore"):
+            decay = np.exp(z[:P] + z[P:])
+            w_lo = (np.exp(z[P:]) * f[:P] + f[P:]) / (1.0 - decay)
+            starts = np.vstack([w_lo, np.exp(z[:P]) * w_lo + f[:P]])
+            h = self.half
+            zs, fs = fl.modal_terms(p[h], v[h] / g[h], g[h] * self.since)
+            W = np.exp(zs) * starts[h] + fs
+        return (W @ fl.V.T).real, np.max(np.abs(decay), axis=1)
 
 
 def two_level_rate(g_plus: float, g_minus: float) -> CallableRate:
@@ -170,42 +205,6 @@ def _rates(model: RateDependentModel, wave: TriangleWave) -> tuple[float, float]
     """(g(a), g(b)) of the wave's two slopes, None unless both are finite and positive."""
     g = np.asarray(model.g(np.array([wave.a, wave.b])), dtype=float)
     return (float(g[0]), float(g[1])) if np.all(np.isfinite(g)) and np.all(g > 0) else None
-
-
-def _closed_form_states(
-    fl: AffineFlow, waves: Sequence[TriangleWave], rates: Sequence[tuple[float, float]], taus: Sequence[np.ndarray]
-) -> list[np.ndarray | None]:
-    """The periodic states at the phases `taus` of each wave without stepping from sample to sample (None
-    where rho >= 1).
-
-    On each half of a wave the rate v is constant, so eq (18) is the affine ODE (K) of `fitter.core.flow`
-    with s = g(v) tau: from the half's corner (p the corner's input, r = v / g(v), S = g(v) (tau - corner))
-    the modal state is w(S) = e^{lambda S} w(0) + f(S) at every phase at once (`AffineFlow.modal_terms`).
-    The period map is diagonal, w(T) = e^{z_a + z_b} w(0) + e^{z_b} f_a + f_b, so its fixed point is
-    w(0) = (e^{z_b} f_a + f_b) / (1 - e^{z_a + z_b}) elementwise and rho the largest |e^{z_a + z_b}|
-    (condition (5) of Theorem 1)."""
-    P = len(waves)
-    lo = np.array([[w.u_lo, w.a / g[0], g[0]] for w, g in zip(waves, rates)])
-    hi = np.array([[w.u_hi, w.b / g[1], g[1]] for w, g in zip(waves, rates)])
-    spans = np.r_[[w.Ta for w in waves], [w.Tb for w in waves]]
-    both = np.vstack([lo, hi])
-    z, f = fl.modal_terms(both[:, 0], both[:, 1], both[:, 2] * spans)
-    with np.errstate(over="ignore", invalid="ignore"):
-        decay = np.exp(z[:P] + z[P:])
-        rho = np.max(np.abs(decay), axis=1)
-        w_lo = (np.exp(z[P:]) * f[:P] + f[P:]) / (1.0 - decay)
-        w_hi = np.exp(z[:P]) * w_lo + f[:P]
-    rising = [tau <= w.Ta for w, tau in zip(waves, taus)]
-    wave_of = np.concatenate([np.full(len(tau), i) for i, tau in enumerate(taus)])
-    up = np.concatenate(rising)
-    coef = np.where(up[:, None], lo[wave_of], hi[wave_of])
-    since = np.concatenate(taus) - np.where(up, 0.0, np.array([w.Ta for w in waves])[wave_of])
-    zs, fs = fl.modal_terms(coef[:, 0], coef[:, 1], coef[:, 2] * since)
-    with np.errstate(over="ignore", invalid="ignore"):
-        W = np.exp(zs) * np.where(up[:, None], w_lo[wave_of], w_hi[wave_of]) + fs
-    X = (W @ fl.V.T).real
-    ends = np.cumsum([0] + [len(tau) for tau in taus])
-    return [X[ends[i] : ends[i + 1]] if rho[i] < 1 else None for i in range(P)]
 
 
 def triangle_response(

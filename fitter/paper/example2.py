@@ -14,7 +14,8 @@ identified model is A_hat = g(a_1) A = -0.25, B_hat = 0.25, g_hat = 4 g.
 
 from __future__ import annotations
 
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Executor, ProcessPoolExecutor
+from typing import Iterator, Sequence
 
 import numpy as np
 
@@ -33,6 +34,7 @@ __all__ = [
     "g_true",
     "true_model",
     "records",
+    "seed_runs",
     "run_example2",
     "plot_example2",
 ]
@@ -94,23 +96,32 @@ def _median(runs: list[dict], est: str, key: str) -> float:
     return float(np.median([r[est][key] for r in runs]))
 
 
-def run_example2(seeds: int = 20, workers: int = 2) -> dict:
+def seed_runs(seeds: int, pool: Executor | None = None) -> Iterator[dict]:
+    """`_seed_run` of seeds 0..seeds-1, submitted to `pool` at once when one is given (so that the caller can
+    do other work while they run), else run one by one as the iterator is consumed."""
+    if seeds < 1:
+        raise ValueError(f"seeds must be >= 1, got {seeds}")
+    return pool.map(_seed_run, range(seeds)) if pool is not None else map(_seed_run, range(seeds))
+
+
+def run_example2(seeds: int = 20, workers: int = 2, runs: Sequence[dict] | None = None) -> dict:
     """Noise-free and noisy (seeds 0..seeds-1) identification with both estimators.
 
     JSON-able: per estimator the noise-free summary, the per-seed A_hat, B_hat,
     worst relative g error, their medians over the seeds, and the sine-loop
     errors (max |y_id - y_true| / y-range, limiting periodic responses) of the
-    noise-free and the seed-0 models.  Seeds run in `workers` processes.
+    noise-free and the seed-0 models.  Seeds run in `workers` processes, unless
+    `runs` gives their results (`seed_runs`, started by the caller).
     """
-    if seeds < 1:
-        raise ValueError(f"seeds must be >= 1, got {seeds}")
+    if runs is None:
+        if workers > 1 and seeds > 1:
+            with ProcessPoolExecutor(max_workers=workers) as pool:
+                runs = list(seed_runs(seeds, pool))
+        else:
+            runs = list(seed_runs(seeds))
+    seeds = len(runs)
     clean = records(0.0)
     fits = {est: identify_rd_triangles(clean, estimator=est) for est in ESTIMATORS}
-    if workers > 1 and seeds > 1:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            runs = list(pool.map(_seed_run, range(seeds)))
-    else:
-        runs = [_seed_run(s) for s in range(seeds)]
     true = true_model()
     out = {
         "settings": {

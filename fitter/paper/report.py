@@ -12,6 +12,8 @@ done-when check fails.
 from __future__ import annotations
 
 import time
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Sequence
 
@@ -90,9 +92,14 @@ def run(seeds: int = DEFAULT_SEEDS, figures_dir: str | None = None, workers: int
     t0 = time.perf_counter()
     if figures_dir is not None:
         Path(figures_dir).mkdir(parents=True, exist_ok=True)
-    ex1, figures = _example1(figures_dir)
-    ex2 = example2.run_example2(seeds=seeds, workers=workers)
-    ex3 = example3.run_example3()
+    parallel = workers > 1 and seeds > 1
+    with ProcessPoolExecutor(max_workers=workers) if parallel else nullcontext() as pool:
+        # Example 3 and Example 2's noisy seeds start in the pool; Example 1 (cvxpy's import) runs here meanwhile
+        ex3 = pool.submit(example3.run_example3) if pool is not None else None
+        runs = example2.seed_runs(seeds, pool)
+        ex1, figures = _example1(figures_dir)
+        ex2 = example2.run_example2(runs=list(runs))
+        ex3 = example3.run_example3() if ex3 is None else ex3.result()
     if figures_dir is not None:
         figures += example2.plot_example2(ex2, figures_dir) + example3.plot_example3(ex3, figures_dir)
     result = {
