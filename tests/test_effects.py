@@ -409,6 +409,29 @@ def test_stored_start_is_the_chain_state_at_the_first_sample(make, tmp_path):
     assert stored_start(with_start(back, None)) is None
 
 
+@pytest.mark.parametrize("spread, width", [(0.0, 0.1), (0.03, 0.1), (0.02, 0.004)])
+def test_switching_settles_in_closed_form_as_its_runs_do(spread, width):
+    """`Switching.settle` (each share's affine map over the run) is the state after `SETTLE_RUNS` runs of the
+    chain, with spread shares and with intervals that switch fully (a narrow width: the decay cap)."""
+    from fitter.core.effects import SETTLE_RUNS, run_with_effects, settled_state, with_start
+    from fitter.core.effects.catalogue import switching_rates
+    from fitter.core.kernel import flows
+
+    parameters = dict(REGISTRY["switching"].example, spread1=spread, width1=width, S2=0.1, spread2=spread / 2)
+    model = ri([("switching", parameters), ("measurement_drift", {"rate": 0.1})])
+    t = np.linspace(0.0, 3.0, 301)
+    u = 1.2 * np.sin(2 * np.pi * t / 3)
+    fl, ends = flows(model), None
+    for _ in range(SETTLE_RUNS):
+        ends = run_with_effects(with_start(model, None), t, u, model.x0, fl, ends, base=False)[2]
+    settled = settled_state(model, t, u, model.x0, fl)
+    np.testing.assert_allclose(settled[:-1], ends[:-1], rtol=0, atol=1e-12)
+    assert settled[-1] == 0.0  # the drift starts afresh
+    assert (np.ptp(settled[:16]) > 1e-5) == (spread > 0 and width > 0.01)  # spread shares settle apart
+    total, _ = switching_rates(u, np.diff(t), 0.3, 0.5, -0.5, width)
+    assert (total.max() == 40.0) == (width < 0.01)
+
+
 @pytest.mark.parametrize("name", [name for name, spec in REGISTRY.items() if spec.additive])
 @pytest.mark.parametrize("make", [ri, rd])
 def test_additive_effects_keep_the_output_affine_in_x0_with_the_base_coefficients(name, make):

@@ -217,23 +217,37 @@ _MAX_DECAY = 40.0
 cap keeps the recurrence's chunks (`linear_recurrence`) long over fully switched intervals."""
 
 
-def switching_states(u: np.ndarray, h: np.ndarray, S: float, u_up, u_dn, width: float, s0) -> np.ndarray:
-    """Samples (N, m) of m shares' switched outputs s (module docstring, step 6): thresholds `u_up`, `u_dn`
-    and starts `s0` of shape (m,) (or scalars: m = 1)."""
+def switching_rates(u: np.ndarray, h: np.ndarray, S: float, u_up, u_dn, width: float) -> tuple[np.ndarray, ...]:
+    """Per interval (N - 1, m) and share: the decay exponent T = min(I+ + I-, `_MAX_DECAY`) and the switched
+    output s_eq it decays to (module docstring, step 6): s_{k+1} = e^{-T_k} s_k + (1 - e^{-T_k}) s_eq,k."""
     up, dn = np.atleast_1d(np.asarray(u_up, dtype=float)), np.atleast_1d(np.asarray(u_dn, dtype=float))
-    start = np.broadcast_to(np.asarray(s0, dtype=float), up.shape)
     ua, d = u[:-1, None], (np.diff(u) / width)[:, None]
     log_h = np.log(h)[:, None]
     lp = log_h + (ua - up) / width + _log_exprel(d)
     lm = log_h + (dn - ua) / width + _log_exprel(-d)
     big = np.maximum(lp, lm)
     total = np.minimum(np.exp(np.minimum(big, _MAX_EXPONENT)) * (1.0 + np.exp(np.minimum(lp, lm) - big)), _MAX_DECAY)
-    target = S * np.tanh((lp - lm) / 2)
-    out = np.empty((len(u), len(up)))
+    return total, S * np.tanh((lp - lm) / 2)
+
+
+def switching_states(u: np.ndarray, h: np.ndarray, S: float, u_up, u_dn, width: float, s0) -> np.ndarray:
+    """Samples (N, m) of m shares' switched outputs s (module docstring, step 6): thresholds `u_up`, `u_dn`
+    and starts `s0` of shape (m,) (or scalars: m = 1)."""
+    total, target = switching_rates(u, h, S, u_up, u_dn, width)
+    start = np.broadcast_to(np.asarray(s0, dtype=float), total.shape[1:])
+    out = np.empty((len(u), total.shape[1]))
     out[0] = start
     if len(h):
         out[1:] = linear_recurrence(start, -total, np.exp(-total), -np.expm1(-total) * target)
     return out
+
+
+def switching_period_map(total: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The run of `switching_rates`' intervals as the affine map s_N = P s_0 + c of each share:
+    P = e^{-sum T}, c = sum_k e^{-(T_{k+1} + ... + T_{N-1})} (1 - e^{-T_k}) s_eq,k (every exponent <= 0)."""
+    after = np.cumsum(total[::-1], axis=0)[::-1] - total
+    c = np.sum(np.exp(-after) * -np.expm1(-total) * target, axis=0)
+    return np.exp(-np.sum(total, axis=0)), c
 
 
 SWITCHING_POPULATIONS = 2
@@ -328,6 +342,23 @@ class Switching(EffectSpec):
             for j in range(SWITCHING_NODES):
                 chain.y = chain.y + s[:, j] / SWITCHING_NODES
             ends += s[-1].tolist()
+        return tuple(ends)
+
+    def settle(self, p: dict[str, float], chain: Chain, runs: int) -> tuple:
+        """`runs` runs from afresh by each share's affine map over the run (`switching_period_map`): the
+        switching rates are computed once and no share is stepped from sample to sample."""
+        ends = []
+        for i in range(1, SWITCHING_POPULATIONS + 1):
+            S, shift = p[f"S{i}"], p[f"spread{i}"] * np.array(SWITCHING_NODES_Z)
+            s = np.full(SWITCHING_NODES, p[f"q{i}"] * S)
+            if len(chain.h):
+                up, dn = p[f"u_up{i}"] + shift, p[f"u_dn{i}"] - shift
+                if not shift.any():
+                    up, dn = up[:1], dn[:1]
+                P, c = switching_period_map(*switching_rates(chain.u, chain.h, S, up, dn, p[f"width{i}"]))
+                for _ in range(runs):
+                    s = P * s + c
+            ends += np.broadcast_to(s, SWITCHING_NODES).tolist()
         return tuple(ends)
 
     def bounds(self, ctx: EffectContext) -> dict[str, tuple[float, float]]:

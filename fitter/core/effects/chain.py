@@ -167,14 +167,29 @@ def settled_state(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: dict)
     integrated."""
     fresh, w = with_start(model, None), model.model_input(u)
     present = _present(fresh)
-    base = any(spec.follows_output for spec, _ in present)
-    state = None
-    for _ in range(SETTLE_RUNS):
-        state = run_with_effects(fresh, t, w, x0, fl, state, base=base)[2]
-    if all(spec.steady for spec, _ in present):
-        return state
-    settled, first = _split_state(present, state), _split_state(present, fresh_state(fresh, t, u, x0, fl))
+    settled = _settled_in_closed_form(present, t, w)
+    if settled is None:
+        base, state = any(spec.follows_output for spec, _ in present), None
+        for _ in range(SETTLE_RUNS):
+            state = run_with_effects(fresh, t, w, x0, fl, state, base=base)[2]
+        if all(spec.steady for spec, _ in present):
+            return state
+        settled = _split_state(present, state)
+    first = _split_state(present, fresh_state(fresh, t, u, x0, fl))
     return tuple(v for spec, _ in present for v in (settled if spec.steady else first)[spec.name])
+
+
+def _settled_in_closed_form(present: list, t: np.ndarray, w: np.ndarray) -> dict[str, tuple | None] | None:
+    """Each steady effect's settled state from its own `EffectSpec.settle` (the others' None), or None unless
+    every steady effect has one."""
+    if any(spec.timed for spec, _ in present):
+        check_increasing(t)
+    chain, out = Chain(t=t, u=w, h=np.diff(t), w=w), {}
+    for spec, params in present:
+        out[spec.name] = spec.settle(params, chain, SETTLE_RUNS) if spec.steady else None
+        if spec.steady and out[spec.name] is None:
+            return None
+    return out
 
 
 def _split_state(present: list, state0: EffectState | None) -> dict[str, tuple | None]:

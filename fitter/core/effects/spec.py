@@ -191,6 +191,14 @@ class EffectSpec(ABC):
         `s0` is its state at the first sample (`state` values), None to start afresh.
         """
 
+    def settle(self, p: dict[str, float], chain: Chain, runs: int) -> tuple | None:
+        """Its state after `runs` runs of the chain's samples, the first from afresh and each from the previous
+        run's end (`settled_state`), computed without running them; None (the default): run them.
+
+        Only for a `steady` effect whose state is driven by the chain's t, u and h alone (not by w, r, S or y).
+        """
+        return None
+
     def bounds(self, ctx: EffectContext) -> dict[str, tuple[float, float]]:
         """Fitting bounds in physical units.
 
