@@ -31,11 +31,13 @@ own output range (`_balanced`: the NRMSE each recording is judged by):
    Jacobian; a held-out pair once ran on for over 25 minutes at 3000).
    The screened starts, and the raced refinements, are independent: they run
    on up to `fitter.workers.workers()` forked processes (the same result on
-   any number).  `race_effects` runs steps 1-2 and stops after the race; `RacedEffects.finish`
-   runs the winner on.  `fitter.identification.fit` races one base of each kind
-   so and finishes only the one of lowest BIC after its race (on the piezo
-   triangles the rate-dependent base's finish cost 64 s and ended at 2.8x the
-   rate-independent one's RSS).
+   any number).  `screen_effects` runs step 1 for one base; `race_effects` races
+   the best screened starts among several bases (ranked by the caller's score,
+   a BIC) and stops after the race; `RacedEffects.finish` runs the winner on.
+   `fitter.identification.fit` screens one base of each kind, so that a kind
+   whose screened starts all rank below the other's is not raced (on the piezo
+   triangles the rate-dependent base's race cost 22 s and ended at 2.7x the
+   rate-independent one's RSS), and finishes only the raced one of lowest BIC.
 
 The model is the base with the effects appended (its own effects, such as a
 dead band found in preparation, kept and held), its x0 and its effects'
@@ -65,7 +67,9 @@ from fitter.progress import Progress, silent
 from fitter.workers import parallel_map
 
 __all__ = [
+    "screen_effects",
     "race_effects",
+    "ScreenedEffects",
     "RacedEffects",
     "check_effects",
     "check_held",
@@ -172,16 +176,40 @@ class RacedEffects:
         return with_start(fitted, start).replace(x0=best.x0s[0]), best, self.fam
 
 
-def race_effects(
+@dataclass
+class ScreenedEffects:
+    """One base and the effects after the screening (module docstring, step 1): the parametrisation, the
+    output-error problem, the free entries, the barrier and the screened refinements, best first."""
+
+    fam: WithEffects
+    recordings: Sequence[Recording]
+    problem: Recordings
+    free: np.ndarray
+    pen: Callable[[np.ndarray], np.ndarray] | None
+    screened: list[RefineResult]
+
+    def race(self, k: int, progress: Progress = silent) -> RefineResult:
+        """Screened start k refined with base and effects free for `RACE_NFEV` iterations (step 2)."""
+        progress(f"effects {', '.join(self.fam.effects)}: joint refinement {k + 1}", None)
+        race = replace(OPTIONS, max_nfev=RACE_NFEV)
+        return refine(
+            self.fam, self.screened[k].theta, self.problem, race, free=self.free, penalty=self.pen, progress=progress
+        )
+
+    def raced(self, best: RefineResult) -> RacedEffects:
+        return RacedEffects(self.fam, self.recordings, self.problem, self.free, self.pen, best)
+
+
+def screen_effects(
     model,
     recordings: Sequence[Recording],
     effects: Sequence[str],
     penalty: Callable[[object], np.ndarray] | None = None,
     progress: Progress = silent,
     held: dict[str, float] | None = None,
-) -> RacedEffects:
-    """Steps 1-2 of the module docstring for `model` and `effects` on `recordings`: the screening and the
-    race of the `REFINED` best screened starts (`RacedEffects.finish` completes it).
+) -> ScreenedEffects:
+    """Step 1 of the module docstring for `model` and `effects` on `recordings`: every combination of the
+    effects' starts refined for `SCREEN_NFEV` iterations with the base's A held.
 
     `penalty` maps a candidate model to barrier residuals (zero where it is acceptable); `held`, effect
     parameters held at known values (`check_held`).
@@ -204,14 +232,24 @@ def race_effects(
         return refine(fam, np.r_[base, starts[k]], problem, options, free=screen_free)
 
     screened = sorted(parallel_map(screen, range(len(starts))), key=lambda r: r.rss)
+    return ScreenedEffects(fam, recordings, problem, free, pen, screened)
 
-    def run_race(k: int) -> RefineResult:
-        progress(f"effects {', '.join(names)}: joint refinement {k + 1}", None)
-        race = replace(OPTIONS, max_nfev=RACE_NFEV)
-        return refine(fam, screened[k].theta, problem, race, free=free, penalty=pen, progress=progress)
 
-    runs = parallel_map(run_race, range(min(REFINED, len(screened))))
-    return RacedEffects(fam, recordings, problem, free, pen, min(runs, key=lambda r: _objective(r, pen)))
+def race_effects(
+    bases: Sequence[ScreenedEffects], score: Callable[[int, RefineResult], float], progress: Progress = silent
+) -> list[RacedEffects | None]:
+    """Step 2 across one or more screened bases: the `REFINED` screened starts of lowest `score` (of base i
+    and a refinement: a BIC that counts each base's own parameters) among all bases race, in parallel; per
+    base, its raced refinement of lowest objective, None for a base none of whose starts was among them (it
+    screened worse than the raced ones).  `RacedEffects.finish` completes a race."""
+    entries = sorted((score(i, res), i, k) for i, b in enumerate(bases) for k, res in enumerate(b.screened))
+    chosen = [(i, k) for _, i, k in entries[:REFINED]]
+    runs = parallel_map(lambda ik: bases[ik[0]].race(ik[1], progress), chosen)
+    out: list[RacedEffects | None] = []
+    for i, b in enumerate(bases):
+        mine = [r for (j, _), r in zip(chosen, runs) if j == i]
+        out.append(b.raced(min(mine, key=lambda r: _objective(r, b.pen))) if mine else None)
+    return out
 
 
 def _objective(res: RefineResult, pen: Callable[[np.ndarray], np.ndarray] | None) -> float:

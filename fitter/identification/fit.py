@@ -43,11 +43,11 @@ Pipeline of `fit_recordings`
    in the summary.
 6. **Effects** (``effects``, `fitter.identification.effects_fit`): the best
    rate-independent and the best rate-dependent candidate (lowest BIC within
-   the barrier) are each refined jointly with the named effects of the
-   catalogue on the raw recordings up to the end of their race
-   (`effects_fit.race_effects`); the one of lower BIC on every sample (the
-   effects' parameters counted) is refined on to convergence and kept, and
-   the summary's ``effects`` lists both.  The effect chain of a recording
+   the barrier) are each screened with the named effects of the catalogue on
+   the raw recordings (`effects_fit.screen_effects`); the screened starts of
+   lowest BIC on every sample (the effects' parameters counted) among both
+   race (`effects_fit.race_effects`), the raced one of lower BIC is refined on
+   to convergence and kept, and the summary's ``effects`` lists both kinds.  The effect chain of a recording
    that is a closed loop starts settled on it, and the model stores the
    first recording's (`fitter.identification.effects_fit`).
 
@@ -79,7 +79,7 @@ from fitter.identification.fit_data import (
     prepare_for_fit,
     rate_levels,
 )
-from fitter.identification.effects_fit import check_effects, check_held, race_effects
+from fitter.identification.effects_fit import check_effects, check_held, race_effects, screen_effects
 from fitter.identification.exported import (
     NRMSE_CONVENTION,
     X0_POLICIES,
@@ -419,11 +419,13 @@ def _with_effects(
     held: dict[str, float],
     progress: Progress,
 ) -> _Extended:
-    """Module docstring, item 6: the best candidate of each kind extended by `effects`, each raced
-    (`effects_fit.race_effects`), the one of lowest BIC N ln(RSS/N) + p ln N on every raw sample (p: the
-    base's and the effects' parameters) after its race finished (`RacedEffects.finish`) and kept; ``tried``
-    gives every kind's BIC, the others' at the end of their race (``finished`` false)."""
-    raced = []
+    """Module docstring, item 6: the best candidate of each kind extended by `effects` and screened
+    (`effects_fit.screen_effects`); the screened starts of lowest BIC N ln(RSS/N) + p ln N on every raw
+    sample (p: the base's and the effects' parameters) among both kinds race (`effects_fit.race_effects`),
+    and the raced base of lowest BIC is finished (`RacedEffects.finish`) and kept; ``tried`` gives every
+    kind's BIC, the others' at the end of their race or, when none of their starts raced, of their best
+    screened start (``raced`` false)."""
+    cands, screened = [], []
     for kind in ("ri", "rd"):
         of_kind = [c for c in eligible if c.param.kind == kind]
         if not of_kind:
@@ -431,15 +433,24 @@ def _with_effects(
         cand = min(of_kind, key=lambda c: c.bic)
         progress(f"{kind}{cand.param.n} with {', '.join(effects)}", None)
         base = _base_model(cand, data, recordings)
-        race = race_effects(base, recordings, effects, _physical_barrier(cand.param, data, recordings), progress, held)
-        raced.append((_effects_bic(cand, race.best, race.fam), cand, race))
-    chosen = min(raced, key=lambda r: r[0])
-    model, res, fam = chosen[2].finish(progress)
-    tried = [
-        _tried(cand, race.best, race.fam, False) if race is not chosen[2] else _tried(cand, res, fam, True)
-        for _, cand, race in raced
-    ]
-    return _Extended(chosen[1], model, res, fam, tried)
+        barrier = _physical_barrier(cand.param, data, recordings)
+        cands.append(cand)
+        screened.append(screen_effects(base, recordings, effects, barrier, progress, held))
+    raced = race_effects(screened, lambda i, res: _effects_bic(cands[i], res, screened[i].fam), progress)
+    chosen = min(
+        (i for i, r in enumerate(raced) if r is not None),
+        key=lambda i: _effects_bic(cands[i], raced[i].best, raced[i].fam),
+    )
+    model, res, fam = raced[chosen].finish(progress)
+    tried = []
+    for i, (cand, scr, race) in enumerate(zip(cands, screened, raced)):
+        if i == chosen:
+            tried.append(_tried(cand, res, fam, finished=True, was_raced=True))
+        elif race is not None:
+            tried.append(_tried(cand, race.best, race.fam, finished=False, was_raced=True))
+        else:
+            tried.append(_tried(cand, scr.screened[0], scr.fam, finished=False, was_raced=False))
+    return _Extended(cands[chosen], model, res, fam, tried)
 
 
 def _effects_bic(cand: _Candidate, res: RefineResult, fam: WithEffects) -> float:
@@ -448,7 +459,7 @@ def _effects_bic(cand: _Candidate, res: RefineResult, fam: WithEffects) -> float
     return float(n * np.log(res.rss / n) + (cand.param.size + fam.size - fam.n_base) * np.log(n))
 
 
-def _tried(cand: _Candidate, res: RefineResult, fam: WithEffects, finished: bool) -> dict:
+def _tried(cand: _Candidate, res: RefineResult, fam: WithEffects, finished: bool, was_raced: bool) -> dict:
     """One entry of the summary's ``effects.tried``."""
     n = int(sum(len(r) for r in res.residuals))
     return {
@@ -456,6 +467,7 @@ def _tried(cand: _Candidate, res: RefineResult, fam: WithEffects, finished: bool
         "bic": _effects_bic(cand, res, fam),
         "rss": res.rss,
         "samples": n,
+        "raced": was_raced,
         "finished": finished,
     }
 

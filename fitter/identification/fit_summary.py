@@ -95,9 +95,10 @@ def effects_summary(extended: _Extended, recordings) -> dict:
             k: {"value": v, "stderr": e} for k, v, e in zip(fam.names(), res.theta.tolist(), res.stderr().tolist())
         },
         "optimiser": optimiser(res),
-        "method": "the best rate-independent and rate-dependent candidates each refined jointly with the "
-        "effects by output error up to the end of their race, the one of lower BIC then to convergence ('tried': "
-        "'finished') on every raw sample (x0 fitted per recording; the effects of a "
+        "method": "the best rate-independent and rate-dependent candidates each screened with the effects, "
+        "the screened starts of lowest BIC among both refined jointly by output error up to the end of their race "
+        "('tried': 'raced'), the one of lower BIC then to convergence ('finished') on every raw sample "
+        "(x0 fitted per recording; the effects of a "
         "recording that is a closed loop ('settled') start settled on it, of any other afresh; each "
         "recording's residuals divided by its own output range; rss weighted so); lowest BIC kept; "
         "the model stores the first recording's effect start; 'parameters' are the saved "
