@@ -292,3 +292,40 @@ def test_cli_fit_holds_a_known_parameter(tmp_path):
     )
     assert "held, not fitted: measurement_drift.rate = 0" in text.output
     assert "effect measurement_drift fitted with the base: none of its parameters" in text.output
+
+
+class _Screened:
+    """A stand-in for `ScreenedEffects`: screened results of given costs; its race halves a start's cost."""
+
+    pen = None
+
+    def __init__(self, costs):
+        from types import SimpleNamespace
+
+        self.screened = [SimpleNamespace(cost=cost) for cost in costs]
+        self.raced_starts = []
+
+    def race(self, k, progress):
+        from types import SimpleNamespace
+
+        self.raced_starts.append(k)
+        return SimpleNamespace(cost=self.screened[k].cost / 2)
+
+    def raced(self, best):
+        return best
+
+
+def test_only_the_best_screened_starts_among_the_bases_race(monkeypatch):
+    """`race_effects` races the `REFINED` screened starts of lowest score among all bases: a base none of whose
+    starts ranks among them is not raced (None), and each raced base keeps its raced refinement of lowest cost."""
+    from fitter.identification.effects_fit import REFINED, race_effects
+
+    monkeypatch.setenv("DUHEM_WORKERS", "1")
+    score = lambda i, res: res.cost  # noqa: E731
+    ri, rd = _Screened([1.0, 2.0, 9.0]), _Screened([3.0, 4.0])
+    out = race_effects([ri, rd], lambda i, res: score(i, res))
+    assert REFINED == 2 and ri.raced_starts == [0, 1] and rd.raced_starts == [] and out[1] is None
+    assert out[0].cost == 0.5
+    ri, rd = _Screened([1.0, 5.0]), _Screened([3.0, 2.5])
+    out = race_effects([ri, rd], score)
+    assert ri.raced_starts == [0] and rd.raced_starts == [1] and (out[0].cost, out[1].cost) == (0.5, 1.25)
