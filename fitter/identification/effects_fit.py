@@ -69,6 +69,7 @@ from fitter.workers import parallel_map
 __all__ = [
     "screen_effects",
     "race_effects",
+    "effects_bic",
     "ScreenedEffects",
     "RacedEffects",
     "check_effects",
@@ -250,6 +251,13 @@ def race_effects(
         mine = [r for (j, _), r in zip(chosen, runs) if j == i]
         out.append(b.raced(min(mine, key=lambda r: _objective(r, b.pen))) if mine else None)
     return out
+
+
+def effects_bic(base_size: int, res: RefineResult, fam: WithEffects) -> float:
+    """N ln(RSS/N) + p ln N of a base extended by effects on every sample, p the base's `base_size` parameters
+    and the effects' fitted ones."""
+    n = int(sum(len(r) for r in res.residuals))
+    return float(n * np.log(res.rss / n) + (base_size + fam.size - fam.n_base) * np.log(n))
 
 
 def _objective(res: RefineResult, pen: Callable[[np.ndarray], np.ndarray] | None) -> float:

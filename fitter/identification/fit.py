@@ -79,7 +79,7 @@ from fitter.identification.fit_data import (
     prepare_for_fit,
     rate_levels,
 )
-from fitter.identification.effects_fit import check_effects, check_held, race_effects, screen_effects
+from fitter.identification.effects_fit import check_effects, check_held, effects_bic, race_effects, screen_effects
 from fitter.identification.exported import (
     NRMSE_CONVENTION,
     X0_POLICIES,
@@ -436,40 +436,18 @@ def _with_effects(
         barrier = _physical_barrier(cand.param, data, recordings)
         cands.append(cand)
         screened.append(screen_effects(base, recordings, effects, barrier, progress, held))
-    raced = race_effects(screened, lambda i, res: _effects_bic(cands[i], res, screened[i].fam), progress)
+    sizes = [c.param.size for c in cands]
+    raced = race_effects(screened, lambda i, res: effects_bic(sizes[i], res, screened[i].fam), progress)
     chosen = min(
         (i for i, r in enumerate(raced) if r is not None),
-        key=lambda i: _effects_bic(cands[i], raced[i].best, raced[i].fam),
+        key=lambda i: effects_bic(sizes[i], raced[i].best, raced[i].fam),
     )
     model, res, fam = raced[chosen].finish(progress)
     tried = []
     for i, (cand, scr, race) in enumerate(zip(cands, screened, raced)):
-        if i == chosen:
-            tried.append(_tried(cand, res, fam, finished=True, was_raced=True))
-        elif race is not None:
-            tried.append(_tried(cand, race.best, race.fam, finished=False, was_raced=True))
-        else:
-            tried.append(_tried(cand, scr.screened[0], scr.fam, finished=False, was_raced=False))
+        res_i, fam_i = (res, fam) if i == chosen else (race.best, race.fam) if race else (scr.screened[0], scr.fam)
+        tried.append(fit_summary.tried_entry(cand, res_i, fam_i, raced=race is not None, finished=i == chosen))
     return _Extended(cands[chosen], model, res, fam, tried)
-
-
-def _effects_bic(cand: _Candidate, res: RefineResult, fam: WithEffects) -> float:
-    """N ln(RSS/N) + p ln N of a base extended by effects, p the base's and the effects' parameters."""
-    n = int(sum(len(r) for r in res.residuals))
-    return float(n * np.log(res.rss / n) + (cand.param.size + fam.size - fam.n_base) * np.log(n))
-
-
-def _tried(cand: _Candidate, res: RefineResult, fam: WithEffects, finished: bool, was_raced: bool) -> dict:
-    """One entry of the summary's ``effects.tried``."""
-    n = int(sum(len(r) for r in res.residuals))
-    return {
-        "base": f"{cand.param.kind}{cand.param.n}",
-        "bic": _effects_bic(cand, res, fam),
-        "rss": res.rss,
-        "samples": n,
-        "raced": was_raced,
-        "finished": finished,
-    }
 
 
 def _physical_barrier(param: RICanonical | RDCanonical, data: FitData, recordings) -> Callable[[object], np.ndarray]:

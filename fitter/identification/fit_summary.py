@@ -14,6 +14,7 @@ import numpy as np
 
 from fitter.data.cycles import closed_loop
 from fitter.data.metrics import compare
+from fitter.identification.effects_fit import effects_bic
 from fitter.identification.exported import MINOR_LOOP_WARNING, minor_loop_excursion, raw_input_rho, score
 from fitter.identification.fit_data import FitData
 from fitter.identification.refine import RefineResult
@@ -76,6 +77,19 @@ def optimiser(res) -> dict:
     """The summary's ``optimiser`` of a refinement (`RefineResult`): scipy's success, evaluations and message,
     and whether it stopped at its evaluation budget (``budget_hit``, `duhem fit` prints a note then)."""
     return {"success": res.success, "nfev": res.nfev, "message": res.message, "budget_hit": res.budget_hit}
+
+
+def tried_entry(cand, res: RefineResult, fam, raced: bool, finished: bool) -> dict:
+    """One entry of the summary's ``effects.tried``: a base candidate `cand` extended by the effects (`fam`) at
+    the refinement `res` (the end of its screening, of its race, or finished)."""
+    return {
+        "base": f"{cand.param.kind}{cand.param.n}",
+        "bic": effects_bic(cand.param.size, res, fam),
+        "rss": res.rss,
+        "samples": int(sum(len(r) for r in res.residuals)),
+        "raced": raced,
+        "finished": finished,
+    }
 
 
 def effects_summary(extended: _Extended, recordings) -> dict:
