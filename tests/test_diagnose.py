@@ -710,9 +710,11 @@ def _zeroed_runs(seed: int) -> list[Recording]:
 def test_the_base_fit_is_levelled_only_by_references_that_improve_it(monkeypatch):
     """`fitting.duhem_fit` fits again on the recordings less the references its first fit finds, and keeps that
     fit only when, refined with the references, it leaves no more than the first: with the true instrument
-    zeros it levels (the levelled fit leaves less), with references the data do not determine (here injected:
-    3e7 output ranges times the file's index, as a ferroelectric loop's first-order base with A ~ 1e-11 split its
-    state and the reference) it keeps the first fit (levelled by those, the refit left 2e11 times as much)."""
+    zeros it leaves no more than the plain fit (less where the zeros misled the plain fit's order search, as
+    they did on one machine; on another both find the true order and the same residual, to rounding), with
+    references the data do not determine (here injected: 3e7 output ranges times the file's index, as a
+    ferroelectric loop's first-order base with A ~ 1e-11 split its state and the reference) it keeps the first
+    fit (levelled by those, the refit left 2e11 times as much)."""
     from fitter.diagnosis import fitting
     from fitter.identification.fit import fit_recordings
 
@@ -720,7 +722,7 @@ def test_the_base_fit_is_levelled_only_by_references_that_improve_it(monkeypatch
     mask = np.ones(len(ex.t), bool)
     first = fitting.fit_base(ex, fit_recordings(ex.recordings, kind="ri").model, mask).rss
     levelled = fitting.duhem_fit(ex, mask)[1].rss
-    assert levelled < first
+    assert levelled <= first * (1 + 1e-9)
     span = float(np.ptp(ex.y))
     monkeypatch.setattr(
         fitting, "output_references", lambda fit, ex: {r.name: 3e7 * span * k for k, r in enumerate(ex.recordings)}
