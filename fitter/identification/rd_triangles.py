@@ -364,10 +364,6 @@ class _WaveRecords:
         self.samples = TriangleSamples([r.wave for r in self.recs], [r.t for r in self.recs])
 
     @property
-    def sizes(self) -> list[int]:
-        return [len(r.y) for r in self.recs]
-
-    @property
     def scale(self) -> float:
         return max(float(np.ptp(np.concatenate([r.y for r in self.recs]))), 1e-300)
 
