@@ -284,6 +284,16 @@ def _population_parameters(i: int) -> tuple[ParameterSpec, ...]:
     )
 
 
+def _shares(p: dict[str, float], i: int, start: np.ndarray) -> tuple:
+    """Population i's amplitude S and its shares' thresholds u_up, u_dn and starts (each of
+    `SWITCHING_NODES`), or one share standing for all when they are alike (no spread, one start)."""
+    S, shift = p[f"S{i}"], p[f"spread{i}"] * np.array(SWITCHING_NODES_Z)
+    up, dn = p[f"u_up{i}"] + shift, p[f"u_dn{i}"] - shift
+    if not shift.any() and np.all(start == start[0]):
+        return S, up[:1], dn[:1], start[:1]
+    return S, up, dn, start
+
+
 class Switching(EffectSpec):
     """Step 6 of the chain: y += sum_i mean_j s_ij, two populations of `SWITCHING_NODES` shares
     ds_ij/dt = k+_ij(u) (S_i - s_ij) - k-_ij(u) (S_i + s_ij), thresholds spread by spread_i z_j."""
@@ -332,19 +342,11 @@ class Switching(EffectSpec):
     def apply(self, p: dict[str, float], chain: Chain, s0: tuple | None) -> tuple:
         ends = []
         for i in range(1, SWITCHING_POPULATIONS + 1):
-            S, shift = p[f"S{i}"], p[f"spread{i}"] * np.array(SWITCHING_NODES_Z)
             nodes = slice((i - 1) * SWITCHING_NODES, i * SWITCHING_NODES)
-            start = np.full(SWITCHING_NODES, p[f"q{i}"] * S) if s0 is None else np.array(s0[nodes])
-            if not shift.any() and np.all(start == start[0]):
-                s = np.repeat(
-                    switching_states(chain.u, chain.h, S, p[f"u_up{i}"], p[f"u_dn{i}"], p[f"width{i}"], start[:1]),
-                    SWITCHING_NODES,
-                    axis=1,
-                )
-            else:
-                s = switching_states(
-                    chain.u, chain.h, S, p[f"u_up{i}"] + shift, p[f"u_dn{i}"] - shift, p[f"width{i}"], start
-                )
+            start = np.full(SWITCHING_NODES, p[f"q{i}"] * p[f"S{i}"]) if s0 is None else np.array(s0[nodes])
+            S, up, dn, start = _shares(p, i, start)
+            s = switching_states(chain.u, chain.h, S, up, dn, p[f"width{i}"], start)
+            s = np.broadcast_to(s, (len(s), SWITCHING_NODES))
             for j in range(SWITCHING_NODES):
                 chain.y = chain.y + s[:, j] / SWITCHING_NODES
             ends += s[-1].tolist()
@@ -355,12 +357,8 @@ class Switching(EffectSpec):
         switching rates are computed once and no share is stepped from sample to sample."""
         ends = []
         for i in range(1, SWITCHING_POPULATIONS + 1):
-            S, shift = p[f"S{i}"], p[f"spread{i}"] * np.array(SWITCHING_NODES_Z)
-            s = np.full(SWITCHING_NODES, p[f"q{i}"] * S)
+            S, up, dn, s = _shares(p, i, np.full(SWITCHING_NODES, p[f"q{i}"] * p[f"S{i}"]))
             if len(chain.h):
-                up, dn = p[f"u_up{i}"] + shift, p[f"u_dn{i}"] - shift
-                if not shift.any():
-                    up, dn = up[:1], dn[:1]
                 P, c = switching_period_map(*switching_rates(chain.u, chain.h, S, up, dn, p[f"width{i}"]))
                 for _ in range(runs):
                     s = P * s + c
