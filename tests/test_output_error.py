@@ -328,3 +328,39 @@ def test_a_recordings_memo_reuses_the_unchanged_part_and_changes_no_residual(mod
         assert np.max(np.abs(kept - fresh)) < 1e-12 * np.ptp(rec.y)
     # memoised: bases model, A+ step, D step (3); effect settings model, drift step (2); unmemoised: one each
     assert calls == {"base": 3 + len(steps), "terms": 2 + len(steps) * (mode == "fit")}, calls
+
+
+def test_variable_projection_with_additive_effects_fits_forcing_states_and_references_at_once():
+    """A base with switching and a measurement drift (both additive: the output is the base's plus terms of the
+    input and time alone) on two recordings, the first from rest, the second a closed loop whose switching
+    starts settled, each on its own reference: with A and the effects given, B+-, E+-, both x0 and the second
+    recording's reference are eliminated at once.  From forcing vectors far off, the projected residuals are
+    the plain `residuals` of the theta it returns (to rounding), that theta is back at the truth's forcing, and
+    a model with an effect that is not additive (saturation) has nothing eliminated."""
+    base = RateIndependentModel(
+        A_plus=[[-3.0]], A_minus=[[3.0]], B_plus=[3.0], B_minus=[-3.0], C=[1.0], E_plus=[-1.5], E_minus=[-1.5]
+    )
+    effects = {"S1": 0.6, "u_up1": 0.55, "u_dn1": -0.5, "width1": 0.06, "q1": -1.0, "spread1": 0.02}
+    effects |= {"S2": 0.05, "u_up2": 0.9, "u_dn2": -0.9, "width2": 0.2, "q2": 0.0, "spread2": 0.01}
+    truth = base.replace(effects=[{"effect": "switching", "parameters": effects}])
+    recs = []
+    for period, cycles, reference in ((2.0, 1.5, 0.0), (20.0, 1.0, 0.3)):
+        t = np.linspace(0.0, cycles * period, 301)
+        u = np.interp((t / period) % 1.0, [0.0, 0.5, 1.0], [-1.0, 1.0, -1.0])
+        recs.append(Recording(t, u, simulate(truth, t, u, x0=[0.2]).y + reference, name=f"T{period:g}"))
+    ctx = EffectContext.of([(r.t, r.u, r.y) for r in recs], 0.0)
+    fam = WithEffects(StateSpace(base), ["switching", "measurement_drift"], ctx, held={"measurement_drift.rate": 0.0})
+    assert sorted(fam.linear_entries().values()) == sorted((f, 0) for f in ("B_plus", "B_minus", "E_plus", "E_minus"))
+    problem = Recordings(recs, x0="fit", settle=[False, True])
+    drift = {"effect": "measurement_drift", "parameters": {"rate": 0.0}}
+    theta = fam.theta(truth.replace(effects=[*truth.effects, drift]))
+    lin = list(fam.linear_entries())
+    off = theta.copy()
+    off[lin] = [0.5, 0.5, 2.0, -2.0]
+    weighted, back = problem.projected(fam, off)
+    plain = problem.residuals(fam, back)[0]
+    assert np.abs(weighted - plain).max() < 1e-9 * np.ptp(recs[1].y)
+    assert np.linalg.norm(problem.residuals(fam, off)[0]) > 100 * np.linalg.norm(plain)
+    np.testing.assert_allclose(back[lin], theta[lin], rtol=0.02)
+    saturated = WithEffects(StateSpace(base), ["switching", "saturation"], ctx)
+    assert saturated.linear_entries() == {}

@@ -46,8 +46,14 @@ initial states and forcings at once).  theta_L (shared by the recordings) and,
 for ``"fit"``, each x0_i are the weighted linear least-squares solution; the
 optimiser moves eta only (Golub & Pereyra's variable projection).  For
 ``"periodic"`` every column carries its own fixed point of the cycle map, so
-the periodic state stays linear in theta_L.  Models with effects are not
-eliminated (an effect may make the output nonlinear in B or E).
+the periodic state stays linear in theta_L.  A model whose effects are all
+`additive` (its output the base's plus terms of the input and time alone) is
+eliminated too, with ``"fit"``: the terms join b_i (the chain from its settled
+state with ``settle``), and a recording whose effects carry the output's
+reference (not the reference's owner) gets a column of ones for it, as
+`fitted_initial_state` fits it.  Other effects may make the output nonlinear
+in B or E: `WithEffects.linear_entries` is then empty.  The linear algebra is
+in `fitter.identification.projection`.
 
 Failure policy
 --------------
@@ -75,7 +81,7 @@ recording.  Final residuals are on all samples.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
@@ -83,11 +89,12 @@ import numpy as np
 from fitter.core.effects import fresh_state, offset_position, run_with_effects, settled_state, shifted, stored_start
 from fitter.core.errors import DuhemError, KernelError
 from fitter.core.flow import branches
-from fitter.core.kernel import flows, simulate, state_response
+from fitter.core.kernel import flows, simulate
 from fitter.core.periodic import affine_blocks, fixed_point
 from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording
 from fitter.identification.parametrisation import Parametrisation
+from fitter.identification.projection import LinearPart, lstsq_scaled, response_columns, solve_shared, split_solution
 
 __all__ = ["Recordings", "simulate_from", "fitted_initial_state", "X0_MODES", "FAIL"]
 
@@ -140,7 +147,7 @@ def fitted_initial_state(
         G = np.column_stack([G, np.ones(len(base))])
     if not (np.all(np.isfinite(G)) and np.all(np.isfinite(base))):
         raise KernelError("simulation overflowed")
-    z = _lstsq_scaled(G, y - base)
+    z = lstsq_scaled(G, y - base)
     if alone:
         return z[:n], base + G @ z, effect_state
     if position is None:
@@ -237,80 +244,6 @@ def _effects_key(model, effect_state) -> tuple:
     """What the effects' terms depend on besides (t, u): each effect's parameters and stored start, the chain
     state given, the input range."""
     return repr([e.to_dict() for e in model.effects]), repr(effect_state), model.input_range
-
-
-def _lstsq_scaled(M: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """argmin ||M z - b|| with the columns of M scaled to unit norm first (the states' responses
-    differ by orders of magnitude; unscaled, the SVD cut-off would drop weak but real directions)."""
-    norms = np.linalg.norm(M, axis=0)
-    norms = np.where(norms > 0, norms, 1.0)
-    z, *_ = np.linalg.lstsq(M / norms, b, rcond=None)
-    return z / norms
-
-
-def _forcing_fields(model) -> dict[float, tuple[str, str]]:
-    """The (B, E) fields of each branch."""
-    if model.kind == "ri":
-        return {1.0: ("B_plus", "E_plus"), -1.0: ("B_minus", "E_minus")}
-    return {1.0: ("B", "E"), -1.0: ("B", "E")}
-
-
-def response_columns(model, lin: dict[int, tuple[str, int]], t, u, mode: str, cycle):
-    """Output columns of `model` on one recording for variable projection (module docstring).
-
-    Returns (start, base (N,), Psi (N, L), G (N, n) or None, x0 parts, rho): base is the
-    output with theta_L = 0 (from x0 = model.x0 for ``"model"``), Psi the response to each
-    linear entry in the order of `lin`, G the response to unit initial states (``"fit"`` only);
-    x0 parts (x0_base (n,), X0_L (n, L)) give the initial state x0_base + X0_L theta_L.
-    """
-    n = model.order
-    start = cycle[0] if mode == "periodic" else 0
-    t, u = (None if t is None else t[start:]), u[start:]
-    forcing_lin = [(k, f, i) for k, (f, i) in enumerate(lin.values()) if f != "D"]
-    n_x0 = 0 if mode == "model" else n
-    m = 1 + len(forcing_lin) + n_x0
-    fields = _forcing_fields(model)
-    own = {f: np.array(getattr(model, f), dtype=float) for pair in fields.values() for f in pair}
-    for f, i in lin.values():
-        if f != "D":
-            own[f][i] = 0.0
-    cols = {f: np.zeros((n, m)) for f in own}
-    for f in own:
-        cols[f][:, 0] = own[f]
-    for j, (_, f, i) in enumerate(forcing_lin):
-        cols[f][i, 1 + j] = 1.0
-    X0 = np.zeros((n, m))
-    X0[:, m - n_x0 :] = np.eye(n)[:, :n_x0]
-    if mode == "model":
-        X0[:, 0] = model.x0
-    forcing = {b: (cols[fb], cols[fe]) for b, (fb, fe) in fields.items()}
-    X = state_response(model, t, u, X0, forcing=forcing)
-    Y = np.einsum("i,kim->km", model.C, X)
-    d_linear = any(f == "D" for f, _ in lin.values())
-    base = Y[:, 0] + (0.0 if d_linear else model.D * u)
-    Psi = np.empty((len(u), len(lin)))
-    x0_base, X0_L = np.array(X0[:, 0]), np.zeros((n, len(lin)))
-    forcing_col = {k: 1 + j for j, (k, _, _) in enumerate(forcing_lin)}
-    for k, (f, _) in enumerate(lin.values()):
-        Psi[:, k] = u if f == "D" else Y[:, forcing_col[k]]
-    rho = np.nan
-    if mode == "periodic":
-        c = cycle[1] - cycle[0]
-        Phi = X[c][:, m - n :]
-        rho = float(np.max(np.abs(np.linalg.eigvals(Phi)))) if np.all(np.isfinite(Phi)) else np.inf
-        G = Y[:, m - n :]
-        if rho < 1:
-            fix = np.linalg.solve(np.eye(n) - Phi, X[c][:, : m - n])
-            x0_base = fix[:, 0]
-            base = base + G @ x0_base
-            for k, col in forcing_col.items():
-                X0_L[:, k] = fix[:, col]
-                Psi[:, k] += G @ X0_L[:, k]
-        else:
-            x0_base = np.array(model.x0, dtype=float)
-            base = base + G @ x0_base
-        return start, base, Psi, None, (x0_base, X0_L), rho
-    return start, base, Psi, (Y[:, m - n :] if mode == "fit" else None), (x0_base, X0_L), rho
 
 
 def simulate_from(
@@ -478,58 +411,53 @@ class Recordings:
             info.append(one)
         return (parts[0] if len(parts) == 1 else np.concatenate(parts)), model, info
 
-    def projected(self, param: Parametrisation, theta: np.ndarray):
-        """Variable projection (module docstring): like `residuals`, with the linear entries of
-        theta (and x0 for ``"fit"``) at their weighted least-squares values; returns
-        (weighted residuals, theta with those values, model, info)."""
+    def projected(self, param: Parametrisation, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Variable projection (module docstring): the weighted residuals of `residuals` with the linear entries
+        of theta (and x0 for ``"fit"``, and the output's references of a model whose additive effects carry one)
+        at their weighted least-squares values, and theta with those values."""
         if self.references:
             raise ValueError("variable projection does not fit per-recording references: refine without eliminate")
         lin = param.linear_entries()
         try:
             model = param.build(theta)
-            if getattr(model, "effects", None):
-                raise DuhemError("variable projection needs a model without effects")
+            key = _base_key(param.build(_zeroed(theta, lin))) if getattr(model, "effects", None) else None
             with np.errstate(all="ignore"):
-                parts = [
-                    response_columns(model, lin, rec.t, rec.u, self.x0, cyc)
-                    for rec, cyc in zip(self.recordings, self.cycles)
-                ]
-            solution = self._solve(parts, len(lin), model.order)
+                parts = [self._linear_part(model, lin, i, key) for i in range(len(self.recordings))]
+            solution = solve_shared(parts, [r.y for r in self.recordings], self._w)
         except (DuhemError, ValueError, np.linalg.LinAlgError, FloatingPointError):
             info = [self._one(None, rec, cyc) for rec, cyc in zip(self.recordings, self.cycles)]
-            weighted = np.concatenate([_weighted(i[2], w[i[0] :]) for i, w in zip(info, self._w)])
-            return weighted, np.asarray(theta, dtype=float), None, info
+            return np.concatenate([_weighted(i[2], w[i[0] :]) for i, w in zip(info, self._w)]), np.array(theta)
+        theta_l, own = split_solution(parts, solution)
         theta = np.array(theta, dtype=float)
-        theta[list(lin)] = solution[: len(lin)]
-        weighted, info = [], []
-        for i, (rec, w, (start, base, Psi, G, (xb, XL), rho)) in enumerate(zip(self.recordings, self._w, parts)):
-            x0 = xb + XL @ solution[: len(lin)]
-            yhat = base + Psi @ solution[: len(lin)]
-            if G is not None:
-                x0 = solution[len(lin) + i * model.order : len(lin) + (i + 1) * model.order]
-                yhat = yhat + G @ x0
-            r = rec.y[start:] - yhat
-            weighted.append(_weighted(r, w[start:]))
-            info.append((start, x0, r, rho, None))
-        return np.concatenate(weighted), theta, param.build(theta), info
+        theta[list(lin)] = theta_l
+        weighted = [
+            _weighted(rec.y[part.start :] - part.output(theta_l, z), w[part.start :])
+            for rec, w, part, z in zip(self.recordings, self._w, parts, own)
+        ]
+        return np.concatenate(weighted), theta
 
-    def _solve(self, parts, n_lin: int, n: int) -> np.ndarray:
-        """Weighted least squares for [theta_L, x0_1, x0_2, ...] (x0 blocks for ``"fit"`` only)."""
-        n_x0 = n * len(parts) if self.x0 == "fit" else 0
-        rows, rhs = [], []
-        for i, (rec, w, (start, base, Psi, G, _, _)) in enumerate(zip(self.recordings, self._w, parts)):
-            sw = np.sqrt(w[start:])
-            keep = sw > 0
-            M = np.zeros((len(base), n_lin + n_x0))
-            M[:, :n_lin] = Psi
-            if G is not None:
-                M[:, n_lin + i * n : n_lin + (i + 1) * n] = G
-            rows.append((M * sw[:, None])[keep])
-            rhs.append(((rec.y[start:] - base) * sw)[keep])
-        M, b = np.concatenate(rows), np.concatenate(rhs)
-        if not (np.all(np.isfinite(M)) and np.all(np.isfinite(b)) and np.abs(M).max() < 1e150):
-            raise KernelError("simulation overflowed")
-        return _lstsq_scaled(M, b)
+    def _linear_part(self, model, lin: dict[int, tuple[str, int]], i: int, key: tuple) -> LinearPart:
+        """Recording i's `LinearPart`: the base's columns (`response_columns`); with effects, every one
+        `additive` (``"fit"`` only), their terms added to its base (from the chain state settled on it with
+        ``settle``) and, where one carries the output's reference and the recording is not the reference's owner,
+        a column of ones (`fitted_initial_state`).  The base's columns depend on the model's entries but the
+        linear ones (`key`): with effects they are kept in the recording's memo while those repeat."""
+        rec, cyc, memo = self.recordings[i], self.cycles[i], self._memos[i]
+        if not getattr(model, "effects", None):
+            return response_columns(model, lin, rec.t, rec.u, self.x0, cyc)
+        if self.x0 != "fit" or not _all_additive(model):
+            raise DuhemError("variable projection needs x0 'fit' and additive effects")
+        w = model.model_input(np.asarray(rec.u, dtype=float))
+        part = _remembered(
+            memo, "columns", key, lambda: response_columns(model.replace(effects=[]), lin, rec.t, w, "fit", None)
+        )
+        cache = _remembered(memo, "flows", _base_key(model), lambda: flows(model))
+        state = _settled(model, rec.t, rec.u, cache, memo) if self._settle[i] else None
+        terms = _terms(model, rec.t, rec.u, state, memo)
+        own = part.Own
+        if i != self._reference_owner() and offset_position(model) is not None:
+            own = np.column_stack([own, np.ones(len(terms))])
+        return replace(part, base=part.base + terms, Own=own)
 
     def _reference_owner(self) -> int:
         """The recording whose output reference is the model's own: the first with a sample of positive weight
@@ -553,6 +481,13 @@ class Recordings:
             return s, x0, r, rho, state
         except (KernelError, ValueError, np.linalg.LinAlgError):
             return start, None, np.full(len(rec.y) - start, fail), np.nan, None
+
+
+def _zeroed(theta: np.ndarray, lin: dict) -> np.ndarray:
+    """theta with its linear entries 0: what the base's columns of variable projection depend on."""
+    out = np.array(theta, dtype=float)
+    out[list(lin)] = 0.0
+    return out
 
 
 def _weighted(r: np.ndarray, w: np.ndarray) -> np.ndarray:

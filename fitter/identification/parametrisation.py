@@ -404,6 +404,16 @@ class StateSpace(Parametrisation):
     def theta(self, model) -> np.ndarray:
         return np.concatenate([np.ravel(getattr(model, k)) for k in self.keys])
 
+    def linear_entries(self) -> dict[int, tuple[str, int]]:
+        """The forcing fields' entries (B, E and their branch versions; see `Parametrisation.linear_entries`)."""
+        out, at = {}, 0
+        for k, s in zip(self.keys, self.shapes):
+            size = int(np.prod(s))
+            if k[0] in "BE":
+                out.update({at + i: (k, i) for i in range(size)})
+            at += size
+        return out
+
 
 class WithEffects(Parametrisation):
     """A base parametrisation plus effects of the registry: theta = [base..., effects...].
@@ -491,6 +501,14 @@ class WithEffects(Parametrisation):
     def build(self, theta: np.ndarray):
         model = self.base.build(theta[: self.n_base])
         return model.replace(effects=list(model.effects) + self.effect_list(theta))
+
+    def linear_entries(self) -> dict[int, tuple[str, int]]:
+        """The base's linear entries when every effect, the template's own and the fitted ones, is `additive`
+        (the output is then the base's plus terms driven by the input and time alone); else none."""
+        own = getattr(getattr(self.base, "template", None), "effects", ())
+        if all(s.additive for s in self.specs) and all(e.spec.additive for e in own):
+            return self.base.linear_entries()
+        return {}
 
     def theta(self, model) -> np.ndarray:
         own = {e.effect: e.parameters for e in model.effects if e.effect in self.effects}

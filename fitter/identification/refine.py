@@ -247,7 +247,7 @@ class _Objective:
     def __call__(self, z: np.ndarray) -> np.ndarray:
         theta = self.full_theta(z)
         if self.lin.any():
-            r, theta = self.coarse.projected(self.param, theta)[:2]
+            r, theta = self.coarse.projected(self.param, theta)
         else:
             r = self.coarse.residuals(self.param, theta)[0]
         r = r / self.scale

@@ -225,15 +225,39 @@ cap keeps the recurrence's chunks (`linear_recurrence`) long over fully switched
 
 def switching_rates(u: np.ndarray, h: np.ndarray, S: float, u_up, u_dn, width: float) -> tuple[np.ndarray, ...]:
     """Per interval (N - 1, m) and share: the decay exponent T = min(I+ + I-, `_MAX_DECAY`) and the switched
-    output s_eq it decays to (module docstring, step 6): s_{k+1} = e^{-T_k} s_k + (1 - e^{-T_k}) s_eq,k."""
+    output s_eq it decays to (module docstring, step 6): s_{k+1} = e^{-T_k} s_k + (1 - e^{-T_k}) s_eq,k.
+
+    log I+ = P_k - u_up / width and log I- = Q_k + u_dn / width, P and Q per interval; s_eq = S tanh((log I+ -
+    log I-) / 2) and I+ + I- = max(I+, I-) (1 + e^{-|log I+ - log I-|}) depend on the share only through
+    u_up + u_dn, computed once per interval (shape (N - 1, 1)) when every share has the same sum (thresholds
+    spread symmetrically, `_shares`)."""
     up, dn = np.atleast_1d(np.asarray(u_up, dtype=float)), np.atleast_1d(np.asarray(u_dn, dtype=float))
+    key = (u.tobytes(), h.tobytes(), float(S), up.tobytes(), dn.tobytes(), float(width), _MAX_EXPONENT, _MAX_DECAY)
+    if key not in _RATES:
+        if len(_RATES) >= _RATES_KEPT:
+            del _RATES[next(iter(_RATES))]
+        _RATES[key] = _switching_rates(u, h, S, up, dn, width)
+    return _RATES[key]
+
+
+_RATES: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+_RATES_KEPT = 8
+"""`switching_rates` kept (read-only) for the last populations asked: a settled start (`Switching.settle`) and
+the run from it (`Switching.apply`) ask for the same rates of the same samples."""
+
+
+def _switching_rates(u, h, S: float, up: np.ndarray, dn: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
     ua, d = u[:-1, None], (np.diff(u) / width)[:, None]
     log_h = np.log(h)[:, None]
-    lp = log_h + (ua - up) / width + _log_exprel(d)
-    lm = log_h + (dn - ua) / width + _log_exprel(-d)
-    big = np.maximum(lp, lm)
-    total = np.minimum(np.exp(np.minimum(big, _MAX_EXPONENT)) * (1.0 + np.exp(np.minimum(lp, lm) - big)), _MAX_DECAY)
-    return total, S * np.tanh((lp - lm) / 2)
+    P = log_h + ua / width + _log_exprel(d)
+    Q = log_h - ua / width + _log_exprel(-d)
+    sums = up + dn
+    gap = (P - Q) - (sums[:1] if np.all(sums == sums[0]) else sums) / width
+    big = np.maximum(P - up / width, Q + dn / width)
+    total = np.minimum(np.exp(np.minimum(big, _MAX_EXPONENT)) * (1.0 + np.exp(-np.abs(gap))), _MAX_DECAY)
+    target = S * np.tanh(gap / 2)
+    total.flags.writeable = target.flags.writeable = False
+    return total, target
 
 
 def switching_states(u: np.ndarray, h: np.ndarray, S: float, u_up, u_dn, width: float, s0) -> np.ndarray:

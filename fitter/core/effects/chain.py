@@ -175,7 +175,10 @@ def settled_state(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: dict)
         if all(spec.steady for spec, _ in present):
             return state
         settled = _split_state(present, state)
-    first = _split_state(present, fresh_state(fresh, t, u, x0, fl))
+    if all(spec.steady for spec, _ in present):
+        return tuple(v for spec, _ in present for v in settled[spec.name])
+    base = any(spec.follows_output for spec, _ in present)
+    first = _split_state(present, run_with_effects(fresh, t[:1], w[:1], x0, fl, base=base)[2])  # `fresh_state`
     return tuple(v for spec, _ in present for v in (settled if spec.steady else first)[spec.name])
 
 

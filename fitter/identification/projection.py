@@ -1,0 +1,145 @@
+"""Variable projection's linear algebra: the output's columns in the linear entries and their shared solution.
+
+For a fixed A (and g) the state is linear in the forcing vectors B, E and in x_0, and y = C x + D u is linear
+in D (`fitter.identification.output_error`, "Variable projection"): on recording i,
+
+    yhat_i = b_i + Psi_i theta_L + Own_i z_i,
+
+b_i the response to the forcing left when theta_L = 0, Psi_i the responses to the unit linear entries (shared
+by the recordings), Own_i the columns of recording i's own unknowns z_i (its initial state for ``"fit"``, and
+the output's reference where one is fitted).  `response_columns` computes b, Psi and the initial-state columns
+in one pass of the kernel; `solve_shared` solves for [theta_L, z_1, z_2, ...] by weighted least squares.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from fitter.core.errors import KernelError
+from fitter.core.kernel import state_response
+
+__all__ = ["LinearPart", "response_columns", "solve_shared", "lstsq_scaled"]
+
+
+@dataclass
+class LinearPart:
+    """One recording's output as an affine function of the linear unknowns: samples `start`.. of
+    base + Psi theta_L + Own z (Own None: no own unknowns)."""
+
+    start: int
+    base: np.ndarray
+    Psi: np.ndarray
+    Own: np.ndarray | None
+
+    def output(self, theta_l: np.ndarray, z: np.ndarray | None) -> np.ndarray:
+        """base + Psi theta_L (+ Own z)."""
+        yhat = self.base + self.Psi @ theta_l
+        return yhat if self.Own is None else yhat + self.Own @ z
+
+
+def lstsq_scaled(M: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """argmin ||M z - b|| with the columns of M scaled to unit norm first (the states' responses
+    differ by orders of magnitude; unscaled, the SVD cut-off would drop weak but real directions)."""
+    norms = np.linalg.norm(M, axis=0)
+    norms = np.where(norms > 0, norms, 1.0)
+    z, *_ = np.linalg.lstsq(M / norms, b, rcond=None)
+    return z / norms
+
+
+def solve_shared(parts: Sequence[LinearPart], ys: Sequence[np.ndarray], weights: Sequence[np.ndarray]) -> np.ndarray:
+    """Weighted least squares for [theta_L, z_1, z_2, ...] (z_i for the parts with own columns, in order):
+    min sum_i sum_k w_ik (y_ik - yhat_ik)^2 over the samples of positive weight.  Raises `KernelError` when a
+    column overflowed."""
+    n_lin = parts[0].Psi.shape[1]
+    widths = [0 if p.Own is None else p.Own.shape[1] for p in parts]
+    rows, rhs, at = [], [], n_lin
+    for p, y, w, k in zip(parts, ys, weights, widths):
+        sw = np.sqrt(w[p.start :])
+        keep = sw > 0
+        M = np.zeros((len(p.base), n_lin + sum(widths)))
+        M[:, :n_lin] = p.Psi
+        if p.Own is not None:
+            M[:, at : at + k] = p.Own
+        at += k
+        rows.append((M * sw[:, None])[keep])
+        rhs.append(((y[p.start :] - p.base) * sw)[keep])
+    M, b = np.concatenate(rows), np.concatenate(rhs)
+    if not (np.all(np.isfinite(M)) and np.all(np.isfinite(b)) and np.abs(M).max() < 1e150):
+        raise KernelError("simulation overflowed")
+    return lstsq_scaled(M, b)
+
+
+def split_solution(parts: Sequence[LinearPart], solution: np.ndarray) -> tuple[np.ndarray, list]:
+    """theta_L and each part's own unknowns (None for a part without own columns) from `solve_shared`'s
+    solution."""
+    n_lin = parts[0].Psi.shape[1]
+    own, at = [], n_lin
+    for p in parts:
+        k = 0 if p.Own is None else p.Own.shape[1]
+        own.append(solution[at : at + k] if p.Own is not None else None)
+        at += k
+    return solution[:n_lin], own
+
+
+def _forcing_fields(model) -> dict[float, tuple[str, str]]:
+    """The (B, E) fields of each branch."""
+    if model.kind == "ri":
+        return {1.0: ("B_plus", "E_plus"), -1.0: ("B_minus", "E_minus")}
+    return {1.0: ("B", "E"), -1.0: ("B", "E")}
+
+
+def response_columns(model, lin: dict[int, tuple[str, int]], t, u, mode: str, cycle):
+    """Output columns of `model` (no effects) on one recording (module docstring), in one pass of the kernel.
+
+    Returns a `LinearPart`: base the output with theta_L = 0 (from x0 = model.x0 for ``"model"``, from the
+    cycle's fixed point for ``"periodic"``), Psi the response to each linear entry in the order of `lin`, Own
+    the responses to unit initial states (``"fit"`` only).  For ``"periodic"`` every column carries its own
+    fixed point of the cycle map (when its spectral radius is < 1; else the model's x0), so the periodic state
+    stays linear in theta_L.
+    """
+    n = model.order
+    start = cycle[0] if mode == "periodic" else 0
+    t, u = (None if t is None else t[start:]), u[start:]
+    forcing_lin = [(k, f, i) for k, (f, i) in enumerate(lin.values()) if f != "D"]
+    n_x0 = 0 if mode == "model" else n
+    m = 1 + len(forcing_lin) + n_x0
+    fields = _forcing_fields(model)
+    own = {f: np.array(getattr(model, f), dtype=float) for pair in fields.values() for f in pair}
+    for f, i in lin.values():
+        if f != "D":
+            own[f][i] = 0.0
+    cols = {f: np.zeros((n, m)) for f in own}
+    for f in own:
+        cols[f][:, 0] = own[f]
+    for j, (_, f, i) in enumerate(forcing_lin):
+        cols[f][i, 1 + j] = 1.0
+    X0 = np.zeros((n, m))
+    X0[:, m - n_x0 :] = np.eye(n)[:, :n_x0]
+    if mode == "model":
+        X0[:, 0] = model.x0
+    forcing = {b: (cols[fb], cols[fe]) for b, (fb, fe) in fields.items()}
+    X = state_response(model, t, u, X0, forcing=forcing)
+    Y = np.einsum("i,kim->km", model.C, X)
+    d_linear = any(f == "D" for f, _ in lin.values())
+    base = Y[:, 0] + (0.0 if d_linear else model.D * u)
+    Psi = np.empty((len(u), len(lin)))
+    forcing_col = {k: 1 + j for j, (k, _, _) in enumerate(forcing_lin)}
+    for k, (f, _) in enumerate(lin.values()):
+        Psi[:, k] = u if f == "D" else Y[:, forcing_col[k]]
+    if mode == "periodic":
+        c = cycle[1] - cycle[0]
+        Phi = X[c][:, m - n :]
+        rho = float(np.max(np.abs(np.linalg.eigvals(Phi)))) if np.all(np.isfinite(Phi)) else np.inf
+        G = Y[:, m - n :]
+        if rho < 1:
+            fix = np.linalg.solve(np.eye(n) - Phi, X[c][:, : m - n])
+            base = base + G @ fix[:, 0]
+            for k, col in forcing_col.items():
+                Psi[:, k] += G @ fix[:, col]
+        else:
+            base = base + G @ np.asarray(model.x0, dtype=float)
+        return LinearPart(start, base, Psi, None)
+    return LinearPart(start, base, Psi, Y[:, m - n :] if mode == "fit" else None)
