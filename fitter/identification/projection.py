@@ -21,7 +21,7 @@ import numpy as np
 from fitter.core.errors import KernelError
 from fitter.core.kernel import state_response
 
-__all__ = ["LinearPart", "response_columns", "solve_shared", "lstsq_scaled"]
+__all__ = ["LinearPart", "response_columns", "solve_shared", "split_solution", "lstsq_scaled"]
 
 
 @dataclass

@@ -232,6 +232,8 @@ def switching_rates(u: np.ndarray, h: np.ndarray, S: float, u_up, u_dn, width: f
     u_up + u_dn, computed once per interval (shape (N - 1, 1)) when every share has the same sum (thresholds
     spread symmetrically, `_shares`)."""
     up, dn = np.atleast_1d(np.asarray(u_up, dtype=float)), np.atleast_1d(np.asarray(u_dn, dtype=float))
+    if len(u) * len(up) > _RATES_SIZE:
+        return _switching_rates(u, h, S, up, dn, width)
     key = (u.tobytes(), h.tobytes(), float(S), up.tobytes(), dn.tobytes(), float(width), _MAX_EXPONENT, _MAX_DECAY)
     if key not in _RATES:
         if len(_RATES) >= _RATES_KEPT:
@@ -244,6 +246,9 @@ _RATES: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
 _RATES_KEPT = 8
 """`switching_rates` kept (read-only) for the last populations asked: a settled start (`Switching.settle`) and
 the run from it (`Switching.apply`) ask for the same rates of the same samples."""
+_RATES_SIZE = 2**17
+"""Only rates of at most this many values (intervals x shares, 1 MB an array) are kept: a long recording's are
+computed again rather than held."""
 
 
 def _switching_rates(u, h, S: float, up: np.ndarray, dn: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
