@@ -172,6 +172,11 @@ def _affine_output(model, t, u, cache: dict | None) -> tuple[np.ndarray, np.ndar
     return base, G
 
 
+def _flows(model, memo: dict | None) -> dict:
+    """The model's flows (`fitter.core.kernel.flows`), kept in `memo` under its base's parameters."""
+    return flows(model) if memo is None else _remembered(memo, "flows", _base_key(model), lambda: flows(model))
+
+
 def _settled(model, t, u, cache: dict, memo: dict | None):
     """`settled_state` of the model's chain on the recording; kept in `memo` when no effect follows the output
     (the settled state then depends on the effects alone)."""
@@ -268,7 +273,7 @@ def simulate_from(
     the first sample where it is not the model's own start (settled, or with a fitted reference,
     `fitted_initial_state`), else None.
     """
-    cache = flows(model) if memo is None else _remembered(memo, "flows", _base_key(model), lambda: flows(model))
+    cache = _flows(model, memo)
     state = _settled(model, t, u, cache, memo) if settle and getattr(model, "effects", None) else None
     if mode == "model":
         return 0, np.array(model.x0, dtype=float), _model_output(model, t, u, cache, state, memo), np.nan, state
@@ -420,9 +425,8 @@ class Recordings:
         lin = param.linear_entries()
         try:
             model = param.build(theta)
-            key = _base_key(param.build(_zeroed(theta, lin))) if getattr(model, "effects", None) else None
             with np.errstate(all="ignore"):
-                parts = [self._linear_part(model, lin, i, key) for i in range(len(self.recordings))]
+                parts = [self._linear_part(model, lin, i) for i in range(len(self.recordings))]
             solution = solve_shared(parts, [r.y for r in self.recordings], self._w)
         except (DuhemError, ValueError, np.linalg.LinAlgError, FloatingPointError):
             info = [self._one(None, rec, cyc) for rec, cyc in zip(self.recordings, self.cycles)]
@@ -436,12 +440,13 @@ class Recordings:
         ]
         return np.concatenate(weighted), theta
 
-    def _linear_part(self, model, lin: dict[int, tuple[str, int]], i: int, key: tuple) -> LinearPart:
+    def _linear_part(self, model, lin: dict[int, tuple[str, int]], i: int) -> LinearPart:
         """Recording i's `LinearPart`: the base's columns (`response_columns`); with effects, every one
         `additive` (``"fit"`` only), their terms added to its base (from the chain state settled on it with
         ``settle``) and, where one carries the output's reference and the recording is not the reference's owner,
-        a column of ones (`fitted_initial_state`).  The base's columns depend on the model's entries but the
-        linear ones (`key`): with effects they are kept in the recording's memo while those repeat."""
+        a column of ones (`fitted_initial_state`).  With effects the base's columns are kept in the recording's
+        memo under the base's parameters (the optimiser holds the linear entries of the theta it moves, so they
+        repeat while only the effects' parameters move)."""
         rec, cyc, memo = self.recordings[i], self.cycles[i], self._memos[i]
         if not getattr(model, "effects", None):
             return response_columns(model, lin, rec.t, rec.u, self.x0, cyc)
@@ -449,10 +454,12 @@ class Recordings:
             raise DuhemError("variable projection needs x0 'fit' and additive effects")
         w = model.model_input(np.asarray(rec.u, dtype=float))
         part = _remembered(
-            memo, "columns", key, lambda: response_columns(model.replace(effects=[]), lin, rec.t, w, "fit", None)
+            memo,
+            "columns",
+            _base_key(model),
+            lambda: response_columns(model.replace(effects=[]), lin, rec.t, w, "fit", None),
         )
-        cache = _remembered(memo, "flows", _base_key(model), lambda: flows(model))
-        state = _settled(model, rec.t, rec.u, cache, memo) if self._settle[i] else None
+        state = _settled(model, rec.t, rec.u, _flows(model, memo), memo) if self._settle[i] else None
         terms = _terms(model, rec.t, rec.u, state, memo)
         own = part.Own
         if i != self._reference_owner() and offset_position(model) is not None:
@@ -481,13 +488,6 @@ class Recordings:
             return s, x0, r, rho, state
         except (KernelError, ValueError, np.linalg.LinAlgError):
             return start, None, np.full(len(rec.y) - start, fail), np.nan, None
-
-
-def _zeroed(theta: np.ndarray, lin: dict) -> np.ndarray:
-    """theta with its linear entries 0: what the base's columns of variable projection depend on."""
-    out = np.array(theta, dtype=float)
-    out[list(lin)] = 0.0
-    return out
 
 
 def _weighted(r: np.ndarray, w: np.ndarray) -> np.ndarray:

@@ -149,9 +149,11 @@ def shifted(state: EffectState, position: int, by: float) -> EffectState:
 
 
 def fresh_state(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: dict) -> EffectState:
-    """The chain state at the first sample when the chain starts afresh there (the base at `x0`): the
-    afresh start as numbers, which a model can store (`with_start`)."""
-    return run_with_effects(with_start(model, None), t[:1], model.model_input(u[:1]), x0, fl)[2]
+    """The chain state at the first sample when the chain starts afresh there (the base at `x0`, integrated only
+    when an effect `follows_output`): the afresh start as numbers, which a model can store (`with_start`)."""
+    fresh = with_start(model, None)
+    base = any(spec.follows_output for spec, _ in _present(fresh))
+    return run_with_effects(fresh, t[:1], model.model_input(u[:1]), x0, fl, base=base)[2]
 
 
 SETTLE_RUNS = 2
@@ -177,8 +179,7 @@ def settled_state(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, fl: dict)
         settled = _split_state(present, state)
     if all(spec.steady for spec, _ in present):
         return tuple(v for spec, _ in present for v in settled[spec.name])
-    base = any(spec.follows_output for spec, _ in present)
-    first = _split_state(present, run_with_effects(fresh, t[:1], w[:1], x0, fl, base=base)[2])  # `fresh_state`
+    first = _split_state(present, fresh_state(fresh, t, u, x0, fl))
     return tuple(v for spec, _ in present for v in (settled if spec.steady else first)[spec.name])
 
 
