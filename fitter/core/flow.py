@@ -25,7 +25,8 @@ phi1(z) = (e^z - 1)/z and phi2(z) = (e^z - 1 - z)/z^2:
 c0 = V^-1 (B p + E), c1 = V^-1 B r.  Over many intervals with one A the scalar
 recurrences w_{k+1} = a_k w_k + f_k are summed in closed form (cumulative
 products as exponentials of cumulative sums), in chunks short enough that no
-exponential overflows.  When V is ill-conditioned (defective A, e.g. the
+exponential overflows, or interval after interval by compiled code in the
+optimiser (`fitter.core.scans`).  When V is ill-conditioned (defective A, e.g. the
 Jordan blocks that a bilinear transform makes of a shift register) the kernel
 falls back to the same phi-functions as matrices, blocks of
 expm([[A S, I, 0], [0, 0, I], [0, 0, 0]]) computed on n x n blocks
@@ -46,7 +47,7 @@ from typing import Iterator
 import numpy as np
 
 from .errors import KernelError
-from .recurrence import CHUNK_SPAN
+from .scans import integrate_dense, modal_pass
 
 __all__ = [
     "AffineFlow",
@@ -468,12 +469,10 @@ def integrate_blocks(
     """The states after each interval of `integrate` (x_1 ... x_N), in consecutive pieces of at most
     `_BLOCK` intervals: (k, n) or (k, n, m) arrays.
 
-    When every flow used is modal, the intervals are cut into segments (a
-    branch change, or the span limit of `fitter.core.recurrence.linear_recurrence`), each segment is
-    summed in closed form and only the segments' end states are chained one
-    after another.  Otherwise every interval's affine map comes from the
-    block matrix exponential of `AffineFlow.affine_maps` and the maps are
-    composed by a blocked prefix scan.  Each piece starts from the last state
+    When every flow used is modal, the modal pass in effect (`fitter.core.scans.modal_pass`: the numpy sums
+    over segments, or the compiled scan inside `fitter.core.scans.compiled_scans`); otherwise every
+    interval's affine map comes from the block matrix exponential of `AffineFlow.affine_maps` and the maps
+    are composed by a blocked prefix scan (`fitter.core.scans`).  Each piece starts from the last state
     of the one before (a piece boundary is one more segment start), so the
     work arrays are those of one piece: a caller that reduces the states as
     they come (`kernel.state_blocks`) needs memory for one piece only.
@@ -483,118 +482,9 @@ def integrate_blocks(
         return
     used = {b: fl[b] for b in np.unique(branch)}
     force = {b: None if forcing is None else forcing[b] for b in used}
-    run = _integrate_modal if all(flow.modal for flow in used.values()) else _integrate_dense
+    run = modal_pass() if all(flow.modal for flow in used.values()) else integrate_dense
     for a in range(0, len(S), _BLOCK):
         b = min(a + _BLOCK, len(S))
         X = run(used, force, x, branch[a:b], p[a:b], r[a:b], S[a:b])
         x = X[-1]
         yield X
-
-
-def _columns(a: np.ndarray, extra: int) -> np.ndarray:
-    """`a` with `extra` trailing axes of length 1 (broadcast over initial states)."""
-    return a.reshape(a.shape + (1,) * extra)
-
-
-def _segmented_cumsum(x: np.ndarray, head: np.ndarray) -> np.ndarray:
-    """Cumulative sum along axis 0 restarting at every True of `head`.
-
-    One `np.cumsum` per segment (a Python loop, about 3 us a segment), or a
-    Hillis-Steele scan over the whole array (log2 of the longest segment
-    passes, about 3 ns an entry each), whichever is estimated cheaper.
-    """
-    first = np.flatnonzero(head)
-    ends = np.r_[first[1:], len(x)]
-    passes = max(1, int(np.ceil(np.log2(max(int(np.max(ends - first)), 2)))))
-    if len(first) * 1000 <= passes * x.size:
-        out = np.empty_like(x)
-        for a, b in zip(first, ends):
-            np.cumsum(x[a:b], axis=0, out=out[a:b])
-        return out
-    v, h = x.copy(), head.copy()
-    d = 1
-    while d < len(x) and not h[d:].all():
-        add = np.where(_columns(h[d:], v.ndim - 1), 0, v[:-d])
-        h[d:] = h[d:] | h[:-d]
-        v[d:] = v[d:] + add
-        d *= 2
-    return v
-
-
-def _stacked_matvec(M: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """M_s x_s, M (..., n, n), x (..., n) or (..., n, m), by matmul (einsum: 3-5 times as long here)."""
-    return np.matmul(M, x[..., None])[..., 0] if x.ndim == M.ndim - 1 else np.matmul(M, x)
-
-
-def _integrate_modal(used: dict, force: dict, X0: np.ndarray, branch, p, r, S) -> np.ndarray:
-    """States after each interval, all flows modal (see `integrate`)."""
-    N, n, extra = len(S), X0.shape[0], X0.ndim - 1
-    dtype = complex if any(np.iscomplexobj(flow.lam) for flow in used.values()) else float
-    z = np.empty((N, n), dtype=dtype)
-    f = np.empty((N, n) + X0.shape[1:], dtype=dtype)
-    for b, flow in used.items():
-        sel = branch == b
-        z[sel], fb = flow.modal_terms(p[sel], r[sel], S[sel], force[b])
-        f[sel] = fb if fb.ndim == f.ndim else _columns(fb, extra)
-    chunk = np.floor(np.cumsum(np.abs(z.real).max(axis=1)) / CHUNK_SPAN)
-    head = np.r_[True, (branch[1:] != branch[:-1]) | (chunk[1:] != chunk[:-1])]
-    first = np.flatnonzero(head)
-    last = np.r_[first[1:] - 1, N - 1]
-    L = _segmented_cumsum(np.where(head[:, None], 0, z), head)
-    F = _segmented_cumsum(np.where(_columns(head, 1 + extra), 0, f * _columns(np.exp(-L), extra)), head)
-    # segment s maps its entry state x_s to its exit state: in modal coordinates w = V^-1 x_s,
-    # W0 = e^{z_first} w + f_first (its first interval), w_out = P_last (W0 + F_last); as a map on x,
-    # x_{s+1} = V diag(P_last e^{z_first}) V^-1 x_s + V P_last (f_first + F_last): chained by `_affine_scan`
-    ez0, f0 = np.exp(z[first]), f[first]
-    PL, FL = np.exp(L[last]), F[last]
-    keys = list(used)
-    index = np.searchsorted(np.array(keys), branch[first]) if len(keys) > 1 else np.zeros(len(first), int)
-    V = np.stack([used[b].V for b in keys])[index]
-    Vinv = np.stack([used[b].Vinv for b in keys])[index]
-    M = ((V * (PL * ez0)[:, None, :]) @ Vinv).real
-    c = _stacked_matvec(V, _columns(PL, extra) * (f0 + FL)).real
-    entry = np.concatenate([X0[None], _affine_scan(M, c, X0)[:-1]])
-    W0 = _columns(ez0, extra) * _stacked_matvec(Vinv, entry) + f0
-    seg = np.cumsum(head) - 1
-    W = _columns(np.exp(L), extra) * (W0[seg] + F)
-    X = np.empty((N, n) + X0.shape[1:])
-    for b, flow in used.items():
-        sel = branch == b
-        X[sel] = (np.matmul(flow.V, W[sel]) if extra else W[sel] @ flow.V.T).real
-    return X
-
-
-def _integrate_dense(used: dict, force: dict, X0: np.ndarray, branch, p, r, S) -> np.ndarray:
-    """States after each interval from the intervals' affine maps x_{k+1} = M_k x_k + g_k
-    (`AffineFlow.affine_maps`), chained by `_affine_scan`."""
-    N, n, extra = len(S), X0.shape[0], X0.ndim - 1
-    M = np.empty((N, n, n))
-    g = np.empty((N, n) + X0.shape[1:])
-    for b, flow in used.items():
-        sel = np.flatnonzero(branch == b)
-        M[sel], gb = flow.affine_maps(p[sel], r[sel], S[sel], force[b])
-        g[sel] = gb if gb.ndim == g.ndim else _columns(gb, extra)
-    return _affine_scan(M, g, X0)
-
-
-def _affine_scan(M: np.ndarray, g: np.ndarray, X0: np.ndarray, block: int = 32) -> np.ndarray:
-    """States x_1..x_K of x_{k+1} = M_k x_k + g_k from x_0 = X0 ((n,) or (n, m)): prefix compositions
-    within blocks of `block` maps (log2(block) stacked products), the blocks chained in order."""
-    K, n = len(M), X0.shape[0]
-    nb = -(-K // block)
-    Mp = np.broadcast_to(np.eye(n), (nb * block, n, n)).copy()
-    gp = np.zeros((nb * block, n) + X0.shape[1:])
-    Mp[:K], gp[:K] = M, g
-    P, c = Mp.reshape(nb, block, n, n), gp.reshape((nb, block, n) + X0.shape[1:])
-    d = 1
-    while d < block:
-        P_new, c_new = P.copy(), c.copy()
-        P_new[:, d:] = P[:, d:] @ P[:, :-d]
-        c_new[:, d:] = _stacked_matvec(P[:, d:], c[:, :-d]) + c[:, d:]
-        P, c, d = P_new, c_new, 2 * d
-    out = np.empty((nb, block, n) + X0.shape[1:])
-    x = X0
-    for i in range(nb):
-        out[i] = P[i] @ x + c[i]
-        x = out[i, -1]
-    return out.reshape((nb * block, n) + X0.shape[1:])[:K]

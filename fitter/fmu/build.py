@@ -92,6 +92,8 @@ COMPENSATOR_IDENTIFIER = "duhem_compensator"
 BACKENDS = ("python", "native")
 _SLAVE_SOURCE = Path(fmu_src.__file__).resolve().parent / "duhem_slave.py"
 _CORE_DIR = Path(fitter.core.__file__).resolve().parent
+_NOT_SHIPPED = ("compiled.py",)
+"""Kernel modules left out of the FMUs: the optimiser's compiled scan (numba, `fitter.core.compiled`)."""
 _GUID_NAMESPACE = uuid.UUID("5b0c1f4e-3a9d-4c1e-9a57-2f3f8d6f1e21")
 _PYTHON_OPTIONS = ("model_name", "description", "version", "author")
 
@@ -118,7 +120,7 @@ def _load(model_or_json_path):
 def _code_hash() -> str:
     """Hash of the slave and kernel sources (names the modules shipped in the FMU)."""
     h = hashlib.sha256(_SLAVE_SOURCE.read_bytes())
-    for path in sorted(_CORE_DIR.rglob("*.py")):
+    for path in sorted(p for p in _CORE_DIR.rglob("*.py") if p.name not in _NOT_SHIPPED):
         h.update(path.relative_to(_CORE_DIR).as_posix().encode())
         h.update(path.read_bytes())
     return h.hexdigest()[:12]
@@ -135,7 +137,7 @@ def _stage(model, staging: Path, code: str, inverse_start: float | None = None) 
     kernel = f"duhem_core_{code}"
     script = staging / f"duhem_slave_{code}.py"
     shutil.copyfile(_SLAVE_SOURCE, script)
-    shutil.copytree(_CORE_DIR, staging / kernel, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(_CORE_DIR, staging / kernel, ignore=shutil.ignore_patterns("__pycache__", *_NOT_SHIPPED))
     save_model(model, staging / "model.json")
     variables = model_variables(model) if inverse_start is None else compensator_variables(model, inverse_start)
     write_json(

@@ -426,7 +426,8 @@ class Recordings:
         try:
             model = param.build(theta)
             with np.errstate(all="ignore"):
-                parts = [self._linear_part(model, lin, i) for i in range(len(self.recordings))]
+                fl = flows(model)
+                parts = [self._linear_part(model, lin, i, fl) for i in range(len(self.recordings))]
             solution = solve_shared(parts, [r.y for r in self.recordings], self._w)
         except (DuhemError, ValueError, np.linalg.LinAlgError, FloatingPointError):
             info = [self._one(None, rec, cyc) for rec, cyc in zip(self.recordings, self.cycles)]
@@ -440,16 +441,16 @@ class Recordings:
         ]
         return np.concatenate(weighted), theta
 
-    def _linear_part(self, model, lin: dict[int, tuple[str, int]], i: int) -> LinearPart:
+    def _linear_part(self, model, lin: dict[int, tuple[str, int]], i: int, fl: dict) -> LinearPart:
         """Recording i's `LinearPart`: the base's columns (`response_columns`); with effects, every one
         `additive` (``"fit"`` only), their terms added to its base (from the chain state settled on it with
         ``settle``) and, where one carries the output's reference and the recording is not the reference's owner,
         a column of ones (`fitted_initial_state`).  With effects the base's columns are kept in the recording's
         memo under the base's parameters (the optimiser holds the linear entries of the theta it moves, so they
-        repeat while only the effects' parameters move)."""
+        repeat while only the effects' parameters move).  `fl`: the model's flows, shared by the recordings."""
         rec, cyc, memo = self.recordings[i], self.cycles[i], self._memos[i]
         if not getattr(model, "effects", None):
-            return response_columns(model, lin, rec.t, rec.u, self.x0, cyc)
+            return response_columns(model, lin, rec.t, rec.u, self.x0, cyc, fl)
         if self.x0 != "fit" or not _all_additive(model):
             raise DuhemError("variable projection needs x0 'fit' and additive effects")
         w = model.model_input(np.asarray(rec.u, dtype=float))
@@ -457,9 +458,9 @@ class Recordings:
             memo,
             "columns",
             _base_key(model),
-            lambda: response_columns(model.replace(effects=[]), lin, rec.t, w, "fit", None),
+            lambda: response_columns(model.replace(effects=[]), lin, rec.t, w, "fit", None, fl),
         )
-        state = _settled(model, rec.t, rec.u, _flows(model, memo), memo) if self._settle[i] else None
+        state = _settled(model, rec.t, rec.u, fl, memo) if self._settle[i] else None
         terms = _terms(model, rec.t, rec.u, state, memo)
         own = part.Own
         if i != self._reference_owner() and offset_position(model) is not None:

@@ -91,14 +91,14 @@ def _forcing_fields(model) -> dict[float, tuple[str, str]]:
     return {1.0: ("B", "E"), -1.0: ("B", "E")}
 
 
-def response_columns(model, lin: dict[int, tuple[str, int]], t, u, mode: str, cycle):
+def response_columns(model, lin: dict[int, tuple[str, int]], t, u, mode: str, cycle, flow_cache: dict | None = None):
     """Output columns of `model` (no effects) on one recording (module docstring), in one pass of the kernel.
 
     Returns a `LinearPart`: base the output with theta_L = 0 (from x0 = model.x0 for ``"model"``, from the
     cycle's fixed point for ``"periodic"``), Psi the response to each linear entry in the order of `lin`, Own
     the responses to unit initial states (``"fit"`` only).  For ``"periodic"`` every column carries its own
     fixed point of the cycle map (when its spectral radius is < 1; else the model's x0), so the periodic state
-    stays linear in theta_L.
+    stays linear in theta_L.  `flow_cache`: the model's flows (`fitter.core.kernel.flows`), when at hand.
     """
     n = model.order
     start = cycle[0] if mode == "periodic" else 0
@@ -121,7 +121,7 @@ def response_columns(model, lin: dict[int, tuple[str, int]], t, u, mode: str, cy
     if mode == "model":
         X0[:, 0] = model.x0
     forcing = {b: (cols[fb], cols[fe]) for b, (fb, fe) in fields.items()}
-    X = state_response(model, t, u, X0, forcing=forcing)
+    X = state_response(model, t, u, X0, flow_cache=flow_cache, forcing=forcing)
     Y = np.einsum("i,kim->km", model.C, X)
     d_linear = any(f == "D" for f, _ in lin.values())
     base = Y[:, 0] + (0.0 if d_linear else model.D * u)

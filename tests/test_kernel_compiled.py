@@ -1,0 +1,97 @@
+"""The compiled modal scan (numba) against the kernel's numpy sums: the same states, to rounding."""
+
+import sys
+
+import numpy as np
+import pytest
+
+from fitter.core import RateDependentModel, RateIndependentModel
+from fitter.core.flow import flows, integrate, interval_coefficients
+from fitter.core.rates import CallableRate
+from fitter.core.scans import compiled_scans, integrate_modal, modal_pass
+
+compiled = pytest.importorskip("fitter.core.compiled")
+
+
+def _ri(rotating: bool) -> RateIndependentModel:
+    """Order 3: complex eigenvalues on the rising branch when `rotating`, real ones on the falling branch."""
+    A_plus = [[-2.0, 3.0, 0.0], [-3.0, -2.0, 0.5], [0.0, 0.2, -1.0]] if rotating else np.diag([-1.0, -2.5, -4.0])
+    return RateIndependentModel(
+        A_plus=A_plus,
+        A_minus=np.diag([1.5, 3.0, 0.7]),
+        B_plus=[1.0, -0.5, 0.3],
+        B_minus=[0.8, 0.2, -0.4],
+        C=[1.0, 0.5, -0.2],
+        E_plus=[0.1, 0.0, -0.2],
+        E_minus=[-0.3, 0.1, 0.0],
+        D=0.2,
+        x0=[0.1, -0.2, 0.05],
+    )
+
+
+def _rd() -> RateDependentModel:
+    g = CallableRate(lambda v: np.abs(v) ** 0.8)
+    return RateDependentModel(
+        A=[[-3.0, 1.0], [-1.0, -0.5]], B=[1.0, 0.4], C=[1.0, 0.3], E=[0.1, -0.1], D=0.1, x0=[0.2, 0.0], g=g
+    )
+
+
+def _input(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Minor loops between random turning points, with held stretches (du = 0)."""
+    rng = np.random.default_rng(seed)
+    turns = rng.uniform(-1.0, 1.0, n // 40 + 2)
+    u = np.interp(np.linspace(0, len(turns) - 1, n), np.arange(len(turns)), turns)
+    u[n // 3 : n // 3 + 25] = u[n // 3]
+    return np.linspace(0.0, 0.01 * n, n), u
+
+
+@pytest.mark.parametrize("model", [_ri(True), _ri(False), _rd()], ids=["ri-complex", "ri-real", "rd"])
+@pytest.mark.parametrize("columns", [None, 4])
+def test_compiled_scan_gives_the_numpy_sums_states(model, columns):
+    """States from one initial state and from several with per-column forcings (what variable projection asks
+    for), over 5000 intervals that cross the numpy sums' chunk limit: equal to 1e-10 of their range."""
+    t, u = _input(5000, 1)
+    branch, p, r, S = interval_coefficients(model, t, u)
+    fl = flows(model)
+    used = {b: fl[b] for b in np.unique(branch)}
+    n = model.order
+    if columns is None:
+        X0, force = np.asarray(model.x0), {b: None for b in used}
+    else:
+        rng = np.random.default_rng(2)
+        X0 = rng.standard_normal((n, columns))
+        force = {b: (rng.standard_normal((n, columns)), rng.standard_normal((n, columns))) for b in used}
+    numpy_states = integrate_modal(used, force, X0, branch, p, r, S)
+    compiled_states = compiled.modal_scan(used, force, X0, branch, p, r, S)
+    assert compiled_states.shape == numpy_states.shape
+    scale = np.abs(numpy_states).max()
+    assert np.abs(compiled_states - numpy_states).max() <= 1e-10 * scale
+    assert np.abs(numpy_states[-1] - numpy_states[0]).max() > 1e-3 * scale  # the states move
+
+
+def test_compiled_scans_is_the_modal_pass_only_inside_its_context():
+    """Outside `compiled_scans` the kernel runs its numpy sums; inside, the compiled scan, with `integrate`'s
+    states equal to rounding."""
+    model = _ri(True)
+    t, u = _input(800, 3)
+    branch, p, r, S = interval_coefficients(model, t, u)
+    assert modal_pass() is integrate_modal
+    outside = integrate(flows(model), model.x0, branch, p, r, S)
+    with compiled_scans() as available:
+        assert available and modal_pass() is compiled.modal_scan
+        inside = integrate(flows(model), model.x0, branch, p, r, S)
+    assert modal_pass() is integrate_modal
+    assert np.abs(inside - outside).max() <= 1e-12 * np.abs(outside).max()
+
+
+def test_without_the_compiled_module_the_kernel_runs_its_numpy_sums(monkeypatch):
+    """As inside an FMU (which ships `fitter.core` without it, `fitter.fmu.build._NOT_SHIPPED`) or without
+    numba: `compiled_scans` says it is unavailable and the modal pass stays the numpy sums."""
+    from fitter.core import scans
+    from fitter.fmu.build import _NOT_SHIPPED
+
+    assert "compiled.py" in _NOT_SHIPPED
+    monkeypatch.setitem(sys.modules, "fitter.core.compiled", None)  # import fails
+    monkeypatch.setattr(scans, "_LOADED", {})
+    with compiled_scans() as available:
+        assert not available and modal_pass() is integrate_modal
