@@ -97,7 +97,17 @@ references eliminated (5 Dec 2026): the two raced starts reached a cost of 0.020
 iterations later (NRMSE 0.366 / 0.520 / 0.681 %, 110 s in all); after 100, 0.0169 300 later (0.366 / 0.519 /
 0.661 %, 216 s).  So the race is short and the finish capped at `MAX_NFEV` in all; a refinement stopped by the
 cap says so (the summary's ``optimiser.budget_hit``, a note of `duhem fit`)."""
-OPTIONS = Options(xtol=1e-7, ftol=1e-7, gtol=1e-8, max_samples=None, normalise=True, max_nfev=MAX_NFEV, eliminate=True)
+OPTIONS = Options(
+    xtol=1e-7,
+    ftol=1e-7,
+    gtol=1e-8,
+    max_samples=None,
+    normalise=True,
+    max_nfev=MAX_NFEV,
+    eliminate=True,
+    compiled=True,
+    diff_step=1e-6,
+)
 
 
 def check_effects(effects: Sequence[str]) -> list[str]:
