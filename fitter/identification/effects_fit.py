@@ -106,7 +106,6 @@ OPTIONS = Options(
     max_nfev=MAX_NFEV,
     eliminate=True,
     compiled=True,
-    diff_step=1e-6,
 )
 
 

@@ -70,12 +70,13 @@ class Options:
     """Relative step of the forward-difference Jacobian (scipy's ``diff_step``: h = diff_step max(1, |theta|));
     None: scipy's sqrt(eps) = 1.5e-8.  That is below the projected residuals' rounding noise: on the piezo
     triangles' rate-independent order-3 fit its Jacobian columns were 10-100 % off those of 1e-6 with
-    variable projection (0.5-2 % without); 1e-6 and 1e-5 agree to 0.1-2.6 %.  The effect fits step 1e-6; the
-    base search keeps the default, on which the diagnosis' choices rest (see `compiled`)."""
+    variable projection (0.5-2 % without); 1e-6 and 1e-5 agree to 0.1-2.6 %.  Every fit keeps the default for
+    now: with 1e-6 the piezo effect fit ended in a worse minimum (0.64/0.80/0.85 % against 0.40/0.55/0.68 %)
+    and the base search moved the piezo diagnosis (see `compiled`); open, docs/results.md."""
     compiled: bool = False
     """Run the evaluations on the kernel's compiled modal scan (`fitter.core.scans.compiled_scans`, numba): the
     effect fits do (`fitter.identification.effects_fit.OPTIONS`).  Off elsewhere: its rounding (1e-15 of the
-    numpy sums'), like the step 1e-6 in the base search, moved the diagnosis of the measured piezo set
+    numpy sums'), like a step of 1e-6 in the base search, moved the diagnosis of the measured piezo set
     (`bench/diagnose_measured.py`) from switching on an order-3 base to nothing on an order-1 base: a choice
     that must not rest on rounding (open, docs/results.md)."""
     eliminate: bool = False
