@@ -49,33 +49,30 @@ def _flow_factors(z: complex, series: np.ndarray) -> tuple[complex, complex, com
 
 
 @njit(cache=True)
+def _product(M, w, out):
+    """out = M w, M (n, n), w (n, m), all complex: the sums over k in ascending order."""
+    n, m = w.shape
+    for i in range(n):
+        for j in range(m):
+            acc = 0j
+            for k in range(n):
+                acc += M[i, k] * w[k, j]
+            out[i, j] = acc
+
+
+@njit(cache=True)
 def _scan(lam, V, Vinv, beta, eps, index, p, r, S, X0, series):
     N, n, m = len(S), X0.shape[0], X0.shape[1]
     X = np.empty((N, n, m))
     w = np.zeros((n, m), dtype=np.complex128)
     b = index[0]
-    for i in range(n):
-        for j in range(m):
-            acc = 0j
-            for k in range(n):
-                acc += Vinv[b, i, k] * X0[k, j]
-            w[i, j] = acc
-    x = np.empty((n, m))
+    _product(Vinv[b], X0.astype(np.complex128), w)
+    x = np.empty((n, m), dtype=np.complex128)
     for t in range(N):
-        if index[t] != b:
-            for i in range(n):
-                for j in range(m):
-                    acc = 0j
-                    for k in range(n):
-                        acc += V[b, i, k] * w[k, j]
-                    x[i, j] = acc.real
+        if index[t] != b:  # a change of branch: x = Re(V w), w' = V'^-1 x
+            _product(V[b], w, x)
             b = index[t]
-            for i in range(n):
-                for j in range(m):
-                    acc = 0j
-                    for k in range(n):
-                        acc += Vinv[b, i, k] * x[k, j]
-                    w[i, j] = acc
+            _product(Vinv[b], x.real.astype(np.complex128), w)
         s = S[t]
         for i in range(n):
             z = lam[b, i] * s
@@ -84,12 +81,8 @@ def _scan(lam, V, Vinv, beta, eps, index, p, r, S, X0, series):
             a = c1 * p[t] + s * s * p2 * r[t]
             for j in range(m):
                 w[i, j] = e * w[i, j] + a * beta[b, i, j] + c1 * eps[b, i, j]
-        for i in range(n):
-            for j in range(m):
-                acc = 0j
-                for k in range(n):
-                    acc += V[b, i, k] * w[k, j]
-                X[t, i, j] = acc.real
+        _product(V[b], w, x)
+        X[t] = x.real
     return X
 
 
