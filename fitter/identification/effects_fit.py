@@ -105,7 +105,6 @@ OPTIONS = Options(
     normalise=True,
     max_nfev=MAX_NFEV,
     eliminate=True,
-    compiled=True,
 )
 
 
