@@ -414,7 +414,7 @@ def test_switching_settles_in_closed_form_as_its_runs_do(spread, width):
     """`Switching.settle` (each share's affine map over the run) is the state after `SETTLE_RUNS` runs of the
     chain, with spread shares and with intervals that switch fully (a narrow width: the decay cap)."""
     from fitter.core.effects import SETTLE_RUNS, run_with_effects, settled_state, with_start
-    from fitter.core.effects.catalogue import switching_rates
+    from fitter.core.effects.switching import switching_rates
     from fitter.core.kernel import flows
 
     parameters = dict(REGISTRY["switching"].example, spread1=spread, width1=width, S2=0.1, spread2=spread / 2)
@@ -621,3 +621,29 @@ def test_measurement_drift_adds_a_line_in_time_and_carries_it_across_steps():
     st = Stepper(ri([("measurement_drift", {"rate": -0.3})]), t0=t[0], u0=u[0])
     out, saved = stepped(st, t, u, keep=200)
     assert saved[-2] == (pytest.approx(-0.3 * (t[199] - t[0]), abs=1e-12),)  # at the anchor, t[199]
+
+
+def test_switching_runs_kept_are_what_computing_again_gives(monkeypatch):
+    """A population's run kept (`switching._RUNS`: rates, states from each start, period map) is, to the last
+    digit, what computing it afresh gives, whichever runs were asked in between (more than are kept); its arrays
+    are read-only."""
+    import fitter.core.effects.switching as sw
+
+    t = np.linspace(0.0, 3.0, 301)
+    u, h = 1.2 * np.sin(2 * np.pi * t / 3), np.diff(t)
+    asks = [(0.3, 0.5 + d, dn, 0.1, s0) for d in np.linspace(0.0, 0.2, 20) for dn in (-0.5, -0.6) for s0 in (-0.3, 0.2)]
+    asks = asks + asks[::-1] + asks[::3]
+
+    def run_of(S, up, dn, width, s0):
+        states = sw.switching_states(u, h, S, up, dn, width, s0)
+        return (states, *sw.switching_rates(u, h, S, up, dn, width), *sw._period_map(sw._run(u, h, S, up, dn, width)))
+
+    kept = [run_of(*a) for a in asks]
+    assert len({a[1:3] for a in asks}) > sw._RUNS_KEPT == len(sw._RUNS)
+    monkeypatch.setattr(sw, "_RUNS_KEPT", 0)
+    sw._RUNS.clear()
+    for got, again in zip(kept, [run_of(*a) for a in asks]):
+        for x, y in zip(got, again):
+            np.testing.assert_array_equal(x, y)
+    assert not sw._RUNS
+    assert not kept[0][0].flags.writeable and not kept[0][1].flags.writeable

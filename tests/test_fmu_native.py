@@ -218,7 +218,7 @@ def test_c_reads_the_registrys_numbers(tmp_path, monkeypatch):
     """Every native effect's fixed numbers (`EffectSpec.c_constants`) are macros of the generated header, and the
     C computes with them: with the switching integrals capped at 0.05 instead of 40 (a cap that binds on every
     interval), kernel and C still agree to 1e-10, and both differ from the uncapped output."""
-    import fitter.core.effects.catalogue as catalogue
+    import fitter.core.effects.switching as switching
     from fitter.fmu.native_sources import model_data_header
 
     model = ri_model(ALL_EFFECTS)
@@ -228,7 +228,7 @@ def test_c_reads_the_registrys_numbers(tmp_path, monkeypatch):
             assert f"#define DUHEM_{name.upper()}_{key} " in header, (name, key)
     t, u = sampled_input()
     before = simulate(model, t, u).y
-    monkeypatch.setattr(catalogue, "_MAX_DECAY", 0.05)
+    monkeypatch.setattr(switching, "_MAX_DECAY", 0.05)
     assert "#define DUHEM_SWITCHING_MAX_DECAY 0.05" in model_data_header(model, "{guid}")
     ref = simulate(model, t, u).y
     y = simulate_fmu(build_native_fmu(model, tmp_path / "capped.fmu", platforms="host"), t, u)

@@ -125,19 +125,12 @@ recording that is a closed loop.  This package needs only
 numpy: it is shipped inside the FMUs.
 
 Modules: `spec` (the parts an effect is built from), `catalogue` (the
-effects and `REGISTRY`), `chain` (a model's effects, their states, the run).
+effects and `REGISTRY`), `switching` (the switching effect), `chain` (a model's effects, their states, the run).
 """
 
 from ..errors import EffectError
-from .catalogue import (
-    REGISTRY,
-    SWITCHING_NODES,
-    SWITCHING_NODES_Z,
-    SWITCHING_POPULATIONS,
-    play_operator,
-    relaxation_taus,
-    switching_states,
-)
+from .catalogue import REGISTRY, play_operator, relaxation_taus
+from .switching import SWITCHING_NODES, SWITCHING_NODES_Z, SWITCHING_POPULATIONS, switching_states
 from .chain import (
     SETTLE_RUNS,
     Effect,
