@@ -105,6 +105,7 @@ OPTIONS = Options(
     normalise=True,
     max_nfev=MAX_NFEV,
     eliminate=True,
+    compiled=True,
 )
 
 
