@@ -120,7 +120,10 @@ def stored_start(model) -> EffectState | None:
 
 
 def with_start(model, state: EffectState | None):
-    """`model` with its effects' stored start set to the chain state `state` (None: afresh)."""
+    """`model` with its effects' stored start set to the chain state `state` (None: afresh); `model` itself when
+    its effects already start afresh and `state` is None (models are immutable)."""
+    if state is None and all(e.start is None for e in model.effects):
+        return model
     parts = _split_state(_present(model), state) if state is not None else {}
     return model.replace(
         effects=[
