@@ -11,6 +11,7 @@ The input is linear between samples; the switching integrals over an interval ar
 from __future__ import annotations
 
 import math
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from statistics import NormalDist
@@ -74,6 +75,8 @@ _RUNS_SIZE = 2**15
 computed again rather than held."""
 _STATES_KEPT = 2
 """States kept per run: from the start afresh and from the settled one."""
+_LOCK = threading.Lock()
+"""Guards `_RUNS` and the runs' kept values: a simulator may step several FMU instances on threads."""
 
 
 def _run(u: np.ndarray, h: np.ndarray, S: float, u_up, u_dn, width: float) -> _Run:
@@ -81,19 +84,22 @@ def _run(u: np.ndarray, h: np.ndarray, S: float, u_up, u_dn, width: float) -> _R
     with steps `h`: from `_RUNS` when asked before (keyed by the values' bytes and the caps)."""
     up, dn = np.atleast_1d(np.asarray(u_up, dtype=float)), np.atleast_1d(np.asarray(u_dn, dtype=float))
     key = (u.tobytes(), h.tobytes(), float(S), up.tobytes(), dn.tobytes(), float(width), _MAX_EXPONENT, _MAX_DECAY)
-    run = _RUNS.get(key)
-    if run is not None:
-        _RUNS.move_to_end(key)
-        return run
+    with _LOCK:
+        run = _RUNS.get(key)
+        if run is not None:
+            _RUNS.move_to_end(key)
+            return run
     run = _Run(*_switching_rates(u, h, S, up, dn, width))
     if len(u) * len(up) <= _RUNS_SIZE:
-        _RUNS[key] = run
-        if len(_RUNS) > _RUNS_KEPT:
-            _RUNS.popitem(last=False)
+        with _LOCK:
+            _RUNS[key] = run
+            while len(_RUNS) > _RUNS_KEPT:
+                _RUNS.popitem(last=False)
     return run
 
 
 def _switching_rates(u, h, S: float, up: np.ndarray, dn: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
+    """`switching_rates` computed (read-only arrays)."""
     ua, d = u[:-1, None], (np.diff(u) / width)[:, None]
     log_h = np.log(h)[:, None]
     P = log_h + ua / width + _log_exprel(d)
@@ -114,16 +120,19 @@ def switching_states(u: np.ndarray, h: np.ndarray, S: float, u_up, u_dn, width: 
     total, target = run.total, run.target
     start = np.broadcast_to(np.asarray(s0, dtype=float), total.shape[1:])
     key = start.tobytes()
-    if key not in run.states:
+    with _LOCK:
+        out = run.states.get(key)
+    if out is None:
         out = np.empty((len(u), total.shape[1]))
         out[0] = start
         if len(h):
             out[1:] = linear_recurrence(start, -total, np.exp(-total), -np.expm1(-total) * target)
         out.flags.writeable = False
-        if len(run.states) >= _STATES_KEPT:
-            del run.states[next(iter(run.states))]
-        run.states[key] = out
-    return run.states[key]
+        with _LOCK:
+            while len(run.states) >= _STATES_KEPT:
+                del run.states[next(iter(run.states))]
+            run.states[key] = out
+    return out
 
 
 def switching_period_map(total: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -135,9 +144,11 @@ def switching_period_map(total: np.ndarray, target: np.ndarray) -> tuple[np.ndar
 
 
 def _period_map(run: _Run) -> tuple[np.ndarray, np.ndarray]:
-    """`switching_period_map` of a run, kept with it."""
+    """`switching_period_map` of a run, kept with it (read-only)."""
     if run.period is None:
-        run.period = switching_period_map(run.total, run.target)
+        P, c = switching_period_map(run.total, run.target)
+        P.flags.writeable = c.flags.writeable = False
+        run.period = (P, c)
     return run.period
 
 
