@@ -87,9 +87,9 @@ def _scan(lam, V, Vinv, beta, eps, index, p, r, S, X0, series):
 
 
 def modal_scan(used: dict, force: dict, X0: np.ndarray, branch, p, r, S) -> np.ndarray:
-    """States after each interval (N, n) or (N, n, m), every flow in `used` modal: `fitter.core.flow`'s
-    ``_integrate_modal`` by (M) interval after interval (module docstring).  `force`: per branch None (the
-    flow's own B, E) or m forcing columns (B, E), each (n, m)."""
+    """States after each interval (N, n) or (N, n, m), every flow in `used` modal:
+    `fitter.core.scans.integrate_modal` by (M) interval after interval (module docstring).  `force`: per
+    branch None (the flow's own B, E) or m forcing columns (B, E), each (n, m)."""
     keys = list(used)
     flows = [used[b] for b in keys]
     cols = X0.reshape(X0.shape[0], -1).astype(float)

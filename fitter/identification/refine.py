@@ -79,8 +79,8 @@ class Options:
     numpy sums'), like a step of 1e-6 in the base search, moved the diagnosis of the measured piezo set
     (`bench/diagnose_measured.py`) from switching on an order-3 base to nothing on an order-1 base (measured
     twice; the second time the order-3 base ended at an RMS of 3.42 instead of 3.53, and the switching fitted
-    on it swung one way only, so its reversal test failed): a choice
-    that must not rest on rounding (open, docs/results.md)."""
+    on it swung one way only, so its reversal test failed): a choice that must not rest on rounding (open,
+    docs/results.md)."""
     eliminate: bool = False
     """Eliminate the parameters in which the model is linear (`Parametrisation.linear_entries`)
     by linear least squares at every evaluation (variable projection, module docstring)."""
@@ -163,6 +163,11 @@ def jacobian(fun: Callable[[np.ndarray], np.ndarray], theta: np.ndarray, f0: np.
     return J
 
 
+def _scans(options: Options):
+    """The kernel's pass for `options`' evaluations: `compiled_scans()` with `Options.compiled`, else none."""
+    return compiled_scans() if options.compiled else nullcontext()
+
+
 def refine(
     param: Parametrisation,
     theta0: np.ndarray,
@@ -196,8 +201,7 @@ def refine(
     if jac is not None and (penalty is not None or obj.lin.any()):
         raise ValueError("a problem's own Jacobian cannot be combined with a penalty or elimination")
     jac_moving = "2-point" if jac is None else (lambda z: jac(obj.full_theta(z))[:, obj.moving] / obj.scale)
-    scans = compiled_scans() if options.compiled else nullcontext()
-    with np.errstate(all="ignore"), threadpool_limits(limits=1, user_api="blas"), scans:
+    with np.errstate(all="ignore"), threadpool_limits(limits=1, user_api="blas"), _scans(options):
         sol = least_squares(
             obj,
             obj.theta0[obj.moving],
@@ -220,7 +224,7 @@ def refine(
         J = np.broadcast_to(0.0, (len(weighted), len(theta)))  # zero, in no memory
     else:
         if obj.lin.any():
-            with compiled_scans() if options.compiled else nullcontext():
+            with _scans(options):
                 J_free = _free_jacobian(obj.coarse, param, theta, obj.free) / obj.scale
         else:
             J_free = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
