@@ -364,3 +364,27 @@ def test_variable_projection_with_additive_effects_fits_forcing_states_and_refer
     np.testing.assert_allclose(back[lin], theta[lin], rtol=0.02)
     saturated = WithEffects(StateSpace(base), ["switching", "saturation"], ctx)
     assert saturated.linear_entries() == {}
+
+
+def test_a_value_kept_under_the_compiled_pass_is_not_reused_by_the_numpy_pass():
+    """An effect fit evaluates on the compiled pass and takes its final residuals on numpy's: the residuals of a
+    recording whose memo was filled under the compiled pass are those of a fresh memo, to the last digit (they
+    were not, by 1e-9 of the range on the piezo triangles, so that a fit's last digits depended on which thetas
+    its process had evaluated)."""
+    from fitter.core.scans import compiled_scans
+
+    model = RateIndependentModel(
+        A_plus=[[-3.0, 1.0], [-2.0, -1.0]], A_minus=[[-2.5, 0.5], [-1.0, -2.0]], B_plus=[1.0, 0.5],
+        B_minus=[1.2, -0.3], C=[1.0, 0.2], D=0.3, x0=[0.1, 0.0],
+    ).replace(effects=[{"effect": "measurement_drift", "parameters": {"rate": 0.01}}])
+    rec = _recording(0.0, cycles=3.0)
+    rec = Recording(rec.t, rec.u, simulate(model, rec.t, rec.u).y + 0.01 * np.sin(3 * rec.t), "r")
+    fam = StateSpace(model)
+    theta = fam.theta(model)
+    kept, fresh = Recordings([rec], x0="fit"), Recordings([rec], x0="fit")
+    with compiled_scans() as compiled:
+        if not compiled:
+            pytest.skip("numba is not installed: no compiled pass")
+        under_compiled = kept.residuals(fam, theta)[0]
+    assert not np.array_equal(under_compiled, fresh.residuals(fam, theta)[0])  # the passes do round differently
+    assert np.array_equal(kept.residuals(fam, theta)[0], fresh.residuals(fam, theta)[0])

@@ -91,6 +91,7 @@ from fitter.core.errors import DuhemError, KernelError
 from fitter.core.flow import branches
 from fitter.core.kernel import flows, simulate
 from fitter.core.periodic import affine_blocks, fixed_point
+from fitter.core.scans import modal_pass
 from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording
 from fitter.identification.parametrisation import Parametrisation
@@ -223,9 +224,14 @@ the base's columns, and the point itself is asked for again between them."""
 
 
 def _remembered(memo: dict | None, kind: str, key: tuple, compute):
-    """compute(), or its value kept in `memo` under (`kind`, `key`) (the last `MEMO_SIZE` per kind)."""
+    """compute(), or its value kept in `memo` under (`kind`, `key`, the kernel's modal pass in effect) (the last
+    `MEMO_SIZE` per kind).  The pass is part of the key because the compiled and the numpy pass round
+    differently (`fitter.core.scans`): an effect fit's evaluations run compiled and its final residuals do not,
+    and without it a value kept from an evaluation was reused there, so that the fit's last digits depended on
+    which thetas this process had evaluated (on two processes, measured on the piezo triangles: 1e-9)."""
     if memo is None:
         return compute()
+    key = (*key, modal_pass())
     kept = memo.setdefault(kind, {})
     if key not in kept:
         if len(kept) >= MEMO_SIZE:
