@@ -388,3 +388,55 @@ def test_a_value_kept_under_the_compiled_pass_is_not_reused_by_the_numpy_pass():
         under_compiled = kept.residuals(fam, theta)[0]
     assert not np.array_equal(under_compiled, fresh.residuals(fam, theta)[0])  # the passes do round differently
     assert np.array_equal(kept.residuals(fam, theta)[0], fresh.residuals(fam, theta)[0])
+
+
+def test_jacobians_on_two_processes_give_the_one_process_fit_to_the_last_digit(monkeypatch):
+    """The refinement of `test_fitted_initial_state_recovers_parameters_and_x0` with ``DUHEM_WORKERS`` 1 and 2,
+    the Jacobians on processes from the first one (`POOL_AFTER_S` 0)."""
+    import fitter.workers as workers
+
+    monkeypatch.setattr(workers, "POOL_AFTER_S", 0.0)
+    forked, close = [], workers._EvaluationMap.close
+
+    def recorded_close(self):  # per map of evaluations, whether it had forked its processes
+        forked.append(bool(self._peers))
+        close(self)
+
+    monkeypatch.setattr(workers._EvaluationMap, "close", recorded_close)
+    fits = {}
+    for processes in ("1", "2"):
+        monkeypatch.setenv("DUHEM_WORKERS", processes)
+        fits[processes] = refine(_Five(), START, Recordings([_recording(0.5)], x0="fit"))
+    assert forked == [True]  # one process maps here; two forked after the first map
+    one, two = fits.values()
+    assert one.nfev == two.nfev and one.theta.tobytes() == two.theta.tobytes()
+    assert np.array_equal(one.jac, two.jac) and np.array_equal(one.weighted, two.weighted)
+
+
+def test_evaluation_map_is_the_plain_map_and_none_inside_a_worker(monkeypatch):
+    import fitter.workers as workers
+
+    monkeypatch.setenv("DUHEM_WORKERS", "2")
+    monkeypatch.setattr(workers, "POOL_AFTER_S", 0.0)
+    xs = [np.array([float(k), 2.0]) for k in range(5)]
+    square = lambda x: x**2  # noqa: E731 (inherited by the fork, never pickled)
+    with workers.evaluation_map(square) as mapper:
+        first, pooled = mapper(square, iter(xs)), mapper(square, iter(xs))
+        assert len(mapper._peers) == 1
+    assert mapper._peers == []  # the processes end with the context
+    for out in (first, pooled):
+        assert [o.tolist() for o in out] == [[k * k, 4.0] for k in range(5)]
+
+    def refused(x):
+        if x[0] > 3:
+            raise ValueError(f"no simulation at {x[0]:g}")
+        return x
+
+    with workers.evaluation_map(refused) as mapper:
+        mapper(refused, xs[:2])
+        with pytest.raises(ValueError, match="no simulation at 4"):  # evaluated in the second process
+            mapper(refused, xs)
+        assert [o.tolist() for o in mapper(refused, xs[:4])] == [x.tolist() for x in xs[:4]]  # no answer left over
+    monkeypatch.setattr(workers, "_IN_WORKER", True)
+    with workers.evaluation_map(square) as mapper:
+        assert mapper is None
