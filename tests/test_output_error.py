@@ -374,8 +374,13 @@ def test_a_value_kept_under_the_compiled_pass_is_not_reused_by_the_numpy_pass():
     from fitter.core.scans import compiled_scans
 
     model = RateIndependentModel(
-        A_plus=[[-3.0, 1.0], [-2.0, -1.0]], A_minus=[[-2.5, 0.5], [-1.0, -2.0]], B_plus=[1.0, 0.5],
-        B_minus=[1.2, -0.3], C=[1.0, 0.2], D=0.3, x0=[0.1, 0.0],
+        A_plus=[[-3.0, 1.0], [-2.0, -1.0]],
+        A_minus=[[-2.5, 0.5], [-1.0, -2.0]],
+        B_plus=[1.0, 0.5],
+        B_minus=[1.2, -0.3],
+        C=[1.0, 0.2],
+        D=0.3,
+        x0=[0.1, 0.0],
     ).replace(effects=[{"effect": "measurement_drift", "parameters": {"rate": 0.01}}])
     rec = _recording(0.0, cycles=3.0)
     rec = Recording(rec.t, rec.u, simulate(model, rec.t, rec.u).y + 0.01 * np.sin(3 * rec.t), "r")
