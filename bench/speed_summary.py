@@ -9,6 +9,9 @@ Rows (each runs the other benches' own code, nothing is re-implemented here):
   wall time against the three classical models fitted to each record alone on the same records (Preisach,
   Prandtl-Ishlinskii, Bouc-Wen: `fitter.baselines`, the sum of their fits' times); target 30 s.  Skipped when
   ``../shared/data`` is absent.
+* **the piezo base search on two processes** against the same on one (``fit_recordings`` without effects, orders
+  1-4 of both kinds: the Jacobians' columns on the cores, `fitter.workers.evaluation_map`); the bench stops
+  unless both give the same theta to the last digit.  Skipped when ``../shared/data`` is absent.
 * **an effect fit on two processes** against the same fit on one (`bench/effect_fit_speed.py`'s experiment,
   ``DUHEM_WORKERS`` 2 and 1).
 * **the native FMU** (FMI 2.0) of orders 1-4, rate independent, steps per second in fmpy's loop against the
@@ -71,6 +74,24 @@ def piezo_rows() -> list[Row]:
     )
     classical = sum(_timed(cls().fit, [rec]) for cls in BASELINES.values() for rec in recs.values())
     return [("piezo.best fit [s]", best, "Preisach + PI + Bouc-Wen per record [s]", classical, "<= 30 s")]
+
+
+def base_search_rows() -> list[Row]:
+    """The piezo base search (``fit_recordings`` of the three rates, orders 1-4 of both kinds, no effects) on two
+    processes against one: the Jacobians' columns on the cores (`fitter.workers.evaluation_map`); raises unless
+    both give the same theta to the last digit (empty without the shared data)."""
+    if not real_data.DATA.is_dir():
+        return []
+    recs, seconds, thetas = list(real_data.piezo_recordings().values()), {}, {}
+    for n in ("1", "2"):
+        os.environ["DUHEM_WORKERS"] = n
+        t0 = time.perf_counter()
+        thetas[n] = fit_recordings(recs).theta.tobytes()
+        seconds[n] = time.perf_counter() - t0
+    os.environ.pop("DUHEM_WORKERS")
+    if thetas["1"] != thetas["2"]:
+        raise RuntimeError("the piezo base search differs on two processes from one")
+    return [("piezo base search, two processes [s]", seconds["2"], "one process [s]", seconds["1"], "< 1")]
 
 
 def effect_fit_rows() -> list[Row]:
@@ -149,7 +170,7 @@ def main() -> None:
     parser.add_argument("--skip-long", action="store_true", help="leave out the 1e6-sample recording")
     parser.add_argument("--steps", type=int, default=20000, help="co-simulation steps per FMU run")
     args = parser.parse_args()
-    rows = piezo_rows() + effect_fit_rows() + fmu_rows(args.steps)
+    rows = piezo_rows() + base_search_rows() + effect_fit_rows() + fmu_rows(args.steps)
     rows += ([] if args.skip_long else long_rows()) + paper_rows()
     text = table(rows)
     print(text)
