@@ -88,13 +88,16 @@ def parallel_map(function: Callable[[T], R], items: Sequence[T]) -> list[R]:
         _TASK = None
 
 
-def _serve(conn, function: Callable) -> None:
+def _serve(conn, parents_ends: list, function: Callable) -> None:
     """A forked process of `_EvaluationMap`: ``[function(x) for x in xs]`` for each list xs received (an
     exception goes back in place of the list and is raised in the parent), until the parent ends it or is gone.
-    Ctrl-C is the parent's to handle: it ends its processes."""
+    The parent's ends of the pipes, inherited by the fork, are closed first: else this process would hold its own
+    pipe open and never see the parent go (killed, say).  Ctrl-C is the parent's to handle: it ends its processes."""
     global _IN_WORKER
     _IN_WORKER = True
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for end in parents_ends:
+        end.close()
     try:
         while True:
             xs = conn.recv()
@@ -132,7 +135,8 @@ class _EvaluationMap:
         context = multiprocessing.get_context("fork")
         for _ in range(self.processes - 1):
             mine, theirs = context.Pipe()
-            process = context.Process(target=_serve, args=(theirs, self.function), daemon=True)
+            ends = [mine] + [conn for _, conn in self._peers]
+            process = context.Process(target=_serve, args=(theirs, ends, self.function), daemon=True)
             process.start()
             theirs.close()
             self._peers.append((process, mine))

@@ -448,3 +448,42 @@ def test_evaluation_map_is_the_plain_map_and_none_inside_a_worker(monkeypatch):
     monkeypatch.setattr(workers, "_IN_WORKER", True)
     with workers.evaluation_map(square) as mapper:
         assert mapper is None
+
+
+_ORPHAN_DRIVER = """
+import os, sys, time
+import numpy as np
+import fitter.workers as workers
+workers.POOL_AFTER_S = 0.0
+os.environ["DUHEM_WORKERS"] = "2"
+f = lambda x: x * 2
+with workers.evaluation_map(f) as mapper:
+    mapper(f, [np.ones(2)] * 2)
+    mapper(f, [np.ones(2)] * 2)
+    print(mapper._peers[0][0].pid, flush=True)
+    time.sleep(60)
+"""
+
+
+def test_the_evaluation_processes_end_when_their_parent_is_killed():
+    """A fit killed with SIGKILL leaves no evaluation process behind: each closes the parent's ends of the pipes it
+    inherits, so it sees the parent go (it waited forever before, holding the fit's stderr open)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    if not os.path.isdir("/proc"):
+        pytest.skip("reads the processes' states from /proc")
+    driver = subprocess.Popen([sys.executable, "-c", _ORPHAN_DRIVER], stdout=subprocess.PIPE, text=True)
+    child = int(driver.stdout.readline())
+    os.kill(driver.pid, signal.SIGKILL)
+    driver.wait()
+    for _ in range(100):
+        if not os.path.exists(f"/proc/{child}") or open(f"/proc/{child}/stat").read().split()[2] == "Z":
+            break
+        time.sleep(0.1)
+    else:
+        os.kill(child, signal.SIGKILL)
+        pytest.fail(f"evaluation process {child} outlived its killed parent by 10 s")
