@@ -487,3 +487,42 @@ def test_the_evaluation_processes_end_when_their_parent_is_killed():
     else:
         os.kill(child, signal.SIGKILL)
         pytest.fail(f"evaluation process {child} outlived its killed parent by 10 s")
+
+
+_ORPHAN_MAP_DRIVER = """
+import os, sys, time
+os.environ["DUHEM_WORKERS"] = "2"
+from fitter.workers import parallel_map
+def slow(i):
+    print(os.getpid(), flush=True)
+    time.sleep(60)
+parallel_map(slow, [1, 2, 3, 4])
+"""
+
+
+def test_the_workers_of_a_map_end_when_their_parent_is_killed():
+    """The same for `parallel_map`'s workers (the diagnosis' candidates, an effect fit's starts): they end within a
+    second or two of their parent's SIGKILL, mid-item, instead of running the queued items on and waiting."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    if not os.path.isdir("/proc"):
+        pytest.skip("reads the processes' states from /proc")
+    driver = subprocess.Popen([sys.executable, "-c", _ORPHAN_MAP_DRIVER], stdout=subprocess.PIPE, text=True)
+    workers = {int(driver.stdout.readline()) for _ in range(2)}
+    os.kill(driver.pid, signal.SIGKILL)
+    driver.wait()
+    for _ in range(100):
+        alive = {
+            w for w in workers if os.path.exists(f"/proc/{w}") and open(f"/proc/{w}/stat").read().split()[2] != "Z"
+        }
+        if not alive:
+            break
+        time.sleep(0.1)
+    else:
+        for w in alive:
+            os.kill(w, signal.SIGKILL)
+        pytest.fail(f"workers {sorted(alive)} outlived their killed parent by 10 s")
