@@ -64,13 +64,14 @@ def _call(item):
 
 
 PARENT_POLL_S = 0.5
-"""How often a worker of `parallel_map` looks whether its parent is still there (`_end_with`)."""
+"""How often a forked worker looks whether its parent is still there (`_end_with`)."""
 
 
 def _end_with(parent: int) -> None:
-    """A `parallel_map` worker's initialiser: a thread that ends the worker once its parent is gone (killed, say),
-    which it sees as a new parent process id.  Without it the worker ran the items left in its queue on and then
-    waited forever (measured: both workers of a killed map still there 5 s later)."""
+    """In a forked worker (`parallel_map`'s initialiser, `_serve`): a thread that ends it once its parent is gone
+    (killed, say), which it sees as a new parent process id.  Without it a map's worker ran the items left in its
+    queue on and then waited forever (measured: both workers of a killed map still there 5 s later), and an
+    evaluation process waited on its pipe, whose parent's end it had inherited."""
 
     def watch() -> None:
         while os.getppid() == parent:
@@ -106,16 +107,14 @@ def parallel_map(function: Callable[[T], R], items: Sequence[T]) -> list[R]:
         _TASK = None
 
 
-def _serve(conn, parents_ends: list, function: Callable) -> None:
+def _serve(conn, parent: int, function: Callable) -> None:
     """A forked process of `_EvaluationMap`: ``[function(x) for x in xs]`` for each list xs received (an
-    exception goes back in place of the list and is raised in the parent), until the parent ends it or is gone.
-    The parent's ends of the pipes, inherited by the fork, are closed first: else this process would hold its own
-    pipe open and never see the parent go (killed, say).  Ctrl-C is the parent's to handle: it ends its processes."""
+    exception goes back in place of the list and is raised in the parent), until the parent ends it or is gone
+    (`_end_with`).  Ctrl-C is the parent's to handle: it ends its processes."""
     global _IN_WORKER
     _IN_WORKER = True
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    for end in parents_ends:
-        end.close()
+    _end_with(parent)
     try:
         while True:
             xs = conn.recv()
@@ -153,8 +152,7 @@ class _EvaluationMap:
         context = multiprocessing.get_context("fork")
         for _ in range(self.processes - 1):
             mine, theirs = context.Pipe()
-            ends = [mine] + [conn for _, conn in self._peers]
-            process = context.Process(target=_serve, args=(theirs, ends, self.function), daemon=True)
+            process = context.Process(target=_serve, args=(theirs, os.getpid(), self.function), daemon=True)
             process.start()
             theirs.close()
             self._peers.append((process, mine))

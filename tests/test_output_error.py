@@ -466,8 +466,8 @@ with workers.evaluation_map(f) as mapper:
 
 
 def test_the_evaluation_processes_end_when_their_parent_is_killed():
-    """A fit killed with SIGKILL leaves no evaluation process behind: each closes the parent's ends of the pipes it
-    inherits, so it sees the parent go (it waited forever before, holding the fit's stderr open)."""
+    """A fit killed with SIGKILL leaves no evaluation process behind: each watches its parent (`_end_with`); it
+    waited forever before on its pipe, whose parent's end it had inherited, holding the fit's stderr open."""
     import os
     import signal
     import subprocess
