@@ -23,6 +23,7 @@ from fitter.diagnosis import DiagnoseError, JoinedExperiment, diagnose, syntheti
 from fitter.diagnosis.experiment import join_recordings
 from fitter.diagnosis.procedure import CANDIDATES
 from fitter.diagnosis.fitting import Fit, first_order_ri
+from fitter.diagnosis import statistics
 from fitter.diagnosis.statistics import effect_report, reversal_report, swing
 from fitter.diagnosis.synthetic import TRUTH_BASE, cell_base
 from fitter.identification.refine import RefineResult, effective_samples as effective_sample_size
@@ -827,10 +828,27 @@ def test_switching_must_swing_both_ways_to_be_switching():
     kinetics = {"S1": 0.3, "u_up1": 0.9, "u_dn1": -0.9, "width1": 0.1, "q1": -1.0}
     drift = {"S1": 0.3, "u_up1": 1.02, "u_dn1": -3.0, "width1": 0.01, "q1": -1.0}
     rev = reversal_report(_switching_fit(ex, kinetics), ex, "switching")
-    assert rev["reverses"] and rev["ratio"] > 0.9 and rev["rise"] > 1.0
+    assert rev["reverses"] and rev["ratio"] > 0.8 and rev["rise"] > 1.0
     one_way = reversal_report(_switching_fit(ex, drift), ex, "switching")
     assert not one_way["reverses"] and one_way["fall"] < 1e-6 * one_way["rise"] and one_way["rise"] > 0.01
     assert swing([np.array([0.0, 1.0, 0.5, 2.0])]) == (2.5, 0.5)
+
+
+def test_domains_poled_at_the_start_of_a_one_cycle_run_still_switch_both_ways():
+    """A run of one cycle (middle, top tip, bottom tip, middle) whose fitted domains start switched up (q1 = 1,
+    a poled device): from that start they only fall, at the bottom tip, but the input drives them both ways,
+    so they reverse.  The piezo records are such runs; started from the fitted state, the answer turned on
+    the last digits of the data (docs/results.md, "Does the diagnosis rest on rounding?")."""
+    t = np.linspace(0.0, 8.0, 401)
+    u = np.interp(t, [0, 2, 6, 8], [0.0, 1.0, -1.0, 0.0])
+    ex = join_recordings([_rec(t, u, u)])
+    poled = {"S1": 0.3, "u_up1": 0.9, "u_dn1": -0.9, "width1": 0.1, "q1": 1.0}
+    fit = _switching_fit(ex, poled)
+    (par,) = [e.parameters for e in fit.family.effect_list(fit.theta)]
+    fitted_start = swing(statistics._alone(REGISTRY["switching"], par, ex))
+    assert fitted_start[0] < 1e-3 * fitted_start[1] and fitted_start[1] > 0.3
+    rev = reversal_report(fit, ex, "switching")
+    assert rev["reverses"] and rev["ratio"] > 0.8 and rev["fall"] > 0.3
 
 
 def test_the_diagnosis_is_the_same_on_two_processes(monkeypatch):

@@ -45,8 +45,8 @@ Procedure (`diagnose`)
    (`statistics.memory_response_report`): its start transient alone is a
    change in time, a drift, not a memory of the material; one that fits only
    its start is not significant.  A reversing effect (switching domains,
-   `EffectSpec.reverses`) must swing both ways
-   (`statistics.reversal_report`): one that moves one way only is a drift.
+   `EffectSpec.reverses`) must be driven both ways by the input, up from its lowest state and down from its
+   highest (`statistics.reversal_report`): one that moves one way only is a drift.
 4. The significant candidates are ranked by BIC, N ln(RSS / N) + p ln N over
    the fitted samples, p the effect's parameters, and for separate recordings
    the reference each but the first fits with its x0 (`EffectSpec.offset`;

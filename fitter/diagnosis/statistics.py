@@ -51,11 +51,15 @@ experiment is fitted by a creep with tau near the duration, or a relaxation
 spectrum, with no response, or one of the opposite sign, to the input).
 
 Does a reversing effect swing both ways (`reversal_report`)?  An effect whose output is a state the input
-drives both ways (`EffectSpec.reverses`: switching domains) fits a drift in time too, with thresholds
-just beyond the input's tips, where it moves one way a little at every tip.  Its fitted output c (on each
-run, started afresh, everything else off) rises by V+ = sum max(dc, 0) and falls by V- = sum
-max(-dc, 0); it reverses when min(V+, V-) >= `REVERSAL_MIN` max(V+, V-).  A population that switches over
-and back once in a run gives a ratio near 1 from any start but the far tip's; a drift gives 0.
+drives both ways (`EffectSpec.reverses`: switching domains) fits a drift in time too, with one threshold
+just beyond the input's tips and the other out of reach, where it moves one way a little at every tip.  Its
+fitted output c (on each run, afresh, everything else off) started at its lowest state rises by
+V+ = sum max(dc, 0), and started at its highest falls by V- = sum max(-dc, 0) (`EffectSpec.extremes`); it
+reverses when min(V+, V-) >= `REVERSAL_MIN` max(V+, V-).  Domains that switch over at one tip and back at
+the other give a ratio near 1, a drift 0.  The extreme starts, not the fitted one, make the answer a property
+of the input's drive: a device poled at a run's start (the fitted state already at the first tip's side)
+shows only its fall from there, though the input would switch it back (a piezo record of one cycle did, so
+the answer turned on the last digits of the data: docs/results.md, "Does the diagnosis rest on rounding?").
 
 Is the residual left explained (`remainder_report`)?  Under "explained" it is
 the white measurement noise the noise level assumes; a remainder that a
@@ -231,11 +235,12 @@ def swing(outputs: list[np.ndarray]) -> tuple[float, float]:
 
 
 def reversal_report(fit: Fit, ex: JoinedExperiment, name: str) -> dict:
-    """Does the reversing effect `name` of `fit` swing both ways (module docstring)?  Its output alone on
-    each run, started afresh: ``rise`` V+, ``fall`` V-, ``ratio`` min / max and ``reverses`` (ratio >=
-    `REVERSAL_MIN`)."""
-    par = next(e.parameters for e in fit.family.effect_list(fit.theta) if e.effect == name)
-    rise, fall = swing(_alone(REGISTRY[name], par, ex))
+    """Does the input drive the reversing effect `name` of `fit` both ways (module docstring)?  Its output
+    alone on each run: ``rise`` V+ from its lowest start, ``fall`` V- from its highest, ``ratio`` min / max
+    and ``reverses`` (ratio >= `REVERSAL_MIN`)."""
+    spec = REGISTRY[name]
+    low, high = spec.extremes(next(e.parameters for e in fit.family.effect_list(fit.theta) if e.effect == name))
+    rise, fall = swing(_alone(spec, low, ex))[0], swing(_alone(spec, high, ex))[1]
     ratio = min(rise, fall) / max(rise, fall) if max(rise, fall) > 0 else 0.0
     return {"rise": rise, "fall": fall, "ratio": ratio, "reverses": bool(ratio >= REVERSAL_MIN)}
 

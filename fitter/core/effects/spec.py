@@ -150,8 +150,9 @@ class EffectSpec(ABC):
         (a reference, `offset_position`): an initial state fitted to a recording fits it with the base's x0
         (`fitter.identification.output_error.fitted_initial_state`); None for every other effect
     reverses : its output is a state the input drives both ways (domains switching back and forth):
-        `duhem diagnose` takes it only when its fitted output swings both ways
-        (`fitter.diagnosis.statistics.reversal_report`), since a one-way swing is a drift in time
+        `duhem diagnose` takes it only when the input drives its fitted state both ways, up from its lowest
+        start and down from its highest (`extremes`, `fitter.diagnosis.statistics.reversal_report`), since a
+        one-way swing is a drift in time
     loop_shape : a rate-independent change of the loop's shape (a dead band, a flattening): a hysteresis of
         another class than the base's (a Bouc-Wen or Preisach loop) draws such shapes too, so `duhem diagnose`
         claims it as the material's only when the extended model reaches the noise (a partial finding of it
@@ -223,6 +224,11 @@ class EffectSpec(ABC):
         response, whose free response from another start is a sum of e^{-(t - t0)/tau_i}): its time
         constants tau_i; None (the default) for every other effect."""
         return None
+
+    def extremes(self, p: dict[str, float]) -> tuple[dict[str, float], dict[str, float]]:
+        """For a reversing effect (`reverses`): `p` with its state started at its lowest, and at its highest
+        (`fitter.diagnosis.statistics.reversal_report` drives it up from the one and down from the other)."""
+        raise NotImplementedError(f"{self.name} does not reverse: it has no extreme states")
 
     def c_constants(self) -> dict[str, int | float | tuple[float, ...]]:
         """Fixed numbers of the effect's C twin (``effect_<name>`` in duhem_model.c), written into the native FMU's

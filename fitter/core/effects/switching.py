@@ -221,9 +221,15 @@ class Switching(EffectSpec):
     }
     strength = "S1"
     reverses = True
-    """With its thresholds just beyond the input's tips it switches slowly at every tip, one way: a drift in
-    time, which the generality sweep's quadratic and exponential output drifts were named as before
-    `duhem diagnose` asked for the swing both ways (`fitter.diagnosis.statistics.reversal_report`)."""
+    """With one threshold just beyond the input's tips and the other out of reach it switches slowly at every
+    tip, one way: a drift in time, which the generality sweep's quadratic and exponential output drifts were
+    named as before `duhem diagnose` asked for the swing both ways (`fitter.diagnosis.statistics.reversal_report`,
+    from the extreme starts of `extremes`)."""
+
+    def extremes(self, p: dict[str, float]) -> tuple[dict[str, float], dict[str, float]]:
+        """Every population started switched down (q_i = -1), and switched up (q_i = +1)."""
+        qs = [f"q{i}" for i in range(1, SWITCHING_POPULATIONS + 1)]
+        return {**p, **dict.fromkeys(qs, -1.0)}, {**p, **dict.fromkeys(qs, 1.0)}
 
     def c_constants(self) -> dict[str, int | float | tuple[float, ...]]:
         """Populations, shares, their threshold offsets and the caps of the switching integrals."""
