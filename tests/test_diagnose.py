@@ -851,6 +851,21 @@ def test_domains_poled_at_the_start_of_a_one_cycle_run_still_switch_both_ways():
     assert rev["reverses"] and rev["ratio"] > 0.8 and rev["fall"] > 0.3
 
 
+def test_every_reversing_effect_has_its_lowest_start_below_its_highest():
+    """`EffectSpec.extremes` of every reversing effect at its example values: on a one-cycle run its output alone
+    from the lowest start is below the one from the highest at the first sample and never above it after (the
+    switching rate equation keeps the order of its starts); an effect that does not reverse has no extremes."""
+    t = np.linspace(0.0, 8.0, 401)
+    ex = join_recordings([_rec(t, np.interp(t, [0, 2, 6, 8], [0.0, 1.0, -1.0, 0.0]), t)])
+    for spec in REGISTRY.values():
+        if not spec.reverses:
+            with pytest.raises(NotImplementedError):
+                spec.extremes(spec.example)
+            continue
+        (low,), (high,) = (statistics._alone(spec, p, ex) for p in spec.extremes(spec.example))
+        assert low[0] < high[0] and np.all(low <= high + 1e-12), spec.name
+
+
 def test_the_diagnosis_is_the_same_on_two_processes(monkeypatch):
     """The candidates of a round and the held-out refits run on forked processes (`fitter.workers`);
     every fit is deterministic, so two processes give the JSON of one, number for number."""
