@@ -1,5 +1,7 @@
 """The output-error engine: every initial-state mode, bounds, masks, covariance, parametrisations."""
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -494,7 +496,7 @@ import os, sys, time
 os.environ["DUHEM_WORKERS"] = "2"
 from fitter.workers import parallel_map
 def slow(i):
-    print(os.getpid(), flush=True)
+    os.write(1, f"{os.getpid()}\\n".encode())  # one write: the two workers share the pipe
     time.sleep(60)
 parallel_map(slow, [1, 2, 3, 4])
 """
@@ -512,7 +514,9 @@ def test_the_workers_of_a_map_end_when_their_parent_is_killed():
     if not os.path.isdir("/proc"):
         pytest.skip("reads the processes' states from /proc")
     driver = subprocess.Popen([sys.executable, "-c", _ORPHAN_MAP_DRIVER], stdout=subprocess.PIPE, text=True)
-    workers = {int(driver.stdout.readline()) for _ in range(2)}
+    lines = iter(driver.stdout.readline, "")
+    workers = {int(line) for line in itertools.islice((x for x in lines if x.strip()), 2)}
+    assert len(workers) == 2, "the driver ended before both workers started"
     os.kill(driver.pid, signal.SIGKILL)
     driver.wait()
     for _ in range(100):
