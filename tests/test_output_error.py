@@ -1,6 +1,11 @@
 """The output-error engine: every initial-state mode, bounds, masks, covariance, parametrisations."""
 
 import itertools
+import os
+import signal
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -462,34 +467,9 @@ f = lambda x: x * 2
 with workers.evaluation_map(f) as mapper:
     mapper(f, [np.ones(2)] * 2)
     mapper(f, [np.ones(2)] * 2)
-    print(mapper._peers[0][0].pid, flush=True)
+    os.write(1, f"{mapper._peers[0][0].pid}\\n".encode())
     time.sleep(60)
 """
-
-
-def test_the_evaluation_processes_end_when_their_parent_is_killed():
-    """A fit killed with SIGKILL leaves no evaluation process behind: each watches its parent (`_end_with`); it
-    waited forever before on its pipe, whose parent's end it had inherited, holding the fit's stderr open."""
-    import os
-    import signal
-    import subprocess
-    import sys
-    import time
-
-    if not os.path.isdir("/proc"):
-        pytest.skip("reads the processes' states from /proc")
-    driver = subprocess.Popen([sys.executable, "-c", _ORPHAN_DRIVER], stdout=subprocess.PIPE, text=True)
-    child = int(driver.stdout.readline())
-    os.kill(driver.pid, signal.SIGKILL)
-    driver.wait()
-    for _ in range(100):
-        if not os.path.exists(f"/proc/{child}") or open(f"/proc/{child}/stat").read().split()[2] == "Z":
-            break
-        time.sleep(0.1)
-    else:
-        os.kill(child, signal.SIGKILL)
-        pytest.fail(f"evaluation process {child} outlived its killed parent by 10 s")
-
 
 _ORPHAN_MAP_DRIVER = """
 import os, sys, time
@@ -502,31 +482,37 @@ parallel_map(slow, [1, 2, 3, 4])
 """
 
 
-def test_the_workers_of_a_map_end_when_their_parent_is_killed():
-    """The same for `parallel_map`'s workers (the diagnosis' candidates, an effect fit's starts): they end within a
-    second or two of their parent's SIGKILL, mid-item, instead of running the queued items on and waiting."""
-    import os
-    import signal
-    import subprocess
-    import sys
-    import time
-
+def _left_after_parent_killed(driver_source: str, count: int) -> set[int]:
+    """Run `driver_source` in a Python process, read the `count` process ids it writes (a line each, blank lines
+    skipped), SIGKILL it, and return those of the ids still running (not zombies) 10 s later; the survivors are
+    killed before returning."""
     if not os.path.isdir("/proc"):
         pytest.skip("reads the processes' states from /proc")
-    driver = subprocess.Popen([sys.executable, "-c", _ORPHAN_MAP_DRIVER], stdout=subprocess.PIPE, text=True)
-    lines = iter(driver.stdout.readline, "")
-    workers = {int(line) for line in itertools.islice((x for x in lines if x.strip()), 2)}
-    assert len(workers) == 2, "the driver ended before both workers started"
+    driver = subprocess.Popen([sys.executable, "-c", driver_source], stdout=subprocess.PIPE, text=True)
+    lines = (x for x in iter(driver.stdout.readline, "") if x.strip())
+    pids = {int(line) for line in itertools.islice(lines, count)}
+    assert len(pids) == count, "the driver ended before writing its process ids"
     os.kill(driver.pid, signal.SIGKILL)
     driver.wait()
     for _ in range(100):
-        alive = {
-            w for w in workers if os.path.exists(f"/proc/{w}") and open(f"/proc/{w}/stat").read().split()[2] != "Z"
-        }
+        alive = {p for p in pids if os.path.exists(f"/proc/{p}") and open(f"/proc/{p}/stat").read().split()[2] != "Z"}
         if not alive:
-            break
+            return set()
         time.sleep(0.1)
-    else:
-        for w in alive:
-            os.kill(w, signal.SIGKILL)
-        pytest.fail(f"workers {sorted(alive)} outlived their killed parent by 10 s")
+    for p in alive:
+        os.kill(p, signal.SIGKILL)
+    return alive
+
+
+def test_the_evaluation_processes_end_when_their_parent_is_killed():
+    """A fit killed with SIGKILL leaves no evaluation process behind: each watches its parent (`_end_with`); it
+    waited forever before on its pipe, whose parent's end it had inherited, holding the fit's stderr open."""
+    left = _left_after_parent_killed(_ORPHAN_DRIVER, 1)
+    assert not left, f"evaluation process {sorted(left)} outlived its killed parent by 10 s"
+
+
+def test_the_workers_of_a_map_end_when_their_parent_is_killed():
+    """The same for `parallel_map`'s workers (the diagnosis' candidates, an effect fit's starts): they end within a
+    second or two of their parent's SIGKILL, mid-item, instead of running the queued items on and waiting."""
+    left = _left_after_parent_killed(_ORPHAN_MAP_DRIVER, 2)
+    assert not left, f"workers {sorted(left)} outlived their killed parent by 10 s"
