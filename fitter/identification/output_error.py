@@ -81,6 +81,7 @@ recording.  Final residuals are on all samples.
 
 from __future__ import annotations
 
+import pickle
 from dataclasses import dataclass, replace
 from typing import Sequence
 
@@ -248,13 +249,19 @@ def _base_key(model) -> tuple:
     its parameters but x0 (exact bytes), its rate function and input range."""
     arrays = b"".join(np.asarray(getattr(model, k), dtype=float).tobytes() for k in model.PARAMS if k != "x0")
     g = getattr(model, "g", None)
-    return type(model).__name__, arrays, None if g is None else repr(g.to_dict()), model.input_range
+    return type(model).__name__, arrays, None if g is None else _exact(g.to_dict()), model.input_range
 
 
 def _effects_key(model, effect_state) -> tuple:
     """What the effects' terms depend on besides (t, u): each effect's parameters and stored start, the chain
     state given, the input range."""
-    return repr([e.to_dict() for e in model.effects]), repr(effect_state), model.input_range
+    return _exact([e.to_dict() for e in model.effects]), _exact(effect_state), model.input_range
+
+
+def _exact(value) -> bytes:
+    """A memo key part that determines `value` to the last bit (its pickle: every float and array entry exact;
+    ``repr`` rounds an array to 8 digits and took 0.25 ms for a rate table, 3 % of piezo.best's time)."""
+    return pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL)
 
 
 def simulate_from(
