@@ -226,8 +226,8 @@ def test_each_recordings_reference_is_fitted_with_its_initial_state(tmp_path):
 
 
 def test_an_effect_fit_is_the_same_on_two_processes(monkeypatch):
-    """The screened starts and the raced refinements run on forked processes (`fitter.workers`): on two the
-    fit's parameters, RSS and model are those of one, to the last digit (each refinement is deterministic)."""
+    """The screened starts (both rounds) and the raced refinements run on forked processes (`fitter.workers`): on
+    two the fit's parameters, RSS and model are those of one, to the last digit (each refinement is deterministic)."""
     import fitter.identification.effects_fit as effects_fit
 
     recs, maps = _referenced(), []
@@ -237,7 +237,7 @@ def test_an_effect_fit_is_the_same_on_two_processes(monkeypatch):
     for n in ("1", "2"):
         monkeypatch.setenv("DUHEM_WORKERS", n)
         fits.append(fit_recordings(recs, kind="ri", order=1, effects=["saturation", "measurement_drift"]))
-    assert maps[0] > 1 and maps == maps[:2] * 2  # screening and race, each over several items, both runs
+    assert maps[0] > 1 and maps == maps[:3] * 2  # screening, screening on and race, each over several items, both runs
     one, two = (f.summary["effects"] for f in fits)
     assert one["parameters"] == two["parameters"] and one["tried"] == two["tried"]
     assert fits[0].model.to_dict() == fits[1].model.to_dict()
@@ -295,15 +295,18 @@ def test_cli_fit_holds_a_known_parameter(tmp_path):
 
 
 class _Screened:
-    """A stand-in for `ScreenedEffects`: screened results of given costs; its race halves a start's cost."""
+    """A stand-in for `ScreenedEffects`: screened results of given costs (and RSS); screening on gives start k
+    the cost ``later[k]`` (default unchanged); its race halves a start's cost."""
 
     pen = None
 
-    def __init__(self, costs):
-        from types import SimpleNamespace
+    def __init__(self, costs, later=None):
+        self.screened = [_result(cost) for cost in costs]
+        self.later, self.screened_on, self.raced_starts = later or {}, [], []
 
-        self.screened = [SimpleNamespace(cost=cost) for cost in costs]
-        self.raced_starts = []
+    def screen_on(self, k, progress):
+        self.screened_on.append(k)
+        return _result(self.later.get(k, self.screened[k].cost))
 
     def race(self, k, progress):
         from types import SimpleNamespace
@@ -313,6 +316,12 @@ class _Screened:
 
     def raced(self, best):
         return best
+
+
+def _result(cost):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(cost=cost, rss=cost)
 
 
 def test_only_the_best_screened_starts_among_the_bases_race(monkeypatch):
@@ -329,3 +338,18 @@ def test_only_the_best_screened_starts_among_the_bases_race(monkeypatch):
     ri, rd = _Screened([1.0, 5.0]), _Screened([3.0, 2.5])
     out = race_effects([ri, rd], score)
     assert ri.raced_starts == [0] and rd.raced_starts == [1] and (out[0].cost, out[1].cost) == (0.5, 1.25)
+
+
+def test_the_screening_goes_on_for_the_best_starts_only_and_they_race_by_their_later_score(monkeypatch):
+    """The screening's first round ranks every start; only the `SCREEN_KEPT` of lowest score among all bases
+    are screened on, and the race takes the `REFINED` best by the score they have then: here the rate-dependent
+    base's second start, fourth after the first round, overtakes and races, and the starts ranked below the kept
+    ones are never screened on.  Each base's screened starts end sorted by RSS."""
+    from fitter.identification.effects_fit import SCREEN_KEPT, race_effects
+
+    monkeypatch.setenv("DUHEM_WORKERS", "1")
+    ri, rd = _Screened([1.0, 2.0, 9.0]), _Screened([3.0, 4.0, 5.0], later={1: 0.5})
+    out = race_effects([ri, rd], lambda i, res: res.cost)
+    assert SCREEN_KEPT == 4 and ri.screened_on == [0, 1] and rd.screened_on == [0, 1]
+    assert ri.raced_starts == [0] and rd.raced_starts == [1] and (out[0].cost, out[1].cost) == (0.5, 0.25)
+    assert [r.rss for r in rd.screened] == [0.5, 3.0, 5.0]
