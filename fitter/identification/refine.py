@@ -82,14 +82,16 @@ class Options:
     and the base search moved the piezo diagnosis (see `compiled`); open, docs/results.md."""
     compiled: bool = False
     """Run the evaluations on the kernel's compiled modal scan (`fitter.core.scans.compiled_scans`, numba): the
-    effect fits do (`fitter.identification.effects_fit.OPTIONS`).  Off elsewhere: its rounding (1e-15 of the
+    effect fits do (`fitter.identification.effects_fit.OPTIONS`), and so do the rate-dependent candidates of the
+    order and kind search (`fitter.identification.fit.RD_COMPILED`).  Off elsewhere: its rounding (1e-15 of the
     numpy sums'), like a step of 1e-6 in the base search, moved the diagnosis of the measured piezo set
     (`bench/diagnose_measured.py`) from switching on an order-3 base to nothing on an order-1 base (measured
     twice; the second time the order-3 base ended at an RMS of 3.42 instead of 3.53, and the switching fitted
     on it swung one way only, so its reversal test failed).  The reversal test no longer turns on that (it
-    drives the effect from its extreme states, `fitter.diagnosis.statistics.reversal_report`), but piezo.best's
-    effect race still ends in a worse basin compiled (NRMSE 0.547 / 0.676 / 0.746 % against 0.400 / 0.553 /
-    0.683 %): a choice that must not rest on rounding (open, docs/results.md)."""
+    drives the effect from its extreme states, `fitter.diagnosis.statistics.reversal_report`), but compiled,
+    piezo.best's rate-independent base (one refinement of the start leading a short race) ends in another
+    minimum, and its effect fit in a worse one (NRMSE 0.547 / 0.676 / 0.746 % against 0.400 / 0.553 / 0.683 %):
+    a choice that must not rest on rounding (open, docs/results.md)."""
     eliminate: bool = False
     """Eliminate the parameters in which the model is linear (`Parametrisation.linear_entries`)
     by linear least squares at every evaluation (variable projection, module docstring)."""
