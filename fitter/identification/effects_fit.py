@@ -219,8 +219,9 @@ class ScreenedEffects:
     screen_free: np.ndarray
 
     def screen_on(self, k: int, progress: Progress = silent) -> RefineResult:
-        """Screened start k run on from its first round to `SCREEN_NFEV` iterations in all (step 1)."""
-        progress(f"effects {', '.join(self.fam.effects)}: start {k + 1} screened on", None)
+        """The screened start of rank k (``screened[k]``) run on from its first round to `SCREEN_NFEV` iterations
+        in all (step 1)."""
+        progress(f"effects {', '.join(self.fam.effects)}: screened start of rank {k + 1} screened on", None)
         options = replace(OPTIONS, max_nfev=SCREEN_NFEV - SCREEN_FIRST_NFEV, covariance=False)
         return refine(self.fam, self.screened[k].theta, self.problem, options, free=self.screen_free)
 
