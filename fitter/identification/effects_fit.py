@@ -222,8 +222,8 @@ class ScreenedEffects:
         """The screened start of rank k (``screened[k]``) run on from its first round to `SCREEN_NFEV` iterations
         in all (step 1)."""
         progress(f"effects {', '.join(self.fam.effects)}: screened start of rank {k + 1} screened on", None)
-        options = replace(OPTIONS, max_nfev=SCREEN_NFEV - SCREEN_FIRST_NFEV, covariance=False)
-        return refine(self.fam, self.screened[k].theta, self.problem, options, free=self.screen_free)
+        theta = self.screened[k].theta
+        return _screening(self.fam, theta, self.problem, self.screen_free, SCREEN_NFEV - SCREEN_FIRST_NFEV)
 
     def race(self, k: int, progress: Progress = silent) -> RefineResult:
         """Screened start k refined with base and effects free for `RACE_NFEV` iterations (step 2)."""
@@ -265,11 +265,16 @@ def screen_effects(
 
     def screen(k: int) -> RefineResult:
         progress(f"effects {', '.join(names)}: start {k + 1}", None)
-        options = replace(OPTIONS, max_nfev=SCREEN_FIRST_NFEV, covariance=False)
-        return refine(fam, np.r_[base, starts[k]], problem, options, free=screen_free)
+        return _screening(fam, np.r_[base, starts[k]], problem, screen_free, SCREEN_FIRST_NFEV)
 
     screened = sorted(parallel_map(screen, range(len(starts))), key=lambda r: r.rss)
     return ScreenedEffects(fam, recordings, problem, free, pen, screened, screen_free)
+
+
+def _screening(fam: WithEffects, theta: np.ndarray, problem: Recordings, free: np.ndarray, nfev: int) -> RefineResult:
+    """`nfev` screening iterations from `theta` (step 1: the `free` entries move, the base's A held; no
+    covariance), a first round or the rest of one."""
+    return refine(fam, theta, problem, replace(OPTIONS, max_nfev=nfev, covariance=False), free=free)
 
 
 def race_effects(
