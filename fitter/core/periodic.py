@@ -182,13 +182,13 @@ def minor_loop_rho(model, u_min: float, u_max: float, spans: int | None = None) 
     beta = u_max - u_min
     spans = _rho_spans(model, beta) if spans is None else spans
     d = beta / spans
-    rise, fall = expm(d * model.A_plus), expm(-d * model.A_minus)
-    P, Q = np.eye(len(rise)), np.eye(len(fall))
-    maps = np.empty((spans, len(rise), len(rise)))
+    steps = np.stack([expm(d * model.A_plus), expm(-d * model.A_minus)])
+    powers = np.empty((spans, *steps.shape))  # powers[k - 1] = (e^{k d A+}, e^{-k d A-}), one product per step
     with np.errstate(all="ignore"):
+        power = np.stack([np.eye(len(steps[0]))] * 2)
         for k in range(spans):
-            P, Q = P @ rise, Q @ fall
-            maps[k] = P @ Q
+            power = np.matmul(power, steps, out=powers[k])
+        maps = powers[:, 0] @ powers[:, 1]
         if not np.all(np.isfinite(maps)):
             return float("inf")
         radii = np.max(np.abs(np.linalg.eigvals(maps)), axis=1)
