@@ -457,6 +457,38 @@ def test_evaluation_map_is_the_plain_map_and_none_inside_a_worker(monkeypatch):
         assert mapper is None
 
 
+def test_evaluation_map_takes_the_evaluations_from_the_two_ends(monkeypatch):
+    """This process takes xs from the front, the forked one from the back, each the next as it is free: while this
+    process's first evaluation waits for the other to have done five of the eight, the other takes them, and the
+    indices of each process are a run from its end (fixed halves would give the other four, this process four)."""
+    import multiprocessing
+
+    import fitter.workers as workers
+
+    monkeypatch.setenv("DUHEM_WORKERS", "2")
+    monkeypatch.setattr(workers, "POOL_AFTER_S", 0.0)
+    context = multiprocessing.get_context("fork")
+    here, done, five = os.getpid(), context.Value("i", 0), context.Event()
+
+    def who(x):
+        if os.getpid() == here:
+            five.wait(10)
+        else:
+            with done.get_lock():
+                done.value += 1
+                if done.value == 5:
+                    five.set()
+        return np.array([x[0], os.getpid()])
+
+    xs = [np.array([float(k)]) for k in range(8)]
+    with workers.evaluation_map(who) as mapper:
+        mapper(lambda x: x, xs[:2])  # here, then forked
+        out = mapper(who, xs)
+    assert [o[0] for o in out] == list(range(8))
+    mine = [bool(o[1] == here) for o in out]
+    assert mine == sorted(mine, reverse=True) and 1 <= sum(mine) <= 3
+
+
 _ORPHAN_DRIVER = """
 import os, sys, time
 import numpy as np
