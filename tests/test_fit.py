@@ -200,3 +200,26 @@ def test_rate_dependent_fit_keeps_every_mode_damped():
     from fitter.baselines import duhem_nrmse
 
     assert duhem_nrmse(rd.model, held) < 0.2
+
+
+def test_the_global_stage_restarts_from_the_local_fit_on_any_number_of_processes(monkeypatch):
+    """`_global_stage`: `GLOBAL_STARTS` refinements from the local fit moved by seeded draws on its nonlinear
+    entries, every one drawn around the local fit (not around an earlier restart that improved on it), the lowest
+    objective kept; the same on one and on two processes."""
+    from types import SimpleNamespace
+
+    from fitter.identification import fit
+
+    param = SimpleNamespace(n=3, size=4, linear_entries=lambda: {3: ("D", 0)})
+    local = SimpleNamespace(theta=np.array([2.0, -0.5, 0.1, 7.0]), cost=1e9)  # every restart improves on it
+    rng = np.random.default_rng(param.n)
+    scale = fit.GLOBAL_SCALE * np.maximum(np.abs(local.theta), 1.0)
+    starts = [local.theta + scale * rng.standard_normal(4) * [1, 1, 1, 0] for _ in range(fit.GLOBAL_STARTS)]
+
+    def run(theta, options):  # a "refinement" that ends where it starts, best at the last start
+        return SimpleNamespace(theta=theta, cost=float(np.sum((theta - starts[-1]) ** 2)))
+
+    for processes in ("1", "2"):
+        monkeypatch.setenv("DUHEM_WORKERS", processes)
+        best = fit._global_stage(param, local, run, lambda res: res.cost)
+        assert best.theta.tobytes() == starts[-1].tobytes() and best.theta[3] == 7.0
