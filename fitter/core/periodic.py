@@ -182,7 +182,7 @@ def minor_loop_rho(model, u_min: float, u_max: float, spans: int | None = None) 
     beta = u_max - u_min
     spans = _rho_spans(model, beta) if spans is None else spans
     d = beta / spans
-    steps = np.stack([expm(d * model.A_plus), expm(-d * model.A_minus)])
+    steps = expm(np.stack([d * model.A_plus, -d * model.A_minus]))
     powers = np.empty((spans, *steps.shape))  # powers[k - 1] = (e^{k d A+}, e^{-k d A-}), one product per step
     with np.errstate(all="ignore"):
         power = np.stack([np.eye(len(steps[0]))] * 2)

@@ -45,13 +45,10 @@ def _pchip_slopes(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     if len(x) == 2:
         d[:] = delta[0]
         return d
-    for k in range(1, len(x) - 1):
-        if delta[k - 1] * delta[k] <= 0:
-            d[k] = 0.0
-        else:
-            w1 = 2 * h[k] + h[k - 1]
-            w2 = h[k] + 2 * h[k - 1]
-            d[k] = (w1 + w2) / (w1 / delta[k - 1] + w2 / delta[k])
+    w1, w2 = 2 * h[1:] + h[:-1], h[1:] + 2 * h[:-1]  # the interior nodes' weights, all at once
+    with np.errstate(divide="ignore", invalid="ignore"):
+        harmonic = (w1 + w2) / (w1 / delta[:-1] + w2 / delta[1:])
+    d[1:-1] = np.where(delta[:-1] * delta[1:] <= 0, 0.0, harmonic)
     d[0] = _end_slope(h[0], h[1], delta[0], delta[1])
     d[-1] = _end_slope(h[-1], h[-2], delta[-1], delta[-2])
     return d

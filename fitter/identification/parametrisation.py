@@ -245,7 +245,7 @@ class RICanonical(Parametrisation):
         beta = u_max - u_min
         with np.errstate(all="ignore"):
             try:
-                maps = [expm(beta * model.A_plus), expm(-beta * model.A_minus)]
+                maps = expm(np.stack([beta * model.A_plus, -beta * model.A_minus]))
                 if not all(np.all(np.isfinite(M)) for M in maps):
                     return np.inf
                 top = max(np.linalg.norm(M, 2) for M in maps)
