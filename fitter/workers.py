@@ -1,10 +1,11 @@
 """Independent fits on several processes: the diagnosis' candidates of a round and its held-out refits, an
-effect fit's screened starts and raced refinements.
+effect fit's screened starts and raced refinements, a rate-dependent candidate's refinements.
 
 Each candidate effect of a diagnosis round is fitted on the same base, independently of
 the others (`fitter.diagnosis.rounds.candidate_round`), each recording's
 held-out refit is independent of the others' (`fitter.diagnosis.held_out`), and so are the screened starts
-and the raced refinements of ``duhem fit --effects`` (`fitter.identification.effects_fit`):
+and the raced refinements of ``duhem fit --effects`` (`fitter.identification.effects_fit`) and the starts and
+global restarts of a rate-dependent candidate (`fitter.identification.fit`):
 `parallel_map` runs them on up to `workers()` processes.  The processes are
 forked, so they inherit the experiment and the fits made so far; only the
 item (an effect name, a recording index, a start) goes to a process and only its
@@ -13,9 +14,10 @@ is the same on any number of processes (tested).  A map inside a worker, or in a
 worker of ``duhem batch``, which may not have children), runs in that process.
 
 `evaluation_map` does the same for the evaluations of one forward-difference Jacobian in
-`fitter.identification.refine` (scipy's ``least_squares(workers=...)``): the evaluations of the columns are
-independent, so on two cores a fit whose Jacobians cost most of its time takes about half the wall time, with the
-same result to the last digit (each column is the same function of the same theta in whichever process).
+`fitter.identification.refine` (scipy's ``least_squares(workers=...)``), taken from both ends of the list
+(`_EvaluationMap`): the evaluations of the columns are independent, so on two cores a fit whose Jacobians cost most
+of its time takes about half the wall time, with the same result to the last digit (each column is the same
+function of the same theta in whichever process).
 """
 
 from __future__ import annotations
