@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Sequence
 
 import click
+from threadpoolctl import threadpool_limits
 
 from fitter.cli_support import Number, run_command
 from fitter.core.files import json_text
@@ -93,7 +94,12 @@ def run(seeds: int = DEFAULT_SEEDS, figures_dir: str | None = None, workers: int
     if figures_dir is not None:
         Path(figures_dir).mkdir(parents=True, exist_ok=True)
     parallel = workers > 1 and seeds > 1
-    with ProcessPoolExecutor(max_workers=workers) if parallel else nullcontext() as pool:
+    # one BLAS thread a process (the forked workers inherit it): the matrices are small, and OpenBLAS's idle
+    # threads spin, taking a core from the other process
+    with (
+        threadpool_limits(limits=1, user_api="blas"),
+        ProcessPoolExecutor(max_workers=workers) if parallel else nullcontext() as pool,
+    ):
         # Example 3 and Example 2's noisy seeds start in the pool; Example 1 (cvxpy's import) runs here meanwhile
         ex3 = pool.submit(example3.run_example3) if pool is not None else None
         runs = example2.seed_runs(seeds, pool)
