@@ -29,11 +29,12 @@ import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
-from typing import Callable, Iterable, Iterator, Sequence, TypeVar
+from typing import Callable, ContextManager, Iterable, Iterator, Sequence, TypeVar
 
 import numpy as np
+from threadpoolctl import ThreadpoolController
 
-__all__ = ["WORKERS_ENV", "evaluation_map", "parallel_map", "workers"]
+__all__ = ["WORKERS_ENV", "evaluation_map", "one_blas_thread", "parallel_map", "workers"]
 
 WORKERS_ENV = "DUHEM_WORKERS"
 """Environment variable: the number of processes of the independent fits (default: the machine's cores)."""
@@ -46,6 +47,7 @@ fork (some milliseconds, measured 7-10 ms for a process of 300 MB) and the trans
 
 _TASK: Callable | None = None
 _IN_WORKER = False
+_BLAS: ThreadpoolController | None = None
 
 
 def workers() -> int:
@@ -57,6 +59,18 @@ def workers() -> int:
         except ValueError:
             raise ValueError(f"{WORKERS_ENV}={value!r}: give a whole number of processes >= 1") from None
     return os.cpu_count() or 1
+
+
+def one_blas_thread() -> ContextManager:
+    """Within: BLAS on one thread (threadpoolctl): the matrices of a fit are small, so BLAS's worker threads only
+    cost CPU (OpenBLAS's idle threads spin) and change the rounding from run to run.  The libraries are looked up
+    once per process, at the first call (`threadpoolctl.threadpool_limits` looks them up at every call, measured
+    2 ms: every loaded library's path resolved): numpy's and scipy's BLAS, which `fitter` loads on import.  A
+    forked process inherits the lookup."""
+    global _BLAS
+    if _BLAS is None:
+        _BLAS = ThreadpoolController()
+    return _BLAS.limit(limits=1, user_api="blas")
 
 
 def _call(item):

@@ -536,6 +536,24 @@ def _left_after_parent_killed(driver_source: str, count: int) -> set[int]:
     return alive
 
 
+def test_one_blas_thread_limits_every_blas_within_and_looks_the_libraries_up_once():
+    from threadpoolctl import threadpool_info
+
+    from fitter import workers
+
+    def blas_threads() -> list[int]:
+        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+    before = blas_threads()
+    with workers.one_blas_thread():
+        inside = blas_threads()
+        controller = workers._BLAS
+    with workers.one_blas_thread():
+        assert workers._BLAS is controller  # the lookup of the first call, kept
+    assert inside and set(inside) == {1}
+    assert blas_threads() == before
+
+
 def test_the_evaluation_processes_end_when_their_parent_is_killed():
     """A fit killed with SIGKILL leaves no evaluation process behind: each watches its parent (`_end_with`); it
     waited forever before on its pipe, whose parent's end it had inherited, holding the fit's stderr open."""

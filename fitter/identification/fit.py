@@ -62,7 +62,6 @@ from dataclasses import dataclass, replace
 from typing import Callable, Sequence
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from fitter.core.effects import Effect
 from fitter.core.errors import KernelError
@@ -95,7 +94,7 @@ from fitter.identification.refine import Options, RefineResult, jacobian, refine
 from fitter.identification.parametrisation import Parametrisation, Physical, RDCanonical, RICanonical, WithEffects
 from fitter.identification.starts import Q_CANDIDATES, generic_ri_starts, ri_starts, rd_starts
 from fitter.progress import Progress, silent
-from fitter.workers import parallel_map
+from fitter.workers import one_blas_thread, parallel_map
 
 __all__ = ["FitError", "FitResult", "fit_recordings", "monotone_input", "ORDERS"]
 
@@ -391,7 +390,7 @@ def fit_recordings(
     if effects and x0 != "fitted":
         raise ValueError("effects are fitted with x0 'fitted' (their initial state is fitted per recording)")
     check_scale(recordings)
-    with threadpool_limits(limits=1, user_api="blas"):  # small matrices: one thread, the same rounding every run
+    with one_blas_thread():  # small matrices: one thread, the same rounding every run
         data = prepare_for_fit(recordings)
         levels = rate_levels(data.norm)
         orders = ORDERS if order is None else (order,)

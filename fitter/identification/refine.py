@@ -27,7 +27,7 @@ fork; the result is the same to the last digit on any number of processes (teste
 Threads
 -------
 The evaluations are many small array operations: BLAS runs single-threaded
-during `refine` (threadpoolctl), since its worker threads only cost CPU on
+during `refine` (`fitter.workers.one_blas_thread`), since its worker threads only cost CPU on
 matrices this small (measured: twice the CPU, the same wall time).
 
 Uncertainty
@@ -49,12 +49,11 @@ from typing import Any, Callable
 
 import numpy as np
 from scipy.optimize import least_squares
-from threadpoolctl import threadpool_limits
 
 from fitter.core.scans import compiled_scans
 from fitter.identification.parametrisation import Parametrisation
 from fitter.progress import Progress, silent
-from fitter.workers import evaluation_map
+from fitter.workers import evaluation_map, one_blas_thread
 
 __all__ = ["Options", "RefineResult", "refine", "jacobian", "effective_samples"]
 
@@ -214,7 +213,7 @@ def refine(
     jac_moving = "2-point" if jac is None else (lambda z: jac(obj.full_theta(z))[:, obj.moving] / obj.scale)
     with (
         np.errstate(all="ignore"),
-        threadpool_limits(limits=1, user_api="blas"),
+        one_blas_thread(),
         _scans(options),
         evaluation_map(obj) if jac is None else nullcontext() as mapper,
     ):

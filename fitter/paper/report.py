@@ -18,11 +18,11 @@ from pathlib import Path
 from typing import Sequence
 
 import click
-from threadpoolctl import threadpool_limits
 
 from fitter.cli_support import Number, run_command
 from fitter.core.files import json_text
 from fitter.paper import example1, example2, example3
+from fitter.workers import one_blas_thread
 
 __all__ = ["run", "checks", "format_table", "command", "main", "TIME_LIMIT_S", "DEFAULT_SEEDS"]
 
@@ -97,7 +97,7 @@ def run(seeds: int = DEFAULT_SEEDS, figures_dir: str | None = None, workers: int
     # one BLAS thread a process (the forked workers inherit it): the matrices are small, and OpenBLAS's idle
     # threads spin, taking a core from the other process
     with (
-        threadpool_limits(limits=1, user_api="blas"),
+        one_blas_thread(),
         ProcessPoolExecutor(max_workers=workers) if parallel else nullcontext() as pool,
     ):
         # Example 3 and Example 2's noisy seeds start in the pool; Example 1 (cvxpy's import) runs here meanwhile
