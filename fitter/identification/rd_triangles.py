@@ -400,9 +400,11 @@ class _WaveRecords:
             if len(group) == 1:
                 J[:, group[0]] = d / h[group[0]]
                 continue
-            for j in group:
-                rows = wave_of_row == param.wave_of(j)
-                J[rows, j] = d[rows] / h[j]
+            column_of_wave = np.full(param.p, -1)
+            column_of_wave[[param.wave_of(j) for j in group]] = group
+            column = column_of_wave[wave_of_row]
+            rows = np.flatnonzero(column >= 0)
+            J[rows, column[rows]] = d[rows] / h[column[rows]]
         return J
 
     def best_beta(self, param: _WaveParameters, alpha, gp, gm) -> np.ndarray:
