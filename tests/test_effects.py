@@ -409,6 +409,29 @@ def test_stored_start_is_the_chain_state_at_the_first_sample(make, tmp_path):
     assert stored_start(with_start(back, None)) is None
 
 
+@pytest.mark.parametrize("name", [name for name, spec in REGISTRY.items() if not spec.steady])
+def test_an_accumulating_effects_afresh_start_is_the_chains_at_the_first_sample(name):
+    """`EffectSpec.afresh` (what `settled_state` takes instead of a one-sample run of the chain) is, bit for bit,
+    the state the chain run on the first sample gives that effect, behind a memory effect and a sensor lag, at
+    parameters of either sign; every effect of the catalogue that does not settle has one."""
+    from fitter.core.effects import fresh_state
+    from fitter.core.kernel import flows
+
+    t, u = signal()
+    spec = REGISTRY[name]
+    for scale in (1.0, -3.0, 0.0):
+        params = {k: scale * v for k, v in ALL[name].items()}
+        model = ri([("creep", ALL["creep"]), ("sensor_lag", ALL["sensor_lag"]), (name, params)])
+        before = sum(
+            len(REGISTRY[e.effect].state)
+            for e in model.effects
+            if list(REGISTRY).index(e.effect) < list(REGISTRY).index(name)
+        )
+        state = fresh_state(model, t + 0.37, u, model.x0, flows(model))[before : before + len(spec.state)]
+        assert spec.afresh(params) is not None
+        assert np.array(spec.afresh(params)).tobytes() == np.array(state).tobytes()
+
+
 @pytest.mark.parametrize("spread, width", [(0.0, 0.1), (0.03, 0.1), (0.02, 0.004)])
 def test_switching_settles_in_closed_form_as_its_runs_do(spread, width):
     """`Switching.settle` (each share's affine map over the run) is the state after `SETTLE_RUNS` runs of the

@@ -238,6 +238,10 @@ class ThermalDrift(EffectSpec):
         chain.y = chain.y * (1.0 - p["kappa"] * W)
         return (float(W[-1]),)
 
+    def afresh(self, p: dict[str, float]) -> tuple:
+        """No travel yet: W_0 = 0."""
+        return (0.0,)
+
 
 class Saturation(EffectSpec):
     """Step 9 of the chain: y -> y_c + tanh(beta (y - y_c)) / beta."""
@@ -320,6 +324,10 @@ class MeasurementDrift(EffectSpec):
         d = (0.0 if s0 is None else s0[0]) + p["rate"] * (chain.t - chain.t[0])
         chain.y = chain.y + d
         return (float(d[-1]),)
+
+    def afresh(self, p: dict[str, float]) -> tuple:
+        """At its origin: d_0 = 0 + rate (t_0 - t_0), as `apply` computes it (NaN for an infinite rate)."""
+        return (0.0 + p["rate"] * 0.0,)
 
 
 REGISTRY: dict[str, EffectSpec] = {

@@ -200,6 +200,12 @@ class EffectSpec(ABC):
         """
         return None
 
+    def afresh(self, p: dict[str, float]) -> tuple | None:
+        """Its state at the first sample when it starts afresh, where that does not depend on the chain's signals
+        (a drift's origin), as `apply` gives it; None (the default): `settled_state` runs the chain on the first
+        sample for it (`fresh_state`).  Only for an effect that is not `steady` (a steady one settles)."""
+        return None
+
     def bounds(self, ctx: EffectContext) -> dict[str, tuple[float, float]]:
         """Fitting bounds in physical units.
 
