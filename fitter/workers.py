@@ -18,6 +18,8 @@ worker of ``duhem batch``, which may not have children), runs in that process.
 (`_EvaluationMap`): the evaluations of the columns are independent, so on two cores a fit whose Jacobians cost most
 of its time takes about half the wall time, with the same result to the last digit (each column is the same
 function of the same theta in whichever process).
+
+Within a process, a fit's BLAS runs on one thread (`one_blas_thread`): its matrices are small.
 """
 
 from __future__ import annotations
