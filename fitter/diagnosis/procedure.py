@@ -31,8 +31,8 @@ Procedure (`diagnose`)
    correlation across recordings with log rate, start time and amplitude, and
    a model-free comparison of a repeated run with its original.
 3. Candidates (`fitter.core.effects.REGISTRY`): each is fitted jointly with the
-   base parameters (`fitter.diagnosis.fitting.fit_family`: scipy
-   ``least_squares``, several starts for its nonlinear parameters) and tested
+   base parameters (`fitter.diagnosis.fitting.fit_family`: the output-error
+   engine `fitter.identification.refine`, several starts for its nonlinear parameters) and tested
    against the model without it (`fitter.diagnosis.statistics`: likelihood
    ratio with an AR(1) effective sample size, Bonferroni over the candidates,
    at least `MIN_EXPLAINED` of the residual energy removed), or, when that

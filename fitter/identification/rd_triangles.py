@@ -33,7 +33,7 @@ Two estimators (``estimator=``):
        periodic response is linear in B (variable projection).
     3. all parameters (alpha, beta of the canonical form (49), g at every slope
        but the reference) refined jointly by output-error least squares
-       (`scipy.optimize.least_squares`, trust-region reflective with the
+       (the output-error engine `fitter.identification.refine`, trust-region reflective, with the
        block-sparse Jacobian) on *every* sample, corner samples included, with
        the model's limiting periodic response computed by the core kernel
        (`fitter.core.periodic_response`).  With white output noise this is
@@ -452,7 +452,7 @@ def _improved(recs: list[Record], order: int):
         for i, (rec, (dp, dm)) in enumerate(zip(recs, disc))
     ]
     info = {
-        "method": "least_squares trf, output error (fitter.identification.output_error)",
+        "method": "output error, fitter.identification.refine (trust-region reflective)",
         "nfev": res.nfev,
         "success": res.success,
         "message": res.message,
