@@ -91,7 +91,8 @@ from fitter.identification.output_error import FAIL
 from fitter.identification.refine import Options, refine
 from fitter.identification.parametrisation import Parametrisation
 from fitter.identification.triangle_records import TOL, Record, fail, parse_record
-from fitter.identification.triangle_waves import TriangleSamples, two_level_rate
+from fitter.identification.triangle_sensitivities import output_derivatives
+from fitter.identification.triangle_waves import TriangleSamples, closed_form_flow, two_level_rate
 
 __all__ = ["ESTIMATORS", "identify_rd_triangles", "RDIdentification", "WaveFit", "bilinear_d2c"]
 
@@ -312,6 +313,16 @@ def _ramp_exact_start(recs: list[Record], order: int):
     return alpha_ref, g, disc
 
 
+def _alpha_directions(n: int) -> list[np.ndarray]:
+    """d A / d alpha_j of the canonical form (49) (`_canonical`: A's first column is -alpha)."""
+    out = []
+    for j in range(n):
+        dA = np.zeros((n, n))
+        dA[j, 0] = -1.0
+        out.append(dA)
+    return out
+
+
 class _WaveParameters(Parametrisation):
     """Parameters of the improved estimator, step 3: theta = [alpha (n), beta (n), g_plus of
     waves 2..p, g_minus of waves 1..p]; `common` gives the common (A, B, C) of the canonical form (49)
@@ -385,6 +396,28 @@ class _WaveRecords:
         return stacked, model, [(0, None, r, np.nan, None) for r in parts]
 
     def jacobian(self, param: _WaveParameters, theta: np.ndarray) -> np.ndarray:
+        """d(residuals)/d(theta): exact (`output_derivatives`, A along d A / d alpha_j = -e_j e_1^T) where the
+        closed form applies, else `difference_jacobian`; rows of a wave without a periodic output are zero
+        (its residuals are the constant failure value)."""
+        model, rates = param.common(theta)
+        fl = closed_form_flow(model)
+        g = np.asarray(rates, dtype=float)
+        if fl is None or not (np.all(np.isfinite(g)) and np.all(g > 0)):
+            return self.difference_jacobian(param, theta)
+        n, p = param.n, param.p
+        d = output_derivatives(self.samples, fl, model.C, np.r_[g[:, 0], g[:, 1]], _alpha_directions(n))
+        wave, up = self.samples.wave_of, self.samples.up
+        rows = np.arange(len(wave))
+        J = np.zeros((len(wave), param.size))
+        J[:, :n], J[:, n : 2 * n] = -d.d_A, -d.d_B
+        d_plus, d_minus = np.where(up, d.d_own, d.d_other), np.where(up, d.d_other, d.d_own)
+        later = wave >= 1
+        J[rows[later], 2 * n + wave[later] - 1] = -d_plus[later]
+        J[rows, 2 * n + p - 1 + wave] = -d_minus
+        J[d.rho[wave] >= 1] = 0.0
+        return J
+
+    def difference_jacobian(self, param: _WaveParameters, theta: np.ndarray) -> np.ndarray:
         """Forward differences of `residuals` (steps 1e-6 (1 + |theta_j|), as `refine.jacobian`) in
         2 n + 2 evaluations (Curtis, Powell and Reid's column grouping, `_WaveParameters.groups`): the rates
         of all waves move at once, and each wave's rows take the difference of its own rate.  The residuals

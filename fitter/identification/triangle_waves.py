@@ -22,6 +22,7 @@ __all__ = [
     "periodic_triangle_output",
     "TriangleSamples",
     "two_level_rate",
+    "closed_form_flow",
 ]
 
 
@@ -105,7 +106,7 @@ def periodic_triangle_output(model: RateDependentModel, wave: TriangleWave, t: n
     corners) and agree to rounding (tests/test_rd_identification.py).  Raises `ConvergenceError` when
     rho >= 1.
     """
-    fl = _closed_form_flow(model)
+    fl = closed_form_flow(model)
     rates = None if fl is None else _rates(model, wave)
     if rates is None:
         tau = wave.phase(t)
@@ -153,7 +154,7 @@ class TriangleSamples:
         is no limiting periodic output.  In closed form where it applies; otherwise each wave as
         `periodic_triangle_output` solves it with the two-level rate `two_level_rate` of its rates."""
         g = np.asarray(rates, dtype=float).reshape(-1, 2)
-        fl = _closed_form_flow(model) if fl is None else fl
+        fl = closed_form_flow(model) if fl is None else fl
         if fl is None or not (np.all(np.isfinite(g)) and np.all(g > 0)):
             return [
                 _or_none(periodic_triangle_output, model.replace(g=two_level_rate(*r)), w, t)
@@ -193,7 +194,7 @@ def _or_none(function, *args):
         return None
 
 
-def _closed_form_flow(model: RateDependentModel) -> AffineFlow | None:
+def closed_form_flow(model: RateDependentModel) -> AffineFlow | None:
     """The model's flow when the closed form applies to it: no effects, A diagonalisable."""
     if getattr(model, "effects", None):
         return None
