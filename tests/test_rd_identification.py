@@ -14,7 +14,7 @@ from fitter.core import (
     save_model,
     simulate,
 )
-from fitter.identification.rd_triangles import ESTIMATORS, bilinear_d2c, identify_rd_triangles
+from fitter.identification.rd_triangles import ESTIMATORS, bilinear_d2c, identify_each, identify_rd_triangles
 from fitter.identification.triangle_waves import (
     TriangleWave,
     periodic_triangle_output,
@@ -184,6 +184,18 @@ def test_default_estimator_is_improved(asym_records):
     fit = identify_rd_triangles(asym_records[:2])
     assert fit.estimator == "improved"
     assert fit.model.fit_info["estimator"] == "improved"
+
+
+def test_identify_each_is_each_estimator_alone(asym_records):
+    noisy = [(t, u, y + 0.01 * np.sin(7 * t)) for t, u, y in asym_records]
+    alone = {est: identify_rd_triangles(noisy, estimator=est) for est in ESTIMATORS}
+    for est, fit in identify_each(noisy).items():
+        np.testing.assert_array_equal(fit.A_hat, alone[est].A_hat)
+        np.testing.assert_array_equal(fit.g_hat, alone[est].g_hat)
+        assert fit.rms_residual == alone[est].rms_residual and fit.estimator == est
+    assert alone["improved"].rms_residual < alone["literal"].rms_residual
+    with pytest.raises(ValueError, match="estimator must be one of"):
+        identify_each(asym_records, estimators=("improved", "exact"))
 
 
 def test_improved_is_exact_on_noise_free_data_at_coarse_sampling(asym_fits):

@@ -81,11 +81,12 @@ def test_phi_derivatives_match_central_differences_on_both_sides_of_the_series_s
 def test_the_improved_estimators_jacobian_is_its_residuals_forward_differences(order):
     from fitter.identification import rd_triangles as rd
     from fitter.identification.triangle_records import parse_record
+    from fitter.identification.wave_output_error import WaveParameters, WaveRecords
     from fitter.paper import example2, example3
 
     raw = example2.records(example2.NOISE_PP, 0) if order == 1 else example3.records()
     recs = sorted((parse_record(i, r, order) for i, r in enumerate(raw)), key=lambda r: r.wave.a)
-    param, problem = rd._WaveParameters(order, len(recs)), rd._WaveRecords(recs)
+    param, problem = WaveParameters(order, len(recs)), WaveRecords(recs)
     alpha, g, _ = rd._ramp_exact_start(recs, order)
     theta = param.pack(alpha, problem.best_beta(param, alpha, g[:, 0], g[:, 1]), g[:, 0], g[:, 1])
     theta *= 1 + 0.02 * np.random.default_rng(1).standard_normal(len(theta))  # off the start's structure

@@ -20,7 +20,7 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from fitter.core import CallableRate, RateDependentModel, model_from_dict
-from fitter.identification.rd_triangles import ESTIMATORS, identify_rd_triangles
+from fitter.identification.rd_triangles import ESTIMATORS, identify_each
 from fitter.identification.triangle_waves import triangle_response
 from fitter.paper.example3 import loop_errors, plot_loops
 
@@ -88,7 +88,7 @@ def _summary(fit) -> dict:
 def _seed_run(seed: int) -> dict:
     """Both estimators' summaries and models on the noisy records of `seed`."""
     recs = records(NOISE_PP, seed)
-    fits = {est: identify_rd_triangles(recs, estimator=est) for est in ESTIMATORS}
+    fits = identify_each(recs)
     return {est: {**_summary(fit), "model": fit.model.to_dict()} for est, fit in fits.items()}
 
 
@@ -121,7 +121,7 @@ def run_example2(seeds: int = 20, workers: int = 2, runs: Sequence[dict] | None 
             runs = list(seed_runs(seeds))
     seeds = len(runs)
     clean = records(0.0)
-    fits = {est: identify_rd_triangles(clean, estimator=est) for est in ESTIMATORS}
+    fits = identify_each(clean)
     true = true_model()
     out = {
         "settings": {

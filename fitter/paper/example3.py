@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from fitter.core import CallableRate, ConvergenceError, RateDependentModel, model_from_dict, periodic_response
-from fitter.identification.rd_triangles import ESTIMATORS, identify_rd_triangles
+from fitter.identification.rd_triangles import identify_each
 from fitter.identification.triangle_waves import triangle_response
 
 __all__ = [
@@ -155,8 +155,7 @@ def run_example3() -> dict:
         "target": {"A_hat": [[-g1, 1.0], [-3 * g1**2, 0.0]], "B_hat": [g1, -2 * g1**2], "g_hat": "g / g(0.25)"},
         "estimators": {},
     }
-    for est in ESTIMATORS:
-        fit = identify_rd_triangles(recs, order=ORDER, estimator=est)
+    for est, fit in identify_each(recs, order=ORDER).items():
         err = np.abs(fit.g_hat - g_true(fit.slopes) / g1)
         out["estimators"][est] = {
             "max_abs_g_error": float(err.max()),
