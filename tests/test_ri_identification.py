@@ -249,6 +249,13 @@ def test_discrete_rho_survives_overflow_and_underflow():
     assert _spectral_radius_of_powers([(big, 400), (big, 400)]) == float("inf")
     assert _spectral_radius_of_powers([(small, 400), (small, 400)]) == pytest.approx(0.5**800)
     assert _spectral_radius_of_powers([(big, 3), (small, 2)]) == pytest.approx(250.0)
+    # non-normal factors, odd and even powers: the product's spectral radius as numpy computes it directly
+    rng = np.random.default_rng(3)
+    A, B = rng.standard_normal((3, 3)), 0.4 * rng.standard_normal((3, 3))
+    direct = np.abs(np.linalg.eigvals(np.linalg.matrix_power(A, 13) @ np.linalg.matrix_power(B, 22))).max()
+    assert _spectral_radius_of_powers([(A, 13), (B, 22)]) == pytest.approx(direct, rel=1e-10)
+    assert _spectral_radius_of_powers([(np.zeros((2, 2)), 5), (big, 1)]) == 0.0
+    assert _spectral_radius_of_powers([(np.full((2, 2), np.nan), 5)]) == float("inf")
 
 
 def test_an_unobservable_lower_order_start_is_skipped_not_a_crash():

@@ -107,6 +107,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fitter.core import ConvergenceError, RateIndependentModel, convergence_rho, limiting_loop, periodic_response
+from fitter.identification.projection import response_columns
 
 __all__ = [
     "RIIdentification",
@@ -330,17 +331,39 @@ def bilinear_to_continuous(Ad: np.ndarray, Bd: np.ndarray, delta: float):
     return (2 / delta) * (Ad - np.eye(n)) @ Pinv, (2 / delta) * Pinv @ Bd
 
 
+def _normalised(M: np.ndarray) -> tuple[np.ndarray, float]:
+    """M / max|M| and log max|M|: -inf for M = 0 and +inf for a non-finite M (both returned as is)."""
+    s = np.abs(M).max()
+    if not np.isfinite(s):
+        return M, np.inf
+    return (M / s, float(np.log(s))) if s > 0 else (M, -np.inf)
+
+
+def _power(A: np.ndarray, p: int) -> tuple[np.ndarray, float]:
+    """A^p = M e^{log_scale} by binary powering (O(log p) products), each product renormalised."""
+    M, log_scale = np.eye(A.shape[0]), 0.0
+    base, log_base = _normalised(A)
+    while p:
+        if p & 1:
+            M, s = _normalised(M @ base)
+            log_scale += s + log_base
+        p >>= 1
+        if p:
+            base, s = _normalised(base @ base)
+            log_base = 2 * log_base + s
+    return M, log_scale
+
+
 def _spectral_radius_of_powers(factors) -> float:
-    """rho(prod M_i^{p_i}) with renormalisation, inf on overflow."""
+    """rho(prod M_i^{p_i}) by renormalised binary powering, 0 for a zero product, inf on overflow."""
     n = factors[0][0].shape[0]
     M, log_scale = np.eye(n), 0.0
     for A, p in factors:
-        for _ in range(p):
-            M = M @ A
-            s = np.abs(M).max()
-            if s == 0:
-                return 0.0
-            M, log_scale = M / s, log_scale + np.log(s)
+        P, s = _power(A, p)
+        M, t = _normalised(M @ P)
+        log_scale += s + t
+    if not np.isfinite(log_scale):
+        return 0.0 if log_scale < 0 else float("inf")
     r = np.max(np.abs(np.linalg.eigvals(M)))
     if r == 0:
         return 0.0
@@ -362,16 +385,19 @@ def refit_b(model: RateIndependentModel, u_grid, y_rising, y_falling):
 
     With E = D = 0 the limiting loop of the model is linear in (B+, B-): it is
     sum_j b_j L_j with L_j the loop of the model whose B vectors are the j-th unit
-    vector of (B+, B-).  Needs condition (5) (`ConvergenceError` otherwise).
+    vector of (B+, B-), each from its own periodic state.  All L_j come from one pass of the kernel
+    (`projection.response_columns`, periodic mode, over one period of the loop's input).
+    Needs condition (5) (`ConvergenceError` otherwise).
     """
-    n = model.order
-    basis = []
-    for j in range(2 * n):
-        b = np.eye(2 * n)[j]
-        unit = RateIndependentModel(A_plus=model.A_plus, A_minus=model.A_minus, B_plus=b[:n], B_minus=b[n:], C=model.C)
-        _, ur, uf, _ = limiting_loop(unit, u_grid[0], u_grid[-1], len(u_grid))
-        basis.append(np.r_[ur, uf])
-    coef = np.linalg.lstsq(np.column_stack(basis), np.r_[y_rising, y_falling], rcond=1e-10)[0]
+    n, points = model.order, len(u_grid)
+    rho = _continuous_rho(model, u_grid[0], u_grid[-1])
+    if not rho < 1:
+        raise ConvergenceError(f"no limiting loop to refit B on: condition (5) fails (rho = {rho:.6g})")
+    u = np.r_[u_grid, u_grid[-2::-1]]
+    lin = {j: ("B_plus" if j < n else "B_minus", j % n) for j in range(2 * n)}
+    Psi = response_columns(model, lin, None, u, "periodic", (0, len(u) - 1)).Psi
+    basis = np.r_[Psi[:points], Psi[points - 1 :][::-1]]  # rising, then falling, branch on the grid
+    coef = np.linalg.lstsq(basis, np.r_[y_rising, y_falling], rcond=1e-10)[0]
     return coef[:n], coef[n:]
 
 
