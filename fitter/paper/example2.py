@@ -35,6 +35,7 @@ __all__ = [
     "true_model",
     "records",
     "seed_runs",
+    "noise_free_run",
     "run_example2",
     "plot_example2",
 ]
@@ -104,14 +105,27 @@ def seed_runs(seeds: int, pool: Executor | None = None) -> Iterator[dict]:
     return pool.map(_seed_run, range(seeds)) if pool is not None else map(_seed_run, range(seeds))
 
 
-def run_example2(seeds: int = 20, workers: int = 2, runs: Sequence[dict] | None = None) -> dict:
+def noise_free_run() -> dict:
+    """Both estimators on the noise-free records: per estimator the summary, the model and its sine-loop
+    errors (the "noise_free" entries of `run_example2`)."""
+    true = true_model()
+    return {
+        est: {**_summary(fit), "model": fit.model.to_dict(), "loop_rel_errors": loop_errors(true, fit.model, OMEGAS)}
+        for est, fit in identify_each(records(0.0)).items()
+    }
+
+
+def run_example2(
+    seeds: int = 20, workers: int = 2, runs: Sequence[dict] | None = None, noise_free: dict | None = None
+) -> dict:
     """Noise-free and noisy (seeds 0..seeds-1) identification with both estimators.
 
     JSON-able: per estimator the noise-free summary, the per-seed A_hat, B_hat,
     worst relative g error, their medians over the seeds, and the sine-loop
     errors (max |y_id - y_true| / y-range, limiting periodic responses) of the
     noise-free and the seed-0 models.  Seeds run in `workers` processes, unless
-    `runs` gives their results (`seed_runs`, started by the caller).
+    `runs` gives their results (`seed_runs`, started by the caller); `noise_free` is
+    `noise_free_run()` when the caller ran it elsewhere.
     """
     if runs is None:
         if workers > 1 and seeds > 1:
@@ -120,8 +134,7 @@ def run_example2(seeds: int = 20, workers: int = 2, runs: Sequence[dict] | None 
         else:
             runs = list(seed_runs(seeds))
     seeds = len(runs)
-    clean = records(0.0)
-    fits = identify_each(clean)
+    noise_free = noise_free_run() if noise_free is None else noise_free
     true = true_model()
     out = {
         "settings": {
@@ -138,11 +151,7 @@ def run_example2(seeds: int = 20, workers: int = 2, runs: Sequence[dict] | None 
     }
     for est in ESTIMATORS:
         out["estimators"][est] = {
-            "noise_free": {
-                **_summary(fits[est]),
-                "model": fits[est].model.to_dict(),
-                "loop_rel_errors": loop_errors(true, fits[est].model, OMEGAS),
-            },
+            "noise_free": noise_free[est],
             "noisy": {
                 "median_A_hat": _median(runs, est, "A_hat"),
                 "median_B_hat": _median(runs, est, "B_hat"),
