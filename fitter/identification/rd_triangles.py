@@ -154,18 +154,29 @@ def bilinear_d2c(alpha_d: np.ndarray, beta_d: np.ndarray, delta: float) -> tuple
     return D[:n][::-1] / lead, N[:n][::-1] / lead
 
 
-def _exact_d2c(phi: np.ndarray, delta: float) -> np.ndarray | None:
-    """Continuous alpha_1..alpha_n whose poles are log(z)/delta for the DARMA poles z.
+def _exact_d2c(phi: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """Continuous alpha_1..alpha_n whose poles are log(z)/delta for the DARMA poles z, one row per branch.
 
-    phi are the AR coefficients of y_{k+1} = sum_j phi_j y_{k+1-j} + ...; returns
-    None when a pole is not the image of a continuous one (on the negative real
-    axis or at zero).
+    phi (B, n) are the AR coefficients of y_{k+1} = sum_j phi_j y_{k+1-j} + ... (delta (B,) each row's
+    sampling period); the poles are the eigenvalues of the companion matrices, as `numpy.roots` finds them, and
+    the coefficients their products, as `numpy.poly` forms them.  A row is NaN where a pole is not the image of a
+    continuous one (on the negative real axis or at zero).
     """
-    z = np.roots(np.r_[1.0, -phi])
-    if np.any(np.abs(z) < 1e-12) or np.any((np.abs(z.imag) < 1e-12) & (z.real < 0)):
-        return None
-    lam = np.log(z.astype(complex)) / delta
-    return np.real(np.poly(lam))[1:]
+    rows, n = phi.shape
+    companion = np.zeros((rows, n, n))
+    companion[:, 0, :] = phi
+    companion[:, np.arange(1, n), np.arange(n - 1)] = 1.0
+    z = np.linalg.eigvals(companion)
+    bad = np.any((np.abs(z) < 1e-12) | ((np.abs(z.imag) < 1e-12) & (z.real < 0)), axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lam = np.log(z.astype(complex)) / delta[:, None]
+    coef = np.zeros((rows, n + 1), dtype=complex)
+    coef[:, 0] = 1.0
+    for k in range(n):
+        coef[:, 1 : k + 2] = coef[:, 1 : k + 2] + (-lam[:, k : k + 1]) * coef[:, : k + 1]
+    alpha = coef[:, 1:].real
+    alpha[bad] = np.nan
+    return alpha
 
 
 # ----------------------------------------------------------------------------- results
@@ -274,22 +285,16 @@ def _literal(recs: list[Record], order: int) -> tuple[np.ndarray, np.ndarray, li
 def _ramp_exact_start(recs: list[Record], order: int):
     """Step 1 of the improved estimator: ramp-exact DARMA and exact pole map per branch."""
     n = order
-    disc, alphas = [], []
-    for rec in recs:
-        pair_d, pair_a = [], []
-        for d in (1, -1):
-            th = _lstsq(*_darma_rows(rec, d, n, intercept=True))
-            pair_d.append(th)
-            pair_a.append(_exact_d2c(-th[:n], rec.delta))
-        disc.append(pair_d)
-        alphas.append(pair_a)
-    alpha_ref = alphas[0][0]
-    if alpha_ref is None or alpha_ref[0] == 0:
+    disc = [[_lstsq(*_darma_rows(rec, d, n, intercept=True)) for d in (1, -1)] for rec in recs]
+    phi = -np.array([th[:n] for pair in disc for th in pair])
+    alphas = _exact_d2c(phi, np.repeat([rec.delta for rec in recs], 2)).reshape(len(recs), 2, n)
+    alpha_ref = alphas[0, 0]
+    if np.isnan(alpha_ref[0]) or alpha_ref[0] == 0:
         raise ValueError(
             "record 0 (slowest wave): the rising-branch DARMA has a pole on the negative "
             "real axis; no continuous model (try order or sampling)"
         )
-    g = np.array([[al[0] / alpha_ref[0] if al is not None else np.nan for al in pair] for pair in alphas])
+    g = alphas[:, :, 0] / alpha_ref[0]
     g[~np.isfinite(g)] = np.nanmedian(g)
     g[0, 0] = 1.0
     return alpha_ref, g, disc

@@ -121,7 +121,7 @@ def output_derivatives(
     P = len(samples.waves)
     lam, b, cv = fl.lam, fl.beta, fl.V.T @ np.asarray(C, dtype=float)
     p, v, span = samples.corners.T
-    partner = np.r_[np.arange(P, 2 * P), np.arange(P)]
+    partner = (np.arange(2 * P) + P) % (2 * P)
     h, tau = samples.half, samples.since
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         end, at = _at(span, lam, g, p, v), _at(tau, lam, g[h], p[h], v[h])

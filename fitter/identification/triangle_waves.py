@@ -160,7 +160,7 @@ class TriangleSamples:
                 _or_none(periodic_triangle_output, model.replace(g=two_level_rate(*r)), w, t)
                 for w, t, r in zip(self.waves, self.times, g)
             ]
-        X, rho = self._states(fl, np.r_[g[:, 0], g[:, 1]])
+        X, rho = self._states(fl, g.T.ravel())
         y = model.output(X, self.u)
         return [y[a:b] if r < 1 else None for a, b, r in zip(self.ends[:-1], self.ends[1:], rho)]
 

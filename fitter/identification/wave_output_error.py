@@ -60,12 +60,12 @@ class WaveParameters(Parametrisation):
     def unpack(self, theta: np.ndarray):
         n, p = self.n, self.p
         alpha, beta = theta[:n], theta[n : 2 * n]
-        gp = np.r_[1.0, theta[2 * n : 2 * n + p - 1]]
+        gp = np.concatenate(([1.0], theta[2 * n : 2 * n + p - 1]))
         gm = theta[2 * n + p - 1 :]
         return alpha, beta, gp, gm
 
     def pack(self, alpha, beta, gp, gm) -> np.ndarray:
-        return np.r_[alpha, beta, gp[1:], gm]
+        return np.concatenate((alpha, beta, gp[1:], gm))
 
     def common(self, theta: np.ndarray) -> tuple[RateDependentModel, list[tuple[float, float]]]:
         """The common (A, B, C) as a model (its g the first wave's) and each wave's (g_plus, g_minus)."""
@@ -130,7 +130,7 @@ class WaveRecords:
         if fl is None or not (np.all(np.isfinite(g)) and np.all(g > 0)):
             return self.difference_jacobian(param, theta)
         n, p = param.n, param.p
-        d = output_derivatives(self.samples, fl, model.C, np.r_[g[:, 0], g[:, 1]], alpha_directions(n))
+        d = output_derivatives(self.samples, fl, model.C, g.T.ravel(), alpha_directions(n))
         wave, up = self.samples.wave_of, self.samples.up
         rows = np.arange(len(wave))
         J = np.zeros((len(wave), param.size))
