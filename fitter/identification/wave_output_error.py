@@ -95,6 +95,7 @@ class WaveRecords:
     recs: list[Record]
     samples: TriangleSamples = field(init=False)
     _last: tuple = field(init=False, default=(None, None))
+    _flow: tuple = field(init=False, default=(None, None, None))
 
     def __post_init__(self):
         self.samples = TriangleSamples([r.wave for r in self.recs], [r.t for r in self.recs])
@@ -106,12 +107,23 @@ class WaveRecords:
     def decimated(self, max_samples) -> "WaveRecords":
         return self
 
+    def _common(self, param: WaveParameters, theta: np.ndarray):
+        """`WaveParameters.common` and the closed form's flow (None where it does not apply), the model and
+        flow kept from the last call with the same alpha, beta and first wave's rates (the optimiser evaluates
+        the residuals, then the Jacobian, at each accepted theta)."""
+        alpha, beta, gp, gm = param.unpack(theta)
+        key = np.concatenate((alpha, beta, gp[:1], gm[:1])).tobytes()
+        if self._flow[0] != key:
+            model = param.common(theta)[0]
+            self._flow = (key, model, closed_form_flow(model))
+        return self._flow[1], list(zip(gp, gm)), self._flow[2]
+
     def residuals(self, param: WaveParameters, theta: np.ndarray):
         """y - yhat stacked over the records (the engine's failure value where a record's
         periodic response does not exist), the common model (`WaveParameters.common`) and the per-record
         residuals."""
-        model, rates = param.common(theta)
-        outputs = self.samples.outputs(model, rates)
+        model, rates, fl = self._common(param, theta)
+        outputs = self.samples.outputs(model, rates, fl)
         parts = [
             rec.y - y if y is not None else np.full(len(rec.y), FAIL * max(float(np.ptp(rec.y)), 1e-300))
             for rec, y in zip(self.recs, outputs)
@@ -124,8 +136,7 @@ class WaveRecords:
         """d(residuals)/d(theta): exact (`output_derivatives`, A along d A / d alpha_j = -e_j e_1^T) where the
         closed form applies, else `difference_jacobian`; rows of a wave without a periodic output are zero
         (its residuals are the constant failure value)."""
-        model, rates = param.common(theta)
-        fl = closed_form_flow(model)
+        model, rates, fl = self._common(param, theta)
         g = np.asarray(rates, dtype=float)
         if fl is None or not (np.all(np.isfinite(g)) and np.all(g > 0)):
             return self.difference_jacobian(param, theta)
