@@ -138,6 +138,12 @@ def test_example3_sine_loops_within_one_percent_at_every_omega(ex3):
     assert set(errors) == {"0.5", "1", "2", "4", "6"}
     for w, e in errors.items():
         assert e is not None and e <= 0.01, f"w = {w}: loop error {e} of the y-range"
+    # the true loops computed once and passed in give the same errors; another model's loops do not
+    true = example3.true_model()
+    reference = example3.sine_loops(true, example3.OMEGAS)
+    assert example3.loop_errors(true, ex3["improved"].model, example3.OMEGAS, reference) == errors
+    other = example3.sine_loops(ex3["literal"].model, example3.OMEGAS)
+    assert example3.loop_errors(true, ex3["improved"].model, example3.OMEGAS, other) != errors
 
 
 def test_example3_straight_line_g_is_not_good_enough_at_low_omega(ex3):

@@ -22,7 +22,7 @@ import numpy as np
 from fitter.core import CallableRate, RateDependentModel, model_from_dict
 from fitter.identification.rd_triangles import ESTIMATORS, identify_each
 from fitter.identification.triangle_waves import triangle_response
-from fitter.paper.example3 import loop_errors, plot_loops
+from fitter.paper.example3 import loop_errors, plot_loops, sine_loops
 
 __all__ = [
     "PAPER",
@@ -109,8 +109,13 @@ def noise_free_run() -> dict:
     """Both estimators on the noise-free records: per estimator the summary, the model and its sine-loop
     errors (the "noise_free" entries of `run_example2`)."""
     true = true_model()
+    reference = sine_loops(true, OMEGAS)
     return {
-        est: {**_summary(fit), "model": fit.model.to_dict(), "loop_rel_errors": loop_errors(true, fit.model, OMEGAS)}
+        est: {
+            **_summary(fit),
+            "model": fit.model.to_dict(),
+            "loop_rel_errors": loop_errors(true, fit.model, OMEGAS, reference),
+        }
         for est, fit in identify_each(records(0.0)).items()
     }
 
@@ -136,6 +141,7 @@ def run_example2(
     seeds = len(runs)
     noise_free = noise_free_run() if noise_free is None else noise_free
     true = true_model()
+    reference = sine_loops(true, OMEGAS)
     out = {
         "settings": {
             "slopes": SLOPES.tolist(),
@@ -159,7 +165,7 @@ def run_example2(
                 "per_seed": [{k: r[est][k] for k in ("A_hat", "B_hat", "worst_rel_g_error")} for r in runs],
                 "seed0": {
                     **runs[0][est],
-                    "loop_rel_errors": loop_errors(true, model_from_dict(runs[0][est]["model"]), OMEGAS),
+                    "loop_rel_errors": loop_errors(true, model_from_dict(runs[0][est]["model"]), OMEGAS, reference),
                 },
             },
         }
