@@ -121,7 +121,10 @@ class WaveRecords:
     def residuals(self, param: WaveParameters, theta: np.ndarray):
         """y - yhat stacked over the records (the engine's failure value where a record's
         periodic response does not exist), the common model (`WaveParameters.common`) and the per-record
-        residuals."""
+        residuals.  The last evaluation's, when it was at the same theta (the optimiser's last trial is its
+        result, which `refine` and the estimator evaluate again)."""
+        if np.array_equal(self._last[0], theta):
+            return self._last[1]
         model, rates, fl = self._common(param, theta)
         outputs = self.samples.outputs(model, rates, fl)
         parts = [
@@ -129,8 +132,8 @@ class WaveRecords:
             for rec, y in zip(self.recs, outputs)
         ]
         stacked = np.concatenate(parts)
-        self._last = (theta.copy(), stacked)
-        return stacked, model, [(0, None, r, np.nan, None) for r in parts]
+        self._last = (theta.copy(), (stacked, model, [(0, None, r, np.nan, None) for r in parts]))
+        return self._last[1]
 
     def jacobian(self, param: WaveParameters, theta: np.ndarray) -> np.ndarray:
         """d(residuals)/d(theta): exact (`output_derivatives`, A along d A / d alpha_j = -e_j e_1^T) where the
@@ -158,7 +161,7 @@ class WaveRecords:
         2 n + 2 evaluations (Curtis, Powell and Reid's column grouping, `WaveParameters.groups`): the rates
         of all waves move at once, and each wave's rows take the difference of its own rate.  The residuals
         at theta are those of the last evaluation when it was at theta (the optimiser evaluates there first)."""
-        r0 = self._last[1] if np.array_equal(self._last[0], theta) else self.residuals(param, theta)[0]
+        r0 = self.residuals(param, theta)[0]
         wave_of_row = self.samples.wave_of
         h = 1e-6 * (1.0 + np.abs(theta))
         J = np.zeros((len(r0), param.size))
