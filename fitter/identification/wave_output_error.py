@@ -39,7 +39,7 @@ def _model(A, B, C, g) -> RateDependentModel:
 
 
 def alpha_directions(n: int) -> list[np.ndarray]:
-    """d A / d alpha_j of the canonical form (49) (`_canonical`: A's first column is -alpha)."""
+    """d A / d alpha_j of the canonical form (49) (`canonical`: A's first column is -alpha)."""
     out = []
     for j in range(n):
         dA = np.zeros((n, n))
