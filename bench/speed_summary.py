@@ -21,8 +21,9 @@ Rows (each runs the other benches' own code, nothing is re-implemented here):
   <= 120 s and <= 400 MB (``--skip-long`` leaves it out: about a minute and a 40 MB file).
 * **the paper's reproduction** (`bench/reproduce_paper.py`: Examples 1-3 with the improved and the literal
   estimators, 20 noise seeds) against the paper's literal procedures alone (`bench/literal_paper.py`), each as a
-  fresh process, alternating, median of 5; target <= 1.  Beside it the improved estimator's identification time of
-  Examples 2 and 3 against the paper-literal estimator's on the same records (`fitter.identification.rd_triangles`).
+  fresh process, alternating, median of 9 (the two are close, and one run's noise is a tenth); target <= 1.
+  Beside it the improved estimator's identification time of Examples 2 and 3 against the paper-literal
+  estimator's on the same records (`fitter.identification.rd_triangles`).
 
 The table goes to stdout and, with ``--out``, to a Markdown file (``make bench`` writes ``out/bench/speed.md``).
 """
@@ -136,7 +137,7 @@ def _process_seconds(script: str) -> float:
     return time.perf_counter() - t0
 
 
-def paper_rows(runs: int = 5) -> list[Row]:
+def paper_rows(runs: int = 9) -> list[Row]:
     """`duhem reproduce-paper` against the paper's literal procedures (`bench/literal_paper.py`), each a fresh
     process, alternating, median of `runs`; and Examples 2 and 3 identified by the improved and by the
     literal estimator."""
