@@ -33,10 +33,11 @@ Two estimators (``estimator=``):
        periodic response is linear in B (variable projection).
     3. all parameters (alpha, beta of the canonical form (49), g at every slope
        but the reference) refined jointly by output-error least squares
-       (the output-error engine `fitter.identification.refine`, trust-region reflective, with the
-       block-sparse Jacobian) on *every* sample, corner samples included, with
-       the model's limiting periodic response computed by the core kernel
-       (`fitter.core.periodic_response`).  With white output noise this is
+       (the output-error engine `fitter.identification.refine`, trust-region reflective) on *every*
+       sample, corner samples included, with the model's limiting periodic response in closed form
+       (`TriangleSamples`; the kernel's `fitter.core.periodic_response` where the closed form does not
+       apply) and its exact Jacobian (`fitter.identification.triangle_sensitivities`; the problem is
+       `fitter.identification.wave_output_error`).  With white output noise this is
        the maximum-likelihood (Gaussian) estimate; the regressors carry no
        noise, so there is no errors-in-variables bias.
 
