@@ -91,8 +91,10 @@ longest chain, so the seeds queued in the pool take the cores it leaves."""
 
 
 def _behind_this_process() -> None:
-    """A pool process's initialiser: run `WORKER_NICENESS` below the process that started it."""
-    os.nice(WORKER_NICENESS)
+    """A pool process's initialiser: run `WORKER_NICENESS` below the process that started it (where the system
+    has niceness: not on Windows)."""
+    if hasattr(os, "nice"):
+        os.nice(WORKER_NICENESS)
 
 
 def run(seeds: int = DEFAULT_SEEDS, figures_dir: str | None = None, workers: int = 2) -> dict:
