@@ -301,15 +301,22 @@ class AffineFlow:
         return (self.V @ w).real
 
     def modal_terms(
-        self, p: np.ndarray, r: np.ndarray, S: np.ndarray, forcing: tuple[np.ndarray, np.ndarray] | None = None
+        self,
+        p: np.ndarray,
+        r: np.ndarray,
+        S: np.ndarray,
+        forcing: tuple[np.ndarray, np.ndarray] | None = None,
+        modal_forcing: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Per interval, in modal coordinates w = V^-1 x: exponents z = lambda S (N, n) and forcing
-        f with w(S) = e^z w(0) + f (module docstring), (N, n); with `forcing` = (B, E), m forcing
+        f with w(S) = e^z w(0) + f (module docstring), (N, n); with `modal_forcing` = (beta, eps), modal
+        vectors (n,) in place of the flow's own V^-1 B, V^-1 E; with `forcing` = (B, E), m forcing
         columns of shape (n, m) in place of the flow's own, f is (N, n, m)."""
         z = np.outer(S, self.lam)
         c1, c2 = S[:, None] * phi1(z), S[:, None] ** 2 * phi2(z)
         if forcing is None:
-            return z, (c1 * p[:, None] + c2 * r[:, None]) * self.beta + c1 * self.eps
+            beta, eps = (self.beta, self.eps) if modal_forcing is None else modal_forcing
+            return z, (c1 * p[:, None] + c2 * r[:, None]) * beta + c1 * eps
         beta, eps = self.Vinv @ forcing[0], self.Vinv @ forcing[1]
         return z, (c1 * p[:, None] + c2 * r[:, None])[:, :, None] * beta + c1[:, :, None] * eps
 

@@ -35,7 +35,6 @@ from typing import Sequence
 import numpy as np
 
 from fitter.core import AffineFlow
-from fitter.core.flow import phi1, phi2
 
 __all__ = ["OutputDerivatives", "output_derivatives", "dphi1", "dphi2"]
 
@@ -94,18 +93,14 @@ def _start_derivative(q: np.ndarray, E: np.ndarray, den: np.ndarray, partner: np
     return (q[partner] + E[partner] * q) / den
 
 
-def _at(tau: np.ndarray, lam: np.ndarray, g: np.ndarray, p: np.ndarray, v: np.ndarray) -> dict:
-    """The terms of w(tau) = e^x w_st + b F at the times tau since the corners (p, v, g per entry)."""
+def _forcing_derivatives(x: np.ndarray, tau: np.ndarray, g: np.ndarray, p: np.ndarray, v: np.ndarray):
+    """At x = lambda g tau (p, v, g per entry): dF/dlambda = g tau (p g tau phi1'(x) + v g tau^2 phi2'(x)) of the
+    unit forcing F, and the ramp's part v tau^2 phi1'(x) of d/dg (module docstring)."""
     S = g * tau
-    x = np.outer(S, lam)
-    return {
-        "S": S,
-        "x": x,
-        "E": np.exp(x),
-        "F": (p * S)[:, None] * phi1(x) + (v * g * tau**2)[:, None] * phi2(x),
-        "dF_dlam": S[:, None] * ((p * S)[:, None] * dphi1(x) + (v * g * tau**2)[:, None] * dphi2(x)),
-        "ramp": (v * tau**2)[:, None] * dphi1(x),
-    }
+    dphi1_x = dphi1(x)
+    return S[:, None] * ((p * S)[:, None] * dphi1_x + (v * g * tau**2)[:, None] * dphi2(x)), (v * tau**2)[
+        :, None
+    ] * dphi1_x
 
 
 def output_derivatives(
@@ -115,33 +110,34 @@ def output_derivatives(
 
     `g` are the rates of the rising halves, then of the falling ones (as `TriangleSamples._states`), all
     positive; `fl` must be modal with E = 0; `directions` are the matrices dA along which d_A differentiates.
+    The periodic states are `TriangleSamples.periodic_modal`'s under unit modal forcing.
     """
     if not fl.modal or np.any(fl.eps != 0):
         raise ValueError("output_derivatives needs a diagonalisable A and E = 0")
-    P = len(samples.waves)
+    P, n = len(samples.waves), len(fl.lam)
     lam, b, cv = fl.lam, fl.beta, fl.V.T @ np.asarray(C, dtype=float)
     p, v, span = samples.corners.T
     partner = (np.arange(2 * P) + P) % (2 * P)
     h, tau = samples.half, samples.since
+    unit = samples.periodic_modal(fl, g, np.ones(n), np.zeros(n))
+    U_st, U = unit.starts, unit.W
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        end, at = _at(span, lam, g, p, v), _at(tau, lam, g[h], p[h], v[h])
-        E, Es = end["E"], at["E"]
-        den = np.tile(1.0 - E[:P] * E[P:], (2, 1))
-        U_lo = (E[P:] * end["F"][:P] + end["F"][P:]) / den[:P]
-        U_st = np.vstack([U_lo, E[:P] * U_lo + end["F"][:P]])  # the halves' periodic starts, unit forcing
-        U = Es * U_st[h] + at["F"]
+        E, Es = np.exp(unit.z), np.exp(unit.zs)
+        den = np.tile(1.0 - unit.decay, (2, 1))
+        dF_end, ramp_end = _forcing_derivatives(unit.z, span, g, p, v)
+        dF_at, ramp_at = _forcing_derivatives(unit.zs, tau, g[h], p[h], v[h])
         W, W_st = U * b, U_st * b
         # the rates
-        q = span[:, None] * E * (lam * W_st + b * p[:, None]) + b * end["ramp"]
+        q = span[:, None] * E * (lam * W_st + b * p[:, None]) + b * ramp_end
         own_st, other_st = E[partner] * q / den, q[partner] / den
-        in_half = tau[:, None] * Es * (lam * W_st[h] + b * p[h][:, None]) + b * at["ramp"]
+        in_half = tau[:, None] * Es * (lam * W_st[h] + b * p[h][:, None]) + b * ramp_at
         # the eigenvalues (unit forcing), then A's directions
-        q_lam = end["S"][:, None] * E * U_st + end["dF_dlam"]
-        dU = Es * _start_derivative(q_lam, E, den, partner)[h] + at["S"][:, None] * Es * U_st[h] + at["dF_dlam"]
+        q_lam = (g * span)[:, None] * E * U_st + dF_end
+        dU = Es * _start_derivative(q_lam, E, den, partner)[h] + (g[h] * tau)[:, None] * Es * U_st[h] + dF_at
         d_A = [_along(dA, fl, b, cv, C, U, dU, W) for dA in directions]
     return OutputDerivatives(
         y=(W @ cv).real,
-        rho=np.max(np.abs(E[:P] * E[P:]), axis=1),
+        rho=np.max(np.abs(unit.decay), axis=1),
         d_A=np.column_stack(d_A) if d_A else np.zeros((len(h), 0)),
         d_B=(U @ (cv[:, None] * fl.Vinv)).real,
         d_own=((in_half + Es * own_st[h]) @ cv).real,

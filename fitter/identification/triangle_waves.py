@@ -167,17 +167,36 @@ class TriangleSamples:
     def _states(self, fl: AffineFlow, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The periodic states at every sample (class docstring) and each wave's rho; `g` the rates of the
         rising halves, then of the falling ones."""
+        modal = self.periodic_modal(fl, g, fl.beta, fl.eps)
+        return (modal.W @ fl.V.T).real, np.max(np.abs(modal.decay), axis=1)
+
+    def periodic_modal(self, fl: AffineFlow, g: np.ndarray, beta: np.ndarray, eps: np.ndarray) -> "PeriodicModal":
+        """The periodic modal states (class docstring) under the modal forcing (beta, eps) (`fl.beta`, `fl.eps`
+        for the flow's own; unit vectors for the responses to each mode's forcing); `g` as `_states`."""
         P = len(self.waves)
         p, v, span = self.corners.T
-        z, f = fl.modal_terms(p, v / g, g * span)
+        z, f = fl.modal_terms(p, v / g, g * span, modal_forcing=(beta, eps))
         with np.errstate(over="ignore", invalid="ignore"):
             decay = np.exp(z[:P] + z[P:])
             w_lo = (np.exp(z[P:]) * f[:P] + f[P:]) / (1.0 - decay)
             starts = np.vstack([w_lo, np.exp(z[:P]) * w_lo + f[:P]])
             h = self.half
-            zs, fs = fl.modal_terms(p[h], v[h] / g[h], g[h] * self.since)
+            zs, fs = fl.modal_terms(p[h], v[h] / g[h], g[h] * self.since, modal_forcing=(beta, eps))
             W = np.exp(zs) * starts[h] + fs
-        return (W @ fl.V.T).real, np.max(np.abs(decay), axis=1)
+        return PeriodicModal(z=z, zs=zs, starts=starts, W=W, decay=decay)
+
+
+@dataclass(frozen=True)
+class PeriodicModal:
+    """`TriangleSamples.periodic_modal`: per half (rising halves, then falling) the exponents z = lambda g T_h at
+    its end and its periodic start; per sample the exponents zs = lambda g tau since its half's corner and its
+    periodic modal state W; per wave and mode e^{z_a + z_b} (`decay`, condition (5))."""
+
+    z: np.ndarray
+    zs: np.ndarray
+    starts: np.ndarray
+    W: np.ndarray
+    decay: np.ndarray
 
 
 def two_level_rate(g_plus: float, g_minus: float) -> CallableRate:
