@@ -14,7 +14,7 @@ is the same on any number of processes (tested).  A map inside a worker, or in a
 worker of ``duhem batch``, which may not have children), runs in that process.
 
 `evaluation_map` does the same for the evaluations of one forward-difference Jacobian in
-`fitter.identification.refine` (scipy's ``least_squares(workers=...)``), taken from both ends of the list
+`fitter.identification.refine` (the map its optimiser's ``workers`` argument takes), taken from both ends of the list
 (`_EvaluationMap`): the evaluations of the columns are independent, so on two cores a fit whose Jacobians cost most
 of its time takes about half the wall time, with the same result to the last digit (each column is the same
 function of the same theta in whichever process).
@@ -164,7 +164,7 @@ def _serve(conn, parent: int, function: Callable, ends) -> None:
 
 class _EvaluationMap:
     """``map(fun, xs)`` as scipy's ``workers`` calls it, for a ``fun`` that wraps `function` (scipy's wrappers
-    of a ``least_squares`` residual function only fix the array type and shape): in this process until one call
+    of `refine`'s residual function only fix the array type and shape): in this process until one call
     took `POOL_AFTER_S`; then this process evaluates xs from the front and forked processes, which inherit
     ``function``, from the back, each taking the next one as it is free (`_take`: one pipe each, no pool threads,
     no pickled function).  Columns differ in cost (an effect fit's base columns against its effects' columns,
@@ -232,7 +232,7 @@ class _EvaluationMap:
 
 @contextmanager
 def evaluation_map(function: Callable[[np.ndarray], np.ndarray]) -> Iterator[Callable | None]:
-    """Within: a map-like callable for ``scipy.optimize.least_squares(function, ..., workers=...)`` that evaluates
+    """Within: a map-like callable for the ``workers`` argument of `refine`'s optimiser, that evaluates
     a forward-difference Jacobian's columns on up to `workers()` forked processes, once one Jacobian took
     `POOL_AFTER_S` here.  The same numbers as in this process: each column is the deterministic ``function`` of
     its theta, and scipy counts the evaluations itself.  None where this process may not fork or one process is
