@@ -505,3 +505,24 @@ def test_linear_recurrence_equals_the_step_by_step_loop(dtype, growth):
     got = linear_recurrence(w0, z, np.exp(z), f)
     assert got.dtype == f.dtype
     assert np.max(np.abs(got - expected)) < 1e-12 * np.max(np.abs(expected))
+
+
+@pytest.mark.parametrize("K", [1, 2, 3, 5, 16, 17, 32, 33, 70])
+def test_affine_scan_equals_the_map_by_map_recurrence_at_any_length(K):
+    """`fitter.core.scans.affine_scan` against x_{k+1} = M_k x_k + g_k applied one map at a time, for lengths below,
+    at and above its block of 32 (below it the maps make one shorter block), one initial state and several."""
+    from fitter.core.scans import affine_scan
+
+    rng = np.random.default_rng(K)
+    M = 0.5 * rng.standard_normal((K, 3, 3)) / np.sqrt(3)
+    for X0, g in (
+        (rng.standard_normal(3), rng.standard_normal((K, 3))),
+        (rng.standard_normal((3, 4)), rng.standard_normal((K, 3, 4))),
+    ):
+        x, expected = X0, []
+        for k in range(K):
+            x = M[k] @ x + g[k]
+            expected.append(x)
+        got = affine_scan(M, g, X0)
+        assert got.shape == (K,) + X0.shape
+        np.testing.assert_allclose(got, np.array(expected), rtol=1e-12, atol=1e-12)

@@ -73,8 +73,10 @@ _BLOCK = 1 << 16
 def phi1(z: np.ndarray) -> np.ndarray:
     """(e^z - 1)/z, equal to 1 at z = 0; accurate for small |z| (real for real z)."""
     z = np.asarray(z, dtype=complex if np.iscomplexobj(z) else float)
-    out = np.ones_like(z)
     big = np.abs(z) >= 1e-8
+    if big.all():
+        return np.expm1(z) / z
+    out = np.ones_like(z)
     out[big] = np.expm1(z[big]) / z[big]
     small = ~big
     out[small] += z[small] / 2
@@ -87,16 +89,23 @@ _PHI2_SERIES = np.array([1.0 / np.prod(np.arange(1.0, k + 1)) for k in range(2, 
 def phi2(z: np.ndarray) -> np.ndarray:
     """(e^z - 1 - z)/z^2, equal to 1/2 at z = 0; Taylor series for |z| < 0.5 (real for real z)."""
     z = np.asarray(z, dtype=complex if np.iscomplexobj(z) else float)
-    out = np.empty_like(z)
     small = np.abs(z) < 0.5
+    if small.all():
+        return _phi2_series(z)
+    out = np.empty_like(z)
     zb = z[~small]
     out[~small] = (np.expm1(zb) - zb) / (zb * zb)
-    zs = z[small]
-    acc = np.full_like(zs, _PHI2_SERIES[-1])
-    for c in _PHI2_SERIES[-2::-1]:
-        acc = acc * zs + c
-    out[small] = acc
+    out[small] = _phi2_series(z[small])
     return out
+
+
+def _phi2_series(z: np.ndarray) -> np.ndarray:
+    """The Taylor series of `phi2` at z (|z| < 0.5), by Horner's rule."""
+    acc = np.full_like(z, _PHI2_SERIES[-1])
+    for c in _PHI2_SERIES[-2::-1]:
+        acc *= z
+        acc += c
+    return acc
 
 
 _PHI2_POWERS = np.arange(len(_PHI2_SERIES))
@@ -318,7 +327,9 @@ class AffineFlow:
             beta, eps = (self.beta, self.eps) if modal_forcing is None else modal_forcing
             return z, (c1 * p[:, None] + c2 * r[:, None]) * beta + c1 * eps
         beta, eps = self.Vinv @ forcing[0], self.Vinv @ forcing[1]
-        return z, (c1 * p[:, None] + c2 * r[:, None])[:, :, None] * beta + c1[:, :, None] * eps
+        f = (c1 * p[:, None] + c2 * r[:, None])[:, :, None] * beta
+        f += c1[:, :, None] * eps
+        return z, f
 
     def affine_maps(
         self, p: np.ndarray, r: np.ndarray, S: np.ndarray, forcing: tuple[np.ndarray, np.ndarray] | None = None

@@ -15,6 +15,7 @@ Needs only numpy (shipped inside the FMUs).
 
 from __future__ import annotations
 
+import math
 from contextlib import contextmanager
 from contextvars import ContextVar
 from typing import Callable, Iterator
@@ -63,19 +64,19 @@ def _columns(a: np.ndarray, extra: int) -> np.ndarray:
     return a.reshape(a.shape + (1,) * extra)
 
 
-def _segmented_cumsum(x: np.ndarray, head: np.ndarray) -> np.ndarray:
-    """Cumulative sum along axis 0 restarting at every True of `head`.
+def _segmented_cumsum(x: np.ndarray, head: np.ndarray, first: np.ndarray | None = None) -> np.ndarray:
+    """Cumulative sum along axis 0 restarting at every True of `head` (`first`: its indices, when at hand).
 
     One `np.cumsum` per segment (a Python loop, about 3 us a segment), or a
     Hillis-Steele scan over the whole array (log2 of the longest segment
     passes, about 3 ns an entry each), whichever is estimated cheaper.
     """
-    first = np.flatnonzero(head)
-    ends = np.r_[first[1:], len(x)]
-    passes = max(1, int(np.ceil(np.log2(max(int(np.max(ends - first)), 2)))))
+    first = np.flatnonzero(head) if first is None else first
+    ends = np.append(first[1:], len(x))
+    passes = max(1, math.ceil(math.log2(max(int((ends - first).max()), 2))))
     if len(first) * 1000 <= passes * x.size:
         out = np.empty_like(x)
-        for a, b in zip(first, ends):
+        for a, b in zip(first.tolist(), ends.tolist()):
             np.cumsum(x[a:b], axis=0, out=out[a:b])
         return out
     v, h = x.copy(), head.copy()
@@ -104,11 +105,16 @@ def integrate_modal(used: dict, force: dict, X0: np.ndarray, branch, p, r, S) ->
         z[sel], fb = flow.modal_terms(p[sel], r[sel], S[sel], force[b])
         f[sel] = fb if fb.ndim == f.ndim else _columns(fb, extra)
     chunk = np.floor(np.cumsum(np.abs(z.real).max(axis=1)) / CHUNK_SPAN)
-    head = np.r_[True, (branch[1:] != branch[:-1]) | (chunk[1:] != chunk[:-1])]
+    head = np.empty(N, bool)
+    head[0] = True
+    np.not_equal(branch[1:], branch[:-1], out=head[1:])
+    head[1:] |= chunk[1:] != chunk[:-1]
     first = np.flatnonzero(head)
-    last = np.r_[first[1:] - 1, N - 1]
-    L = _segmented_cumsum(np.where(head[:, None], 0, z), head)
-    F = _segmented_cumsum(np.where(_columns(head, 1 + extra), 0, f * _columns(np.exp(-L), extra)), head)
+    last = np.append(first[1:] - 1, N - 1)
+    L = _segmented_cumsum(np.where(head[:, None], 0, z), head, first)
+    decayed = f * _columns(np.exp(-L), extra)
+    decayed[first] = 0
+    F = _segmented_cumsum(decayed, head, first)
     # segment s maps its entry state x_s to its exit state: in modal coordinates w = V^-1 x_s,
     # W0 = e^{z_first} w + f_first (its first interval), w_out = P_last (W0 + F_last); as a map on x,
     # x_{s+1} = V diag(P_last e^{z_first}) V^-1 x_s + V P_last (f_first + F_last): chained by `affine_scan`
@@ -123,7 +129,8 @@ def integrate_modal(used: dict, force: dict, X0: np.ndarray, branch, p, r, S) ->
     entry = np.concatenate([X0[None], affine_scan(M, c, X0)[:-1]])
     W0 = _columns(ez0, extra) * _stacked_matvec(Vinv, entry) + f0
     seg = np.cumsum(head) - 1
-    W = _columns(np.exp(L), extra) * (W0[seg] + F)
+    F += W0[seg]
+    W = np.multiply(_columns(np.exp(L), extra), F, out=F)
     X = np.empty((N, n) + X0.shape[1:])
     for b, flow in used.items():
         sel = branch == b
@@ -146,8 +153,11 @@ def integrate_dense(used: dict, force: dict, X0: np.ndarray, branch, p, r, S) ->
 
 def affine_scan(M: np.ndarray, g: np.ndarray, X0: np.ndarray, block: int = 32) -> np.ndarray:
     """States x_1..x_K of x_{k+1} = M_k x_k + g_k from x_0 = X0 ((n,) or (n, m)): prefix compositions
-    within blocks of `block` maps (log2(block) stacked products), the blocks chained in order."""
+    within blocks of `block` maps (log2(block) stacked products), the blocks chained in order.  Fewer than
+    `block` maps make one block of the next power of two: the prefix of map k takes the passes of stride <= k
+    only, so it is the same product in any block longer than k."""
     K, n = len(M), X0.shape[0]
+    block = min(block, 1 << max(K - 1, 0).bit_length())
     nb = -(-K // block)
     Mp = np.broadcast_to(np.eye(n), (nb * block, n, n)).copy()
     gp = np.zeros((nb * block, n) + X0.shape[1:])
