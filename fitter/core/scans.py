@@ -129,8 +129,8 @@ def integrate_modal(used: dict, force: dict, X0: np.ndarray, branch, p, r, S) ->
     entry = np.concatenate([X0[None], affine_scan(M, c, X0)[:-1]])
     W0 = _columns(ez0, extra) * _stacked_matvec(Vinv, entry) + f0
     seg = np.cumsum(head) - 1
-    F += W0[seg]
-    W = np.multiply(_columns(np.exp(L), extra), F, out=F)
+    # not in place: a complex product written over an operand rounded differently (friction fits, 1e-15)
+    W = _columns(np.exp(L), extra) * (W0[seg] + F)
     X = np.empty((N, n) + X0.shape[1:])
     for b, flow in used.items():
         sel = branch == b
