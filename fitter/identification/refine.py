@@ -90,7 +90,9 @@ class Options:
     drives the effect from its extreme states, `fitter.diagnosis.statistics.reversal_report`), but compiled,
     piezo.best's rate-independent base (one refinement of the start leading a short race) ends in another
     minimum, and its effect fit in a worse one (NRMSE 0.547 / 0.676 / 0.746 % against 0.400 / 0.553 / 0.683 %):
-    a choice that must not rest on rounding (open, docs/results.md)."""
+    a choice that must not rest on rounding (open, docs/results.md).  Neither end point is the method's: with the
+    outputs perturbed at 1e-13 the numpy run ends anywhere from 0.400 to 0.710 % at 1 Hz, median 0.546 / 0.651 /
+    0.764 % (`bench/fit_rounding.py`)."""
     eliminate: bool = False
     """Eliminate the parameters in which the model is linear (`Parametrisation.linear_entries`)
     by linear least squares at every evaluation (variable projection, module docstring)."""
