@@ -64,14 +64,13 @@ def _columns(a: np.ndarray, extra: int) -> np.ndarray:
     return a.reshape(a.shape + (1,) * extra)
 
 
-def _segmented_cumsum(x: np.ndarray, head: np.ndarray, first: np.ndarray | None = None) -> np.ndarray:
-    """Cumulative sum along axis 0 restarting at every True of `head` (`first`: its indices, when at hand).
+def _segmented_cumsum(x: np.ndarray, head: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """Cumulative sum along axis 0 restarting at every True of `head` (`first`: its indices).
 
     One `np.cumsum` per segment (a Python loop, about 3 us a segment), or a
     Hillis-Steele scan over the whole array (log2 of the longest segment
     passes, about 3 ns an entry each), whichever is estimated cheaper.
     """
-    first = np.flatnonzero(head) if first is None else first
     ends = np.append(first[1:], len(x))
     passes = max(1, math.ceil(math.log2(max(int((ends - first).max()), 2))))
     if len(first) * 1000 <= passes * x.size:

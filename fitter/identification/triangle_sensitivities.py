@@ -98,9 +98,9 @@ def _forcing_derivatives(x: np.ndarray, tau: np.ndarray, g: np.ndarray, p: np.nd
     unit forcing F, and the ramp's part v tau^2 phi1'(x) of d/dg (module docstring)."""
     S = g * tau
     dphi1_x = dphi1(x)
-    return S[:, None] * ((p * S)[:, None] * dphi1_x + (v * g * tau**2)[:, None] * dphi2(x)), (v * tau**2)[
-        :, None
-    ] * dphi1_x
+    dF_dlam = S[:, None] * ((p * S)[:, None] * dphi1_x + (v * g * tau**2)[:, None] * dphi2(x))
+    ramp = (v * tau**2)[:, None] * dphi1_x
+    return dF_dlam, ramp
 
 
 def output_derivatives(
