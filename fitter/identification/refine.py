@@ -76,18 +76,23 @@ class Options:
     """Relative step of the forward-difference Jacobian (scipy's ``diff_step``: h = diff_step max(1, |theta|));
     None: scipy's sqrt(eps) = 1.5e-8.  That is below the projected residuals' rounding noise: on the piezo
     triangles' rate-independent order-3 fit its Jacobian columns were 10-100 % off those of 1e-6 with
-    variable projection (0.5-2 % without); 1e-6 and 1e-5 agree to 0.1-2.6 %.  Every fit keeps the default: in
-    the base search 1e-6 moved the piezo diagnosis, and in the effect fits it does not narrow piezo.best's spread
-    under rounding (`bench/fit_rounding.py`, six runs: 5 within issue 35's bound, median 0.629 / 0.778 / 0.835 %,
-    against the default's 5, 0.546 / 0.651 / 0.764 %); docs/results.md."""
+    variable projection (0.5-2 % without); 1e-6 and 1e-5 agree to 0.1-2.6 %.  Every fit keeps the default for
+    now: with 1e-6 the piezo effect fit ended in a worse minimum (0.64/0.80/0.85 % against 0.40/0.55/0.68 %)
+    and the base search moved the piezo diagnosis (see `compiled`); open, docs/results.md."""
     compiled: bool = False
-    """Run the evaluations on the kernel's compiled modal scan (`fitter.core.scans.compiled_scans`, numba): every
-    candidate of the order and kind search does (`fitter.identification.fit.FIT_OPTIONS`), and so do the effect
-    fits (`fitter.identification.effects_fit.OPTIONS`); the diagnosis' own fits and the final residuals run on
-    numpy's sums.  Its rounding (1e-15 of the numpy sums') sends a fit that has not converged in its budget to
-    another end point, as any change to the arithmetic does: with the outputs perturbed at 1e-13, piezo.best ends
-    anywhere from 0.400 to 0.710 % at 1 Hz on numpy's sums in the base search, and from 0.412 to 0.617 % with it
-    compiled (`bench/fit_rounding.py`, `FIT_OPTIONS`; earlier measurements in docs/results.md)."""
+    """Run the evaluations on the kernel's compiled modal scan (`fitter.core.scans.compiled_scans`, numba): the
+    effect fits do (`fitter.identification.effects_fit.OPTIONS`), and so do the rate-dependent candidates of the
+    order and kind search (`fitter.identification.fit.RD_COMPILED`).  Off elsewhere: its rounding (1e-15 of the
+    numpy sums'), like a step of 1e-6 in the base search, moved the diagnosis of the measured piezo set
+    (`bench/diagnose_measured.py`) from switching on an order-3 base to nothing on an order-1 base (measured
+    twice; the second time the order-3 base ended at an RMS of 3.42 instead of 3.53, and the switching fitted
+    on it swung one way only, so its reversal test failed).  The reversal test no longer turns on that (it
+    drives the effect from its extreme states, `fitter.diagnosis.statistics.reversal_report`), but compiled,
+    piezo.best's rate-independent base (one refinement of the start leading a short race) ends in another
+    minimum, and its effect fit in a worse one (NRMSE 0.547 / 0.676 / 0.746 % against 0.400 / 0.553 / 0.683 %):
+    a choice that must not rest on rounding (open, docs/results.md).  Neither end point is the method's: with the
+    outputs perturbed at 1e-13 the numpy run ends anywhere from 0.400 to 0.710 % at 1 Hz, median 0.546 / 0.651 /
+    0.764 % (`bench/fit_rounding.py`)."""
     eliminate: bool = False
     """Eliminate the parameters in which the model is linear (`Parametrisation.linear_entries`)
     by linear least squares at every evaluation (variable projection, module docstring)."""
