@@ -6,11 +6,22 @@
     yhat_i = simulate(param.build(theta), t_i, u_i, x0=x0_i(theta)).y
 
 with `scipy.optimize.least_squares` (trust-region reflective, parameters scaled
-by the Jacobian's column norms, forward-difference Jacobian of step `Options.diff_step`,
-the bounds of the `Parametrisation`).  Used by `fit_recordings`, the diagnosis and the Section V
-estimator; each passes its `Options` (tolerances, budget, decimation).  The
-problems it solves (residuals of a theta, initial states, variable projection,
-decimation, the failure policy) are in `fitter.identification.output_error`.
+by the Jacobian's column norms, the bounds of the `Parametrisation`).  Used by
+`fit_recordings`, the diagnosis and the Section V estimator; each passes its
+`Options` (tolerances, budget, decimation).  The problems it solves (residuals
+of a theta, initial states, variable projection, decimation, the failure policy)
+are in `fitter.identification.output_error`.
+
+Jacobian
+--------
+The solver asks for J at its start and after every accepted step.  Every `Options.jacobian_refresh`-th time
+it gets forward differences (scipy's own, of step `Options.diff_step`: one evaluation per moving parameter);
+the times between, Broyden's rank-one secant update of the last one from the step s just accepted,
+
+    J+ = J + (df - J s) s^T / (s^T s),    df = r(theta + s) - r(theta),
+
+which costs no evaluation and makes J+ s = df exact (Dennis & Schnabel, Numerical Methods for Unconstrained
+Optimization, 1983, Section 8.3).  The covariance below always rests on forward differences at the optimum.
 
 Compiled kernel
 ---------------
@@ -32,7 +43,7 @@ matrices this small (measured: twice the CPU, the same wall time).
 
 Uncertainty
 -----------
-J is the solver's Jacobian at the optimum (in output units; of the kept samples
+J is a forward-difference Jacobian at the optimum (in output units; of the kept samples
 when decimated, the information then scaled by N_all / N_kept).
 sigma^2 = RSS / (N - p), cov = sigma^2 (J^T J)^+ (N / n_eff), the
 pseudo-inverse taken as S (S J^T J S)^+ S with S = diag(1 / ||J_j||) (so a
@@ -49,6 +60,7 @@ from typing import Any, Callable
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.optimize._numdiff import approx_derivative
 
 from fitter.core.scans import compiled_scans
 from fitter.identification.parametrisation import Parametrisation
@@ -91,8 +103,13 @@ class Options:
     piezo.best's rate-independent base (one refinement of the start leading a short race) ends in another
     minimum, and its effect fit in a worse one (NRMSE 0.547 / 0.676 / 0.746 % against 0.400 / 0.553 / 0.683 %):
     a choice that must not rest on rounding (open, docs/results.md).  Neither end point is the method's: with the
-    outputs perturbed at 1e-13 the numpy run ends anywhere from 0.400 to 0.710 % at 1 Hz, median 0.546 / 0.651 /
-    0.764 % (`bench/fit_rounding.py`)."""
+    outputs perturbed at 1e-13 the numpy run ended anywhere from 0.400 to 0.710 % at 1 Hz, median 0.546 / 0.651 /
+    0.764 % (`bench/fit_rounding.py`; with the effect fits' secant updates, `jacobian_refresh`, from 0.320 to
+    0.710 %, median 0.566 / 0.754 / 0.768 % over twelve draws)."""
+    jacobian_refresh: int = 1
+    """Forward differences at every `jacobian_refresh`-th Jacobian the solver asks for, Broyden's secant
+    update at the others (module docstring, `SecantJacobian`); 1: differences every time (scipy's own).  The
+    effect fits take 2 (`fitter.identification.effects_fit.OPTIONS`, measured there)."""
     eliminate: bool = False
     """Eliminate the parameters in which the model is linear (`Parametrisation.linear_entries`)
     by linear least squares at every evaluation (variable projection, module docstring)."""
@@ -212,18 +229,28 @@ def refine(
     lo, hi = param.bounds()
     if jac is not None and (penalty is not None or obj.lin.any()):
         raise ValueError("a problem's own Jacobian cannot be combined with a penalty or elimination")
-    jac_moving = "2-point" if jac is None else (lambda z: jac(obj.full_theta(z))[:, obj.moving] / obj.scale)
     with (
         np.errstate(all="ignore"),
         one_blas_thread(),
         _scans(options),
         evaluation_map(obj) if jac is None else nullcontext() as mapper,
     ):
+        bounds = (lo[obj.moving], hi[obj.moving])
+        secant = None
+        if jac is not None:
+
+            def jac_moving(z: np.ndarray) -> np.ndarray:
+                return jac(obj.full_theta(z))[:, obj.moving] / obj.scale
+
+        elif options.jacobian_refresh > 1:
+            jac_moving = secant = SecantJacobian(obj, options.jacobian_refresh, options.diff_step, bounds, mapper)
+        else:
+            jac_moving = "2-point"
         sol = least_squares(
             obj,
             obj.theta0[obj.moving],
             jac=jac_moving,
-            bounds=(lo[obj.moving], hi[obj.moving]),
+            bounds=bounds,
             method="trf",
             x_scale="jac",
             diff_step=options.diff_step,
@@ -246,6 +273,9 @@ def refine(
                 J_free = _free_jacobian(obj.coarse, param, theta, obj.free) / obj.scale
         else:
             J_free = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
+            if secant is not None and not secant.differenced:
+                with np.errstate(all="ignore"), one_blas_thread(), _scans(options):
+                    J_free = secant.differences(sol.x, obj(sol.x))
             J_free = J_free[: len(J_free) - (0 if penalty is None else len(penalty(theta)))]
         J = np.zeros((len(J_free), len(theta)))
         J[:, obj.free] = J_free * obj.scale
@@ -267,6 +297,43 @@ def refine(
     )
 
 
+class SecantJacobian:
+    """The solver's Jacobian (module docstring): forward differences at the first and every `refresh`-th call,
+    Broyden's update from the last call's Jacobian at the others.
+
+    Called by ``least_squares`` at its start and after each accepted step, when the objective's last evaluation
+    was at that point (`_Objective.last`: no evaluation repeated).  The differences are scipy's ``2-point`` ones
+    (``approx_derivative``, what ``least_squares`` itself calls for ``jac="2-point"``: the same steps, the bounds
+    kept, the columns mapped by ``workers``).
+    """
+
+    def __init__(self, objective: "_Objective", refresh: int, diff_step: float | None, bounds, workers=None):
+        self.objective, self.refresh, self.diff_step = objective, refresh, diff_step
+        self.bounds, self.workers = bounds, workers
+        self.calls = 0
+        self.differenced = True
+        self._last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def differences(self, z: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """Forward differences of the objective at z, where its value is r."""
+        return approx_derivative(
+            self.objective, z, method="2-point", rel_step=self.diff_step, f0=r, bounds=self.bounds, workers=self.workers
+        )
+
+    def __call__(self, z: np.ndarray) -> np.ndarray:
+        r = self.objective.last(z)
+        self.differenced = self._last is None or self.calls % self.refresh == 0
+        if self.differenced:
+            J = self.differences(z, r)
+        else:
+            z0, r0, J0 = self._last
+            s = z - z0
+            J = J0 + np.outer(r - r0 - J0 @ s, s / (s @ s))
+        self.calls += 1
+        self._last = (z.copy(), r.copy(), J)
+        return J.copy()
+
+
 class _Objective:
     """The residual function `refine` minimises, of the moving entries z of theta: theta0 moved
     inside the bounds, the problem decimated, the linear entries eliminated when asked
@@ -286,6 +353,7 @@ class _Objective:
             self.lin[list(param.linear_entries())] = True
             self.lin &= bool(self.free[self.lin].all())
         self.moving = self.free & ~self.lin
+        self._last: tuple[np.ndarray, np.ndarray] | None = None
 
     def full_theta(self, z: np.ndarray) -> np.ndarray:
         theta = self.theta0.copy()
@@ -299,7 +367,15 @@ class _Objective:
         else:
             r = self.coarse.residuals(self.param, theta)[0]
         r = r / self.scale
-        return r if self.penalty is None else np.r_[r, self.penalty(theta)]
+        r = r if self.penalty is None else np.r_[r, self.penalty(theta)]
+        self._last = (z.copy(), r)
+        return r
+
+    def last(self, z: np.ndarray) -> np.ndarray:
+        """The objective at z: its last evaluation when that was at z, else a new one."""
+        if self._last is not None and np.array_equal(self._last[0], z):
+            return self._last[1]
+        return self(z)
 
 
 def _free_jacobian(problem, param: Parametrisation, theta: np.ndarray, free: np.ndarray) -> np.ndarray:
