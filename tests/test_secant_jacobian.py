@@ -74,3 +74,24 @@ def test_secant_updates_reach_the_difference_fits_minimum_in_fewer_evaluations(m
     assert np.all(np.abs(secant.theta - TRUE) < 4 * secant.stderr())
     assert np.allclose(secant.stderr(), every.stderr(), rtol=1e-3)
     assert evaluations[2] <= 0.8 * evaluations[1]
+
+
+def test_secant_fits_on_two_processes_give_the_one_process_fit_and_leave_no_process(monkeypatch):
+    """As tests/test_output_error.py's two-process test, with secant updates (every third request differenced, so
+    that the fit ends on an update and its covariance takes differences of its own): the differences' columns on forked
+    processes from the first map (`POOL_AFTER_S` 0), the covariance's differences on this process after the map
+    has ended (a map used after its end would fork processes that nothing ends)."""
+    import multiprocessing
+
+    import fitter.workers as workers
+
+    monkeypatch.setattr(workers, "POOL_AFTER_S", 0.0)
+    fits = {}
+    for processes in ("1", "2"):
+        monkeypatch.setenv("DUHEM_WORKERS", processes)
+        problem = output_error.Recordings([_recording(0.5)], x0="fit")
+        fits[processes] = refine(_Five(), START, problem, Options(jacobian_refresh=3))  # ends on an update
+        assert multiprocessing.active_children() == []
+    one, two = fits.values()
+    assert one.nfev == two.nfev and one.theta.tobytes() == two.theta.tobytes()
+    assert np.array_equal(one.jac, two.jac) and np.array_equal(one.weighted, two.weighted)

@@ -275,7 +275,7 @@ def refine(
             J_free = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
             if secant is not None and not secant.differenced:
                 with np.errstate(all="ignore"), one_blas_thread(), _scans(options):
-                    J_free = secant.differences(sol.x, obj(sol.x))
+                    J_free = secant.differences(sol.x, obj.last(sol.x))  # on this process: the map has ended
             J_free = J_free[: len(J_free) - (0 if penalty is None else len(penalty(theta)))]
         J = np.zeros((len(J_free), len(theta)))
         J[:, obj.free] = J_free * obj.scale
@@ -299,7 +299,7 @@ def refine(
 
 class SecantJacobian:
     """The solver's Jacobian (module docstring): forward differences at the first and every `refresh`-th call,
-    Broyden's update from the last call's Jacobian at the others.
+    Broyden's update from the last call's Jacobian at the others (the last one kept when the step is zero).
 
     Called by ``least_squares`` at its start and after each accepted step, when the objective's last evaluation
     was at that point (`_Objective.last`: no evaluation repeated).  The differences are scipy's ``2-point`` ones
@@ -314,21 +314,21 @@ class SecantJacobian:
         self.differenced = True
         self._last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
-    def differences(self, z: np.ndarray, r: np.ndarray) -> np.ndarray:
-        """Forward differences of the objective at z, where its value is r."""
+    def differences(self, z: np.ndarray, r: np.ndarray, workers=None) -> np.ndarray:
+        """Forward differences of the objective at z, where its value is r (the columns mapped by `workers`)."""
         return approx_derivative(
-            self.objective, z, method="2-point", rel_step=self.diff_step, f0=r, bounds=self.bounds, workers=self.workers
+            self.objective, z, method="2-point", rel_step=self.diff_step, f0=r, bounds=self.bounds, workers=workers
         )
 
     def __call__(self, z: np.ndarray) -> np.ndarray:
         r = self.objective.last(z)
         self.differenced = self._last is None or self.calls % self.refresh == 0
         if self.differenced:
-            J = self.differences(z, r)
+            J = self.differences(z, r, self.workers)
         else:
             z0, r0, J0 = self._last
             s = z - z0
-            J = J0 + np.outer(r - r0 - J0 @ s, s / (s @ s))
+            J = J0 + np.outer(r - r0 - J0 @ s, s / (s @ s)) if s.any() else J0
         self.calls += 1
         self._last = (z.copy(), r.copy(), J)
         return J.copy()
