@@ -5,7 +5,7 @@ import numpy as np
 
 from fitter.identification import output_error
 from fitter.identification.refine import Options, SecantJacobian, refine
-from tests.test_output_error import START, TRUE, _Five, _recording
+from test_output_error import START, TRUE, _Five, _recording
 
 
 class _Curve:
