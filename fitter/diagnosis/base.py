@@ -5,12 +5,14 @@ By default the first-order rate-independent model (eqs (1)-(2) with C = 1, D = 0
 `fitter.diagnosis.fitting.fit_base`) or the order `duhem fit` chooses (BIC over orders 1-4,
 `fitter.identification.fit.fit_recordings`; separate runs levelled to one instrument zero,
 `fitting.duhem_fit`).  The higher order is the base when it brings the residual to the noise and the
-first-order base with its best effect does not (a missing order is not "explained" by whichever effect
-absorbs it); when both do, the one that predicts the held-out last recording better (an effect is not hidden
-by an extra order that fits as well but generalises worse; one recording: the lower BIC); a higher order
-that leaves a misfit above the noise is not taken alone (the misfit is then physics for the effects to
-explain), unless the first-order account fails (`fitter.diagnosis.procedure`'s higher-order account).  On
-a base below the order `duhem fit` chooses, the reversing effects (switching) are not tested
+first-order base with its best effect does not (a missing order is not "explained" by whichever effect absorbs
+it), and of the orders 2 .. n that bring it there settled, the lowest (`_settled_lower_order`: BIC may pick an
+order above one that is already adequate, unless that one leaves a structured residual where the order BIC
+picks leaves a white one); when both do, the one that predicts the held-out last recording better (an effect
+is not hidden by an extra order that fits as well but generalises worse; one recording: the lower BIC); a
+higher order that leaves a misfit above the noise is not taken alone (the misfit is then physics for the
+effects to explain), unless the first-order account fails (`fitter.diagnosis.procedure`'s higher-order
+account).  On a base below the order `duhem fit` chooses, the reversing effects (switching) are not tested
 (`below_order`): they add a hysteretic state and there stand in for the states the base lacks.
 
 A higher order that reaches the noise with a loop still far from settled when the experiment ends
@@ -39,6 +41,7 @@ from fitter.diagnosis.fitting import Fit, duhem_fit, fit_family
 from fitter.diagnosis.held_out import held_out_residual
 from fitter.diagnosis.rounds import bic, candidate_round
 from fitter.diagnosis.statistics import NOISE_MARGIN, remainder_report
+from fitter.identification.fit import FitResult
 
 __all__ = ["adequate_base", "below_order"]
 
@@ -72,10 +75,14 @@ def adequate_base(
     order = higher.model.order
     if order == 1:
         return first, None, None, False
-    k_high = next(c["parameters"] for c in higher.summary["candidates"] if c["order"] == order) + order
+    k_high = _parameters(higher, order)
+    lower = _settled_lower_order(ex, mask, noise, order)
     if not _settled_at_noise(high, ex, noise):
-        lower = _settled_lower_order(ex, mask, noise, order)
-        return (lower, None, None, True) if lower is not None else (first, None, (high, k_high), True)
+        return (lower[1], None, None, True) if lower is not None else (first, None, (high, k_high), True)
+    lowered = lower is not None and (_structured(ex, high, mask, alpha) or not _structured(ex, lower[1], mask, alpha))
+    if lowered:
+        (higher, high), order = lower, lower[0].model.order
+        k_high = _parameters(higher, order)
     below = below_order(candidates)
     results = candidate_round(ex, first, below, mask, alpha, len(below), tick)
     best = next((f for r, f in results if r["significant"]), None)
@@ -85,12 +92,17 @@ def adequate_base(
         or _structured(ex, best, mask, alpha)
         and not _structured(ex, high, mask, alpha)
     ):
-        return high, None, None, False
+        return high, None, None, lowered
     if len(ex.recordings) > 1:
         better = _held_out_rms(ex, best, mask) < _held_out_rms(ex, high, mask)
     else:
         better = bic(best, best.family.size) < bic(high, k_high)
-    return (first, results, None, True) if better else (high, None, None, False)
+    return (first, results, None, True) if better else (high, None, None, lowered)
+
+
+def _parameters(fit: FitResult, order: int) -> int:
+    """The parameters of the order-`order` candidate of `fit` (`fit_recordings`) plus its `order` initial states."""
+    return next(c["parameters"] for c in fit.summary["candidates"] if c["order"] == order) + order
 
 
 def below_order(candidates: Sequence[str]) -> list[str]:
@@ -106,15 +118,19 @@ def _settled_at_noise(fit: Fit, ex: JoinedExperiment, noise: float) -> bool:
     return bool(rms(fit.residual) <= NOISE_MARGIN * noise and _unsettled_rms(fit, ex) <= NOISE_MARGIN * noise)
 
 
-def _settled_lower_order(ex: JoinedExperiment, mask: np.ndarray, noise: float, order: int) -> Fit | None:
+def _settled_lower_order(
+    ex: JoinedExperiment, mask: np.ndarray, noise: float, order: int
+) -> tuple[FitResult, Fit] | None:
     """The lowest order 2 .. `order` - 1 whose base (`fit_recordings` at that order, as ``duhem fit --order``)
-    is adequate (`_settled_at_noise`), or None: when the order BIC picks reaches the noise only with a loop
-    that is not settled (a mode the data do not determine), a lower order that reaches it settled is the
-    base, and the misfit is not handed to the effects."""
+    is adequate (`_settled_at_noise`), or None: the base is the lowest adequate order.  When the order BIC picks
+    reaches the noise only with a loop that is not settled (a mode the data do not determine), a lower order
+    that reaches it settled is the base, and the misfit is not handed to the effects; when it reaches the noise
+    settled, a lower order that does too is its account (an order-2 truth with noise on its input: BIC picked
+    order 3, settled or not depending on where its fit ended)."""
     for k in range(2, order):
-        fit = duhem_fit(ex, mask, k)[1]
+        result, fit = duhem_fit(ex, mask, k)
         if _settled_at_noise(fit, ex, noise):
-            return fit
+            return result, fit
     return None
 
 
