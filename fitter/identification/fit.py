@@ -33,7 +33,7 @@ Pipeline of `fit_recordings`
    all; rate-dependent starts are each refined in full.
    Rate-dependent fits of order >= 3 add a global stage: seeded perturbed
    restarts of the best fit (`_global_stage`), since they have local minima.
-   Rate-dependent fits evaluate on the compiled modal scan (`RD_COMPILED`).
+   Evaluations run on the compiled modal scan (`FIT_OPTIONS`, `COMPILED_MAX_SAMPLES`).
 5. **Selection**: orders n = 1, ..., 4 (`ORDERS`) are fitted upward, each
    started from the order n-1 fit and the other starts; for ``kind="auto"`` RI vs RD, and
    the order, by BIC = N ln(RSS/N) + p ln N on the stacked residuals (the
@@ -112,15 +112,13 @@ GLOBAL_SCALE = 0.5
 the best local fit with its nonlinear entries (A's polynomial, the rate table) moved by GLOBAL_SCALE
 max(|theta|, 1) times a seeded normal draw.  Measured on the three piezo rates: the local fits of order 3
 and 4 end in minima of 1.2-3x the best cost, depending on the start and on the numerical stack."""
-FIT_OPTIONS = Options(ftol=1e-9, xtol=1e-10, max_nfev=MAX_NFEV, max_samples=3000, eliminate=True)
-RD_COMPILED = True
-"""The rate-dependent candidates' evaluations run on the compiled modal scan (`Options.compiled`, numba), the
-rate-independent ones' on numpy's sums.  Measured on the three piezo rates (6 Dec 2026): the order and kind search
-took 21.4 s instead of 30.7 s, the rate-dependent candidates' BIC the same to 1e-7 (rd3 -5900.9195, rd4
--5897.4671) and the rate-independent ones' unchanged; compiled, the rate-independent ri3 fit (one refinement of
-the start that led after `RACE_NFEV` evaluations) ended in another minimum (cost 19.82 against 19.53), and
-piezo.best with it (0.547 / 0.676 / 0.746 % against 0.400 / 0.553 / 0.683 %).  A rate-dependent candidate is
-the best of several full refinements (both starts, and the global stage from order 3)."""
+FIT_OPTIONS = Options(ftol=1e-9, xtol=1e-10, max_nfev=MAX_NFEV, max_samples=3000, eliminate=True, compiled=True)
+"""Evaluations on the compiled modal scan (`Options.compiled`, numba): on the three piezo rates the search took
+23.4 s instead of 30.8 s on one process, and piezo.best's twelve draws at rounding level were all within issue 35's
+bound against 9 of 12 on numpy's sums (median 28.6 s against 31.1 s; docs/results.md, thirty-fourth session)."""
+COMPILED_MAX_SAMPLES = 200_000
+"""Longer recordings (all of them together) are fitted on numpy's sums: numba's import adds about 115 MB resident,
+and the 1e6-sample fit of `bench/long_recordings.py` peaked at 439 MB with it against 323 MB without (target 400)."""
 
 X0_TEXT = {
     "fit": "during the fit, every sample is fitted and the state at each recording's first sample is "
@@ -282,8 +280,7 @@ def _search(
             starts, info = rd_starts(
                 param, ri.res.model if ri else None, lower.res if lower else None, data.norm, levels.triangle
             )
-            rd_options = replace(fit_options, compiled=RD_COMPILED)
-            rd_fits[n] = _candidate(param, starts, data, info, progress, rd_options)
+            rd_fits[n] = _candidate(param, starts, data, info, progress, fit_options)
             cands.append(rd_fits[n])
             if n - 1 in rd_fits and rd_fits[n].bic > rd_fits[n - 1].bic:
                 break
@@ -394,7 +391,10 @@ def fit_recordings(
         data = prepare_for_fit(recordings)
         levels = rate_levels(data.norm)
         orders = ORDERS if order is None else (order,)
-        options = FIT_OPTIONS if max_samples is None else replace(FIT_OPTIONS, max_samples=max_samples)
+        long = sum(len(r.t) for r in recordings) > COMPILED_MAX_SAMPLES
+        options = replace(
+            FIT_OPTIONS, compiled=not long, max_samples=FIT_OPTIONS.max_samples if max_samples is None else max_samples
+        )
         cands = _search(data, kind, orders, q, levels, progress, faithful_minor_loops, options)
         eligible = [c for c in cands if _meets_barrier(c, data, recordings)] or cands
         best = min(eligible, key=lambda c: c.bic)

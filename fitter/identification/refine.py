@@ -93,19 +93,11 @@ class Options:
     and the base search moved the piezo diagnosis (see `compiled`); open, docs/results.md."""
     compiled: bool = False
     """Run the evaluations on the kernel's compiled modal scan (`fitter.core.scans.compiled_scans`, numba): the
-    effect fits do (`fitter.identification.effects_fit.OPTIONS`), and so do the rate-dependent candidates of the
-    order and kind search (`fitter.identification.fit.RD_COMPILED`).  Off elsewhere: its rounding (1e-15 of the
-    numpy sums'), like a step of 1e-6 in the base search, moved the diagnosis of the measured piezo set
-    (`bench/diagnose_measured.py`) from switching on an order-3 base to nothing on an order-1 base (measured
-    twice; the second time the order-3 base ended at an RMS of 3.42 instead of 3.53, and the switching fitted
-    on it swung one way only, so its reversal test failed).  The reversal test no longer turns on that (it
-    drives the effect from its extreme states, `fitter.diagnosis.statistics.reversal_report`), but compiled,
-    piezo.best's rate-independent base (one refinement of the start leading a short race) ends in another
-    minimum, and its effect fit in a worse one (NRMSE 0.547 / 0.676 / 0.746 % against 0.400 / 0.553 / 0.683 %):
-    a choice that must not rest on rounding (open, docs/results.md).  Neither end point is the method's: with the
-    outputs perturbed at 1e-13 the numpy run ended anywhere from 0.400 to 0.710 % at 1 Hz, median 0.546 / 0.651 /
-    0.764 % (`bench/fit_rounding.py`; with the effect fits' secant updates, `jacobian_refresh`, from 0.320 to
-    0.710 %, median 0.566 / 0.754 / 0.768 % over twelve draws)."""
+    order and kind search does (`fitter.identification.fit.FIT_OPTIONS`), and so do the effect fits
+    (`fitter.identification.effects_fit.OPTIONS`).  Its rounding differs from the numpy sums' by about 1e-15, and
+    a fit whose minimum turns on rounding (piezo.best's rate-independent base, which leads a short race of starts)
+    may end in another one: such a choice is judged on draws at rounding level (`bench/fit_rounding.py`), not on
+    one run (docs/results.md)."""
     jacobian_refresh: int = 1
     """Forward differences at every `jacobian_refresh`-th Jacobian the solver asks for, Broyden's secant
     update at the others (module docstring, `SecantJacobian`); 1: differences every time (scipy's own).  The
