@@ -118,7 +118,7 @@ FIT_OPTIONS = Options(ftol=1e-9, xtol=1e-10, max_nfev=MAX_NFEV, max_samples=3000
 bound against 9 of 12 on numpy's sums (median 28.6 s against 31.1 s; docs/results.md, thirty-fourth session)."""
 COMPILED_MAX_SAMPLES = 200_000
 """Longer recordings (all of them together) are fitted on numpy's sums: numba's import adds about 115 MB resident,
-and the 1e6-sample fit of `bench/long_recordings.py` peaked at 439 MB with it against 323 MB without (target 400)."""
+and the 1e6-sample fit of `bench/long_recordings.py` peaked at 439 MB with it against 338 MB without (target 400)."""
 
 X0_TEXT = {
     "fit": "during the fit, every sample is fitted and the state at each recording's first sample is "
