@@ -94,3 +94,29 @@ def test_the_improved_estimators_jacobian_is_its_residuals_forward_differences(o
     # forward differences with steps 1e-6 (1 + |theta|): first-order accurate to about 1e-5 of each column
     np.testing.assert_allclose(exact, differences, atol=1e-4 * np.abs(exact).max())
     assert np.abs(exact - differences).max() > 0  # two computations, not one
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_a_refinements_joint_pass_gives_the_residuals_and_the_jacobian_of_the_separate_ones(order):
+    from dataclasses import replace
+
+    from fitter.identification import rd_triangles as rd
+    from fitter.identification.triangle_records import parse_record
+    from fitter.identification.wave_output_error import WaveParameters, WaveRecords
+    from fitter.paper import example2, example3
+
+    raw = example2.records(example2.NOISE_PP, 0) if order == 1 else example3.records()
+    recs = sorted((parse_record(i, r, order) for i, r in enumerate(raw)), key=lambda r: r.wave.a)
+    param, problem = WaveParameters(order, len(recs)), WaveRecords(recs)
+    joint = replace(problem, joint=True)
+    alpha, g, _ = rd._ramp_exact_start(recs, order)
+    theta = param.pack(alpha, problem.best_beta(param, alpha, g[:, 0], g[:, 1]), g[:, 0], g[:, 1])
+    theta *= 1 + 0.02 * np.random.default_rng(2).standard_normal(len(theta))
+    r_joint, r_apart = joint.residuals(param, theta)[0], problem.residuals(param, theta)[0]
+    # the output as Re(U b . V^T C) against Re(W V^T) C: the same sum in another order
+    np.testing.assert_allclose(r_joint, r_apart, rtol=0, atol=1e-12 * np.abs(r_apart).max())
+    kept = joint.jacobian(param, theta)
+    np.testing.assert_array_equal(kept, problem.jacobian(param, theta))
+    assert joint.jacobian(param, theta) is kept  # from the residuals' pass, not a second one
+    moved = theta * (1 + 1e-3)
+    assert joint.jacobian(param, moved) is not kept and np.abs(joint.jacobian(param, moved) - kept).max() > 0

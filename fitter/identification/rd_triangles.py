@@ -33,7 +33,7 @@ Two estimators (``estimator=``):
        periodic response is linear in B (variable projection).
     3. all parameters (alpha, beta of the canonical form (49), g at every slope
        but the reference) refined jointly by output-error least squares
-       (the output-error engine `fitter.identification.refine`, trust-region reflective) on *every*
+       (the output-error engine `fitter.identification.refine`, Levenberg-Marquardt) on *every*
        sample, corner samples included, with the model's limiting periodic response in closed form
        (`TriangleSamples`; the kernel's `fitter.core.periodic_response` where the closed form does not
        apply) and its exact Jacobian (`fitter.identification.triangle_sensitivities`; the problem is
@@ -83,7 +83,7 @@ Numerical assumptions
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -306,12 +306,13 @@ def _improved(recs: list[Record], order: int, problem: WaveRecords):
     alpha0, g0, disc = _ramp_exact_start(recs, n)
     param = WaveParameters(n, len(recs))
     beta0 = problem.best_beta(param, alpha0, g0[:, 0], g0[:, 1])
+    joint = replace(problem, joint=True)
     res = refine(
         param,
         param.pack(alpha0, beta0, g0[:, 0], g0[:, 1]),
-        problem,
+        joint,
         OPTIONS,
-        jac=lambda theta: problem.jacobian(param, theta),
+        jac=lambda theta: joint.jacobian(param, theta),
     )
     alpha, beta, gp, gm = param.unpack(res.theta)
     waves = [
@@ -329,7 +330,7 @@ def _improved(recs: list[Record], order: int, problem: WaveRecords):
         for i, (rec, (dp, dm)) in enumerate(zip(recs, disc))
     ]
     info = {
-        "method": "output error, fitter.identification.refine (trust-region reflective)",
+        "method": "output error, fitter.identification.refine (Levenberg-Marquardt)",
         "nfev": res.nfev,
         "success": res.success,
         "message": res.message,

@@ -6,7 +6,8 @@
     yhat_i = simulate(param.build(theta), t_i, u_i, x0=x0_i(theta)).y
 
 with `scipy.optimize.least_squares` (trust-region reflective, parameters scaled
-by the Jacobian's column norms, the bounds of the `Parametrisation`).  Used by
+by the Jacobian's column norms, the bounds of the `Parametrisation`; MINPACK's Levenberg-Marquardt on
+an unbounded problem whose `Options.method` asks for it).  Used by
 `fit_recordings`, the diagnosis and the Section V estimator; each passes its
 `Options` (tolerances, budget, decimation).  The problems it solves (residuals
 of a theta, initial states, variable projection, decimation, the failure policy)
@@ -102,6 +103,11 @@ class Options:
     """Forward differences at every `jacobian_refresh`-th Jacobian the solver asks for, Broyden's secant
     update at the others (module docstring, `SecantJacobian`); 1: differences every time (scipy's own).  The
     effect fits take 2 (`fitter.identification.effects_fit.OPTIONS`, measured there)."""
+    method: str = "trf"
+    """scipy's ``least_squares`` method: ``"trf"`` (trust-region reflective, with the parametrisation's bounds)
+    or ``"lm"`` (MINPACK's Levenberg-Marquardt, for a problem with no bounds: its step is a QR in Fortran where
+    trf's is an SVD and its bookkeeping in Python, which on a small problem with a cheap exact Jacobian is a
+    quarter of a fit's time; the Section V estimator takes it, `fitter.identification.wave_output_error`)."""
     eliminate: bool = False
     """Eliminate the parameters in which the model is linear (`Parametrisation.linear_entries`)
     by linear least squares at every evaluation (variable projection, module docstring)."""
@@ -243,7 +249,7 @@ def refine(
             obj.theta0[obj.moving],
             jac=jac_moving,
             bounds=bounds,
-            method="trf",
+            method=options.method,
             x_scale="jac",
             diff_step=options.diff_step,
             ftol=options.ftol,
