@@ -31,7 +31,7 @@ import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
-from typing import Callable, ContextManager, Iterable, Iterator, Sequence, TypeVar
+from typing import Callable, Iterable, Iterator, Sequence, TypeVar
 
 import numpy as np
 from threadpoolctl import ThreadpoolController
@@ -50,6 +50,8 @@ fork (some milliseconds, measured 7-10 ms for a process of 300 MB) and the trans
 _TASK: Callable | None = None
 _IN_WORKER = False
 _BLAS: ThreadpoolController | None = None
+_HELD = False
+"""Whether this process runs inside `one_blas_thread` (a forked process inherits it)."""
 
 
 def workers() -> int:
@@ -63,16 +65,30 @@ def workers() -> int:
     return os.cpu_count() or 1
 
 
-def one_blas_thread() -> ContextManager:
+@contextmanager
+def one_blas_thread() -> Iterator[None]:
     """Within: BLAS on one thread (threadpoolctl): the matrices of a fit are small, so BLAS's worker threads only
     cost CPU (OpenBLAS's idle threads spin) and change the rounding from run to run.  The libraries are looked up
     once per process, at the first call (`threadpoolctl.threadpool_limits` looks them up at every call, measured
     2 ms: every loaded library's path resolved): numpy's and scipy's BLAS, which `fitter` loads on import.  A
-    forked process inherits the lookup."""
-    global _BLAS
+    forked process inherits the lookup.
+
+    Within a block already holding the limit, in this process or in the process that forked this one from inside
+    it, a block changes nothing: OpenBLAS's thread count setter starts its thread pool where none runs (in a
+    forked process), and its threads then spin at every later setting, on a core the other processes need
+    (measured in `duhem reproduce-paper`'s pool: 0.07 s of a second core per noise seed)."""
+    global _BLAS, _HELD
+    if _HELD:
+        yield
+        return
     if _BLAS is None:
         _BLAS = ThreadpoolController()
-    return _BLAS.limit(limits=1, user_api="blas")
+    with _BLAS.limit(limits=1, user_api="blas"):
+        _HELD = True
+        try:
+            yield
+        finally:
+            _HELD = False
 
 
 def _call(item):
