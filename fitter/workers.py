@@ -76,7 +76,7 @@ def one_blas_thread() -> Iterator[None]:
     Within a block already holding the limit, in this process or in the process that forked this one from inside
     it, a block changes nothing: OpenBLAS's thread count setter starts its thread pool where none runs (in a
     forked process), and its threads then spin at every later setting, on a core the other processes need
-    (measured in `duhem reproduce-paper`'s pool: 0.07 s of a second core per noise seed)."""
+    (measured in `duhem reproduce-paper`'s pool: 0.05-0.07 s of a core per pool process)."""
     global _BLAS, _HELD
     if _HELD:
         yield
