@@ -34,7 +34,7 @@ from fitter.core import save_model
 from fitter.core.kernel import simulate
 from fitter.diagnosis.synthetic import cell_base
 
-DUHEM = [sys.executable, "-c", "import sys; from fitter.cli import main; sys.argv[0] = 'duhem'; main()"]
+DUHEM = [sys.executable, "-c", "import sys; from fitter.cli import console; sys.argv[0] = 'duhem'; console()"]
 
 
 def make_csv(path: Path, n: int, seed: int = 0) -> None:

@@ -34,7 +34,7 @@ sys.path.insert(0, str(ROOT))
 from fitter.core import load_model, simulate  # noqa: E402
 from fitter.diagnosis.synthetic import cell_base  # noqa: E402
 
-DUHEM = [sys.executable, "-c", "import sys; from fitter.cli import main; sys.argv[0] = 'duhem'; main()"]
+DUHEM = [sys.executable, "-c", "import sys; from fitter.cli import console; sys.argv[0] = 'duhem'; console()"]
 SAMPLES_PER_RUN = 500
 NOISE = 0.002
 

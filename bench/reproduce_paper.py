@@ -6,7 +6,7 @@ runs ``duhem reproduce-paper`` (`fitter.paper.report.command`).
 
 import sys
 
-from fitter.cli import main
+from fitter.cli import console
 
 if __name__ == "__main__":
-    main(["reproduce-paper", *sys.argv[1:]], prog_name="duhem")
+    console(["reproduce-paper", *sys.argv[1:]])

@@ -36,7 +36,7 @@ from typing import Callable, Iterable, Iterator, Sequence, TypeVar
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-__all__ = ["WORKERS_ENV", "evaluation_map", "one_blas_thread", "parallel_map", "workers"]
+__all__ = ["WORKERS_ENV", "evaluation_map", "one_blas_thread", "one_blas_thread_to_exit", "parallel_map", "workers"]
 
 WORKERS_ENV = "DUHEM_WORKERS"
 """Environment variable: the number of processes of the independent fits (default: the machine's cores)."""
@@ -52,6 +52,8 @@ _IN_WORKER = False
 _BLAS: ThreadpoolController | None = None
 _HELD = False
 """Whether this process runs inside `one_blas_thread` (a forked process inherits it)."""
+_KEEP = False
+"""Whether the next `one_blas_thread` block keeps its limit to this process's end (`one_blas_thread_to_exit`)."""
 
 
 def workers() -> int:
@@ -70,25 +72,48 @@ def one_blas_thread() -> Iterator[None]:
     """Within: BLAS on one thread (threadpoolctl): the matrices of a fit are small, so BLAS's worker threads only
     cost CPU (OpenBLAS's idle threads spin) and change the rounding from run to run.  The libraries are looked up
     once per process, at the first call (`threadpoolctl.threadpool_limits` looks them up at every call, measured
-    2 ms: every loaded library's path resolved): numpy's and scipy's BLAS, which `fitter` loads on import.  A
-    forked process inherits the lookup.
+    2 ms: every loaded library's path resolved): numpy's and scipy's BLAS, which the modules that hold a block
+    have loaded by then.  A forked process inherits the lookup.
 
     Within a block already holding the limit, in this process or in the process that forked this one from inside
     it, a block changes nothing: OpenBLAS's thread count setter starts its thread pool where none runs (in a
     forked process), and its threads then spin at every later setting, on a core the other processes need
     (measured in `duhem reproduce-paper`'s pool: 0.05-0.07 s of a core per pool process)."""
-    global _BLAS, _HELD
+    global _HELD
     if _HELD:
         yield
         return
+    limit = _controller().limit(limits=1, user_api="blas")
+    _HELD = True
+    if _KEEP:
+        yield
+        return
+    try:
+        yield
+    finally:
+        _HELD = False
+        limit.restore_original_limits()
+
+
+def one_blas_thread_to_exit() -> None:
+    """From the next `one_blas_thread` block on, BLAS stays on one thread to this process's end: that block's end
+    restores nothing.  For a process that runs one job and ends (the ``duhem`` executable, `fitter.cli.console`).
+
+    A block's end restores the thread count.  Where a fork inside the block shut OpenBLAS's thread pool down (its
+    fork handler does so in the parent), the restore starts the pool again, one thread per library, and each new
+    thread spins before it sleeps: 0.1 s of a core in all, measured, taken from the process's last work and its
+    exit.  The limit is set at the block, not here: where the executable starts, scipy's BLAS is not loaded yet,
+    and a lookup now would miss it."""
+    global _KEEP
+    _KEEP = True
+
+
+def _controller() -> ThreadpoolController:
+    """This process's BLAS libraries, looked up at the first call (a forked process inherits the lookup)."""
+    global _BLAS
     if _BLAS is None:
         _BLAS = ThreadpoolController()
-    with _BLAS.limit(limits=1, user_api="blas"):
-        _HELD = True
-        try:
-            yield
-        finally:
-            _HELD = False
+    return _BLAS
 
 
 def _call(item):

@@ -29,6 +29,8 @@ Conventions shared by every command
 
 from __future__ import annotations
 
+from typing import Sequence
+
 import click
 
 from fitter.cli_support import DEFAULT_THRESHOLD, EXIT_ERROR, EXIT_VALIDATION_FAILED, CliError, GuardedGroup
@@ -46,7 +48,7 @@ COMMANDS = {
 """The subcommands, each imported when it runs (`GuardedGroup`)."""
 
 
-__all__ = ["main", "CliError", "DEFAULT_THRESHOLD", "EXIT_ERROR", "EXIT_VALIDATION_FAILED"]
+__all__ = ["main", "console", "CliError", "DEFAULT_THRESHOLD", "EXIT_ERROR", "EXIT_VALIDATION_FAILED"]
 
 
 @click.group("duhem", cls=GuardedGroup, lazy=COMMANDS, context_settings={"help_option_names": ["-h", "--help"]})
@@ -57,3 +59,15 @@ def main() -> None:
     Typical use: duhem fit rec.csv -o model.json --fmu model.fmu, then
     duhem validate model.fmu rec.csv.
     """
+
+
+def console(argv: Sequence[str] | None = None) -> None:
+    """The ``duhem`` executable: `main` on `argv` (default ``sys.argv[1:]``) in a process that ends after it.
+
+    From its first fit on, its BLAS runs on one thread to the end (`fitter.workers.one_blas_thread_to_exit`):
+    every fit does so within anyway, and a process that ends need not restore the count (a restore after a forked
+    pool starts OpenBLAS's threads again only for them to spin while the process exits)."""
+    from fitter.workers import one_blas_thread_to_exit
+
+    one_blas_thread_to_exit()
+    main(args=None if argv is None else list(argv), prog_name="duhem")
