@@ -83,16 +83,18 @@ def one_blas_thread() -> Iterator[None]:
     if _HELD:
         yield
         return
-    limit = _controller().limit(limits=1, user_api="blas")
-    _HELD = True
     if _KEEP:
+        _controller().limit(limits=1, user_api="blas")  # never restored (`one_blas_thread_to_exit`)
+        _HELD = True
         yield
         return
-    try:
-        yield
-    finally:
-        _HELD = False
-        limit.restore_original_limits()
+    # as a context, threadpoolctl's limit also hands OpenBLAS's control back at its end (other threads may set it)
+    with _controller().limit(limits=1, user_api="blas"):
+        _HELD = True
+        try:
+            yield
+        finally:
+            _HELD = False
 
 
 def one_blas_thread_to_exit() -> None:

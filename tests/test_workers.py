@@ -1,6 +1,7 @@
 """fitter.workers: BLAS held to one thread in a process and in the processes it forks."""
 
 import os
+import threading
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
@@ -44,6 +45,22 @@ def test_the_outer_block_restores_the_thread_counts_and_nesting_keeps_the_limit(
             assert set(_blas_threads()) == {1}
         assert set(_blas_threads()) == {1}  # the inner block's end does not lift the outer one's limit
     assert _blas_threads() == outside
+
+
+def test_a_block_in_another_thread_after_one_in_this_thread_still_sets_the_limit():
+    """threadpoolctl lets one thread at a time set OpenBLAS's count; a block hands that back at its end."""
+    with one_blas_thread():
+        pass
+    seen = []
+
+    def other() -> None:
+        with one_blas_thread():
+            seen.append(_blas_threads())
+
+    thread = threading.Thread(target=other)
+    thread.start()
+    thread.join(10)
+    assert [set(s) for s in seen] == [{1}]
 
 
 def _a_process_that_keeps_the_limit() -> tuple[list[int], int, int, list[int], int]:
