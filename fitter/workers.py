@@ -51,7 +51,8 @@ _TASK: Callable | None = None
 _IN_WORKER = False
 _BLAS: ThreadpoolController | None = None
 _HELD = False
-"""Whether this process runs inside `one_blas_thread` (a forked process inherits it)."""
+"""Whether this process holds the one-thread limit: inside a `one_blas_thread` block, or after one whose limit was
+kept (`_KEEP`).  A forked process inherits it."""
 _KEEP = False
 """Whether the next `one_blas_thread` block keeps its limit to this process's end (`one_blas_thread_to_exit`)."""
 
