@@ -84,14 +84,12 @@ def one_blas_thread() -> Iterator[None]:
     if _HELD:
         yield
         return
-    if _KEEP:
-        _controller().limit(limits=1, user_api="blas")  # never restored (`one_blas_thread_to_exit`)
-        _HELD = True
+    limit = _controller().limit(limits=1, user_api="blas")
+    _HELD = True
+    if _KEEP:  # never restored (`one_blas_thread_to_exit`)
         yield
         return
-    # as a context, threadpoolctl's limit also hands OpenBLAS's control back at its end (other threads may set it)
-    with _controller().limit(limits=1, user_api="blas"):
-        _HELD = True
+    with limit:  # as a context it also hands OpenBLAS's control back at its end (other threads may set it then)
         try:
             yield
         finally:
