@@ -19,6 +19,11 @@ worker of ``duhem batch``, which may not have children), runs in that process.
 of its time takes about half the wall time, with the same result to the last digit (each column is the same
 function of the same theta in whichever process).
 
+`side_by_side` runs two computations at once, one in a forked process: the order search's two chains of
+candidates (`fitter.identification.search`), each rate-dependent order beside the next rate-independent one.  The
+maps inside either lane use only the cores no lane holds (`_take_cores`), so that two lanes on two cores start no
+third process until one lane ends and gives its core to the other.
+
 Within a process, a fit's BLAS runs on one thread (`one_blas_thread`): its matrices are small.
 """
 
@@ -36,7 +41,15 @@ from typing import Callable, Iterable, Iterator, Sequence, TypeVar
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-__all__ = ["WORKERS_ENV", "evaluation_map", "one_blas_thread", "one_blas_thread_to_exit", "parallel_map", "workers"]
+__all__ = [
+    "WORKERS_ENV",
+    "evaluation_map",
+    "one_blas_thread",
+    "one_blas_thread_to_exit",
+    "parallel_map",
+    "side_by_side",
+    "workers",
+]
 
 WORKERS_ENV = "DUHEM_WORKERS"
 """Environment variable: the number of processes of the independent fits (default: the machine's cores)."""
@@ -55,6 +68,9 @@ _HELD = False
 kept (`_KEEP`).  A forked process inherits it."""
 _KEEP = False
 """Whether the next `one_blas_thread` block keeps its limit to this process's end (`one_blas_thread_to_exit`)."""
+_SPARE = None
+"""Inside `side_by_side` (in both of its processes): the shared count of the cores that neither lane holds, which a
+lane's maps take and give back (`_take_cores`); None outside."""
 
 
 def workers() -> int:
@@ -153,18 +169,119 @@ def _may_fork() -> bool:
 
 
 def parallel_map(function: Callable[[T], R], items: Sequence[T]) -> list[R]:
-    """[function(item) for item in items], on up to `workers()` forked processes (in order)."""
-    n = min(workers(), len(items))
-    if n <= 1 or not _may_fork():
+    """[function(item) for item in items], on up to `workers()` forked processes (in order).  In a lane of
+    `side_by_side` the items run in this process, one after the other, until a core is spare; the items left then
+    go to the processes."""
+    if not _may_fork():
         return [function(item) for item in items]
+    out: list[R] = []
+    while len(out) < len(items):
+        extra = _take_cores(min(workers(), len(items) - len(out)) - 1)
+        if not extra:
+            out.append(function(items[len(out)]))
+            continue
+        try:
+            out += _pool_map(function, items[len(out) :], 1 + extra)
+        finally:
+            _give_back(extra)
+    return out
+
+
+def _pool_map(function: Callable[[T], R], items: Sequence[T], processes: int) -> list[R]:
+    """[function(item) for item in items] on `processes` forked processes, this one waiting."""
     global _TASK
     _TASK = function
     try:
         context = multiprocessing.get_context("fork")
-        with ProcessPoolExecutor(n, mp_context=context, initializer=_end_with, initargs=(os.getpid(),)) as pool:
+        with ProcessPoolExecutor(processes, mp_context=context, initializer=_end_with, initargs=(os.getpid(),)) as pool:
             return list(pool.map(_call, items))
     finally:
         _TASK = None
+
+
+def _take_cores(want: int) -> int:
+    """How many processes beyond this one a map may run now, at most `want` (>= 0; the caller keeps it within
+    `workers()`): all of them outside `side_by_side`; in one of its lanes, the cores no lane holds (`_SPARE`),
+    taken until `_give_back`."""
+    if want <= 0 or _SPARE is None:
+        return max(want, 0)
+    with _SPARE.get_lock():
+        taken = min(want, _SPARE.value)
+        _SPARE.value -= taken
+    return taken
+
+
+def _give_back(cores: int) -> None:
+    """Return cores taken with `_take_cores` (nothing to return outside `side_by_side`)."""
+    if _SPARE is not None and cores:
+        with _SPARE.get_lock():
+            _SPARE.value += cores
+
+
+class _Raised:
+    """An exception of the forked lane of `side_by_side`, carried back to be raised in its parent."""
+
+    def __init__(self, error: Exception):
+        self.error = error
+
+
+def _lane(conn, parent: int, function: Callable) -> None:
+    """The forked lane of `side_by_side`: ``function()`` (or its exception) sent back, its core given back first
+    so that the other lane's next map can take it.  Ctrl-C is the parent's to handle: it ends this process."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _end_with(parent)
+    try:
+        result = function()
+    except Exception as error:  # noqa: BLE001 (raised again in the parent)
+        result = _Raised(error)
+    _give_back(1)
+    try:
+        conn.send(result)
+    except Exception as error:  # noqa: BLE001 (an answer that does not pickle)
+        conn.send(_Raised(RuntimeError(f"the forked lane's answer could not be sent back: {error}")))
+
+
+def side_by_side(first: Callable[[], T], second: Callable[[], R]) -> tuple[T, R]:
+    """(first(), second()), computed at the same time: `first` in a forked process (its answer pickled back),
+    `second` in this one.  Each lane holds one core; when one ends, the other's next map takes its core
+    (`parallel_map`'s next item, `evaluation_map`'s next Jacobian), so that two dependent chains of fits keep both
+    cores busy (the order search of `fitter.identification.search`).  In turn, first then second, where this
+    process may not fork, on one process, or inside a lane.  The answers are those of the turn: every fit is
+    deterministic, whichever process runs it.  An exception of `first` is raised before one of `second`, as in
+    turn.  `first` runs in another process: it reports nothing to this process's displays (`fitter.progress`)."""
+    global _SPARE
+    if workers() < 2 or _SPARE is not None or not _may_fork():
+        return first(), second()
+    context = multiprocessing.get_context("fork")
+    _SPARE = context.Value("i", workers() - 2)
+    mine, theirs = context.Pipe(duplex=False)
+    lane = context.Process(target=_lane, args=(theirs, os.getpid(), first))
+    failed: Exception | None = None
+    try:
+        lane.start()
+        theirs.close()
+        try:
+            answer = second()
+        except Exception as error:  # noqa: BLE001 (raised after first's, as in turn)
+            answer, failed = None, error
+        finally:
+            _give_back(1)
+        try:
+            forked = mine.recv()
+        except EOFError:
+            raise RuntimeError("the forked lane of the search ended without an answer") from None
+    except BaseException:
+        lane.terminate()
+        raise
+    finally:
+        lane.join()
+        mine.close()
+        _SPARE = None
+    if isinstance(forked, _Raised):
+        raise forked.error
+    if failed is not None:
+        raise failed
+    return forked, answer
 
 
 def _take(ends, back: bool) -> int | None:
@@ -207,13 +324,14 @@ def _serve(conn, parent: int, function: Callable, ends) -> None:
 class _EvaluationMap:
     """``map(fun, xs)`` as scipy's ``workers`` calls it, for a ``fun`` that wraps `function` (scipy's wrappers
     of `refine`'s residual function only fix the array type and shape): in this process until one call
-    took `POOL_AFTER_S`; then this process evaluates xs from the front and forked processes, which inherit
-    ``function``, from the back, each taking the next one as it is free (`_take`: one pipe each, no pool threads,
-    no pickled function).  Columns differ in cost (an effect fit's base columns against its effects' columns,
-    which the memo of `fitter.identification.output_error` makes cheap or dear in turn), so that fixed halves
-    kept one process waiting on the other (measured on piezo.best's 30-column Jacobians: 6.7 s in this process's
-    half, 10.1 s for the maps); taken from the two ends, each process keeps to one kind, and its memo holds the
-    other kind's part at theta."""
+    took `POOL_AFTER_S` (and, in a lane of `side_by_side`, until a core is spare); then this process evaluates
+    xs from the front and forked processes, which inherit ``function``, from the back, each taking the next one
+    as it is free (`_take`: one pipe each, no pool threads, no pickled function).  Columns differ in cost (an
+    effect fit's base columns against its effects' columns, which the memo of
+    `fitter.identification.output_error` makes cheap or dear in turn), so that fixed halves kept one process
+    waiting on the other (measured on piezo.best's 30-column Jacobians: 6.7 s in this process's half, 10.1 s for
+    the maps); taken from the two ends, each process keeps to one kind, and its memo holds the other kind's part
+    at theta."""
 
     def __init__(self, function: Callable, processes: int):
         self.function, self.processes = function, processes
@@ -225,14 +343,15 @@ class _EvaluationMap:
             return self._shared(fun, xs)
         t0 = time.perf_counter()
         out = [fun(x) for x in xs]
-        if len(xs) > 1 and time.perf_counter() - t0 >= POOL_AFTER_S:
-            self._fork()
+        if len(xs) > 1 and time.perf_counter() - t0 >= POOL_AFTER_S and (extra := _take_cores(self.processes - 1)):
+            self._fork(extra)
         return out
 
-    def _fork(self) -> None:
+    def _fork(self, extra: int) -> None:
+        """Fork `extra` processes, which hold the cores `_take_cores` gave until `close`."""
         context = multiprocessing.get_context("fork")
         self._ends = context.Array("q", 2)
-        for _ in range(self.processes - 1):
+        for _ in range(extra):
             mine, theirs = context.Pipe()
             args = (theirs, os.getpid(), self.function, self._ends)
             process = context.Process(target=_serve, args=args, daemon=True)
@@ -269,6 +388,7 @@ class _EvaluationMap:
             process.terminate()
             process.join()
             conn.close()
+        _give_back(len(self._peers))
         self._peers = []
 
 

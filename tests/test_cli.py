@@ -985,11 +985,11 @@ def test_a_fit_stopped_by_its_budget_says_so(work, monkeypatch):
     """``optimiser.budget_hit`` in the summary and a note in the printed summary when the refinement stopped at
     its evaluation budget (here 4 evaluations in all, 1 after the race), none when it converged (the default
     budget on the fixture's first-order data)."""
-    import fitter.identification.fit as fit_module
+    import fitter.identification.search as search
 
     assert work["fit"]["summary"]["optimiser"]["budget_hit"] is False
     assert "evaluation budget" not in ok(invoke("fit", work["rec"], "-o", work["dir"] / "m1.json", "--order", 1)).stdout
-    monkeypatch.setattr(fit_module, "MAX_NFEV", fit_module.RACE_NFEV + 1)
+    monkeypatch.setattr(search, "MAX_NFEV", search.RACE_NFEV + 1)
     out = work["dir"] / "budget.json"
     summary = json.loads(ok(invoke("fit", work["rec"], "-o", out, "--kind", "ri", "--order", 1, "--json")).stdout)
     assert summary["summary"]["optimiser"]["budget_hit"] is True

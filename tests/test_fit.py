@@ -6,6 +6,7 @@ noise.  The true and the fitted models are compared on their limiting
 periodic responses (Theorem 1), which is what "the loop" means here.
 """
 
+import os
 import json
 from pathlib import Path
 
@@ -208,18 +209,49 @@ def test_the_global_stage_restarts_from_the_local_fit_on_any_number_of_processes
     objective kept; the same on one and on two processes."""
     from types import SimpleNamespace
 
-    from fitter.identification import fit
+    from fitter.identification import search
 
     param = SimpleNamespace(n=3, size=4, linear_entries=lambda: {3: ("D", 0)})
     local = SimpleNamespace(theta=np.array([2.0, -0.5, 0.1, 7.0]), cost=1e9)  # every restart improves on it
     rng = np.random.default_rng(param.n)
-    scale = fit.GLOBAL_SCALE * np.maximum(np.abs(local.theta), 1.0)
-    starts = [local.theta + scale * rng.standard_normal(4) * [1, 1, 1, 0] for _ in range(fit.GLOBAL_STARTS)]
+    scale = search.GLOBAL_SCALE * np.maximum(np.abs(local.theta), 1.0)
+    starts = [local.theta + scale * rng.standard_normal(4) * [1, 1, 1, 0] for _ in range(search.GLOBAL_STARTS)]
 
     def run(theta, options):  # a "refinement" that ends where it starts, best at the last start
         return SimpleNamespace(theta=theta, cost=float(np.sum((theta - starts[-1]) ** 2)))
 
     for processes in ("1", "2"):
         monkeypatch.setenv("DUHEM_WORKERS", processes)
-        best = fit._global_stage(param, local, run, lambda res: res.cost)
+        best = search._global_stage(param, local, run, lambda res: res.cost)
         assert best.theta.tobytes() == starts[-1].tobytes() and best.theta[3] == 7.0
+
+
+def test_the_search_fits_the_two_kinds_side_by_side_with_the_candidates_of_the_turn(monkeypatch):
+    """`order_search` fits the rate-dependent candidate of order n beside the rate-independent one of order n + 1
+    (`fitter.workers.side_by_side`, the latter forked): on two processes the fit is the one process's, its
+    candidates and their BICs to the last digit."""
+    from fitter.identification import fit, search
+
+    monkeypatch.setattr(fit, "ORDERS", (1, 2))
+    recs, here, forked, side = (
+        sine_recordings(rd_model(1), seed=4, periods=2, per=100),
+        os.getpid(),
+        [],
+        search.side_by_side,
+    )
+
+    def spied(first, second):
+        (pid, a), b = side(lambda: (os.getpid(), first()), second)
+        forked.append(pid != here)
+        return a, b
+
+    monkeypatch.setattr(search, "side_by_side", spied)
+    runs = {}
+    for n in ("1", "2"):
+        monkeypatch.setenv("DUHEM_WORKERS", n)
+        runs[n] = fit_recordings(recs, kind="auto")
+    assert forked == [False, True]  # ri2 beside rd1: in turn on one process, forked on two
+    one, two = runs["1"], runs["2"]
+    assert [(c["kind"], c["order"]) for c in one.summary["candidates"]] == [("ri", 1), ("ri", 2), ("rd", 1), ("rd", 2)]
+    assert one.theta.tobytes() == two.theta.tobytes()
+    assert json.dumps(one.summary["candidates"]) == json.dumps(two.summary["candidates"])

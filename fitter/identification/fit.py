@@ -33,7 +33,8 @@ Pipeline of `fit_recordings`
    all; rate-dependent starts are each refined in full.
    Rate-dependent fits of order >= 3 add a global stage: seeded perturbed
    restarts of the best fit (`_global_stage`), since they have local minima.
-   Evaluations run on the compiled modal scan (`FIT_OPTIONS`, `COMPILED_MAX_SAMPLES`).
+   Evaluations run on the compiled modal scan (`FIT_OPTIONS`, `COMPILED_MAX_SAMPLES`).  Items 3-5 are
+   `fitter.identification.search`, which fits the two kinds' candidates side by side.
 5. **Selection**: orders n = 1, ..., 4 (`ORDERS`) are fitted upward, each
    started from the order n-1 fit and the other starts; for ``kind="auto"`` RI vs RD, and
    the order, by BIC = N ln(RSS/N) + p ln N on the stacked residuals (the
@@ -74,7 +75,6 @@ from fitter.identification.fit_data import (
     FitData,
     FitError,
     RateLevels,
-    averaged_loop,
     monotone_input,
     prepare_for_fit,
     rate_levels,
@@ -89,33 +89,16 @@ from fitter.identification.exported import (
     raw_input_rho,
 )
 from fitter.identification import fit_summary
-from fitter.identification.output_error import Recordings
-from fitter.identification.refine import Options, RefineResult, jacobian, refine
+from fitter.identification.refine import RefineResult, jacobian
 from fitter.identification.parametrisation import Parametrisation, Physical, RDCanonical, RICanonical, WithEffects
-from fitter.identification.starts import Q_CANDIDATES, generic_ri_starts, ri_starts, rd_starts
+from fitter.identification.search import FIT_OPTIONS, Candidate, barrier_residuals, order_search
+from fitter.identification.starts import Q_CANDIDATES
 from fitter.progress import Progress, silent
-from fitter.workers import one_blas_thread, parallel_map
+from fitter.workers import one_blas_thread
 
 __all__ = ["FitError", "FitResult", "fit_recordings", "monotone_input", "ORDERS"]
 
 ORDERS = (1, 2, 3, 4)
-MAX_NFEV = 60
-RACE_NFEV = 3
-BARRIER_INSIDE = 1e-4
-"""The barrier penalty starts this far inside each limit: a penalty of weight 1e3 lets the optimum overshoot
-its zero by about gradient / 1e3 (1e-6 to 4e-6 measured on the piezo rate-dependent fits), and a fit beyond
-a limit is not eligible (`_meets_barrier`)."""
-GLOBAL_STARTS = 4
-GLOBAL_FROM_ORDER = 3
-GLOBAL_SCALE = 0.5
-"""Global stage of the rate-dependent fits of order >= `GLOBAL_FROM_ORDER`: `GLOBAL_STARTS` restarts from
-the best local fit with its nonlinear entries (A's polynomial, the rate table) moved by GLOBAL_SCALE
-max(|theta|, 1) times a seeded normal draw.  Measured on the three piezo rates: the local fits of order 3
-and 4 end in minima of 1.2-3x the best cost, depending on the start and on the numerical stack."""
-FIT_OPTIONS = Options(ftol=1e-9, xtol=1e-10, max_nfev=MAX_NFEV, max_samples=3000, eliminate=True, compiled=True)
-"""Evaluations on the compiled modal scan (`Options.compiled`, numba): on the three piezo rates the search took
-23.4 s instead of 30.8 s on one process, and piezo.best's twelve draws at rounding level were all within issue 35's
-bound against 9 of 12 on numpy's sums (median 28.6 s against 31.1 s; docs/results.md, thirty-fourth session)."""
 COMPILED_MAX_SAMPLES = 200_000
 """Longer recordings (all of them together) are fitted on numpy's sums: numba's import adds about 115 MB resident,
 and the 1e6-sample fit of `bench/long_recordings.py` peaked at 439 MB with it against 338 MB without (target 400)."""
@@ -126,165 +109,6 @@ X0_TEXT = {
     "periodic": "every recording holds a single cycle, so transient and loop cannot be told apart: "
     "each is taken as settled and starts from the fixed point of its one-cycle map",
 }
-
-
-# --------------------------------------------------------------------- one candidate
-@dataclass
-class _Candidate:
-    param: RICanonical | RDCanonical
-    res: RefineResult
-    start_info: dict
-
-    @property
-    def bic(self) -> float:
-        N = len(self.res.weighted)
-        return float(N * np.log(self.res.rss / N) + self.param.size * np.log(N))
-
-
-def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.ndarray], np.ndarray]:
-    """1e3 max(0, excess + `BARRIER_INSIDE`) of the parametrisation's barrier quantities (`excesses`, `barriers` of
-    them; 1e3 where they cannot be evaluated): rate-independent, rho of condition (5) <= 0.99, the branch
-    amplification over the fitted span <= 1e6 (`RICanonical.amplification`: a branch that expands a state
-    error by 1e15 while the other contracts converges, but makes the model's output depend on rounding) and,
-    with faithful minor loops, every settled minor loop within half an output range of the data
-    (`RICanonical.minor_loop_extent`);
-    rate-dependent, max Re eig(A) <= -1e-3 (normalised units; A is Hurwitz by construction, the barrier
-    keeps a margin from 0) and every mode damped (`RDCanonical.damping_excess` <= 0: a nearly undamped
-    oscillation fits the data by cancellation and blows up at rates it was not fitted on)."""
-    lo, hi = data.input_range()
-
-    def pen(th):
-        try:
-            with np.errstate(all="ignore"):
-                model = param.build(th) if np.all(np.isfinite(th)) else None
-        except (ValueError, np.linalg.LinAlgError):
-            model = None
-        return _barrier_residuals(param, model, lo, hi)
-
-    return pen
-
-
-def _barrier_residuals(
-    param: RICanonical | RDCanonical, model, lo: float, hi: float, output: tuple[float, float] = (0.0, 1.0)
-) -> np.ndarray:
-    """1e3 max(0, excess + `BARRIER_INSIDE`) of `param.excesses(model, lo, hi, output)`; 1e3 where an excess
-    cannot be evaluated (or `model` is None)."""
-    try:
-        with np.errstate(all="ignore"):
-            vals = [np.inf] * param.barriers if model is None else param.excesses(model, lo, hi, output)
-    except (ValueError, np.linalg.LinAlgError):
-        vals = [np.inf] * param.barriers
-    return np.array([1e3 * max(0.0, v + BARRIER_INSIDE) if np.isfinite(v) else 1e3 for v in vals])
-
-
-def _candidate(
-    param, starts, data: FitData, info, progress: Progress, fit_options: Options = FIT_OPTIONS
-) -> _Candidate:
-    """Best refinement over the starts, with the convergence barrier.
-
-    Rate-independent, with several starts: each first gets `RACE_NFEV` evaluations (no covariance); only
-    the one of lowest objective (output error plus barrier) is refined further, with the rest of the
-    `MAX_NFEV` budget (one by one, the best so far kept: a result holds residuals on every sample).
-    Rate-dependent (at most two starts): each start is refined in full, on parallel processes, and the lowest
-    objective kept; a race picked the start that ended worse (measured on the three piezo rates: rd3 from
-    the rate-independent fit's branch raced ahead of the embedded rd2 and ended at BIC -5779 against
-    -5901, 7.1 % NRMSE at 1 Hz against 2.8 %).  Rate-dependent candidates of order >= `GLOBAL_FROM_ORDER`
-    then get the global stage (`_global_stage`)."""
-    problem = Recordings(data.norm, x0=data.x0_mode, cycles=data.cycles)
-    pen = _barrier(param, data)
-
-    def run(theta0, options):
-        try:
-            return refine(param, theta0, problem, options, penalty=pen, progress=progress)
-        except (ValueError, np.linalg.LinAlgError):
-            return None
-
-    def objective(res: RefineResult) -> float:
-        """What the refinement minimises: the output error's cost plus the barrier's."""
-        return res.cost + 0.5 * float(np.sum(pen(res.theta) ** 2))
-
-    race = param.kind == "ri" and len(starts) > 1
-    options = replace(fit_options, max_nfev=RACE_NFEV, covariance=False) if race else fit_options
-    runs = (run(th0, options) for th0 in starts) if race else parallel_map(lambda th0: run(th0, options), starts)
-    best = None
-    for res in runs:
-        if res is not None and (best is None or objective(res) < objective(best)):
-            best = res
-        del res
-    if best is None:
-        raise FitError(f"{param.kind} order {param.n}: every start failed to simulate")
-    if race:
-        more = run(best.theta, replace(fit_options, max_nfev=MAX_NFEV - RACE_NFEV))
-        if not (more is not None and objective(more) <= objective(best)):
-            hit = more is not None and more.budget_hit
-            del more  # freed before the one-evaluation run that gives the race's best its covariance
-            more = run(best.theta, replace(fit_options, max_nfev=1))
-            more = None if more is None else replace(more, budget_hit=hit)
-        best = more if more is not None else best
-    if param.kind == "rd" and param.n >= GLOBAL_FROM_ORDER:
-        best = _global_stage(param, best, run, objective, fit_options)
-    return _Candidate(param, best, info)
-
-
-def _global_stage(
-    param: RDCanonical,
-    best: RefineResult,
-    run: Callable[[np.ndarray, Options], RefineResult | None],
-    objective: Callable[[RefineResult], float],
-    fit_options: Options = FIT_OPTIONS,
-) -> RefineResult:
-    """The lowest objective among `best` and `GLOBAL_STARTS` full refinements (`fit_options`) from perturbed
-    copies of it (`GLOBAL_SCALE`; seeded by the order, so a fit is repeatable), run on parallel processes."""
-    rng, theta = np.random.default_rng(param.n), best.theta
-    moving = np.ones(param.size, bool)
-    moving[list(param.linear_entries())] = False
-    scale = GLOBAL_SCALE * np.maximum(np.abs(theta), 1.0)
-    steps = [scale * rng.standard_normal(param.size) for _ in range(GLOBAL_STARTS)]
-    for res in parallel_map(lambda step: run(theta + step * moving, fit_options), steps):
-        if res is not None and objective(res) < objective(best):
-            best = res
-    return best
-
-
-def _search(
-    data: FitData,
-    kind: str,
-    orders,
-    q,
-    levels: RateLevels,
-    progress: Progress,
-    faithful: bool = False,
-    fit_options: Options = FIT_OPTIONS,
-) -> list[_Candidate]:
-    """Candidates of the order (and kind) search of the module docstring, item 5; `faithful`: the
-    rate-independent candidates keep their settled minor loops near the data (`fit_recordings`)."""
-    loop = averaged_loop(data.loops) if data.loops is not None else None
-    cands: list[_Candidate] = []
-    ri_fits: dict[int, _Candidate] = {}
-    for n in orders if kind != "rd" else orders[:1]:
-        progress(f"rate-independent model, order {n}", None)
-        lower = ri_fits.get(n - 1)
-        lower_model = lower.res.model if lower else None
-        starts, info = ri_starts(*loop, n, q, lower_model) if loop is not None else generic_ri_starts(n, lower_model)
-        ri_fits[n] = _candidate(RICanonical(n, faithful), starts, data, info, progress, fit_options)
-        if kind in ("auto", "ri"):
-            cands.append(ri_fits[n])
-        if lower is not None and ri_fits[n].bic > lower.bic and (kind == "ri" or levels.levels < 2):
-            break
-    if kind == "rd" or (kind == "auto" and levels.levels >= 2):
-        rd_fits: dict[int, _Candidate] = {}
-        for n in orders:
-            progress(f"rate-dependent model, order {n}", None)
-            param = RDCanonical(n, levels.v_ref, levels.knots)
-            ri, lower = ri_fits.get(n), rd_fits.get(n - 1)
-            starts, info = rd_starts(
-                param, ri.res.model if ri else None, lower.res if lower else None, data.norm, levels.triangle
-            )
-            rd_fits[n] = _candidate(param, starts, data, info, progress, fit_options)
-            cands.append(rd_fits[n])
-            if n - 1 in rd_fits and rd_fits[n].bic > rd_fits[n - 1].bic:
-                break
-    return cands
 
 
 # ---------------------------------------------------------------------- results
@@ -395,7 +219,7 @@ def fit_recordings(
         options = replace(
             FIT_OPTIONS, compiled=not long, max_samples=FIT_OPTIONS.max_samples if max_samples is None else max_samples
         )
-        cands = _search(data, kind, orders, q, levels, progress, faithful_minor_loops, options)
+        cands = order_search(data, kind, orders, q, levels, progress, faithful_minor_loops, options)
         eligible = [c for c in cands if _meets_barrier(c, data, recordings)] or cands
         best = min(eligible, key=lambda c: c.bic)
         extended = _with_effects(eligible, data, recordings, effects, held, progress) if effects else None
@@ -406,14 +230,14 @@ def fit_recordings(
 class _Extended:
     """The base candidate and its joint refinement with the effects (`effects_fit.fit_effects`)."""
 
-    candidate: _Candidate
+    candidate: Candidate
     model: object
     res: RefineResult
     param: WithEffects
     tried: list
 
 
-def _base_model(cand: _Candidate, data: FitData, recordings):
+def _base_model(cand: Candidate, data: FitData, recordings):
     """The candidate in physical units with the preparation's dead band, signals, experiment and input range."""
     bare = Physical(cand.param, data.scaling).build(cand.res.theta)
     if data.deadband > 0:
@@ -422,7 +246,7 @@ def _base_model(cand: _Candidate, data: FitData, recordings):
 
 
 def _with_effects(
-    eligible: Sequence[_Candidate],
+    eligible: Sequence[Candidate],
     data: FitData,
     recordings,
     effects: Sequence[str],
@@ -474,13 +298,13 @@ def _physical_barrier(param: RICanonical | RDCanonical, data: FitData, recording
         key = b"".join(np.asarray(getattr(model, k), dtype=float).tobytes() for k in model.PARAMS if k != "x0")
         if key not in cache:
             cache.clear()
-            cache[key] = _barrier_residuals(param, model, lo, hi, output)
+            cache[key] = barrier_residuals(param, model, lo, hi, output)
         return cache[key]
 
     return pen
 
 
-def _meets_barrier(cand: _Candidate, data: FitData, recordings) -> bool:
+def _meets_barrier(cand: Candidate, data: FitData, recordings) -> bool:
     """Whether the candidate ends inside the barrier of `_barrier` (every excess <= 0, 1e-9 slack) and
     converges on every raw input (`exported.raw_input_rho` < 1, the export's check): the barrier is a
     penalty, so a fit can end beyond it; such a candidate is chosen only when none meets it (a branch that
@@ -497,7 +321,7 @@ def _meets_barrier(cand: _Candidate, data: FitData, recordings) -> bool:
 
 
 def _result(
-    best: _Candidate,
+    best: Candidate,
     cands,
     data: FitData,
     recordings,

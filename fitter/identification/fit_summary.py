@@ -20,7 +20,8 @@ from fitter.identification.fit_data import FitData
 from fitter.identification.refine import RefineResult
 
 if TYPE_CHECKING:  # the fit's own classes, for the hints only (fit imports this module)
-    from fitter.identification.fit import _Candidate, _Extended
+    from fitter.identification.fit import _Extended
+    from fitter.identification.search import Candidate
 
 __all__ = ["raw_range", "per_recording", "convergence", "optimiser", "effects_summary", "minor_loops", "why"]
 
@@ -45,7 +46,7 @@ def per_recording(model, res: RefineResult | None, data: FitData, recordings) ->
     return out
 
 
-def convergence(best: _Candidate, data: FitData, model, recordings, scores: list[dict], extended: bool = False) -> dict:
+def convergence(best: Candidate, data: FitData, model, recordings, scores: list[dict], extended: bool = False) -> dict:
     """The condition with its fitting margin and on each raw input (physical model).  The structural quantities
     are the candidate's (normalised units) or, with effects fitted jointly (`extended`), the saved model's over
     the raw input range (invariant under the normalisation)."""
@@ -137,7 +138,7 @@ def minor_loops(model, recordings, constrained: bool) -> dict:
     }
 
 
-def why(best: _Candidate, cands, kind: str, levels: int, outside: Sequence[_Candidate] = ()) -> str:
+def why(best: Candidate, cands, kind: str, levels: int, outside: Sequence[Candidate] = ()) -> str:
     ranked = sorted(cands, key=lambda c: c.bic)
     text = (
         f"lowest BIC ({best.bic:.1f}) among {len(cands)} candidate(s) "

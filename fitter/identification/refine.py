@@ -94,7 +94,7 @@ class Options:
     and the base search moved the piezo diagnosis (see `compiled`); open, docs/results.md."""
     compiled: bool = False
     """Run the evaluations on the kernel's compiled modal scan (`fitter.core.scans.compiled_scans`, numba): the
-    order and kind search does (`fitter.identification.fit.FIT_OPTIONS`), and so do the effect fits
+    order and kind search does (`fitter.identification.search.FIT_OPTIONS`), and so do the effect fits
     (`fitter.identification.effects_fit.OPTIONS`).  Its rounding differs from the numpy sums' by about 1e-15, and
     a fit whose minimum turns on rounding (piezo.best's rate-independent base, which leads a short race of starts)
     may end in another one: such a choice is judged on draws at rounding level (`bench/fit_rounding.py`), not on
