@@ -255,3 +255,31 @@ def test_the_search_fits_the_two_kinds_side_by_side_with_the_candidates_of_the_t
     assert [(c["kind"], c["order"]) for c in one.summary["candidates"]] == [("ri", 1), ("ri", 2), ("rd", 1), ("rd", 2)]
     assert one.theta.tobytes() == two.theta.tobytes()
     assert json.dumps(one.summary["candidates"]) == json.dumps(two.summary["candidates"])
+
+
+def test_a_refinement_without_its_covariance_gets_the_same_one_afterwards():
+    """The search refines every start without the covariance and computes it for the kept candidate only
+    (`refine.with_covariance`): the Jacobian and the information scale (decimated here) are those of the refinement
+    that computes it, to the last digit; a problem without elimination is refused (its Jacobian is the solver's)."""
+    from dataclasses import replace
+
+    from fitter.identification.fit_data import prepare_for_fit
+    from fitter.identification.output_error import Recordings
+    from fitter.identification.parametrisation import RICanonical
+    from fitter.identification.refine import refine, with_covariance
+    from fitter.identification.search import FIT_OPTIONS
+    from fitter.identification.starts import generic_ri_starts
+
+    data = prepare_for_fit(sine_recordings(ri_model(1), seed=3, periods=2, per=150))
+    param, problem = RICanonical(1), Recordings(data.norm, x0=data.x0_mode, cycles=data.cycles)
+    theta0 = generic_ri_starts(1)[0][0]
+    options = replace(FIT_OPTIONS, max_nfev=8, max_samples=60)
+    full = refine(param, theta0, problem, options)
+    bare = refine(param, theta0, problem, replace(options, covariance=False))
+    assert not np.any(bare.jac) and bare.info_scale == 1.0
+    later = with_covariance(bare, param, problem, options)
+    assert full.info_scale > 2 and later.info_scale == full.info_scale
+    assert later.jac.tobytes() == full.jac.tobytes() and later.theta.tobytes() == full.theta.tobytes()
+    assert np.array_equal(later.stderr(), full.stderr()) and np.all(full.stderr() > 0)
+    with pytest.raises(ValueError, match="linear entries eliminated"):
+        with_covariance(bare, param, problem, replace(options, eliminate=False))

@@ -67,7 +67,7 @@ from fitter.core.kernel import flows, simulate
 from fitter.data.cycles import closed_loop
 from fitter.data.recordings import Recording
 from fitter.identification.output_error import Recordings
-from fitter.identification.refine import Options, RefineResult, refine
+from fitter.identification.refine import Options, RefineResult, refine, with_covariance
 from fitter.identification.parametrisation import StateSpace, WithEffects
 from fitter.progress import Progress, silent
 from fitter.workers import parallel_map
@@ -203,6 +203,8 @@ class RacedEffects:
             rest = replace(OPTIONS, max_nfev=MAX_NFEV - RACE_NFEV)
             more = refine(self.fam, best.theta, self.problem, rest, free=self.free, penalty=self.pen, progress=progress)
             best = more if self.objective(more) <= self.objective(best) else best
+        if best is self.best:  # raced without its covariance (`ScreenedEffects.race`)
+            best = with_covariance(best, self.fam, self.problem, OPTIONS, self.free)
         fitted, first = self.fam.build(best.theta), self.recordings[0]
         start = (
             best.states[0]
@@ -233,9 +235,10 @@ class ScreenedEffects:
         return _screening(self.fam, theta, self.problem, self.screen_free, SCREEN_NFEV - SCREEN_FIRST_NFEV)
 
     def race(self, k: int, progress: Progress = silent) -> RefineResult:
-        """Screened start k refined with base and effects free for `RACE_NFEV` iterations (step 2)."""
+        """Screened start k refined with base and effects free for `RACE_NFEV` iterations (step 2), without its
+        covariance: only the finished one needs it (`RacedEffects.finish`)."""
         progress(f"effects {', '.join(self.fam.effects)}: joint refinement {k + 1}", None)
-        race = replace(OPTIONS, max_nfev=RACE_NFEV)
+        race = replace(OPTIONS, max_nfev=RACE_NFEV, covariance=False)
         return refine(
             self.fam, self.screened[k].theta, self.problem, race, free=self.free, penalty=self.pen, progress=progress
         )

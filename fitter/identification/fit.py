@@ -89,7 +89,7 @@ from fitter.identification.exported import (
     raw_input_rho,
 )
 from fitter.identification import fit_summary
-from fitter.identification.refine import RefineResult, jacobian
+from fitter.identification.refine import Options, RefineResult, jacobian
 from fitter.identification.parametrisation import Parametrisation, Physical, RDCanonical, RICanonical, WithEffects
 from fitter.identification.search import FIT_OPTIONS, Candidate, barrier_residuals, order_search
 from fitter.identification.starts import Q_CANDIDATES
@@ -223,7 +223,7 @@ def fit_recordings(
         eligible = [c for c in cands if _meets_barrier(c, data, recordings)] or cands
         best = min(eligible, key=lambda c: c.bic)
         extended = _with_effects(eligible, data, recordings, effects, held, progress) if effects else None
-        return _result(best, cands, data, recordings, kind, q, levels, x0, extended)
+        return _result(best, cands, data, recordings, kind, q, levels, x0, options, extended)
 
 
 @dataclass
@@ -329,11 +329,14 @@ def _result(
     q,
     levels: RateLevels,
     x0_policy: str,
+    fit_options: Options,
     extended: _Extended | None = None,
 ) -> FitResult:
+    """The fit's result from the kept candidate (`best`, or the base of `extended`), its covariance computed now
+    (`Candidate.with_covariance`, with the search's `fit_options`)."""
     if extended is not None:
         best = extended.candidate
-    param, res = best.param, best.res
+    param, res = best.param, best.with_covariance(data, fit_options).res
     physical = Physical(param, data.scaling)
     stderr = res.stderr()
     r0 = recordings[0]

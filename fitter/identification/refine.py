@@ -56,7 +56,7 @@ value of `effective_samples` for autocorrelated residuals).
 from __future__ import annotations
 
 from contextlib import nullcontext
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
 import numpy as np
@@ -68,7 +68,7 @@ from fitter.identification.parametrisation import Parametrisation
 from fitter.progress import Progress, silent
 from fitter.workers import evaluation_map, one_blas_thread
 
-__all__ = ["Options", "RefineResult", "refine", "jacobian", "effective_samples"]
+__all__ = ["Options", "RefineResult", "refine", "with_covariance", "jacobian", "effective_samples"]
 
 
 @dataclass(frozen=True)
@@ -265,16 +265,14 @@ def refine(
     weighted, model, info = problem.residuals(param, theta)
     if not options.covariance:
         J = np.broadcast_to(0.0, (len(weighted), len(theta)))  # zero, in no memory
+    elif obj.lin.any():
+        J = _eliminated_jacobian(obj, theta, options)
     else:
-        if obj.lin.any():
-            with _scans(options):
-                J_free = _free_jacobian(obj.coarse, param, theta, obj.free) / obj.scale
-        else:
-            J_free = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
-            if secant is not None and not secant.differenced:
-                with np.errstate(all="ignore"), one_blas_thread(), _scans(options):
-                    J_free = secant.differences(sol.x, obj.last(sol.x))  # on this process: the map has ended
-            J_free = J_free[: len(J_free) - (0 if penalty is None else len(penalty(theta)))]
+        J_free = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
+        if secant is not None and not secant.differenced:
+            with np.errstate(all="ignore"), one_blas_thread(), _scans(options):
+                J_free = secant.differences(sol.x, obj.last(sol.x))  # on this process: the map has ended
+        J_free = J_free[: len(J_free) - (0 if penalty is None else len(penalty(theta)))]
         J = np.zeros((len(J_free), len(theta)))
         J[:, obj.free] = J_free * obj.scale
     return RefineResult(
@@ -293,6 +291,30 @@ def refine(
         info_scale=len(weighted) / len(J),
         budget_hit=int(sol.status) == 0,
     )
+
+
+def with_covariance(
+    res: RefineResult, param: Parametrisation, problem, options: Options, free: np.ndarray | None = None
+) -> RefineResult:
+    """`res`, refined with `options` but without `Options.covariance`, with the Jacobian (and information scale) that
+    the refinement with it would have given: forward differences of the problem's residuals at ``res.theta`` in the
+    free entries, the same numbers.  For a search that keeps one of several refinements: only that one needs it.
+    Needs `Options.eliminate` (otherwise the refinement's Jacobian is its solver's last one)."""
+    obj = _Objective(param, res.theta, problem, options, None, free)
+    if not obj.lin.any():
+        raise ValueError("a covariance after the refinement needs its linear entries eliminated")
+    J = _eliminated_jacobian(obj, res.theta, options)
+    return replace(res, jac=J, info_scale=len(res.weighted) / len(J))
+
+
+def _eliminated_jacobian(obj: "_Objective", theta: np.ndarray, options: Options) -> np.ndarray:
+    """The Jacobian at the optimum `theta` of a refinement with elimination: forward differences of the
+    (decimated) problem's residuals in every free entry (`_free_jacobian`), zero columns for the others."""
+    with _scans(options):
+        J_free = _free_jacobian(obj.coarse, obj.param, theta, obj.free) / obj.scale
+    J = np.zeros((len(J_free), len(theta)))
+    J[:, obj.free] = J_free * obj.scale
+    return J
 
 
 class SecantJacobian:

@@ -21,7 +21,7 @@ import numpy as np
 from fitter.identification.fit_data import FitData, FitError, RateLevels, averaged_loop
 from fitter.identification.output_error import Recordings
 from fitter.identification.parametrisation import RDCanonical, RICanonical
-from fitter.identification.refine import Options, RefineResult, refine
+from fitter.identification.refine import Options, RefineResult, refine, with_covariance
 from fitter.identification.starts import generic_ri_starts, rd_starts, ri_starts
 from fitter.progress import Progress, silent
 from fitter.workers import parallel_map, side_by_side
@@ -59,6 +59,12 @@ class Candidate:
     def bic(self) -> float:
         N = len(self.res.weighted)
         return float(N * np.log(self.res.rss / N) + self.param.size * np.log(N))
+
+    def with_covariance(self, data: FitData, fit_options: Options) -> Candidate:
+        """This candidate with its refinement's covariance (`fitter.identification.refine.with_covariance`): the
+        search refines every start without it (`_candidate`), and only the candidate a fit keeps needs it."""
+        problem = Recordings(data.norm, x0=data.x0_mode, cycles=data.cycles)
+        return replace(self, res=with_covariance(self.res, self.param, problem, fit_options))
 
 
 def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.ndarray], np.ndarray]:
@@ -100,16 +106,19 @@ def barrier_residuals(
 def _candidate(param, starts, data: FitData, info, progress: Progress, fit_options: Options = FIT_OPTIONS) -> Candidate:
     """Best refinement over the starts, with the convergence barrier.
 
-    Rate-independent, with several starts: each first gets `RACE_NFEV` evaluations (no covariance); only
+    Rate-independent, with several starts: each first gets `RACE_NFEV` evaluations; only
     the one of lowest objective (output error plus barrier) is refined further, with the rest of the
     `MAX_NFEV` budget (one by one, the best so far kept: a result holds residuals on every sample).
     Rate-dependent (at most two starts): each start is refined in full, on parallel processes, and the lowest
     objective kept; a race picked the start that ended worse (measured on the three piezo rates: rd3 from
     the rate-independent fit's branch raced ahead of the embedded rd2 and ended at BIC -5779 against
     -5901, 7.1 % NRMSE at 1 Hz against 2.8 %).  Rate-dependent candidates of order >= `GLOBAL_FROM_ORDER`
-    then get the global stage (`_global_stage`)."""
+    then get the global stage (`_global_stage`).  No refinement computes its covariance, which only the
+    candidate a fit keeps needs (`Candidate.with_covariance`: the same numbers, some p evaluations for each of the
+    others saved; on piezo.best twenty of its 22 such Jacobians, about 2 s of one core's 55 s)."""
     problem = Recordings(data.norm, x0=data.x0_mode, cycles=data.cycles)
     pen = _barrier(param, data)
+    fit_options = replace(fit_options, covariance=False)
 
     def run(theta0, options):
         try:
@@ -122,7 +131,7 @@ def _candidate(param, starts, data: FitData, info, progress: Progress, fit_optio
         return res.cost + 0.5 * float(np.sum(pen(res.theta) ** 2))
 
     race = param.kind == "ri" and len(starts) > 1
-    options = replace(fit_options, max_nfev=RACE_NFEV, covariance=False) if race else fit_options
+    options = replace(fit_options, max_nfev=RACE_NFEV) if race else fit_options
     runs = (run(th0, options) for th0 in starts) if race else parallel_map(lambda th0: run(th0, options), starts)
     best = None
     for res in runs:
@@ -135,7 +144,7 @@ def _candidate(param, starts, data: FitData, info, progress: Progress, fit_optio
         more = run(best.theta, replace(fit_options, max_nfev=MAX_NFEV - RACE_NFEV))
         if not (more is not None and objective(more) <= objective(best)):
             hit = more is not None and more.budget_hit
-            del more  # freed before the one-evaluation run that gives the race's best its covariance
+            del more  # freed before the one-evaluation run that gives the race's best its count and budget
             more = run(best.theta, replace(fit_options, max_nfev=1))
             more = None if more is None else replace(more, budget_hit=hit)
         best = more if more is not None else best
