@@ -285,9 +285,10 @@ def _with_effects(
 
 
 def _physical_barrier(param: RICanonical | RDCanonical, data: FitData, recordings) -> Callable[[object], np.ndarray]:
-    """`_barrier`'s residuals for a model in physical units over the recordings' input range (condition (5),
-    the branch amplification and the damping are invariant under the normalisation of `scaling`; the settled
-    minor loops of faithful minor loops are put on its output scale).  They depend on the base alone (its
+    """The search's barrier residuals (`fitter.identification.search.barrier_residuals`) for a model in physical
+    units over the recordings' input range (condition (5), the branch amplification and the damping are invariant
+    under the normalisation of `scaling`; the settled minor loops of faithful minor loops are put on its output
+    scale).  They depend on the base alone (its
     effects left out), so they are computed once per base: the effects' columns of a finite-difference
     Jacobian reuse them."""
     lo, hi = fit_summary.raw_range(recordings)
@@ -305,11 +306,11 @@ def _physical_barrier(param: RICanonical | RDCanonical, data: FitData, recording
 
 
 def _meets_barrier(cand: Candidate, data: FitData, recordings) -> bool:
-    """Whether the candidate ends inside the barrier of `_barrier` (every excess <= 0, 1e-9 slack) and
-    converges on every raw input (`exported.raw_input_rho` < 1, the export's check): the barrier is a
-    penalty, so a fit can end beyond it; such a candidate is chosen only when none meets it (a branch that
-    amplifies state errors by more than the bound turns rounding into visible output differences between
-    the kernel and an FMU; a model that fails the raw-input check is not exported)."""
+    """Whether the candidate ends inside the search's barrier (`fitter.identification.search._barrier`; every
+    excess <= 0, 1e-9 slack) and converges on every raw input (`exported.raw_input_rho` < 1, the export's check):
+    the barrier is a penalty, so a fit can end beyond it; such a candidate is chosen only when none meets it (a
+    branch that amplifies state errors by more than the bound turns rounding into visible output differences
+    between the kernel and an FMU; a model that fails the raw-input check is not exported)."""
     with np.errstate(all="ignore"):
         try:
             model = cand.param.build(cand.res.theta)

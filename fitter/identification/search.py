@@ -33,7 +33,7 @@ RACE_NFEV = 3
 BARRIER_INSIDE = 1e-4
 """The barrier penalty starts this far inside each limit: a penalty of weight 1e3 lets the optimum overshoot
 its zero by about gradient / 1e3 (1e-6 to 4e-6 measured on the piezo rate-dependent fits), and a fit beyond
-a limit is not eligible (`_meets_barrier`)."""
+a limit is not eligible (`fitter.identification.fit._meets_barrier`)."""
 GLOBAL_STARTS = 4
 GLOBAL_FROM_ORDER = 3
 GLOBAL_SCALE = 0.5
@@ -63,8 +63,12 @@ class Candidate:
     def with_covariance(self, data: FitData, fit_options: Options) -> Candidate:
         """This candidate with its refinement's covariance (`fitter.identification.refine.with_covariance`): the
         search refines every start without it (`_candidate`), and only the candidate a fit keeps needs it."""
-        problem = Recordings(data.norm, x0=data.x0_mode, cycles=data.cycles)
-        return replace(self, res=with_covariance(self.res, self.param, problem, fit_options))
+        return replace(self, res=with_covariance(self.res, self.param, _problem(data), fit_options))
+
+
+def _problem(data: FitData) -> Recordings:
+    """The output-error problem of every candidate: the prepared recordings, normalised, with the fit's x0 mode."""
+    return Recordings(data.norm, x0=data.x0_mode, cycles=data.cycles)
 
 
 def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.ndarray], np.ndarray]:
@@ -116,7 +120,7 @@ def _candidate(param, starts, data: FitData, info, progress: Progress, fit_optio
     then get the global stage (`_global_stage`).  No refinement computes its covariance, which only the
     candidate a fit keeps needs (`Candidate.with_covariance`: the same numbers, some p evaluations for each of the
     others saved; on piezo.best twenty of its 22 such Jacobians, about 2 s of one core's 55 s)."""
-    problem = Recordings(data.norm, x0=data.x0_mode, cycles=data.cycles)
+    problem = _problem(data)
     pen = _barrier(param, data)
     fit_options = replace(fit_options, covariance=False)
 
