@@ -95,3 +95,59 @@ def test_without_the_compiled_module_the_kernel_runs_its_numpy_sums(monkeypatch)
     monkeypatch.setattr(scans, "_LOADED", {})
     with compiled_scans() as available:
         assert not available and modal_pass() is integrate_modal
+
+
+def _runs(model, seeds: list[int], n: int = 300) -> tuple[list, list]:
+    """Recordings of `model`'s inputs (`_input`): a rising ramp alone (one branch only) and minor loops."""
+    ts, us = [np.linspace(0.0, 1.0, 60)], [np.linspace(-0.8, 0.9, 60)]
+    for seed in seeds:
+        t, u = _input(n + 37 * seed, seed)
+        ts.append(t)
+        us.append(u)
+    return ts, us
+
+
+@pytest.mark.parametrize("model", [_ri(True), _ri(False), _rd()], ids=["ri-complex", "ri-real", "rd"])
+def test_recordings_in_one_scan_give_each_recordings_own_states_to_the_last_digit(model):
+    """`integrate_runs` (several recordings in one compiled scan, each restarted from x0) against each recording's
+    own `integrate_blocks`: the same bits, with per-column forcings, a recording that uses one branch only, and
+    a change of branch at a recording's first interval."""
+    from fitter.core.flow import integrate_blocks, integrate_runs
+
+    rng = np.random.default_rng(5)
+    n, columns = model.order, 3
+    X0 = rng.standard_normal((n, columns))
+    force = {b: (rng.standard_normal((n, columns)), rng.standard_normal((n, columns))) for b in (1.0, -1.0)}
+    ts, us = _runs(model, [1, 2])
+    runs = [interval_coefficients(model, t, u) for t, u in zip(ts, us)]
+    fl = flows(model)
+    assert integrate_runs(fl, X0, runs, force) is None  # outside `compiled_scans`: run by run
+    with compiled_scans():
+        together = integrate_runs(fl, X0, runs, force)
+        alone = [np.concatenate(list(integrate_blocks(fl, X0, *run, force))) for run in runs]
+        assert integrate_runs(fl, X0, [*runs, tuple(a[:0] for a in runs[0])], force) is None  # an empty run
+    assert [X.shape for X in together] == [X.shape for X in alone]
+    for X, Y in zip(together, alone):
+        assert np.array_equal(X, Y)
+    assert not np.allclose(together[1][-1], together[2][-1])  # the recordings differ
+
+
+@pytest.mark.parametrize("mode", ["fit", "model", "periodic"])
+def test_the_columns_of_all_recordings_at_once_are_each_recordings_own(mode):
+    """`response_columns_all` against `response_columns` recording by recording (variable projection's columns,
+    `fitter.identification.projection`), inside `compiled_scans`: base, Psi and the initial-state columns the same
+    bits in each x0 mode; for ``"periodic"`` from each recording's own cycle."""
+    from fitter.identification.projection import response_columns, response_columns_all
+
+    model = _ri(False)
+    lin = {0: ("B_plus", 0), 1: ("B_plus", 1), 2: ("E_minus", 2), 3: ("D", 0)}
+    ts, us = _runs(model, [3, 4], n=400)
+    cycles = [(0, 40), (10, 200), (30, 250)] if mode == "periodic" else [None] * 3
+    with compiled_scans():
+        together = response_columns_all(model, lin, ts, us, mode, cycles)
+        alone = [response_columns(model, lin, t, u, mode, c) for t, u, c in zip(ts, us, cycles)]
+    for a, b in zip(together, alone):
+        assert a.start == b.start and np.array_equal(a.base, b.base) and np.array_equal(a.Psi, b.Psi)
+        assert (a.Own is None) == (b.Own is None) == (mode != "fit")
+        assert a.Own is None or np.array_equal(a.Own, b.Own)
+    assert np.ptp(together[1].Psi[:, 0]) > 0  # the columns move

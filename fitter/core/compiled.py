@@ -11,7 +11,9 @@ exponents, some twenty array passes of every (interval, state, column) entry, ea
 recordings of some hundred samples the calls' overhead and the passes cost more than the arithmetic.  Here
 (M) runs as it reads, interval after interval, in compiled code: the same exact flow, the same
 phi-functions (`phi1`, `phi2` of `fitter.core.flow`: the Taylor series of phi2 below |z| = 0.5, phi1 by
-expm1 above |z| = 1e-8), agreeing with the numpy sums to rounding (tests/test_kernel_compiled.py).
+expm1 above |z| = 1e-8), agreeing with the numpy sums to rounding (tests/test_kernel_compiled.py).  The
+recordings of one evaluation run in one call, each restarted from its own start (`modal_scan`'s ``starts``,
+`fitter.core.flow.integrate_runs`), with each recording's own numbers.
 
 Why numba: the recurrence is a loop the numpy form cannot express without those passes; numba compiles it
 from this Python source at first use (cached on disk), with wheels on every platform the package supports
@@ -61,15 +63,20 @@ def _product(M, w, out):
 
 
 @njit(cache=True)
-def _scan(lam, V, Vinv, beta, eps, index, p, r, S, X0, series):
+def _scan(lam, V, Vinv, beta, eps, index, p, r, S, X0, series, starts):
     N, n, m = len(S), X0.shape[0], X0.shape[1]
     X = np.empty((N, n, m))
     w = np.zeros((n, m), dtype=np.complex128)
+    x0 = X0.astype(np.complex128)
     b = index[0]
-    _product(Vinv[b], X0.astype(np.complex128), w)
     x = np.empty((n, m), dtype=np.complex128)
+    run = 0
     for t in range(N):
-        if index[t] != b:  # a change of branch: x = Re(V w), w' = V'^-1 x
+        if run < len(starts) and t == starts[run]:  # a run's first interval: w = V^-1 x0 on its branch
+            b = index[t]
+            _product(Vinv[b], x0, w)
+            run += 1
+        elif index[t] != b:  # a change of branch: x = Re(V w), w' = V'^-1 x
             _product(V[b], w, x)
             b = index[t]
             _product(Vinv[b], x.real.astype(np.complex128), w)
@@ -86,10 +93,13 @@ def _scan(lam, V, Vinv, beta, eps, index, p, r, S, X0, series):
     return X
 
 
-def modal_scan(used: dict, force: dict, X0: np.ndarray, branch, p, r, S) -> np.ndarray:
+def modal_scan(used: dict, force: dict, X0: np.ndarray, branch, p, r, S, starts=None) -> np.ndarray:
     """States after each interval (N, n) or (N, n, m), every flow in `used` modal:
     `fitter.core.scans.integrate_modal` by (M) interval after interval (module docstring).  `force`: per
-    branch None (the flow's own B, E) or m forcing columns (B, E), each (n, m)."""
+    branch None (the flow's own B, E) or m forcing columns (B, E), each (n, m).  `starts`: the first interval
+    of each of several runs laid end to end (ascending, from 0; default one run): each run starts from X0, in
+    the modal coordinates of its first interval's branch, as a scan of that run alone would
+    (`fitter.core.flow.integrate_runs`)."""
     keys = list(used)
     flows = [used[b] for b in keys]
     cols = X0.reshape(X0.shape[0], -1).astype(float)
@@ -115,5 +125,6 @@ def modal_scan(used: dict, force: dict, X0: np.ndarray, branch, p, r, S) -> np.n
         np.ascontiguousarray(S, dtype=float),
         cols,
         _PHI2_SERIES,
+        np.zeros(1, np.int64) if starts is None else np.asarray(starts, dtype=np.int64),
     )
     return X.reshape((len(S),) + X0.shape)

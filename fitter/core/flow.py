@@ -47,7 +47,7 @@ from typing import Iterator
 import numpy as np
 
 from .errors import KernelError
-from .scans import integrate_dense, modal_pass
+from .scans import integrate_dense, integrate_modal, modal_pass
 
 __all__ = [
     "AffineFlow",
@@ -58,6 +58,7 @@ __all__ = [
     "flows",
     "integrate",
     "integrate_blocks",
+    "integrate_runs",
     "interval_coefficients",
     "one_interval",
     "phi1",
@@ -505,3 +506,27 @@ def integrate_blocks(
         X = run(used, force, x, branch[a:b], p[a:b], r[a:b], S[a:b])
         x = X[-1]
         yield X
+
+
+def integrate_runs(fl: dict, x0: np.ndarray, runs: list[tuple], forcing: dict | None = None) -> list[np.ndarray] | None:
+    """`integrate_blocks` of several runs from the same x0 (each run its (branch, p, r, S)) in one call of the
+    compiled scan: per run, its states x_1 ... x_N, the same numbers as its own `integrate_blocks` gives.
+
+    Each run is one piece there: it starts from x0 in the modal coordinates of its first interval's branch,
+    and the scan restarts there at every run's first interval (`fitter.core.compiled.modal_scan`'s ``starts``).
+    What a recording's intervals cost in numpy calls besides the scan (the flows' modal forcing stacked, the
+    branches indexed, the scan dispatched) is then paid once for all the recordings of an evaluation.  None
+    where that is not so: outside `fitter.core.scans.compiled_scans`, with a flow used that is not modal, or
+    with a run that is empty or longer than one piece (the caller then integrates run by run)."""
+    run = modal_pass()
+    if run is integrate_modal or not all(0 < len(S) <= _BLOCK for _, _, _, S in runs):
+        return None
+    branch = np.concatenate([r[0] for r in runs])
+    used = {b: fl[b] for b in np.unique(branch)}
+    if not all(flow.modal for flow in used.values()):
+        return None
+    force = {b: None if forcing is None else forcing[b] for b in used}
+    p, r, S = (np.concatenate([np.broadcast_to(run_[k], run_[3].shape) for run_ in runs]) for k in (1, 2, 3))
+    ends = np.cumsum([len(run_[3]) for run_ in runs])
+    X = run(used, force, np.asarray(x0, dtype=float), branch, p, r, S, np.r_[0, ends[:-1]])
+    return [X[a:b] for a, b in zip(np.r_[0, ends[:-1]], ends)]

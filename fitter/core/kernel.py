@@ -27,6 +27,7 @@ from .flow import (
     flows,
     integrate,
     integrate_blocks,
+    integrate_runs,
     interval_coefficients,
     one_interval,
     phi1,
@@ -36,6 +37,7 @@ from .flow import (
 __all__ = [  # the simulation, then the flows and checks of `fitter.core.flow` it re-exports
     "simulate",
     "state_response",
+    "state_responses",
     "state_blocks",
     "Simulation",
     "flows",
@@ -131,12 +133,35 @@ def state_blocks(model, t, u, X0, flow_cache: dict | None = None, forcing: dict 
             raise KernelError("per-column forcings need a model without effects")
         yield np.stack([simulate(model, t, u, x0=x, flow_cache=fl).x for x in X0.T], axis=2)
         return
+    pieces = integrate_blocks(fl, X0, *_intervals(model, t, u), forcing)
+    first = next(pieces, np.empty((0,) + X0.shape))
+    yield np.concatenate([X0[None], first])
+    yield from pieces
+
+
+def state_responses(model, ts, us, X0, flow_cache: dict | None = None, forcing: dict | None = None) -> list[np.ndarray]:
+    """`state_response` of a base model (no effects) on several recordings (t_i, u_i) from the same X0: the
+    same numbers, with the recordings' intervals in one call of the compiled scan where it is in effect
+    (`flow.integrate_runs`), else recording by recording."""
+    X0 = np.asarray(X0, dtype=float)
+    fl = flow_cache if flow_cache is not None else flows(model)
+    runs = [_intervals(model, t, u) for t, u in zip(ts, us)]
+    states = None if getattr(model, "effects", None) else integrate_runs(fl, X0, runs, forcing)
+    if states is None:
+        return [state_response(model, t, u, X0, fl, forcing) for t, u in zip(ts, us)]
+    out = []
+    for X in states:
+        full = np.empty((len(X) + 1,) + X0.shape)  # x_0 and one state per interval, as `state_response`
+        full[0], full[1:] = X0, X
+        out.append(full)
+    return out
+
+
+def _intervals(model, t, u) -> tuple[np.ndarray, ...]:
+    """(branch, p, r, S) of `interval_coefficients` for a recording, t and u checked finite and of one length (t
+    None: the sample index)."""
     u = check_finite("u", u)
     t = check_finite("t", t) if t is not None else np.arange(len(u), dtype=float)
     if len(t) != len(u):
         raise KernelError(f"t and u differ in length ({len(t)} and {len(u)})")
-    branch, p, r, S = interval_coefficients(model, t, model.model_input(u))
-    pieces = integrate_blocks(fl, X0, branch, p, r, S, forcing)
-    first = next(pieces, np.empty((0,) + X0.shape))
-    yield np.concatenate([X0[None], first])
-    yield from pieces
+    return interval_coefficients(model, t, model.model_input(u))

@@ -96,7 +96,14 @@ from fitter.core.scans import modal_pass
 from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording
 from fitter.identification.parametrisation import Parametrisation
-from fitter.identification.projection import LinearPart, lstsq_scaled, response_columns, solve_shared, split_solution
+from fitter.identification.projection import (
+    LinearPart,
+    lstsq_scaled,
+    response_columns,
+    response_columns_all,
+    solve_shared,
+    split_solution,
+)
 
 __all__ = ["Recordings", "simulate_from", "fitted_initial_state", "X0_MODES", "FAIL"]
 
@@ -440,7 +447,7 @@ class Recordings:
             model = param.build(theta)
             with np.errstate(all="ignore"):
                 fl = flows(model)
-                parts = [self._linear_part(model, lin, i, fl) for i in range(len(self.recordings))]
+                parts = self._linear_parts(model, lin, fl)
             solution = solve_shared(parts, [r.y for r in self.recordings], self._w)
         except (DuhemError, ValueError, np.linalg.LinAlgError, FloatingPointError):
             info = [self._one(None, rec, cyc) for rec, cyc in zip(self.recordings, self.cycles)]
@@ -454,16 +461,23 @@ class Recordings:
         ]
         return np.concatenate(weighted), theta
 
+    def _linear_parts(self, model, lin: dict[int, tuple[str, int]], fl: dict) -> list[LinearPart]:
+        """Every recording's `LinearPart`: a model without effects, its columns on all recordings at once
+        (`response_columns_all`); with effects, recording by recording (`_linear_part`).  `fl`: the model's
+        flows, shared by the recordings."""
+        if getattr(model, "effects", None):
+            return [self._linear_part(model, lin, i, fl) for i in range(len(self.recordings))]
+        recs = self.recordings
+        return response_columns_all(model, lin, [r.t for r in recs], [r.u for r in recs], self.x0, self.cycles, fl)
+
     def _linear_part(self, model, lin: dict[int, tuple[str, int]], i: int, fl: dict) -> LinearPart:
-        """Recording i's `LinearPart`: the base's columns (`response_columns`); with effects, every one
-        `additive` (``"fit"`` only), their terms added to its base (from the chain state settled on it with
-        ``settle``) and, where one carries the output's reference and the recording is not the reference's owner,
-        a column of ones (`fitted_initial_state`).  With effects the base's columns are kept in the recording's
+        """Recording i's `LinearPart` for a model with effects, every one `additive` (``"fit"`` only): the base's
+        columns (`response_columns`), the effects' terms added to its base (from the chain state settled on it
+        with ``settle``) and, where one carries the output's reference and the recording is not the reference's
+        owner, a column of ones (`fitted_initial_state`).  The base's columns are kept in the recording's
         memo under the base's parameters (the optimiser holds the linear entries of the theta it moves, so they
         repeat while only the effects' parameters move).  `fl`: the model's flows, shared by the recordings."""
-        rec, cyc, memo = self.recordings[i], self.cycles[i], self._memos[i]
-        if not getattr(model, "effects", None):
-            return response_columns(model, lin, rec.t, rec.u, self.x0, cyc, fl)
+        rec, memo = self.recordings[i], self._memos[i]
         if self.x0 != "fit" or not _all_additive(model):
             raise DuhemError("variable projection needs x0 'fit' and additive effects")
         w = model.model_input(np.asarray(rec.u, dtype=float))

@@ -19,9 +19,9 @@ from typing import Sequence
 import numpy as np
 
 from fitter.core.errors import KernelError
-from fitter.core.kernel import state_response
+from fitter.core.kernel import state_responses
 
-__all__ = ["LinearPart", "response_columns", "solve_shared", "split_solution", "lstsq_scaled"]
+__all__ = ["LinearPart", "response_columns", "response_columns_all", "solve_shared", "split_solution", "lstsq_scaled"]
 
 
 @dataclass
@@ -100,46 +100,70 @@ def response_columns(model, lin: dict[int, tuple[str, int]], t, u, mode: str, cy
     fixed point of the cycle map (when its spectral radius is < 1; else the model's x0), so the periodic state
     stays linear in theta_L.  `flow_cache`: the model's flows (`fitter.core.kernel.flows`), when at hand.
     """
-    n = model.order
-    start = cycle[0] if mode == "periodic" else 0
-    t, u = (None if t is None else t[start:]), u[start:]
-    forcing_lin = [(k, f, i) for k, (f, i) in enumerate(lin.values()) if f != "D"]
-    n_x0 = 0 if mode == "model" else n
-    m = 1 + len(forcing_lin) + n_x0
-    fields = _forcing_fields(model)
-    own = {f: np.array(getattr(model, f), dtype=float) for pair in fields.values() for f in pair}
-    for f, i in lin.values():
-        if f != "D":
-            own[f][i] = 0.0
-    cols = {f: np.zeros((n, m)) for f in own}
-    for f in own:
-        cols[f][:, 0] = own[f]
-    for j, (_, f, i) in enumerate(forcing_lin):
-        cols[f][i, 1 + j] = 1.0
-    X0 = np.zeros((n, m))
-    X0[:, m - n_x0 :] = np.eye(n)[:, :n_x0]
-    if mode == "model":
-        X0[:, 0] = model.x0
-    forcing = {b: (cols[fb], cols[fe]) for b, (fb, fe) in fields.items()}
-    X = state_response(model, t, u, X0, flow_cache=flow_cache, forcing=forcing)
-    Y = np.einsum("i,kim->km", model.C, X)
-    d_linear = any(f == "D" for f, _ in lin.values())
-    base = Y[:, 0] + (0.0 if d_linear else model.D * u)
-    Psi = np.empty((len(u), len(lin)))
-    forcing_col = {k: 1 + j for j, (k, _, _) in enumerate(forcing_lin)}
-    for k, (f, _) in enumerate(lin.values()):
-        Psi[:, k] = u if f == "D" else Y[:, forcing_col[k]]
-    if mode == "periodic":
-        c = cycle[1] - cycle[0]
-        Phi = X[c][:, m - n :]
-        rho = float(np.max(np.abs(np.linalg.eigvals(Phi)))) if np.all(np.isfinite(Phi)) else np.inf
-        G = Y[:, m - n :]
-        if rho < 1:
-            fix = np.linalg.solve(np.eye(n) - Phi, X[c][:, : m - n])
-            base = base + G @ fix[:, 0]
-            for k, col in forcing_col.items():
-                Psi[:, k] += G @ fix[:, col]
-        else:
-            base = base + G @ np.asarray(model.x0, dtype=float)
-        return LinearPart(start, base, Psi, None)
-    return LinearPart(start, base, Psi, Y[:, m - n :] if mode == "fit" else None)
+    return response_columns_all(model, lin, [t], [u], mode, [cycle], flow_cache)[0]
+
+
+def response_columns_all(
+    model, lin: dict[int, tuple[str, int]], ts, us, mode: str, cycles, flow_cache: dict | None = None
+) -> list[LinearPart]:
+    """`response_columns` of every recording (t_i, u_i, cycle_i), the same numbers: the kernel's pass runs the
+    recordings' intervals in one call where it can (`fitter.core.kernel.state_responses`)."""
+    columns = _Columns(model, lin, mode)
+    starts = [cycle[0] if mode == "periodic" else 0 for cycle in cycles]
+    ts = [None if t is None else t[k:] for t, k in zip(ts, starts)]
+    us = [u[k:] for u, k in zip(us, starts)]
+    states = state_responses(model, ts, us, columns.X0, flow_cache=flow_cache, forcing=columns.forcing)
+    return [columns.part(X, u, k, cycle) for X, u, k, cycle in zip(states, us, starts, cycles)]
+
+
+class _Columns:
+    """The kernel's columns for `response_columns`: column 0 the model's own forcing with the linear entries
+    at 0 (and x0 for ``"model"``), one column per forcing entry of `lin` (unit forcing), then the n unit
+    initial states (``"fit"`` and ``"periodic"``); `part` reads a recording's `LinearPart` off their states."""
+
+    def __init__(self, model, lin: dict[int, tuple[str, int]], mode: str):
+        n = model.order
+        self.model, self.lin, self.mode = model, lin, mode
+        self.forcing_lin = [(k, f, i) for k, (f, i) in enumerate(lin.values()) if f != "D"]
+        self.n_x0 = 0 if mode == "model" else n
+        m = self.m = 1 + len(self.forcing_lin) + self.n_x0
+        fields = _forcing_fields(model)
+        own = {f: np.array(getattr(model, f), dtype=float) for pair in fields.values() for f in pair}
+        for f, i in lin.values():
+            if f != "D":
+                own[f][i] = 0.0
+        cols = {f: np.zeros((n, m)) for f in own}
+        for f in own:
+            cols[f][:, 0] = own[f]
+        for j, (_, f, i) in enumerate(self.forcing_lin):
+            cols[f][i, 1 + j] = 1.0
+        self.X0 = np.zeros((n, m))
+        self.X0[:, m - self.n_x0 :] = np.eye(n)[:, : self.n_x0]
+        if mode == "model":
+            self.X0[:, 0] = model.x0
+        self.forcing = {b: (cols[fb], cols[fe]) for b, (fb, fe) in fields.items()}
+
+    def part(self, X: np.ndarray, u: np.ndarray, start: int, cycle) -> LinearPart:
+        """The `LinearPart` of a recording from its states X (N, n, m) at its samples `start`.. (input u)."""
+        model, lin, n, m = self.model, self.lin, self.model.order, self.m
+        Y = np.einsum("i,kim->km", model.C, X)
+        d_linear = any(f == "D" for f, _ in lin.values())
+        base = Y[:, 0] + (0.0 if d_linear else model.D * u)
+        Psi = np.empty((len(u), len(lin)))
+        forcing_col = {k: 1 + j for j, (k, _, _) in enumerate(self.forcing_lin)}
+        for k, (f, _) in enumerate(lin.values()):
+            Psi[:, k] = u if f == "D" else Y[:, forcing_col[k]]
+        if self.mode == "periodic":
+            c = cycle[1] - cycle[0]
+            Phi = X[c][:, m - n :]
+            rho = float(np.max(np.abs(np.linalg.eigvals(Phi)))) if np.all(np.isfinite(Phi)) else np.inf
+            G = Y[:, m - n :]
+            if rho < 1:
+                fix = np.linalg.solve(np.eye(n) - Phi, X[c][:, : m - n])
+                base = base + G @ fix[:, 0]
+                for k, col in forcing_col.items():
+                    Psi[:, k] += G @ fix[:, col]
+            else:
+                base = base + G @ np.asarray(model.x0, dtype=float)
+            return LinearPart(start, base, Psi, None)
+        return LinearPart(start, base, Psi, Y[:, m - n :] if self.mode == "fit" else None)
