@@ -518,15 +518,16 @@ def integrate_runs(fl: dict, x0: np.ndarray, runs: list[tuple], forcing: dict | 
     branches indexed, the scan dispatched) is then paid once for all the recordings of an evaluation.  None
     where that is not so: outside `fitter.core.scans.compiled_scans`, with a flow used that is not modal, or
     with a run that is empty or longer than one piece (the caller then integrates run by run)."""
-    run = modal_pass()
-    if run is integrate_modal or not all(0 < len(S) <= _BLOCK for _, _, _, S in runs):
+    scan = modal_pass()
+    if scan is integrate_modal or not all(0 < len(S) <= _BLOCK for *_, S in runs):
         return None
-    branch = np.concatenate([r[0] for r in runs])
+    branch = np.concatenate([run[0] for run in runs])
     used = {b: fl[b] for b in np.unique(branch)}
     if not all(flow.modal for flow in used.values()):
         return None
     force = {b: None if forcing is None else forcing[b] for b in used}
-    p, r, S = (np.concatenate([np.broadcast_to(run_[k], run_[3].shape) for run_ in runs]) for k in (1, 2, 3))
-    ends = np.cumsum([len(run_[3]) for run_ in runs])
-    X = run(used, force, np.asarray(x0, dtype=float), branch, p, r, S, np.r_[0, ends[:-1]])
-    return [X[a:b] for a, b in zip(np.r_[0, ends[:-1]], ends)]
+    p, r, S = (np.concatenate([np.broadcast_to(run[k], run[3].shape) for run in runs]) for k in (1, 2, 3))
+    ends = np.cumsum([len(run[3]) for run in runs])
+    firsts = np.r_[0, ends[:-1]]
+    X = scan(used, force, np.asarray(x0, dtype=float), branch, p, r, S, firsts)
+    return [X[a:b] for a, b in zip(firsts, ends)]

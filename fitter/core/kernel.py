@@ -145,8 +145,9 @@ def state_responses(model, ts, us, X0, flow_cache: dict | None = None, forcing: 
     (`flow.integrate_runs`), else recording by recording."""
     X0 = np.asarray(X0, dtype=float)
     fl = flow_cache if flow_cache is not None else flows(model)
-    runs = [_intervals(model, t, u) for t, u in zip(ts, us)]
-    states = None if getattr(model, "effects", None) else integrate_runs(fl, X0, runs, forcing)
+    states = None
+    if not getattr(model, "effects", None):
+        states = integrate_runs(fl, X0, [_intervals(model, t, u) for t, u in zip(ts, us)], forcing)
     if states is None:
         return [state_response(model, t, u, X0, fl, forcing) for t, u in zip(ts, us)]
     out = []
