@@ -8,7 +8,8 @@ in D (`fitter.identification.output_error`, "Variable projection"): on recording
 b_i the response to the forcing left when theta_L = 0, Psi_i the responses to the unit linear entries (shared
 by the recordings), Own_i the columns of recording i's own unknowns z_i (its initial state for ``"fit"``, and
 the output's reference where one is fitted).  `response_columns` computes b, Psi and the initial-state columns
-in one pass of the kernel; `solve_shared` solves for [theta_L, z_1, z_2, ...] by weighted least squares.
+in one pass of the kernel (`response_columns_all`: those of every recording, in one call of the compiled scan);
+`solve_shared` solves for [theta_L, z_1, z_2, ...] by weighted least squares.
 """
 
 from __future__ import annotations
