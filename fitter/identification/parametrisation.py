@@ -82,6 +82,11 @@ class Parametrisation:
     def build(self, theta: np.ndarray):
         raise NotImplementedError
 
+    def build_with_effects(self, theta: np.ndarray, effects: Sequence):
+        """`build(theta)` with `effects` appended to its own (`WithEffects`)."""
+        model = self.build(theta)
+        return model.replace(effects=list(model.effects) + list(effects))
+
     def theta(self, model) -> np.ndarray:
         raise NotImplementedError
 
@@ -380,7 +385,8 @@ class StateSpace(Parametrisation):
         self.template = template
         self.keys = _free_keys(template)
         self.shapes = [np.shape(getattr(template, k)) for k in self.keys]
-        self.size = int(sum(int(np.prod(s)) for s in self.shapes))
+        self._sizes = [int(np.prod(s)) for s in self.shapes]
+        self.size = sum(self._sizes)
         self._lower = np.full(self.size, -np.inf) if lower is None else np.asarray(lower, dtype=float)
         self._upper = np.full(self.size, np.inf) if upper is None else np.asarray(upper, dtype=float)
 
@@ -392,14 +398,17 @@ class StateSpace(Parametrisation):
 
     def values(self, theta: np.ndarray) -> dict:
         out, i = {}, 0
-        for k, s in zip(self.keys, self.shapes):
-            n = int(np.prod(s))
+        for k, s, n in zip(self.keys, self.shapes, self._sizes):
             out[k] = np.reshape(theta[i : i + n], s)
             i += n
         return out
 
     def build(self, theta: np.ndarray):
         return self.template.replace(**self.values(theta))
+
+    def build_with_effects(self, theta: np.ndarray, effects: Sequence):
+        """`build(theta)` with `effects` after the template's own, validated once (one `replace`)."""
+        return self.template.replace(**self.values(theta), effects=list(self.template.effects) + list(effects))
 
     def theta(self, model) -> np.ndarray:
         return np.concatenate([np.ravel(getattr(model, k)) for k in self.keys])
@@ -499,8 +508,7 @@ class WithEffects(Parametrisation):
         return out
 
     def build(self, theta: np.ndarray):
-        model = self.base.build(theta[: self.n_base])
-        return model.replace(effects=list(model.effects) + self.effect_list(theta))
+        return self.base.build_with_effects(theta[: self.n_base], self.effect_list(theta))
 
     def linear_entries(self) -> dict[int, tuple[str, int]]:
         """The base's linear entries when every effect, the template's own and the fitted ones, is `additive`
