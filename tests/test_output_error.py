@@ -158,6 +158,27 @@ def test_with_effects_log_parameters_and_null_model():
     np.testing.assert_allclose(param.theta(m), theta, atol=1e-12)
 
 
+def test_a_state_space_base_builds_with_effects_as_the_generic_parametrisation_does():
+    """`StateSpace.build_with_effects` (one validation) gives the model of the generic path (build, then
+    append the effects), the template's own effect first, and with WithEffects' theta the same model."""
+    from fitter.core.effects import Effect
+    from fitter.identification.parametrisation import Parametrisation
+
+    template = _Five().build(TRUE).replace(effects=[Effect("backlash", {"b": 0.05})])
+    base = StateSpace(template)
+    theta = base.theta(template) + 0.01 * np.arange(base.size)
+    extra = [Effect("creep", {"k": 0.2, "tau": 0.5})]
+    fast = base.build_with_effects(theta, extra)
+    generic = Parametrisation.build_with_effects(base, theta, extra)
+    assert fast.to_dict() == generic.to_dict()
+    assert [e.effect for e in fast.effects] == ["backlash", "creep"] and fast.A_plus[0, 0] == theta[0]
+    ctx = EffectContext(dt_min=0.01, duration=10.0, u_span=2.0, y_min=-1.0, y_max=1.0, y_mean=0.0, v95=1.0)
+    fam = WithEffects(base, ["creep"], ctx)
+    assert fam.build(np.r_[theta, fam.encode([{"k": 0.2, "tau": 0.5}])]).to_dict()["effects"] == [
+        e.to_dict() for e in fast.effects
+    ]
+
+
 def test_with_effects_holds_named_parameters_and_refinements():
     """`held` parameters leave theta and are built at their value; ``refinements=False`` holds the
     refinements at their defaults, a held value beside it still wins."""
