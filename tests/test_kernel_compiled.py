@@ -151,3 +151,22 @@ def test_the_columns_of_all_recordings_at_once_are_each_recordings_own(mode):
         assert (a.Own is None) == (b.Own is None) == (mode != "fit")
         assert a.Own is None or np.array_equal(a.Own, b.Own)
     assert np.ptp(together[1].Psi[:, 0]) > 0  # the columns move
+
+
+@pytest.mark.parametrize("inside", [True, False], ids=["compiled", "numpy sums"])
+def test_state_responses_are_each_recordings_state_response(inside):
+    """`kernel.state_responses` against `kernel.state_response` recording by recording, inside `compiled_scans`
+    (one scan for all) and outside (the numpy sums, recording by recording): the same bits, x_0 first."""
+    from contextlib import nullcontext
+
+    from fitter.core.kernel import state_response, state_responses
+
+    model = _ri(True)
+    rng = np.random.default_rng(7)
+    X0 = rng.standard_normal((3, 2))
+    ts, us = _runs(model, [5, 6])
+    with compiled_scans() if inside else nullcontext():
+        together = state_responses(model, ts, us, X0)
+        alone = [state_response(model, t, u, X0) for t, u in zip(ts, us)]
+    assert all(np.array_equal(a, b) for a, b in zip(together, alone)) and len(together) == 3
+    assert np.array_equal(together[2][0], X0) and together[2].shape == (len(us[2]), 3, 2)

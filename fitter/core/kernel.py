@@ -142,18 +142,25 @@ def state_blocks(model, t, u, X0, flow_cache: dict | None = None, forcing: dict 
 def state_responses(model, ts, us, X0, flow_cache: dict | None = None, forcing: dict | None = None) -> list[np.ndarray]:
     """`state_response` of a base model (no effects) on several recordings (t_i, u_i) from the same X0: the
     same numbers, with the recordings' intervals in one call of the compiled scan where it is in effect
-    (`flow.integrate_runs`), else recording by recording."""
+    (`flow.integrate_runs`), else recording by recording (`flow.integrate_blocks`)."""
     X0 = np.asarray(X0, dtype=float)
     fl = flow_cache if flow_cache is not None else flows(model)
-    states = None
-    if not getattr(model, "effects", None):
-        states = integrate_runs(fl, X0, [_intervals(model, t, u) for t, u in zip(ts, us)], forcing)
-    if states is None:
+    if getattr(model, "effects", None):
         return [state_response(model, t, u, X0, fl, forcing) for t, u in zip(ts, us)]
+    runs = [_intervals(model, t, u) for t, u in zip(ts, us)]
+    together = integrate_runs(fl, X0, runs, forcing)
+    pieces = (
+        [[X] for X in together]
+        if together is not None
+        else [list(integrate_blocks(fl, X0, *run, forcing)) for run in runs]
+    )
     out = []
-    for X in states:
-        full = np.empty((len(X) + 1,) + X0.shape)  # x_0 and one state per interval, as `state_response`
-        full[0], full[1:] = X0, X
+    for run in pieces:
+        full = np.empty((1 + sum(len(X) for X in run),) + X0.shape)  # x_0 and one state per interval
+        full[0], k = X0, 1
+        for X in run:
+            full[k : k + len(X)] = X
+            k += len(X)
         out.append(full)
     return out
 

@@ -288,9 +288,8 @@ def _physical_barrier(param: RICanonical | RDCanonical, data: FitData, recording
     """The search's barrier residuals (`fitter.identification.search.barrier_residuals`) for a model in physical
     units over the recordings' input range (condition (5), the branch amplification and the damping are invariant
     under the normalisation of `scaling`; the settled minor loops of faithful minor loops are put on its output
-    scale).  They depend on the base alone (its
-    effects left out), so they are computed once per base: the effects' columns of a finite-difference
-    Jacobian reuse them."""
+    scale).  They depend on the base alone (its effects left out), so they are computed once per base: the
+    effects' columns of a finite-difference Jacobian reuse them."""
     lo, hi = fit_summary.raw_range(recordings)
     output = (data.scaling.y_c, data.scaling.y_s)
     cache: dict[bytes, np.ndarray] = {}

@@ -313,7 +313,7 @@ def _eliminated_jacobian(obj: "_Objective", theta: np.ndarray, options: Options)
     with _scans(options):
         J_free = _free_jacobian(obj.coarse, obj.param, theta, obj.free) / obj.scale
     J = np.zeros((len(J_free), len(theta)))
-    J[:, obj.free] = J_free * obj.scale
+    J[:, obj.free] = J_free * obj.scale  # divided and multiplied back as the solver's Jacobian is: the same bits
     return J
 
 
