@@ -6,9 +6,11 @@ too (a bad option value, an unknown option, a missing argument: `usage_line`
 names the command, the option and the value, and points to ``--help``).
 Numeric options are `Number`: finite and range-checked.  `one_line_errors`
 turns any exception of a command into a `CliError`: a `DuhemError` (the
-package's errors), an `OSError` or a `RuntimeError` keeps its message,
-anything else (a bug) is labelled ``internal error``; no traceback unless
-``DUHEM_DEBUG`` is set.
+package's errors), an `OSError`, or a `ValueError` or `RuntimeError` that
+the package raised itself keeps its message; anything else (a bug, a
+numerical library's failure such as a singular matrix) is labelled
+``internal error``, with the project function it happened in; no traceback
+unless ``DUHEM_DEBUG`` is set.
 Numerical RuntimeWarnings (e.g. an overflow in a rejected trial step of an
 optimiser) are hidden too: a command's own result says whether it
 converged.
@@ -23,11 +25,16 @@ import math
 import os
 import re
 import warnings
+from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
 import click
+import numpy as np
 
 from fitter.core.errors import DuhemError
+
+_PROJECT = Path(__file__).resolve().parent
+"""The package's folder: code below it is the project's own."""
 
 __all__ = [
     "CliError",
@@ -143,6 +150,44 @@ def _one_line(exc: BaseException) -> str:
     return text or type(exc).__name__
 
 
+_NUMERICAL = (ArithmeticError, np.linalg.LinAlgError)
+"""Failures of a numerical library's computation: never a statement about the user's input."""
+
+
+def _raised_in_project(exc: BaseException) -> bool:
+    """Whether the innermost frame of `exc`'s traceback is the project's own code (not numpy's, scipy's ...)."""
+    tb = exc.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    return tb is not None and Path(tb.tb_frame.f_code.co_filename).resolve().is_relative_to(_PROJECT)
+
+
+def _about_the_input(exc: BaseException) -> bool:
+    """Whether `exc` states something about the user's input or files: a `DuhemError` or an `OSError`, or a
+    ValueError / RuntimeError that the project raised itself (not a numerical library's failure)."""
+    if isinstance(exc, (DuhemError, OSError)):
+        return True
+    return isinstance(exc, (ValueError, RuntimeError)) and not isinstance(exc, _NUMERICAL) and _raised_in_project(exc)
+
+
+def _internal_line(exc: BaseException) -> str:
+    """An internal failure in one line: what was being done (the innermost project function on the traceback),
+    the exception, and that it is the tool's failure, not a finding about the data."""
+    where = None
+    tb = exc.__traceback__
+    while tb is not None:
+        code = tb.tb_frame.f_code
+        if Path(code.co_filename).resolve().is_relative_to(_PROJECT):
+            module = tb.tb_frame.f_globals.get("__name__", "?")
+            where = f"{module}.{code.co_name}"
+        tb = tb.tb_next
+    return (
+        f"internal error{f' in {where}' if where else ''} ({type(exc).__name__}: {_one_line(exc)}): a failure of "
+        "the tool's own computation, not a finding about your data; run again with DUHEM_DEBUG=1 for the "
+        "traceback and report it"
+    )
+
+
 @contextlib.contextmanager
 def one_line_errors() -> Iterator[None]:
     """Re-raise every exception of the block as a `CliError` (see the module docstring)."""
@@ -163,10 +208,7 @@ def one_line_errors() -> Iterator[None]:
     except Exception as exc:  # every failure becomes one line, never a traceback
         if debug:
             raise
-        known = isinstance(exc, (DuhemError, ValueError, OSError, RuntimeError))
-        raise CliError(
-            _one_line(exc) if known else f"internal error ({type(exc).__name__}): {_one_line(exc)}"
-        ) from None
+        raise CliError(_one_line(exc) if _about_the_input(exc) else _internal_line(exc)) from None
 
 
 def guarded(func: Callable) -> Callable:

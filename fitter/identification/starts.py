@@ -138,16 +138,18 @@ def generic_ri_starts(n: int, lower=None) -> tuple[list[np.ndarray], dict]:
     both branches (A+ = -diag(a, 2a, ...), A- = -A+, B = C = ones).  B, E, D and x0 are left to
     the fit's linear least squares (variable projection), so only the relaxation needs a start."""
     par = RICanonical(n)
-    starts = [par.theta(embed(lower, n))] if lower is not None else []
+    starts, info = [], {}
+    if lower is not None:
+        try:
+            starts.append(par.theta(embed(lower, n)))
+            info["start"] = f"order {n - 1} fit, embedded"
+        except np.linalg.LinAlgError as exc:  # (A+, C) of the embedding not observable: no canonical form
+            info.setdefault("ri_identification_errors", []).append(f"order {n - 1} fit, embedded: {exc}")
     ones = np.ones(n)
     for a in GENERIC_RATES:
         A = -a * np.diag(np.arange(1.0, n + 1))
         starts.append(par.theta(RateIndependentModel(A_plus=A, A_minus=-A, B_plus=ones, B_minus=ones, C=ones)))
-    info = {
-        "start": f"order {n - 1} fit, embedded"
-        if lower is not None
-        else f"generic relaxations (rates {list(GENERIC_RATES)} x 1..{n})"
-    }
+    info.setdefault("start", f"generic relaxations (rates {list(GENERIC_RATES)} x 1..{n})")
     return starts, info
 
 
