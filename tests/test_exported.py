@@ -24,6 +24,7 @@ from fitter.fmu.host import simulate_fmu
 from fitter.core.kernel import simulate
 from fitter.core.periodic import fixed_point as periodic_fixed_point
 from fitter.core.periodic import minor_loop_rho
+from fitter.core.checks import agreement_limit, rounding_sensitivity
 from fitter.identification.exported import MINOR_LOOP_WARNING, minor_loop_excursion, range_warnings, raw_input_rho
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -42,10 +43,12 @@ def _reproduces(fit, recordings, tmp_path, backend="native"):
     fmu = build_fmu(fit.model, tmp_path / "m.fmu", backend=backend)
     for rec, row in zip(recordings, fit.summary["recordings"]):
         # the native FMU's per-step flow and the kernel's differ by rounding (1e-13 per step); a fitted
-        # model with a nearly neutral mode (friction: A+ and A- eigenvalues -0.504 / +0.504) carries it
-        # along over thousands of steps: up to 8e-6 of the output range measured
+        # model with a nearly neutral mode or a badly conditioned basis (friction 4 bar: branch amplification
+        # 9e5) carries it along over thousands of steps: the limit `duhem validate` applies, from the model's
+        # own rounding sensitivity on this input
         y_fmu = simulate_fmu(fmu, rec.t, rec.u)
-        assert np.abs(y_fmu - fit.simulate(rec)).max() <= 2e-5 * np.ptp(rec.y)
+        s = rounding_sensitivity(fit.model, rec.t, rec.u, float(np.ptp(rec.y)))
+        assert np.abs(y_fmu - fit.simulate(rec)).max() <= agreement_limit(s) * np.ptp(rec.y)
         got = nrmse(rec.y, y_fmu)
         assert got == pytest.approx(row["nrmse"], rel=1e-4)
         prepared = row["nrmse_prepared"]

@@ -1,7 +1,17 @@
-"""`duhem export` and `duhem validate`: a model's FMU, and the FMU checked against recordings."""
+"""`duhem export` and `duhem validate`: a model's FMU, and the FMU checked against recordings.
+
+`duhem validate` checks that the FMU runs the model it carries (``resources/model.json``) before it judges the
+fit: the binary's output agrees with the kernel's within the limit that follows the model's own amplification
+of rounding (`fitter.core.checks.check_agreement`), the binary holds the model JSON's parameters
+(`_check_binary_parameters`, read back through fmi2GetReal) and the modelDescription declares them as its start
+values (`_check_start_values`: an importer applies them), both exactly.  The exact checks catch what the
+outputs cannot show: a model that amplifies rounding by 1e10 has an agreement limit near 1e-4 of the output
+range, which a change of D or x0 by 1e-6 of its value stays below.
+"""
 
 from __future__ import annotations
 
+import shutil
 import sys
 from pathlib import Path
 
@@ -34,16 +44,16 @@ from fitter.cli_support import (
     backend_option,
     fmi_version_option,
 )
-from fitter.core.checks import check_agreement, with_convergence
+from fitter.core.checks import agreement_limit, check_agreement, rounding_sensitivity, with_convergence
 from fitter.core.files import atomic_file
 from fitter.core.inverse import MEASUREMENT_CHOICES
 from fitter.core.kernel import simulate as simulate_model
 from fitter.data.metrics import compare
 from fitter.data.recordings import load_recordings
 from fitter.fmu.build import build_fmu
-from fitter.fmu.host import simulate_fmu
+from fitter.fmu.host import collecting_callbacks, simulate_fmu
 from fitter.fmu.toolchain import PLATFORMS, parse_platforms
-from fitter.fmu.variables import start_state_values
+from fitter.fmu.variables import model_variables, start_state_values
 from fitter.identification.exported import own_start, range_warnings, started
 from fitter.progress import stderr_progress
 from fitter.reports.validation_plot import write_validation_plot
@@ -148,19 +158,26 @@ def export(model, out, backend, fmi_version, allow_unstable, inverse, measuremen
 
 def _validation_row(rec, y_fmu: np.ndarray, model, threshold: float, x0_rule: str, fmu: str) -> dict:
     """`compare` of one recording, with the FMU vs in-process difference (`model` from the FMU's start), which
-    must be within `fitter.core.checks.AGREEMENT` of the output range, and the verdict."""
+    must be within max(AGREEMENT, K s) of the output range R, s the model's rounding sensitivity on the
+    recording (`fitter.core.checks.check_agreement`), and the verdict.  The row gives the difference in the
+    output's unit, the limit (times R, same unit) and s."""
     y_model = simulate_model(model, rec.t, rec.u).y
     finite_output(y_fmu, rec, f"the output of {fmu}")
+    scale = float(np.ptp(rec.y))
+    s = rounding_sensitivity(model, rec.t, rec.u, scale, y_model)
     check_agreement(
         y_fmu,
         y_model,
-        float(np.ptp(rec.y)),
+        scale,
         f"{fmu}: its binary",
         "its resources/model.json (run by the in-process kernel)",
         rec.source,
+        sensitivity=s,
     )
     m = compare(rec, y_fmu)
     m["fmu_vs_in_process_max_abs"] = float(np.max(np.abs(y_fmu - y_model)))
+    m["fmu_vs_in_process_limit"] = agreement_limit(s) * (scale if scale > 0 else 1.0)
+    m["rounding_sensitivity"] = s
     m.update(
         recording=rec.name,
         source=rec.source,
@@ -171,6 +188,87 @@ def _validation_row(rec, y_fmu: np.ndarray, model, threshold: float, x0_rule: st
         warnings=range_warnings(model, rec.t, rec.u),
     )
     return m
+
+
+def _expected_starts(model) -> dict:
+    """{name: (value reference, start)} of the FMU variables that hold the model JSON's numbers (the parameters,
+    order and kind: `fitter.fmu.variables.model_variables` with a path into the JSON)."""
+    return {v.name: (v.value_reference, v.start) for v in model_variables(model) if v.path}
+
+
+def _same_start(text: str | None, value) -> bool:
+    """Whether a modelDescription start attribute `text` is `value` (a number compared exactly as a double)."""
+    if text is None or isinstance(value, str):
+        return text == value
+    try:
+        return float(text) == float(value)
+    except ValueError:
+        return False
+
+
+def _check_start_values(fmu: str, model) -> None:
+    """CliError (one line) when a variable of the FMU's modelDescription.xml that holds a number of its
+    resources/model.json is missing or declares another value reference or start value: an importer starts
+    the FMU from those start values, so an edited description runs another model there."""
+    from fmpy import read_model_description
+
+    declared = {v.name: v for v in read_model_description(fmu).modelVariables}
+    bad = []
+    for name, (vr, start) in _expected_starts(model).items():
+        v = declared.get(name)
+        if v is None or v.valueReference != vr or not _same_start(v.start, start):
+            got = "is missing" if v is None else f"has value reference {v.valueReference}, start {v.start}"
+            bad.append(f"{name} {got} where its resources/model.json gives value reference {vr}, start {start!r}")
+    if bad:
+        more = f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""
+        raise CliError(
+            f"{fmu}: its modelDescription.xml and its resources/model.json disagree: {bad[0]}{more}; one of them "
+            "was altered after export: export the FMU again from the model JSON (duhem export)"
+        )
+
+
+def _binary_reals(fmu: str, refs: list[int]) -> list[float]:
+    """The values the FMI 2.0 binary of `fmu` holds for the Real variables `refs`, read (fmi2GetReal) in
+    initialization mode of a fresh instance with no value set."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    md = read_model_description(fmu)
+    unzipdir = extract(fmu)
+    slave = FMU2Slave(
+        guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier, instanceName="duhem"
+    )
+    log: list[str] = []
+    callbacks = collecting_callbacks(log)
+    try:
+        slave.instantiate(callbacks=callbacks, loggingOn=True)
+        try:
+            slave.setupExperiment(startTime=0.0)
+            slave.enterInitializationMode()
+            return list(slave.getReal(refs))
+        finally:
+            slave.freeInstance()
+    except Exception as exc:  # fmpy raises FMICallException
+        raise CliError(f"{fmu}: its binary's parameters cannot be read: {exc} {'; '.join(log[-3:])}".strip()) from None
+    finally:
+        shutil.rmtree(unzipdir, ignore_errors=True)
+
+
+def _check_binary_parameters(fmu: str, model) -> None:
+    """CliError (one line) when the FMU's binary holds a real parameter other than its resources/model.json's
+    (compared exactly: both are the exported doubles).  Run after the FMU has been simulated (which names a
+    binary that cannot run): it catches the changes the outputs cannot show within the agreement limit."""
+    reals = {n: (vr, s) for n, (vr, s) in _expected_starts(model).items() if not isinstance(s, (str, int))}
+    held = dict(zip(reals, _binary_reals(fmu, [vr for vr, _ in reals.values()])))
+    bad = [
+        f"{n} = {held[n]!r} where its resources/model.json gives {s!r}" for n, (_, s) in reals.items() if held[n] != s
+    ]
+    if bad:
+        more = f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""
+        raise CliError(
+            f"{fmu}: its binary and its resources/model.json disagree: the binary holds {bad[0]}{more}; one of "
+            "them was altered after export: export the FMU again from the model JSON (duhem export)"
+        )
 
 
 def _validation_start(model, rec, x0_rule: str):
@@ -226,6 +324,14 @@ def validate(fmu, recordings, threshold, plot, x0_rule, allow_unstable, time_col
     NRMSE and max error over the last full input cycle, the
     loop-area error, and the largest difference between the FMU and the
     in-process simulation of the model stored in the FMU.
+
+    The FMU must run the model it carries (exit code 1 otherwise): its
+    binary's output within max(1e-6, 100 s) of the output range of the
+    kernel's, s the model's own amplification of rounding measured on the
+    recording (the kernel against itself on its other algorithm and with its
+    parameters moved by a few units in the last place), and its binary's
+    parameters and its modelDescription's start values equal to its
+    resources/model.json's, exactly.
     """
     refuse_overwrite([fmu, *recordings], plot)
     if plot and Path(plot).suffix.lower() != ".png":
@@ -241,6 +347,8 @@ def validate(fmu, recordings, threshold, plot, x0_rule, allow_unstable, time_col
             start = None if x0_rule == "stored" else start_state_values(started)
             outputs.append(simulate_fmu(fmu, rec.t, rec.u, start=start))
             rows.append(_validation_row(rec, outputs[-1], started, threshold, x0_rule, fmu))
+        _check_binary_parameters(fmu, model)
+        _check_start_values(fmu, model)
         if plot:
             say("plotting", None)
             write_validation_plot(plot, recs, outputs, [_judged(r) for r in rows])
