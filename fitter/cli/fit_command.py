@@ -32,6 +32,7 @@ from fitter.fmu.build import build_fmu
 from fitter.fmu.pair import recorded_fmu_digest, with_fmu_record
 from fitter.identification.effects_fit import check_effects, check_held
 from fitter.identification.explained import check_explained, explained_text, explained_variance
+from fitter.identification import fit_summary
 from fitter.identification.fit import ORDERS, fit_recordings
 from fitter.progress import stderr_progress
 from fitter.reports.fit_report import fill_fit_report
@@ -175,6 +176,9 @@ def fit(
             err=True,
         )
     warn_minor_loops(result.model)
+    misfit = summary.get("misfit") or {}
+    if misfit and not misfit["followed"]:
+        click.echo(f"warning: {fit_summary.misfit_text(misfit)}", err=True)
     if as_json:
         emit_json({"model": out, "fmu": fmu, "backend": backend if fmu else None, "report": report, "summary": summary})
         return

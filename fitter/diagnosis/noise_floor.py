@@ -15,8 +15,10 @@ residual the true model itself leaves.
 Estimates (`noise_floor`):
 
 * sigma_y and sigma_u: `fitter.data.noise.noise_rms` of each recording's
-  output and input (white noise seen through a local quadratic fit; for
-  quantised data the quantisation noise), the median over the recordings;
+  output and input (white noise seen through a local quadratic fit, or the
+  spectral floor where the local fit read an input of few samples per cycle
+  as noise; for quantised data the quantisation noise), the median over the
+  recordings;
 * sigma_in: the RMS change of the output of a reference model when white
   noise of RMS sigma_u (seeded, `DRAWS` draws) is added to the recorded
   input, each run simulated from the model's initial state.  For the
@@ -65,8 +67,9 @@ def noise_floor(ex: JoinedExperiment, reference) -> dict:
         "output": sigma_y,
         "input": sigma_u,
         "through_input": sigma_in,
-        "method": "white noise on the output (local quadratic fit, median over recordings) and on the input, "
-        "carried to the output by the first-order base (seeded input perturbations); "
+        "method": "white noise on the output and on the input (each the local quadratic fit's estimate, or the "
+        "spectral floor's where that is under half of it: the signal's curvature, not noise; median over "
+        "recordings), the input's carried to the output by the first-order base (seeded input perturbations); "
         "rms = sqrt(output^2 + through_input^2)",
     }
 

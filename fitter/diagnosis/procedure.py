@@ -109,6 +109,14 @@ white noise keeps at 0 +- 1/sqrt(N)); it is *explained* when it is not
 structured and its RMS is within `NOISE_MARGIN` of the noise.  It also says
 where it is largest (recording, branch, input range).
 
+The per-recording check (`fitter.diagnosis.file_gap`): the base is refitted
+on each recording alone; a joint residual more than `GAP` times theirs is a
+finding (the recordings differ by physics the model does not carry), never
+noise: the verdict is then not "nothing_missing", unless a gain and an
+offset per file (an instrument's calibration, an operating condition) take
+the joint residual to the noise; and a remainder more than `GAP` times the
+per-recording fits' is not explained.
+
 The verdict: "effects_found" (findings, and the remainder explained),
 "nothing_missing" (no finding and the base residual within `NOISE_MARGIN`
 of the noise) or "unexplained": the residual is not explained, either with
@@ -133,6 +141,7 @@ from fitter.data.metrics import nrmse, rms
 from fitter.data.recordings import Recording
 from fitter.diagnosis.base import adequate_base, below_order
 from fitter.diagnosis.experiment import DiagnoseError, JoinedExperiment, join_recordings
+from fitter.diagnosis.file_gap import GAP, file_gap
 from fitter.diagnosis.fitting import (
     Fit,
     duhem_fit,
@@ -268,8 +277,10 @@ def diagnose(
         )
     current, findings, tested, fits = account
     mismatch = locate_mismatch(ex, base.residual, noise)
+    tick("refitting the base on each recording alone")
+    gap = file_gap(ex, base, mask, noise)
     tick("checking on held-out data")
-    remainder = _remainder(ex, current, mask, noise, alpha)
+    remainder = _remainder(ex, current, mask, noise, alpha, gap)
     for f in findings:
         f["partial"] = not remainder["explained"]
         if f["partial"] and REGISTRY[f["effect"]].loop_shape:
@@ -300,7 +311,7 @@ def diagnose(
     diag = Diagnosis(
         noise_rms=noise,
         noise=floor,
-        verdict=_verdict(findings, baseline, remainder, noise),
+        verdict=_verdict(findings, baseline, remainder, noise, gap),
         baseline=baseline,
         mismatch=mismatch,
         candidates=tested,
@@ -314,6 +325,7 @@ def diagnose(
         baseline_output=ex.y - base.residual,
         extended_output=ex.y - current.residual,
         separate=ex.separate,
+        file_gap=gap,
     )
     diag.paragraph = summary_paragraph(diag)
     return diag
@@ -440,9 +452,10 @@ def _consistency(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, alpha: float)
     return consistency_report(fit, per, [r.name for r in ex.recordings], effective_samples(fit.residual[mask]), alpha)
 
 
-def _remainder(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, noise: float, alpha: float) -> dict:
+def _remainder(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, noise: float, alpha: float, gap: dict | None) -> dict:
     """The residual the extended model leaves: `statistics.remainder_report` (is it white noise?), its
-    RMS against the noise, ``explained`` (RMS within `NOISE_MARGIN` of the noise and not structured) and
+    RMS against the noise, ``explained`` (RMS within `NOISE_MARGIN` of the noise, not structured, and not
+    more than `GAP` times the base refitted on each recording alone, `file_gap`: ``per_file_ratio``) and
     where it is largest (recording, branch, input range: `locate.locate_mismatch`)."""
     rep = remainder_report(ex, fit.residual, mask, alpha)
     where = locate_mismatch(ex, fit.residual, noise)
@@ -450,10 +463,17 @@ def _remainder(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, noise: float, a
         (b for b in where["per_input_range"] if b["residual_rms"] is not None), key=lambda b: b["residual_rms"]
     )
     branches = {k: v for k, v in where["per_branch"].items() if v is not None}
+    left = rms(fit.residual[mask])
+    per_file = left / gap["per_file_rms"] if gap and gap["per_file_rms"] > 0 else None
     rep.update(
-        residual_rms=rms(fit.residual[mask]),
-        noise_ratio=rms(fit.residual[mask]) / noise if noise else None,
-        explained=bool(rms(fit.residual[mask]) <= NOISE_MARGIN * noise and not rep["structured"]),
+        residual_rms=left,
+        noise_ratio=left / noise if noise else None,
+        per_file_ratio=per_file,
+        explained=bool(
+            left <= NOISE_MARGIN * noise
+            and not rep["structured"]
+            and not (per_file is not None and per_file > GAP and left > NOISE_MARGIN * noise)
+        ),
         worst_recording=where["worst_recording"],
         worst_branch=max(branches, key=branches.get),
         worst_input_range=[worst_range["u_from"], worst_range["u_to"]],
@@ -463,12 +483,16 @@ def _remainder(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, noise: float, a
     return rep
 
 
-def _verdict(findings: list, baseline: dict, remainder: dict, noise: float) -> str:
+def _verdict(findings: list, baseline: dict, remainder: dict, noise: float, gap: dict | None) -> str:
     """The verdict (module docstring): "effects_found" when the findings leave an explained remainder,
-    "nothing_missing" when there are none and the base residual is within `NOISE_MARGIN` of the noise,
-    else "unexplained"."""
+    "nothing_missing" when there are none and the base residual is within `NOISE_MARGIN` of the noise, or
+    when the only difference between the recordings is a gain and an offset per file (`file_gap`'s
+    ``gain_explains``: a property of each file), else "unexplained" (a gap between the joint base and the
+    per-recording fits is never noise)."""
     if findings:
         return "effects_found" if remainder["explained"] else "unexplained"
+    if gap and gap["gap"]:
+        return "nothing_missing" if gap["gain_explains"] else "unexplained"
     if baseline["residual_rms"] <= NOISE_MARGIN * noise:
         return "nothing_missing"
     return "unexplained"

@@ -29,6 +29,7 @@ class Diagnosis:
     extended_output: np.ndarray = field(repr=False, default=None)
     separate: bool = False  # the recordings were separate runs (`fitter.diagnosis.experiment`)
     noise: dict | None = None  # how noise_rms was estimated (`fitter.diagnosis.noise_floor.noise_floor`)
+    file_gap: dict | None = None  # the base against its refits per recording (`fitter.diagnosis.file_gap`)
 
     def to_json(self) -> dict:
         """The JSON-able form (without the model outputs): the keys of `JSON_KEYS` in that order, the paragraph
@@ -39,6 +40,6 @@ class Diagnosis:
         return out
 
 
-JSON_KEYS = ("verdict", "separate", "noise_rms", "noise", "baseline", "mismatch", "findings", "candidates")
+JSON_KEYS = ("verdict", "separate", "noise_rms", "noise", "baseline", "file_gap", "mismatch", "findings", "candidates")
 JSON_KEYS += ("extended", "validation", "comparison", "paragraph")
 """The fields of `Diagnosis` in ``--json``, in order (then ``base_model``, ``extended_model``)."""

@@ -49,8 +49,14 @@ def summary_paragraph(d: Diagnosis) -> str:
             f" The repeated run {rep['repeat']} differs from {rep['original']} by {rep['data_difference_rms']:.3g}"
             f" RMS (noise alone: {rep['expected_from_noise']:.3g})."
         )
+    text += _gap_text(d.file_gap)
     if not d.findings and d.verdict == "nothing_missing":
         return text + " No candidate effect explains a significant part of it: nothing is missing."
+    if not d.findings and d.file_gap and d.file_gap["gap"]:
+        return text + (
+            " No candidate effect of the catalogue explains that difference: what is missing is physics that "
+            "differs between the recordings (rate, amplitude or a condition of each file) outside the catalogue."
+        )
     if not d.findings:
         best = d.candidates[0] if d.candidates else None
         more = (
@@ -91,6 +97,25 @@ def summary_paragraph(d: Diagnosis) -> str:
     )
     if d.verdict == "unexplained":
         text += " " + _remainder_text(e["remainder"], len(d.findings))
+    return text
+
+
+def _gap_text(gap: dict | None) -> str:
+    """What the base refitted on each recording alone says (`fitter.diagnosis.file_gap`): "" without a gap."""
+    if not gap or not gap["gap"]:
+        return ""
+    text = (
+        f" One model across the recordings leaves {gap['joint_rms']:.3g} RMS where the same model fitted to each "
+        f"recording alone leaves {gap['per_file_rms']:.3g} ({gap['ratio']:.1f} times less): the recordings differ "
+        "by something the model does not carry, which is a finding, not noise."
+    )
+    if gap["gain_explains"]:
+        gains = ", ".join(f"{k} {v:.3g}" for k, v in gap["gains"].items())
+        text += (
+            f" A gain and an offset per file take it to {gap['gain_rms']:.3g} RMS (gains {gains}): the files differ "
+            "by their instrument's calibration or an operating condition of each (a property of the file, like its "
+            "reference), not by the material's physics."
+        )
     return text
 
 

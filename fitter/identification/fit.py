@@ -91,7 +91,15 @@ from fitter.identification.exported import (
 from fitter.identification import fit_summary
 from fitter.identification.refine import Options, RefineResult, jacobian
 from fitter.identification.parametrisation import Parametrisation, Physical, RDCanonical, RICanonical, WithEffects
-from fitter.identification.search import FIT_OPTIONS, Candidate, barrier_residuals, order_search
+from fitter.identification.search import (
+    FIT_OPTIONS,
+    MISFIT,
+    Candidate,
+    barrier_residuals,
+    misfit_ratio,
+    order_search,
+    refined_further,
+)
 from fitter.identification.starts import Q_CANDIDATES
 from fitter.progress import Progress, silent
 from fitter.workers import one_blas_thread
@@ -221,9 +229,23 @@ def fit_recordings(
         )
         cands = order_search(data, kind, orders, q, levels, progress, faithful_minor_loops, options)
         eligible = [c for c in cands if _meets_barrier(c, data, recordings)] or cands
-        best = min(eligible, key=lambda c: c.bic)
+        best = _harder_if_misfit(min(eligible, key=lambda c: c.bic), data, recordings, progress, options)
+        cands = [best if c.param is best.param else c for c in cands]
+        eligible = [best if c.param is best.param else c for c in eligible]
         extended = _with_effects(eligible, data, recordings, effects, held, progress) if effects else None
         return _result(best, cands, data, recordings, kind, q, levels, x0, options, extended)
+
+
+def _harder_if_misfit(best: Candidate, data: FitData, recordings, progress: Progress, options: Options) -> Candidate:
+    """`best`, or, when it leaves more than `MISFIT` times the noise (`misfit_ratio`) where its refinement stopped
+    at its evaluation budget, its further refinement (`refined_further`) if that lowers its BIC and stays inside
+    the barrier (a refinement that met its tolerances gains nothing from a larger budget)."""
+    ratio = misfit_ratio(best, data)
+    if ratio <= MISFIT or not best.res.budget_hit:
+        return best
+    progress(f"the {best.param.kind}{best.param.n} fit leaves {ratio:.1f} times the noise: refining it further", None)
+    more = refined_further(best, data, progress, options)
+    return more if more.bic < best.bic and _meets_barrier(more, data, recordings) else best
 
 
 @dataclass
@@ -394,6 +416,7 @@ def _result(
             "fit": X0_TEXT[data.x0_mode],
         },
         "optimiser": fit_summary.optimiser(res),
+        "misfit": fit_summary.misfit(scores, MISFIT, "refined_further" in best.start_info, bool(res.budget_hit)),
         "preparation": [dict(p.to_dict(), notes=n) for p, n in zip(data.preps, data.notes)],
     }
     if extended is not None:

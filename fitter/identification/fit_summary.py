@@ -23,7 +23,17 @@ if TYPE_CHECKING:  # the fit's own classes, for the hints only (fit imports this
     from fitter.identification.fit import _Extended
     from fitter.identification.search import Candidate
 
-__all__ = ["raw_range", "per_recording", "convergence", "optimiser", "effects_summary", "minor_loops", "why"]
+__all__ = [
+    "raw_range",
+    "per_recording",
+    "misfit",
+    "misfit_text",
+    "convergence",
+    "optimiser",
+    "effects_summary",
+    "minor_loops",
+    "why",
+]
 
 
 def raw_range(recordings) -> tuple[float, float]:
@@ -44,6 +54,45 @@ def per_recording(model, res: RefineResult | None, data: FitData, recordings) ->
         m.update(nrmse_prepared=prepared, transient_end=prep.transient_end)
         out.append(m)
     return out
+
+
+def misfit(scores: list[dict], limit: float, refined_further: bool, budget_hit: bool) -> dict:
+    """The summary's ``misfit``: per recording, the saved model's residual RMS in times the output's white noise
+    (``residual_rms / noise_rms`` of `per_recording`), the worst, and whether it is within `limit`
+    (``followed``); when it is not, the likely causes, most likely first."""
+    ratios = {
+        m["recording"]: (m["residual_rms"] / m["noise_rms"] if m.get("noise_rms") else None)
+        for m in scores
+        if m.get("residual_rms") is not None
+    }
+    known = [r for r in ratios.values() if r is not None]
+    worst = max(known) if known else None
+    out = {
+        "ratio": worst,
+        "per_recording": ratios,
+        "limit": limit,
+        "followed": worst is None or worst <= limit,
+        "refined_further": refined_further,
+    }
+    if not out["followed"]:
+        causes = ["the refinement stopped at its evaluation budget"] if budget_hit else []
+        out["likely_causes"] = causes + [
+            "physics the model class does not carry (a rate or time effect, a dead zone, a saturation, a drift, "
+            "a gain or offset that differs between files): duhem diagnose names it",
+            "a loop of another shape than a semilinear Duhem model draws: compare the classical models "
+            "(duhem fit --compare)",
+            "a start-up transient or a first sample far from the model's settled loop",
+        ]
+    return out
+
+
+def misfit_text(m: dict) -> str:
+    """One sentence for a ``misfit`` that was not followed."""
+    return (
+        f"the saved model leaves a residual {m['ratio']:.3g} times the output's noise (the limit is "
+        f"{m['limit']:g}{', after refining it further' if m['refined_further'] else ''}): it does not follow the "
+        "recordings; likely causes: " + "; ".join(m["likely_causes"])
+    )
 
 
 def convergence(best: Candidate, data: FitData, model, recordings, scores: list[dict], extended: bool = False) -> dict:

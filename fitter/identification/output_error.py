@@ -65,8 +65,8 @@ Decimation
 ----------
 Recordings longer than ``Options.max_samples`` (M) are decimated for the
 optimisation: every turning point of the input (the last sample before its
-direction changes; of a noisy input, those of reversals above its noise,
-`significant_turns`) is kept, and every j-th sample, j = ceil(N / M); only the
+direction changes; of an input that turns every few samples, a noisy one,
+those of reversals above its noise, `significant_turns`) is kept, and every j-th sample, j = ceil(N / M); only the
 every-j-th samples are scored (the turning points get weight 0).  Between
 kept samples the input is monotone, so a rate-independent model's state at
 the kept samples is exact (Proposition 1: its output depends on the path of
@@ -319,8 +319,13 @@ def _turning_points(u: np.ndarray) -> np.ndarray:
 
 
 REVERSAL_NOISE = 4.0
-"""A reversal of the input smaller than this many times the input's white-noise RMS (`fitter.data.noise`) is the
-noise's, not the drive's: the decimation does not keep it (`significant_turns`)."""
+"""On an input that turns every few samples (`DENSE_TURNS`), a reversal smaller than this many times the input's
+white-noise RMS (`fitter.data.noise`) is the noise's, not the drive's: the decimation does not keep it
+(`significant_turns`)."""
+DENSE_TURNS = 8
+"""An input with a turning point every this many samples or more often is taken as noisy: the decimation keeps
+its `significant_turns` only.  A sparser input keeps every turning point (a drive of short runs has a noise
+estimate inflated by its corners, and its small reversals are the drive's)."""
 
 
 def significant_turns(u: np.ndarray, h: float) -> np.ndarray:
@@ -347,15 +352,17 @@ def significant_turns(u: np.ndarray, h: float) -> np.ndarray:
 
 
 def _keep_indices(u: np.ndarray, max_samples: int | None, cycle) -> tuple[np.ndarray, np.ndarray]:
-    """Decimation (module docstring): the kept samples (every turning point of the drive, `significant_turns`
-    above `REVERSAL_NOISE` times the input's noise, the cycle's ends, every j-th sample and the last) and, of
-    them, those scored (a boolean mask: the every-j-th samples and the last)."""
+    """Decimation (module docstring): the kept samples (every turning point, or of a densely turning input its
+    `significant_turns` above `REVERSAL_NOISE` times its noise, the cycle's ends, every j-th sample and the
+    last) and, of them, those scored (a boolean mask: the every-j-th samples and the last)."""
     n = len(u)
     if max_samples is None or n <= max_samples:
         return np.arange(n), np.ones(n, dtype=bool)
     ends = [] if cycle is None else [cycle[0], cycle[1]]
     scored = np.r_[np.arange(0, n, int(np.ceil(n / max_samples))), n - 1]
-    turns = significant_turns(u, REVERSAL_NOISE * noise_or_zero(u))
+    turns = _turning_points(u)
+    if len(turns) > n / DENSE_TURNS:
+        turns = significant_turns(u, REVERSAL_NOISE * noise_or_zero(u))
     keep = np.unique(np.r_[scored, turns, ends]).astype(int)
     return keep, np.isin(keep, scored)
 

@@ -18,6 +18,7 @@ from typing import Callable
 
 import numpy as np
 
+from fitter.data.noise import noise_or_zero
 from fitter.identification.fit_data import FitData, FitError, RateLevels, averaged_loop
 from fitter.identification.output_error import Recordings
 from fitter.identification.parametrisation import RDCanonical, RICanonical
@@ -26,7 +27,16 @@ from fitter.identification.starts import generic_ri_starts, rd_starts, ri_starts
 from fitter.progress import Progress, silent
 from fitter.workers import parallel_map, side_by_side
 
-__all__ = ["Candidate", "FIT_OPTIONS", "BARRIER_INSIDE", "barrier_residuals", "order_search"]
+__all__ = [
+    "Candidate",
+    "FIT_OPTIONS",
+    "BARRIER_INSIDE",
+    "MISFIT",
+    "barrier_residuals",
+    "misfit_ratio",
+    "order_search",
+    "refined_further",
+]
 
 MAX_NFEV = 60
 RACE_NFEV = 3
@@ -41,6 +51,11 @@ GLOBAL_SCALE = 0.5
 the best local fit with its nonlinear entries (A's polynomial, the rate table) moved by GLOBAL_SCALE
 max(|theta|, 1) times a seeded normal draw.  Measured on the three piezo rates: the local fits of order 3
 and 4 end in minima of 1.2-3x the best cost, depending on the start and on the numerical stack."""
+MISFIT = 2.0
+"""A fit whose residual RMS exceeds this many times the output's white noise has not followed the data: the kept
+candidate is refined further (`refined_further`), and the summary's ``misfit`` says so when it still does."""
+HARDER_NFEV = 4 * MAX_NFEV
+"""The evaluation budget of `refined_further`."""
 FIT_OPTIONS = Options(ftol=1e-9, xtol=1e-10, max_nfev=MAX_NFEV, max_samples=3000, eliminate=True, compiled=True)
 """Evaluations on the compiled modal scan (`Options.compiled`, numba): on the three piezo rates the search took
 23.4 s instead of 30.8 s on one process, and piezo.best's twelve draws at rounding level were all within issue 35's
@@ -230,3 +245,25 @@ def order_search(
         if n_rd in rd_fits and n_rd - 1 in rd_fits and rd_fits[n_rd].bic > rd_fits[n_rd - 1].bic:
             del rd_orders[r:]
     return (list(ri_fits.values()) if kind in ("auto", "ri") else []) + list(rd_fits.values())
+
+
+def misfit_ratio(cand: Candidate, data: FitData) -> float:
+    """The candidate's residual RMS over its fitted samples, sqrt(RSS / N), in times the output's white noise
+    (`fitter.data.noise.noise_rms` of the prepared outputs, the median; at least 1e-6 of their range, so that
+    noise-free data are not asked for rounding)."""
+    outputs = [r.y for r in data.norm]
+    floor = 1e-6 * max(float(np.ptp(np.concatenate(outputs))), 1e-300)
+    noise = max(float(np.median([noise_or_zero(y) for y in outputs])), floor)
+    return float(np.sqrt(cand.res.rss / max(len(cand.res.weighted), 1))) / noise
+
+
+def refined_further(
+    cand: Candidate, data: FitData, progress: Progress, fit_options: Options = FIT_OPTIONS
+) -> Candidate:
+    """The candidate refined on from its end with `HARDER_NFEV` evaluations (with the barrier), for a fit that
+    leaves more than `MISFIT` times the noise: a budget hit, not the model class, is the first suspect."""
+    more = _candidate(
+        cand.param, [cand.res.theta], data, dict(cand.start_info), progress, replace(fit_options, max_nfev=HARDER_NFEV)
+    )
+    more.start_info["refined_further"] = HARDER_NFEV
+    return more

@@ -23,6 +23,7 @@ import numpy as np
 from fitter.core.files import atomic_directory
 from fitter.data.metrics import compare
 from fitter.data.recordings import Recording
+from fitter.identification.fit_summary import misfit_text
 from fitter.reports import pyplot
 
 __all__ = ["write_fit_report", "fill_fit_report", "recording_metrics"]
@@ -95,6 +96,13 @@ def _minor_loops(minor: dict | None) -> str:
     return f"<p>Minor loops inside the input range ({html.escape(minor['input'])}): the output {size}.{verdict}</p>"
 
 
+def _misfit(m: dict | None) -> str:
+    """The summary's ``misfit`` as a warning paragraph (empty when the model follows the recordings)."""
+    if not m or m["followed"]:
+        return ""
+    return f"<p><b>Warning: {html.escape(misfit_text(m))}.</b></p>"
+
+
 def _page(result, rows: list[tuple[str, dict, str, str]]) -> str:
     s = result.summary
     conv = s["convergence"]
@@ -136,6 +144,7 @@ Chosen by: {html.escape(s["why"])}.</p>
 <p>Convergence condition: <b>{"satisfied" if conv["satisfied"] else "NOT satisfied"}</b>
 ({html.escape(conv["quantity"])} = {_fmt(conv["value"])}).</p>
 {_minor_loops(s.get("minor_loops"))}
+{_misfit(s.get("misfit"))}
 <h2>Errors per recording</h2><p>The saved model, simulated from its stored initial state over all samples
 of each recording (what the FMU gives and what <code>duhem validate</code> reports).  NRMSE = RMS error /
 output range; the last full input cycle beside it.  "NRMSE own x0": from the state fitted to that recording
