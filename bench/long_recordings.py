@@ -1,9 +1,10 @@
 """Does a longer recording give a worse model?  `duhem fit` on a whole long file against its first tenth.
 
 The device: a rate-independent Duhem model of order 2 (`fitter.diagnosis.synthetic.cell_base(2)`) driven
-through straight runs between uniformly random turning points in [-1, 1] (minor loops of every size, one run
-per 500 samples), output noise 0.2 % of the output range (Gaussian, seeded).  For each size N this writes the
-whole file and its first N/10 samples as CSV files, runs ``duhem fit FILE -o MODEL.json`` on each in its own
+at 50 Hz through straight runs between uniformly random turning points in [-1, 1] (minor loops of every size),
+each run 10 to 190 samples long (uniform: 100 on average, so a 1e6-sample file turns about 6700 times, more
+than the search's scored samples), output noise 0.2 % of the output range (Gaussian, seeded).  For each size N
+this writes the whole file and its first N/10 samples as CSV files, runs ``duhem fit FILE -o MODEL.json`` on each in its own
 process (the console script, as a user runs it), and simulates both models on the whole file from their stored
 x0 (`fitter.core.simulate`).  It prints, per size:
 
@@ -35,17 +36,18 @@ from fitter.core import load_model, simulate  # noqa: E402
 from fitter.diagnosis.synthetic import cell_base  # noqa: E402
 from large import DUHEM  # noqa: E402  (the console script as a process, as a user runs it)
 
-SAMPLES_PER_RUN = 500
+RUN_SAMPLES = (10, 190)
+RATE = 50.0
 NOISE = 0.002
 
 
 def recording(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(t, u, y) of the device (module docstring), `n` samples."""
     rng = np.random.default_rng(seed)
-    turns = rng.uniform(-1.0, 1.0, n // SAMPLES_PER_RUN + 1)
-    knots = np.r_[0.0, np.cumsum(np.abs(np.diff(turns)) + 0.02)]
-    t = np.linspace(0.0, knots[-1], n)
-    u = np.interp(t, knots, turns)
+    knots = np.r_[0, np.cumsum(rng.integers(*RUN_SAMPLES, n // RUN_SAMPLES[0]))]
+    knots = np.r_[knots[knots < n - 1], n - 1]
+    u = np.interp(np.arange(n), knots, rng.uniform(-1.0, 1.0, len(knots)))
+    t = np.arange(n) / RATE
     y = simulate(cell_base(2), t, u).y
     return t, u, y + NOISE * np.ptp(y) * rng.standard_normal(n)
 
