@@ -5,9 +5,8 @@ at 50 Hz through straight runs between uniformly random turning points in [-1, 1
 each run 10 to 190 samples long (uniform: 100 on average, so a 1e6-sample file turns about 6700 times, more
 than the search's scored samples), output noise 0.2 % of the output range (Gaussian, seeded).  For each size N
 this writes the whole file and its first N/10 samples as CSV files, runs ``duhem fit FILE -o MODEL.json`` on
-each in its own
-process (the console script, as a user runs it), and simulates both models on the whole file from their stored
-x0 (`fitter.core.simulate`).  It prints, per size:
+each in its own process (the console script, as a user runs it), and simulates both models on the whole file
+from their stored x0 (`fitter.core.simulate`).  It prints, per size:
 
 * each model's NRMSE on the whole file, and the ratio whole / tenth (target <= 1.05);
 * the kind and order each fit chose;
