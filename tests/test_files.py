@@ -2,6 +2,7 @@
 
 import json
 import os
+import stat
 import subprocess
 import sys
 from pathlib import Path
@@ -73,25 +74,54 @@ def test_atomic_directory_creates_and_replaces_as_a_whole(tmp_path, umask):
     with atomic_directory(target) as tmp:
         (tmp / "index.html").write_text("one")
         (tmp / "old.png").write_text("png")
-    assert names(target) == ["index.html", "old.png"]
+    assert names(target) == sorted([files.DIRECTORY_MARK, "index.html", "old.png"])
     assert target.stat().st_mode & 0o777 == 0o750 == usual_mode(directory=True)
     with atomic_directory(target) as tmp:
         (tmp / "index.html").write_text("two")
         assert (target / "index.html").read_text() == "one"  # the old report until the end
-    assert names(target) == ["index.html"] and (target / "index.html").read_text() == "two"
+    assert names(target) == [files.DIRECTORY_MARK, "index.html"] and (target / "index.html").read_text() == "two"
     assert names(tmp_path) == ["report"]  # no temporary or old directory left
 
 
 def test_atomic_directory_keeps_the_old_one_on_failure(tmp_path):
     target = tmp_path / "report"
-    target.mkdir()
-    (target / "index.html").write_text("old")
+    with atomic_directory(target) as tmp:
+        (tmp / "index.html").write_text("old")
     with pytest.raises(ValueError, match="plot failed"):
         with atomic_directory(target) as tmp:
             (tmp / "index.html").write_text("new")
             raise ValueError("plot failed")
-    assert names(target) == ["index.html"] and (target / "index.html").read_text() == "old"
+    assert names(target) == [files.DIRECTORY_MARK, "index.html"] and (target / "index.html").read_text() == "old"
     assert names(tmp_path) == ["report"]
+
+
+def test_atomic_directory_refuses_a_directory_of_other_files(tmp_path):
+    """A directory the tool did not write (a user's notes in it) is never replaced: refused before anything is
+    written, its files kept; an empty one is taken."""
+    target = tmp_path / "rep"
+    target.mkdir()
+    (target / "notes.txt").write_text("mine")
+    with pytest.raises(FileExistsError, match="notes.txt"):
+        with atomic_directory(target):
+            raise AssertionError("the block must not run")
+    assert names(target) == ["notes.txt"] and names(tmp_path) == ["rep"]
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with atomic_directory(empty) as tmp:
+        (tmp / "index.html").write_text("new")
+    assert names(empty) == [files.DIRECTORY_MARK, "index.html"]
+
+
+def test_atomic_file_refuses_a_device_or_a_pipe(tmp_path):
+    """An output path that is a named pipe (or a device node) is not replaced by a plain file."""
+    pipe = tmp_path / "mypipe"
+    os.mkfifo(pipe)
+    with pytest.raises(FileExistsError, match="not a regular file"):
+        with atomic_file(pipe):
+            raise AssertionError("the block must not run")
+    assert stat.S_ISFIFO(os.stat(pipe).st_mode) and names(tmp_path) == ["mypipe"]
+    with pytest.raises(FileExistsError, match="not a regular file"), atomic_file("/dev/null"):
+        pass
 
 
 def test_atomic_directory_refuses_a_file_and_a_missing_parent(tmp_path):
@@ -206,7 +236,7 @@ def test_the_lock_is_reentrant_and_leaves_no_file(tmp_path, holder, monkeypatch)
     holder(target)
     with pytest.raises(files.OutputBusyError, match="another process is writing it"), atomic_directory(target):
         pass
-    assert names(tmp_path) == [".lock-out", "out"] and names(target) == ["a"]
+    assert names(tmp_path) == [".lock-out", "out"] and names(target) == [files.DIRECTORY_MARK, "a"]
     monkeypatch.setenv("DUHEM_LOCK_WAIT", "soon")
     with (
         pytest.raises(files.OutputBusyError, match="DUHEM_LOCK_WAIT=soon: not a number of seconds"),
@@ -273,3 +303,19 @@ def test_scratch_directories_of_killed_processes_are_swept(tmp_path, monkeypatch
     with files.scratch_directory("duhem_native") as work:
         assert work.name.startswith(f"duhem_native.{os.getpid()}.") and work.is_dir()
     assert names(tmp_path) == [f"duhem_native.{os.getppid()}.abc"]
+
+
+def test_two_outputs_at_one_path_or_one_inside_the_report_are_refused(tmp_path):
+    """`duhem fit rec.csv -o same.fmu --fmu same.fmu` and `-o rep/m.json --report rep` are refused before any
+    fitting, each in one line naming the paths (before, the second output overwrote the first, or the fit ended
+    with an internal temporary path)."""
+    from fitter.cli.common import refuse_overwrite
+    from fitter.cli_support import CliError
+
+    same = str(tmp_path / "same.fmu")
+    with pytest.raises(CliError, match=r"same.fmu: given for two outputs"):
+        refuse_overwrite(["rec.csv"], same, same, None)
+    rep = str(tmp_path / "rep")
+    with pytest.raises(CliError, match=r"m.json: is inside the directory .*rep, which is written as a whole"):
+        refuse_overwrite(["rec.csv"], str(tmp_path / "rep" / "m.json"), None, rep)
+    refuse_overwrite(["rec.csv"], str(tmp_path / "m.json"), str(tmp_path / "m.fmu"), rep)

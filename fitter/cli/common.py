@@ -105,7 +105,9 @@ def open_fmu(path: str):
 def refuse_overwrite(inputs, *outputs) -> None:
     """A one-line error, before anything is written, when an output path is one of the command's inputs
     (the same file by its real path: a link, a hard link or another spelling counts) or a directory that holds
-    one (a report directory is replaced as a whole)."""
+    one (a report directory is replaced as a whole), or when two outputs are one path or one lies inside
+    another (a report directory)."""
+    _distinct_outputs([o for o in outputs if o and o != "-"])
     known = {os.path.realpath(str(p)): str(p) for p in inputs if p}
     for out in outputs:
         if not out or out == "-":
@@ -120,6 +122,24 @@ def refuse_overwrite(inputs, *outputs) -> None:
                 else f"is a directory that holds this command's input {inside} (it would be replaced as a whole)"
             )
             raise CliError(f"{out}: {what}; write the output to another path (the input is left untouched)")
+
+
+def _distinct_outputs(outputs: list) -> None:
+    """`refuse_overwrite`'s check among the outputs: no two at one real path, none inside another."""
+    real = [os.path.realpath(str(o)) for o in outputs]
+    for i, a in enumerate(real):
+        for j, b in enumerate(real):
+            if i == j:
+                continue
+            if a == b and i < j:
+                raise CliError(
+                    f"{outputs[j]}: given for two outputs ({outputs[i]} and {outputs[j]}); give each its own path"
+                )
+            if b.startswith(a + os.sep):
+                raise CliError(
+                    f"{outputs[j]}: is inside the directory {outputs[i]}, which is written as a whole; write it "
+                    "outside that directory"
+                )
 
 
 def _same_file(a: str, b: str) -> bool:

@@ -58,6 +58,7 @@ import math
 import os
 import re
 import shutil
+import stat
 import sys
 import tempfile
 import time
@@ -140,6 +141,7 @@ def atomic_file(path: str | os.PathLike, *, suffix: str | None = None) -> Iterat
     if os.path.realpath(target) in _LIVE:  # a temporary of ours: already private, written in place
         yield target
         return
+    check_replaceable(target)
     ending = target.suffix if suffix is None else suffix
     parent = _parent(target)
     with output_lock(target):
@@ -183,17 +185,54 @@ def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
     parent = _parent(target)
     if target.exists() and not target.is_dir():
         raise NotADirectoryError(f"{path}: exists and is not a directory")
+    foreign = _foreign_entries(target)
+    if foreign:
+        raise FileExistsError(
+            f"{path}: the directory holds files that are not this tool's ({', '.join(foreign[:3])}"
+            f"{', ...' if len(foreign) > 3 else ''}) and would be replaced as a whole; give a new or empty "
+            "directory (nothing was written)"
+        )
     with output_lock(target):
         sweep_leftovers(target)
         with _creating(target):
             tmp = Path(tempfile.mkdtemp(prefix=_own_prefix(".tmp-", target), dir=parent))
         try:
             yield tmp
+            (tmp / DIRECTORY_MARK).write_text("written by duhem: replaced as a whole when written again\n")
             os.chmod(tmp, usual_mode(directory=True))
             _publishing(target)
             _swap_in(tmp, target)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
+
+
+DIRECTORY_MARK = ".duhem-output"
+"""The file `atomic_directory` leaves in every directory it publishes: such a directory may be replaced again."""
+
+
+def _foreign_entries(target: Path) -> list[str]:
+    """The entries of an existing directory `target` that `atomic_directory` would lose: none when it is empty
+    or one it published (`DIRECTORY_MARK`); the leftovers of its own killed writers are not counted."""
+    if not target.is_dir() or (target / DIRECTORY_MARK).exists():
+        return []
+    return sorted(p.name for p in target.iterdir() if not p.name.startswith((".tmp-", ".lock-")))
+
+
+def check_replaceable(target: Path) -> None:
+    """Refuse an output path that exists and is not a regular file (a device node, a named pipe, a socket, a
+    directory): replacing it by a file would destroy it.
+
+    Raises
+    ------
+    IsADirectoryError, FileExistsError
+    """
+    if target.is_dir():
+        raise IsADirectoryError(f"{target}: is a directory; give a file path for this output")
+    if os.path.lexists(target) and target.exists() and not stat.S_ISREG(os.stat(target).st_mode):
+        raise FileExistsError(
+            f"{target}: exists and is not a regular file (a device, a pipe or a socket); this output is written "
+            "as a new file, so give another path (nothing was written)"
+        )
 
 
 @contextlib.contextmanager
