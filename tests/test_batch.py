@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from fitter.core.files import DIRECTORY_MARK
 from click.testing import CliRunner
 
 distributed = pytest.importorskip("distributed")
@@ -133,7 +135,7 @@ def test_batch_completes_and_reports_the_bad_device(first_run):
         assert done["status"] == "ok" and len(done["hash"]) == 64
         assert all((out / d / rel).stat().st_size == size for rel, size in done["files"].items())
         assert float(summary[d]["A_plus[0,0] stderr"]) > 0
-    assert set(files_of(out / "broken")) == {"done.json"}
+    assert set(files_of(out / "broken")) == {"done.json", DIRECTORY_MARK}
     assert {"summary.csv", "summary.json", "index.html"} <= set(os.listdir(out))
     assert "broken" in (out / "index.html").read_text()
     assert report.actions == {**{f"dev{i}": "done" for i in range(1, 5)}, "broken": "failed"}

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
+from fitter.core.files import DIRECTORY_MARK
 from fitter.core import load_model, save_model, simulate
 from fitter.core.effects import REGISTRY, Effect, EffectContext
 from fitter.core.models import Signal
@@ -125,7 +126,7 @@ def test_report_is_written(tmp_path):
     recs, truth, d = run("viscous", 0)
     target = write_diagnosis_report(d, recs, tmp_path / "rep")
     names = sorted(p.name for p in target.iterdir())
-    assert names == ["index.html", "loops.png", "nrmse.png", "residual_map.png"]
+    assert names == [DIRECTORY_MARK, "index.html", "loops.png", "nrmse.png", "residual_map.png"]
     assert "viscous" in (target / "index.html").read_text()
     write_diagnosis_report(d, recs, tmp_path / "rep")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rep"]
@@ -776,8 +777,8 @@ def test_a_prediction_is_scored_where_its_start_is_known():
 
 
 def test_long_separate_runs_are_optimised_on_their_share_and_scored_on_every_sample(monkeypatch):
-    """Separate runs over `fitting.SAMPLES` are decimated for the optimisation (each to its share, every input
-    reversal kept) and scored on every sample: the drift's fit on under a quarter of the samples leaves the
+    """Separate runs over `fitting.SAMPLES` are decimated for the optimisation (each scored on its share, every
+    input reversal kept) and scored on every sample: the drift's fit on under half of the samples leaves the
     residual of the fit on all of them, within 2 %, and finds the same rate within 10 %; its Jacobian's rows are
     the optimised samples (`jacobian_rows`: the memory test regresses on them)."""
     from fitter.diagnosis import fitting
@@ -793,10 +794,10 @@ def test_long_separate_runs_are_optimised_on_their_share_and_scored_on_every_sam
             base.model, ["measurement_drift"], base.theta, ex, mask, ex.y - base.residual
         )
     kept = fitting.problem(ex, mask).decimated(fitting._share(ex))
-    assert sum(len(r.t) for r in kept.recordings) < len(ex.t) / 4 and len(fits[400].residual) == len(ex.t)
+    assert sum(len(r.t) for r in kept.recordings) < len(ex.t) / 2 and len(fits[400].residual) == len(ex.t)
     assert fits[400].rss == pytest.approx(fits[10**6].rss, rel=0.02)
-    rows = fitting.jacobian_rows(ex, mask)  # the samples the Jacobian has: the optimised ones
-    assert len(rows) == len(fits[400].result.jac) < len(ex.t) / 4 and np.all(np.diff(rows) > 0)
+    rows = fitting.jacobian_rows(ex, mask)  # the samples the Jacobian has: the optimised (scored) ones
+    assert len(rows) == len(fits[400].result.jac) <= len(recs) * (fitting._share(ex) + 1) and np.all(np.diff(rows) > 0)
     assert rows[0] == 0 and rows[-1] == len(ex.t) - 1
     rate = [f.theta[-1] for f in fits.values()]
     assert abs(rate[0] - rate[1]) < 0.1 * abs(rate[0])
