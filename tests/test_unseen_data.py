@@ -163,3 +163,14 @@ def test_a_gap_between_joint_and_per_file_fits_is_never_noise(gap, verdict):
     from fitter.diagnosis.procedure import _verdict
 
     assert _verdict([], {"residual_rms": 1.0}, {"explained": True}, 1.0, gap) == verdict
+
+
+def test_holds_joined_by_steps_of_one_sample_are_separate():
+    """A staircase whose steps each take one sample: 13 holds of 21 samples, not one hold over the whole file
+    (the widened windows of neighbouring holds used to touch across the step)."""
+    from fitter.data.preparation import find_holds
+
+    levels = np.array([0, 1, 2, 1, 0, -1, -2, -1, 0, 1, 2, 1, 0], dtype=float)
+    u = np.repeat(levels, 21) + 1e-4 * np.random.default_rng(8).standard_normal(13 * 21)
+    holds = find_holds(np.arange(u.size) * 0.1, u)
+    assert holds == [(21 * k, 21 * (k + 1)) for k in range(13)]

@@ -138,7 +138,9 @@ def find_holds(t, u, *, min_samples: int = HOLD_MIN_SAMPLES, band: float | None 
     """Holds of the input as [start, stop) index pairs (see step 5 of the module docstring).
 
     A hold is a run of at least `min_samples` samples in which the input
-    stays within `band` (default ``max(0.002 range(u), 8 noise_rms(u))``).
+    stays within `band` (default ``max(0.002 range(u), 8 noise_rms(u))``);
+    a step of more than `band` between two samples ends a hold (holds joined
+    by steps of one sample are separate holds).
     """
     u = np.asarray(u, dtype=float)
     band = max(HOLD_FRACTION * float(np.ptp(u)), 8.0 * noise_or_zero(u)) if band is None else band
@@ -151,7 +153,12 @@ def find_holds(t, u, *, min_samples: int = HOLD_MIN_SAMPLES, band: float | None 
     centre[u.size - L // 2 :] = False
     mask = maximum_filter1d(centre.astype(np.uint8), L).astype(bool)
     edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
-    return [(int(a), int(b)) for a, b in zip(edges[0::2], edges[1::2])]
+    steps = np.flatnonzero(np.abs(np.diff(u)) > band) + 1  # a step of one sample ends a hold, the next begins
+    holds = []
+    for a, b in zip(edges[0::2], edges[1::2]):
+        cuts = steps[(steps > a) & (steps < b)]
+        holds += [(int(s), int(e)) for s, e in zip(np.r_[a, cuts], np.r_[cuts, b]) if e - s >= min_samples]
+    return holds
 
 
 def branch_on_grid(u, y, grid) -> np.ndarray:
