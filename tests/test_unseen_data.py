@@ -174,3 +174,23 @@ def test_holds_joined_by_steps_of_one_sample_are_separate():
     u = np.repeat(levels, 21) + 1e-4 * np.random.default_rng(8).standard_normal(13 * 21)
     holds = find_holds(np.arange(u.size) * 0.1, u)
     assert holds == [(21 * k, 21 * (k + 1)) for k in range(13)]
+
+
+def test_a_single_cycle_that_does_not_close_has_its_start_fitted():
+    """One staircase cycle (steps with holds, 0 -> 1 -> -1 -> 0) of a device that starts far from its settled
+    loop: the recording does not close, so taking it as a settled cycle leaves many times the noise; the fit
+    then fits its initial state too and reaches the noise."""
+    from fitter.data.cycles import closed_loop
+    from fitter.identification.fit import fit_recordings
+
+    levels = np.r_[np.linspace(0, 1, 6), np.linspace(1, -1, 11)[1:], np.linspace(-1, 0, 6)[1:]]
+    u = np.repeat(levels, 25)
+    t = np.arange(u.size) * 0.1
+    truth = cell_base(1)
+    y = simulate(truth.replace(x0=truth.x0 + 1.5), t, u).y
+    rec = Recording(t, u, y + 0.002 * np.ptp(y) * np.random.default_rng(9).standard_normal(u.size))
+    assert not closed_loop(rec)
+    fit = fit_recordings([rec], kind="ri", order=1)
+    row = fit.summary["recordings"][0]
+    assert fit.summary["x0"]["fit"].startswith("during the fit, every sample is fitted")
+    assert row["residual_rms"] < 1.2 * 0.002 * np.ptp(y) and fit.summary["misfit"]["followed"]

@@ -18,7 +18,11 @@ Pipeline of `fit_recordings`
    the initial state's to explain, not mistaken for the loop.  When every
    recording holds a single cycle (e.g. the piezo files), a free initial state would let a barely convergent model
    mimic a non-closing loop, so ``x0="periodic"`` is used instead: the cycle
-   is taken as settled.  The convergence condition is enforced: for the
+   is taken as settled.  Unless a recording does not close (a staircase from
+   rest, a creep trapezoid) and the settled fit leaves more than `MISFIT`
+   times the noise: the search is then run with the initial state fitted
+   too, and the mode whose best candidate has the lower BIC on every raw
+   sample (each recording from its own fitted start, `_raw_bic`) is kept.  The convergence condition is enforced: for the
    rate-dependent model with g >= 0 the period map is e^{A sum g dt}, so
    rho < 1 iff A is Hurwitz, which the parametrisation guarantees; for the
    rate-independent model condition (5), rho(e^{beta A+} e^{-beta A-}) < 1, is
@@ -69,6 +73,7 @@ from fitter.core.errors import KernelError
 from fitter.core.files import jsonable
 from fitter.core.kernel import simulate
 from fitter.core.periodic import fixed_point
+from fitter.data.cycles import closed_loop
 from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording, check_scale
 from fitter.identification.fit_data import (
@@ -82,6 +87,7 @@ from fitter.identification.fit_data import (
 from fitter.identification.effects_fit import check_effects, check_held, effects_bic, race_effects, screen_effects
 from fitter.identification.exported import (
     NRMSE_CONVENTION,
+    score,
     X0_POLICIES,
     described,
     fitted_range,
@@ -228,12 +234,47 @@ def fit_recordings(
             FIT_OPTIONS, compiled=not long, max_samples=FIT_OPTIONS.max_samples if max_samples is None else max_samples
         )
         cands = order_search(data, kind, orders, q, levels, progress, faithful_minor_loops, options)
+        if _unsettled(cands, data, recordings):
+            progress("the recordings do not close: fitting their initial states instead", None)
+            free = prepare_for_fit(recordings, settled=False)
+            others = order_search(free, kind, orders, q, levels, progress, faithful_minor_loops, options)
+            if _raw_bic(_best(others, free, recordings), free, recordings) < _raw_bic(
+                _best(cands, data, recordings), data, recordings
+            ):
+                data, cands = free, others
         eligible = [c for c in cands if _meets_barrier(c, data, recordings)] or cands
         best = _harder_if_misfit(min(eligible, key=lambda c: c.bic), data, recordings, progress, options)
         cands = [best if c.param is best.param else c for c in cands]
         eligible = [best if c.param is best.param else c for c in eligible]
         extended = _with_effects(eligible, data, recordings, effects, held, progress) if effects else None
         return _result(best, cands, data, recordings, kind, q, levels, x0, options, extended)
+
+
+def _best(cands: Sequence[Candidate], data: FitData, recordings) -> Candidate:
+    """The candidate of lowest BIC among those inside the barrier (all, when none is)."""
+    return min([c for c in cands if _meets_barrier(c, data, recordings)] or cands, key=lambda c: c.bic)
+
+
+def _unsettled(cands: Sequence[Candidate], data: FitData, recordings) -> bool:
+    """Whether the recordings were taken as settled cycles (``x0_mode`` "periodic") though one of them does not
+    close (`fitter.data.cycles.closed_loop`: a staircase from rest, a creep trapezoid) and the best candidate
+    leaves more than `MISFIT` times the noise: its initial state is then fitted too (`fit_recordings`)."""
+    if data.x0_mode != "periodic" or all(closed_loop(r) for r in recordings):
+        return False
+    return misfit_ratio(_best(cands, data, recordings), data) > MISFIT
+
+
+def _raw_bic(cand: Candidate, data: FitData, recordings) -> float:
+    """N ln(RSS / N) + p ln N of the candidate's physical model on every raw sample, each recording from its own
+    fitted initial state (`exported.score`'s ``nrmse_x0_fitted``): the score on which fits of the two initial-state
+    modes are compared; inf when one diverges."""
+    model = _base_model(cand, data, recordings)
+    rows = score(model, recordings)
+    if any(m.get("nrmse_x0_fitted") is None for m in rows):
+        return float("inf")
+    n = sum(len(r.y) for r in recordings)
+    rss = sum((m["nrmse_x0_fitted"] * np.ptp(r.y)) ** 2 * len(r.y) for m, r in zip(rows, recordings))
+    return float(n * np.log(max(rss, 1e-300) / n) + cand.param.size * np.log(n))
 
 
 def _harder_if_misfit(best: Candidate, data: FitData, recordings, progress: Progress, options: Options) -> Candidate:

@@ -225,8 +225,9 @@ def _prepare_general(recordings: Sequence[Recording]) -> FitData:
     )
 
 
-def prepare_for_fit(recordings: Sequence[Recording]) -> FitData:
-    """Steps 0-3 of the module docstring for every recording."""
+def prepare_for_fit(recordings: Sequence[Recording], settled: bool = True) -> FitData:
+    """Steps 0-3 of the module docstring for every recording; `settled` False: the initial state fitted
+    (``x0_mode = "fit"``) even where every recording holds a single cycle."""
     if not recordings:
         raise FitError("no recordings to fit")
     if any(extremes_spread(rec.u) > PERIODIC_SPREAD for rec in recordings):
@@ -239,7 +240,7 @@ def prepare_for_fit(recordings: Sequence[Recording]) -> FitData:
         loops.append(_loop_pieces(clean, prep, cycle))
         notes.append(n)
     b = _deadband(preps, notes)
-    x0_mode = "periodic" if all(len(p.cycles) <= 1 for p in preps) else "fit"
+    x0_mode = "periodic" if settled and all(len(p.cycles) <= 1 for p in preps) else "fit"
     whole = x0_mode == "fit"
     recs = [_fit_input(p, b, whole) for p in preps]
     if whole:
