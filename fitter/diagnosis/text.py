@@ -74,7 +74,13 @@ def summary_paragraph(d: Diagnosis) -> str:
     for f in d.findings:
         params = ", ".join(f"{k} = {v:.3g} ± {f['stderr'][k]:.2g}" for k, v in f["parameters"].items())
         gain = f"removes {100 * f['explained_fraction']:.0f}% of the residual ({_p_text(f['p_value'])})"
-        if f.get("origin") == "measurement":
+        if f.get("origin") == "measurement" and f.get("partial"):
+            text += (
+                f" The nearest measurement effect is {REGISTRY[f['effect']].description}: modelled as "
+                f"{f['effect']} ({params}) it {gain}, but the extended model does not reach the noise, so the "
+                "recording need not carry it (reported apart from the material's physics)."
+            )
+        elif f.get("origin") == "measurement":
             text += (
                 f" The recording carries {REGISTRY[f['effect']].description}; modelled as "
                 f"{f['effect']} ({params}) it {gain}. This is reported apart from the material's physics."

@@ -22,8 +22,8 @@ Pipeline of `fit_recordings`
    rest, a creep trapezoid) and the settled fit leaves more than `MISFIT`
    times the noise: the search is then run with the initial state fitted
    too, and the mode whose best candidate has the lower BIC on every raw
-   sample (each recording from its own fitted start, `_raw_bic`) is kept.  The convergence condition is enforced: for the
-   rate-dependent model with g >= 0 the period map is e^{A sum g dt}, so
+   sample (each recording from its own fitted start, `_raw_bic`) is kept.
+   The convergence condition is enforced: for the rate-dependent model with g >= 0 the period map is e^{A sum g dt}, so
    rho < 1 iff A is Hurwitz, which the parametrisation guarantees; for the
    rate-independent model condition (5), rho(e^{beta A+} e^{-beta A-}) < 1, is
    required of every minor loop of the stored input range (sub-span b: radius
