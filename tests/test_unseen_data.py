@@ -194,3 +194,18 @@ def test_a_single_cycle_that_does_not_close_has_its_start_fitted():
     row = fit.summary["recordings"][0]
     assert fit.summary["x0"]["fit"].startswith("during the fit, every sample is fitted")
     assert row["residual_rms"] < 1.2 * 0.002 * np.ptp(y) and fit.summary["misfit"]["followed"]
+
+
+def test_the_noise_is_capped_at_what_a_model_per_recording_leaves():
+    """A noise floor inflated by a quantised input carried through a steep model (5e-8, where each file's own
+    model leaves 0.8e-8) is capped there, so a joint base at 2.8e-8 is 3.5 times the noise, not under it; a gap
+    that gains per file close to the capped noise is explained by them."""
+    from fitter.diagnosis.file_gap import capped_noise
+
+    floor = {"rms": 5e-8, "output": 2.6e-11, "input": 0.14, "through_input": 5e-8, "method": "m"}
+    gap = {"per_file_rms": 0.8e-8, "gap": True, "gain_rms": 0.9e-8}
+    capped = capped_noise(floor, gap)
+    assert capped["rms"] == 0.8e-8 and capped["capped_from"] == 5e-8 and "capped at the residual" in capped["method"]
+    assert gap["gain_explains"] and floor["rms"] == 5e-8
+    gap = {"per_file_rms": 9e-8, "gap": True, "gain_rms": 9e-8}
+    assert capped_noise(floor, gap) == floor and not gap["gain_explains"]

@@ -27,7 +27,7 @@ import numpy as np
 
 from fitter.core.effects import EffectContext
 from fitter.core.errors import DuhemError
-from fitter.data.cycles import count_reversals
+from fitter.data.cycles import count_reversals, find_reversals, single_loop
 from fitter.data.recordings import Recording, check_scale
 
 __all__ = ["DiagnoseError", "JoinedExperiment", "MIN_SAMPLES", "join_recordings", "chain_recordings", "own_clocks"]
@@ -118,7 +118,9 @@ def join_recordings(recordings: Sequence[Recording], separate: bool | None = Non
             f"diagnose (at least {MIN_SAMPLES} needed)"
         )
     u = np.concatenate([r.u for r in recs])
-    if count_reversals(u, threshold=0.1 * np.ptp(u)) < 2:
+    if count_reversals(u, threshold=0.1 * np.ptp(u)) < 2 and not any(
+        single_loop(r.u, find_reversals(r.u)) for r in recs
+    ):  # one closed loop from one tip to the other and back is a loop too
         raise DiagnoseError(
             f"the input ({recs[0].input.name}) reverses fewer than twice over the experiment "
             f"({', '.join(r.source for r in recs)}): no hysteresis loop to diagnose"

@@ -109,13 +109,15 @@ white noise keeps at 0 +- 1/sqrt(N)); it is *explained* when it is not
 structured and its RMS is within `NOISE_MARGIN` of the noise.  It also says
 where it is largest (recording, branch, input range).
 
-The per-recording check (`fitter.diagnosis.file_gap`): the base is refitted
-on each recording alone; a joint residual more than `GAP` times theirs is a
-finding (the recordings differ by physics the model does not carry), never
-noise: the verdict is then not "nothing_missing", unless a gain and an
-offset per file (an instrument's calibration, an operating condition) take
-the joint residual to the noise; and a remainder more than `GAP` times the
-per-recording fits' is not explained.
+The per-recording check (`fitter.diagnosis.file_gap`), before the search:
+the base is refitted on each recording alone; their residual caps the noise
+(a noise estimate above what a model per recording leaves was inflated); a
+joint residual more than `GAP` times theirs is a finding (the recordings
+differ by physics the model does not carry), never noise: the verdict is
+then not "nothing_missing", unless a gain and an offset per file (an
+instrument's calibration, an operating condition) take the joint residual to
+the noise; and a remainder more than `GAP` times the per-recording fits' is
+not explained.
 
 The verdict: "effects_found" (findings, and the remainder explained),
 "nothing_missing" (no finding and the base residual within `NOISE_MARGIN`
@@ -141,7 +143,7 @@ from fitter.data.metrics import nrmse, rms
 from fitter.data.recordings import Recording
 from fitter.diagnosis.base import adequate_base, below_order
 from fitter.diagnosis.experiment import DiagnoseError, JoinedExperiment, join_recordings
-from fitter.diagnosis.file_gap import GAP, file_gap
+from fitter.diagnosis.file_gap import GAP, capped_noise, file_gap
 from fitter.diagnosis.fitting import (
     Fit,
     duhem_fit,
@@ -255,6 +257,10 @@ def diagnose(
         else:
             base = first if model is None else fit_base(ex, model, mask)
         first_round = None
+    tick("refitting the base on each recording alone")
+    gap = file_gap(ex, base, mask)
+    floor = capped_noise(floor, gap)
+    noise = floor["rms"]
     account = _refined(
         ex,
         _search(
@@ -272,13 +278,16 @@ def diagnose(
         tick,
     )
     if alternative is not None:
+        first_base = base
         base, account = _higher_order_account(
             ex, base, account, alternative, candidates, mask, noise, alpha, max_findings, tick
         )
+        if base is not first_base:  # the per-recording check of the base kept
+            gap = file_gap(ex, base, mask)
+            floor = capped_noise(floor, gap)
+            noise = floor["rms"]
     current, findings, tested, fits = account
     mismatch = locate_mismatch(ex, base.residual, noise)
-    tick("refitting the base on each recording alone")
-    gap = file_gap(ex, base, mask, noise)
     tick("checking on held-out data")
     remainder = _remainder(ex, current, mask, noise, alpha, gap)
     for f in findings:

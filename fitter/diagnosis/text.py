@@ -12,6 +12,11 @@ __all__ = ["comparison_text", "summary_paragraph"]
 def _noise_parts(noise: dict | None) -> str:
     """ ", the output's x and the input's noise carried through the model y" when the input's part counts
     (over 10 % of the output's), else ""."""
+    if noise and noise.get("capped_from") is not None:
+        return (
+            f" (the residual of a model fitted to each recording alone: the estimate from the output's and the "
+            f"input's noise, {noise['capped_from']:.3g}, exceeds what such a model leaves)"
+        )
     if not noise or noise["through_input"] <= 0.1 * noise["output"]:
         return ""
     return (
