@@ -203,8 +203,11 @@ class RacedEffects:
             rest = replace(OPTIONS, max_nfev=MAX_NFEV - RACE_NFEV)
             more = refine(self.fam, best.theta, self.problem, rest, free=self.free, penalty=self.pen, progress=progress)
             best = more if self.objective(more) <= self.objective(best) else best
-        if best is self.best:  # raced without its covariance (`ScreenedEffects.race`)
+        if best is self.best and self.fam.linear_entries():  # raced without its covariance (`ScreenedEffects.race`)
             best = with_covariance(best, self.fam, self.problem, OPTIONS, self.free)
+        elif best is self.best:  # no linear entries to eliminate: the covariance from one evaluation's Jacobian
+            one = replace(OPTIONS, max_nfev=1)
+            best = refine(self.fam, best.theta, self.problem, one, free=self.free, penalty=self.pen, progress=progress)
         fitted, first = self.fam.build(best.theta), self.recordings[0]
         start = (
             best.states[0]

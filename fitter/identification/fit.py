@@ -183,6 +183,7 @@ def fit_recordings(
     held: dict[str, float] | None = None,
     progress: Progress = silent,
     max_samples: int | None = None,
+    retry_unsettled: bool = True,
 ) -> FitResult:
     """Fit a semilinear Duhem model to one or more recordings (see the module docstring).
 
@@ -209,6 +210,9 @@ def fit_recordings(
     max_samples : the samples each recording's output error is optimised on in the order and kind search
         (decimated beyond, every input reversal kept: `fitter.identification.output_error`); default
         `FIT_OPTIONS`'s.  `duhem diagnose` passes its own budget (`fitter.diagnosis.fitting.SAMPLES`).
+    retry_unsettled : refit single cycles that do not close with their initial state free when the settled fit
+        leaves over `MISFIT` times the noise (module docstring, item 4).  `duhem diagnose` turns it off for its base:
+        what keeps a cycle from closing (a drift, creep) is for its effects to name, not for the base's start.
 
     Returns
     -------
@@ -234,7 +238,7 @@ def fit_recordings(
             FIT_OPTIONS, compiled=not long, max_samples=FIT_OPTIONS.max_samples if max_samples is None else max_samples
         )
         cands = order_search(data, kind, orders, q, levels, progress, faithful_minor_loops, options)
-        if _unsettled(cands, data, recordings):
+        if retry_unsettled and _unsettled(cands, data, recordings):
             progress("the recordings do not close: fitting their initial states instead", None)
             free = prepare_for_fit(recordings, settled=False)
             others = order_search(free, kind, orders, q, levels, progress, faithful_minor_loops, options)

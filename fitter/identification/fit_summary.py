@@ -57,14 +57,10 @@ def per_recording(model, res: RefineResult | None, data: FitData, recordings) ->
 
 
 def misfit(scores: list[dict], limit: float, refined_further: bool, budget_hit: bool) -> dict:
-    """The summary's ``misfit``: per recording, the saved model's residual RMS in times the output's white noise
-    (``residual_rms / noise_rms`` of `per_recording`), the worst, and whether it is within `limit`
-    (``followed``); when it is not, the likely causes, most likely first."""
-    ratios = {
-        m["recording"]: (m["residual_rms"] / m["noise_rms"] if m.get("noise_rms") else None)
-        for m in scores
-        if m.get("residual_rms") is not None
-    }
+    """The summary's ``misfit``: per recording, the saved model's residual RMS from the recording's own fitted start
+    in times the output's white noise (`_own_start_ratio` of `per_recording`'s rows), the worst, and whether it is
+    within `limit` (``followed``); when it is not, the likely causes, most likely first."""
+    ratios = {m["recording"]: _own_start_ratio(m) for m in scores if m.get("residual_rms") is not None}
     known = [r for r in ratios.values() if r is not None]
     worst = max(known) if known else None
     out = {
@@ -84,6 +80,16 @@ def misfit(scores: list[dict], limit: float, refined_further: bool, budget_hit: 
             "a start-up transient or a first sample far from the model's settled loop",
         ]
     return out
+
+
+def _own_start_ratio(m: dict) -> float | None:
+    """A recording's residual RMS from its own fitted start (``nrmse_x0_fitted`` times its output range: a model
+    stores one start, and another recording's history or instrument zero is not a misfit) over its noise RMS."""
+    if not m.get("noise_rms") or not m.get("nrmse"):
+        return None
+    own = m.get("nrmse_x0_fitted")
+    residual = m["residual_rms"] * (min(own, m["nrmse"]) / m["nrmse"] if own is not None else 1.0)
+    return residual / m["noise_rms"]
 
 
 def misfit_text(m: dict) -> str:
