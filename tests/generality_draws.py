@@ -36,6 +36,13 @@ draw's truth is a model of the class, but for the offsets of ``offsets="per_file
 
 Inputs (per file, in s; every file reverses at least twice; the samples are uniform in time)
 ------------------------------------------------------------------------------------------
+Every file starts at one start level s0 (uniform in [-0.8, 0.8], one per draw) from the device's x0: a device
+reset before each run.  Its first n // 50 samples (at least 3) ramp from s0 to where the family's input begins,
+at that input's mean rate; the family's input follows.  The common start level matters: in the rate-independent
+class the coordinates x' = x + K u (B+- -> B+- - A+- K, E+- -> E+- + K, D -> D - C K) give the same input-output
+map for any K, so "the same state" at two different inputs is not identified from data, and a stored x0 could not
+be the start of a file that begins at another input (measured: fits of the truth's order then missed such files
+by 2-20 x the noise while fitting them within it from their own start).
 * ``turning_points``: 3-12 legs between random levels (alternating, legs >= 0.15), one leg reaching -1 and
   one +1; each leg at its own speed, log-uniform over a factor 30 (minor loops, and many rates).
 * ``sine``: s = A sin(2 pi f t + phi) + m, 1.5-8 periods, A in [0.4, 1], |m| <= 1 - A.
@@ -101,7 +108,9 @@ NOISELESS_FLOOR = 1e-3
 """Residual bound of a noise-free draw, as a fraction of the output range (module docstring)."""
 NRMSE_AGREEMENT = 1e-6
 
-_PURPOSE = {"model": 1, "input": 2, "noise": 3, "offsets": 4, "scales": 5, "lengths": 6}
+_PURPOSE = {"model": 1, "input": 2, "noise": 3, "offsets": 4, "scales": 5, "lengths": 6, "start": 7}
+LEAD_IN = 50
+"""A file's first n // LEAD_IN samples (at least 3) are its lead-in from the common start level (module docstring)."""
 
 
 # ------------------------------------------------------------------------------------------------ the spec
@@ -380,6 +389,15 @@ class Draw:
         return RESIDUAL_FACTOR * self.sigma if self.sigma > 0 else NOISELESS_FLOOR * self.output_range
 
 
+def _lead_in(t: np.ndarray, s: np.ndarray, s0: float, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """k samples ramping from the start level s0 towards s[0] at the input's mean rate (k sample periods at
+    least), then (t, s): every file starts at s0."""
+    dt = float(np.median(np.diff(t)))
+    rate = float(np.mean(np.abs(np.diff(s)) / np.diff(t)))
+    lead = max(k * dt, abs(s[0] - s0) / max(rate, 1e-12))
+    return np.r_[np.linspace(0.0, lead, k + 1)[:-1], lead + t], np.r_[np.linspace(s0, s[0], k + 1)[:-1], s]
+
+
 def build_draw(spec: DrawSpec) -> Draw:
     """The draw of `spec` (module docstring), deterministic in `spec`."""
     model_rng = _rng(spec, "model")
@@ -392,10 +410,12 @@ def build_draw(spec: DrawSpec) -> Draw:
     sizes = [max(MIN_SAMPLES, int(round(spec.samples * lengths.uniform(0.6, 1.0)))) for _ in range(spec.files)]
     sizes[0] = spec.samples
     input_rng = _rng(spec, "input")
+    s0 = float(_rng(spec, "start").uniform(-0.8, 0.8))
     runs = []
     for n in sizes:
+        k = max(3, n // LEAD_IN)
         for _ in range(20):
-            t, s = random_input(input_rng, spec.inputs, n)
+            t, s = _lead_in(*random_input(input_rng, spec.inputs, n - k), s0, k)
             if _reversals(s) >= 2:
                 break
         else:

@@ -3,13 +3,13 @@
 The draws and the properties are `generality_draws`' (its docstring): a random stable semilinear Duhem device
 (rate-independent or rate-dependent, order 1-4), a random input, one or several files, noise 0 or 0.1-1 % of
 the output range, an output offset for all files or one per file.  Here a fixed set, small enough for the suite
-(at most 5e3 samples in all per draw; the whole file about 30 s on two cores); `bench/generality_property.py`
+(at most 5e3 samples in all per draw; the whole file about 50 s on two idle cores); `bench/generality_property.py`
 runs a larger one (1e2-1e6 samples per file) and prints the pass rates.
 
 * `test_generated_devices_are_stable_and_deterministic` (hypothesis, derandomized): the generator's own
   promises, on 40 specs: the truth meets the convergence condition the fit enforces (condition (5) on every
   minor loop of the stored input range below 0.9, or A Hurwitz with damping >= 0.3 and g >= 0), each file
-  reverses, the draw is the same when built twice, the noise has the drawn level.
+  reverses and starts at the draw's start level, the draw is the same when built twice, the noise has the drawn level.
 * `test_fit_on_a_fixed_draw` (one per draw of `FIT_DRAWS`): `fit_recordings` returns; the saved model's
   residual RMS over every sample (its own simulation from the stored x0) is within 1.2 x the true noise
   sigma (noise-free: 1e-3 of the output range); the summary's per-recording NRMSE is that simulation's.
@@ -44,30 +44,67 @@ def _xfail(reason: str):
     return pytest.mark.xfail(strict=True, reason=reason)
 
 
-X0_TRANSFER = (
-    "the saved model from its stored x0 (fitted on file1) misses the other files, which start from the same "
-    "device state: ratio {} (file1 {}, file2 {}), from each file's own fitted x0 {}"
-)
-
 FIT_DRAWS = [
     pytest.param(DrawSpec(301, "ri", 1, "sine", 1, 400, 0.005), id="ri1-sine"),
     pytest.param(DrawSpec(301, "ri", 2, "turning_points", 1, 400, 0.003), id="ri2-turning-points"),
-    pytest.param(DrawSpec(301, "ri", 3, "triangles", 1, 400, 0.004), id="ri3-triangles"),
+    pytest.param(DrawSpec(300, "ri", 3, "triangles", 1, 400, 0.004), id="ri3-triangles"),
     pytest.param(DrawSpec(300, "ri", 4, "steps", 1, 400, 0.008), id="ri4-steps"),
     pytest.param(DrawSpec(301, "ri", 2, "multisine", 1, 400, 0.0), id="ri2-multisine-noise-free"),
-    pytest.param(
-        DrawSpec(301, "ri", 2, "sine", 2, 300, 0.002),
-        id="ri2-sine-2files",
-        marks=_xfail(X0_TRANSFER.format(7.06, 0.85, 10.1, 0.83) + "; ri2 chosen (the truth's order)"),
-    ),
+    pytest.param(DrawSpec(301, "ri", 2, "sine", 2, 300, 0.002), id="ri2-sine-2files"),
     pytest.param(DrawSpec(301, "rd", 1, "triangles", 2, 300, 0.003), id="rd1-triangles-2files"),
+    pytest.param(DrawSpec(302, "rd", 1, "sine", 2, 300, 0.002), id="rd1-sine-2files"),
+    pytest.param(
+        DrawSpec(302, "ri", 2, "turning_points", 1, 400, 0.003),
+        id="ri2-turning-points-b",
+        marks=_xfail(
+            "one file of the model class: the ri2 candidate (the truth's order) stops at normalised RSS 0.259 (a "
+            "local minimum), ri4 is chosen at 0.169: residual 2.86 x the bound (3.4 x the noise)"
+        ),
+    ),
+    pytest.param(
+        DrawSpec(302, "ri", 3, "triangles", 1, 400, 0.004),
+        id="ri3-triangles-b",
+        marks=_xfail("one file of the model class: ri4 chosen, residual 1.70 x the bound (2.0 x the noise)"),
+    ),
+    pytest.param(
+        DrawSpec(300, "ri", 2, "sine", 2, 300, 0.002),
+        id="ri2-sine-2files-b",
+        marks=_xfail(
+            "the ri2 candidate (the truth's order) stops at normalised RSS 0.058 (a local minimum; ri3 reaches "
+            "0.011), ri3 is chosen, and its stored x0 (fitted on file1 alone; both files start at one input from "
+            "one state) misses file2: ratio 3.73 (file1 0.86, file2 5.69), from each file's own fitted x0 0.95"
+        ),
+    ),
+    pytest.param(
+        DrawSpec(300, "rd", 1, "sine", 2, 300, 0.002),
+        id="rd1-sine-2files-b",
+        marks=_xfail(
+            "two sine files at different rates, judged 'a single input rate': rate-dependent candidates not "
+            "tried, ri4 chosen; ratio 3.61 (file1 1.96, file2 5.09), from each file's own x0 2.03"
+        ),
+    ),
 ]
 """The fit's fixed draws: both kinds, orders 1-4, every input family, one and two files, noise-free (at most 1200
-samples in all per draw; the slower draws, per-file offsets and rate-dependent orders 2-4 among them, are
+samples in all per draw; per-file offsets, outside the fit's class, and the slower rate-dependent orders 2-4 are
 `bench/generality_property.py`'s)."""
 
 DIAGNOSIS_DRAWS = [
     pytest.param(DrawSpec(400, "ri", 1, "triangles", 2, 300, 0.005, "per_file"), id="ri1-triangles-per-file-offsets"),
+    pytest.param(DrawSpec(400, "ri", 2, "sine", 1, 400, 0.003), id="ri2-sine"),
+    pytest.param(DrawSpec(400, "ri", 2, "turning_points", 1, 400, 0.0), id="ri2-turning-points-noise-free"),
+    pytest.param(
+        DrawSpec(400, "ri", 4, "multisine", 1, 400, 0.004),
+        id="ri4-multisine",
+        marks=_xfail("verdict unexplained with no finding: the base is ri1 and leaves 5.58 x the noise"),
+    ),
+    pytest.param(
+        DrawSpec(401, "ri", 2, "turning_points", 1, 400, 0.0),
+        id="ri2-turning-points-small-second-reversal",
+        marks=_xfail(
+            "DiagnoseError 'the input (u) reverses fewer than twice': it reverses at -1 and at 0.97, the second "
+            "reversal 8.5 % of the input range (the diagnosis counts reversals of 10 % and more); the fit takes it"
+        ),
+    ),
 ]
 """The diagnosis' fixed clean draws (rate-independent: the diagnosis' base class)."""
 
@@ -92,6 +129,7 @@ def test_generated_devices_are_stable_and_deterministic(spec):
         assert np.min(truth.g.g) >= 0
     assert convergence(truth, (-1.1, 1.1)).satisfied
     assert len(draw.recordings) == spec.files and len(draw.recordings[0].t) == spec.samples
+    assert len({float(rec.u[0]) for rec in draw.recordings}) == 1, "every file starts at one input level"
     for rec in draw.recordings:
         d = np.sign(np.diff(rec.u))
         d = d[d != 0]
