@@ -265,11 +265,11 @@ def _many_short_loops(n: int, segments: int, seed: int = 0) -> tuple[Recording, 
 def test_decimation_keeps_every_turn_and_scores_evenly():
     """The kept samples hold every turning point, so the truth simulated on them alone gives its output at
     those samples exactly (Proposition 1); the scored ones are every k-th sample."""
-    from fitter.identification.output_error import _keep_indices, _turning_points
+    from fitter.identification.decimation import keep_indices, turning_points
 
     rec, truth = _many_short_loops(30_000, 1000)
-    keep, scored = _keep_indices(rec.u, 3000, None)
-    turns = _turning_points(rec.u)
+    keep, scored = keep_indices(rec.u, 3000, None)
+    turns = turning_points(rec.u)
     strict_extrema = np.flatnonzero(np.diff(rec.u)[1:] * np.diff(rec.u)[:-1] < 0) + 1  # the input has no flats
     assert len(turns) > 600 and np.array_equal(turns, strict_extrema) and np.isin(turns, keep).all()
     assert np.array_equal(keep[scored][:-1], np.arange(0, 30_000, 10))

@@ -31,11 +31,11 @@ def test_decimation_keeps_every_turning_point_beyond_the_budget():
     """More turning points than scored samples (4000 against 1000): every one is kept, so the true model on the
     kept samples alone gives its output there exactly (Proposition 1); only the every-j-th samples are scored.
     Keeping each block's extremes instead dropped the reversals inside a block."""
-    from fitter.identification.output_error import _keep_indices, _turning_points
+    from fitter.identification.decimation import keep_indices, turning_points
 
     t, u = _random_turns(40_000, 6000, seed=1)
-    turns = _turning_points(u)
-    keep, scored = _keep_indices(u, 1000, None)
+    turns = turning_points(u)
+    keep, scored = keep_indices(u, 1000, None)
     assert len(turns) > 3000 and np.isin(turns, keep).all()
     assert np.array_equal(keep[scored][:-1], np.arange(0, 40_000, 40))
     truth = cell_base(2)
@@ -46,13 +46,13 @@ def test_decimation_keeps_every_turning_point_beyond_the_budget():
 def test_noise_reversals_are_not_kept_but_the_drives_are():
     """Input noise of RMS 0.004 on a drive of 200 reversals: the threshold at `REVERSAL_NOISE` times the noise
     keeps about one point per turning point of the drive, near it, and drops the thousands of noise reversals."""
-    from fitter.identification.output_error import REVERSAL_NOISE, _turning_points, significant_turns
+    from fitter.identification.decimation import REVERSAL_NOISE, significant_turns, turning_points
 
     t, u0 = _random_turns(20_000, 200, seed=2)
     u = u0 + 0.004 * np.random.default_rng(3).standard_normal(len(u0))
-    drive = _turning_points(u0)
+    drive = turning_points(u0)
     kept = significant_turns(u, REVERSAL_NOISE * noise_rms(u))
-    assert len(_turning_points(u)) > 20 * len(drive)
+    assert len(turning_points(u)) > 20 * len(drive)
     assert 0.8 * len(drive) <= len(kept) <= 1.2 * len(drive)
     nearest = np.min(np.abs(kept[:, None] - drive[None, :]), axis=0)
     assert np.median(nearest) <= 20

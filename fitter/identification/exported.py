@@ -10,7 +10,17 @@ stored initial state.  This module makes the two the same:
 
   - ``"fitted"`` (default): x0 = argmin over all samples of the raw recording
     of ||y - yhat(x0)|| with the parameters fixed (linear least squares: the
-    output is affine in x0, `fitted_initial_state`);
+    output is affine in x0, `fitted_initial_state`).  A model without effects,
+    fitted to several recordings that start at the first one's input level
+    (`start_groups`), takes the x0 that minimises the sum of
+    squares over all of those recordings' samples (`shared_initial_state`)
+    where that sum is at most `SHARED_START_RSS` times the sum of their RSS
+    from each one's own start: the runs then start from one state (a device
+    reset before each run); else they were made after other histories, and
+    the first one's own start is stored.  (From another
+    input level, "the same state" is not defined by the data: the coordinates
+    x' = x + K u give the rate-independent class the same input-output map for
+    every K, so a stored x0 suits only runs that start at one input.)
   - ``"periodic"``: the state at the first sample that leads onto the limiting
     periodic response (Theorem 1) of the recording's first full input cycle
     [s0, s1]: x(s0) = x* = (I - Phi)^-1 c, and x0 solves x(s0) = Phi_s0 x0 + c_s0
@@ -70,13 +80,16 @@ from fitter.data.cycles import closed_last_cycle, closed_loop
 from fitter.data.metrics import compare
 from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording
-from fitter.identification.output_error import fitted_initial_state
+from fitter.identification.fit_data import start_groups
+from fitter.identification.output_error import fitted_initial_state, shared_initial_state
 
 __all__ = [
     "X0_POLICIES",
     "NRMSE_CONVENTION",
     "initial_state",
     "own_start",
+    "same_start",
+    "SHARED_START_RSS",
     "started",
     "score",
     "raw_input_rho",
@@ -90,6 +103,9 @@ __all__ = [
 ]
 
 X0_POLICIES = ("fitted", "periodic")
+SHARED_START_RSS = 1.5
+"""One x0 for several runs that start at one input level is stored where its RSS over them is at most this many
+times that of each run from its own start (module docstring, ``"fitted"``)."""
 NRMSE_CONVENTION = (
     "nrmse: RMS error / output range over all samples of the raw recording, the saved model "
     "simulated from its stored x0 (what `duhem validate` reports for its FMU); nrmse_last_cycle: "
@@ -115,15 +131,46 @@ def _periodic_x0(model, rec: Recording) -> np.ndarray:
     return x0
 
 
-def initial_state(model, rec: Recording, policy: str = "fitted") -> np.ndarray:
-    """The model's x0 for the first sample of `rec` under `policy` (module docstring)."""
+def initial_state(model, recordings: Sequence[Recording], policy: str = "fitted") -> np.ndarray:
+    """The model's stored x0, the state at the first sample of the first recording, under `policy` (module
+    docstring): the periodic start of the first recording, or the state fitted to the recordings that start
+    where it starts (the first alone when it is the only one or the model has effects)."""
     if policy not in X0_POLICIES:
         raise DuhemError(f"x0 policy must be one of {X0_POLICIES}, not {policy!r}")
+    rec = recordings[0]
     if policy == "periodic":
         with np.errstate(all="ignore"):
             return _periodic_x0(model, rec)
     start = own_start(model, rec)
+    alike = same_start(recordings)
+    if len(alike) > 1 and start is not None and not getattr(model, "effects", None):
+        x0 = _shared_start(model, alike)
+        if x0 is not None:
+            return x0
     return np.array(model.x0, dtype=float) if start is None else start[0]
+
+
+def _shared_start(model, alike: Sequence[Recording]) -> np.ndarray | None:
+    """The x0 fitted to all of `alike` (`shared_initial_state`) when it is consistent with them: its RSS over
+    their samples at most `SHARED_START_RSS` times the sum of each one's RSS from its own start (runs that did
+    start from one state; else None: runs made after other histories, the first's own start is stored)."""
+    with np.errstate(all="ignore"):
+        try:
+            x0 = shared_initial_state(model, [(r.t, r.u, r.y) for r in alike])
+            joint = sum(float(np.sum((r.y - simulate(model.replace(x0=x0), r.t, r.u).y) ** 2)) for r in alike)
+        except (KernelError, np.linalg.LinAlgError):
+            return None
+    starts = [own_start(model, r) for r in alike]
+    if any(s is None for s in starts) or not np.isfinite(joint):
+        return None
+    own = sum(float(np.sum((r.y - s[1]) ** 2)) for r, s in zip(alike, starts))
+    return x0 if joint <= SHARED_START_RSS * own else None
+
+
+def same_start(recordings: Sequence[Recording]) -> list[Recording]:
+    """The recordings of the first one's start group (`fitter.identification.fit_data.start_groups`)."""
+    groups = start_groups(recordings)
+    return [r for r, g in zip(recordings, groups) if g == groups[0]]
 
 
 def score(model, recordings: Sequence[Recording]) -> list[dict]:

@@ -23,6 +23,14 @@ Pipeline of `fit_recordings`
    times the noise: the search is then run with the initial state fitted
    too, and the mode whose best candidate has the lower BIC on every raw
    sample (each recording from its own fitted start, `_raw_bic`) is kept.
+   Several recordings fitted each from its own initial state, of which some
+   start at one input level (`start_groups`), are stored with one x0 for
+   those when it suits them (`fitter.identification.exported`).  Where the
+   stored x0 leaves more than `SHARED_START_RSS` times the RSS of their own
+   starts (`_apart`), the search is run again with one initial state per
+   start group, and kept if its RSS is within that factor of the first
+   search's from the own starts (the runs do start from one state; else they
+   were made after other histories, and the first search is kept).
    The convergence condition is enforced: for the rate-dependent model with g >= 0 the period map is e^{A sum g dt}, so
    rho < 1 iff A is Hurwitz, which the parametrisation guarantees; for the
    rate-independent model condition (5), rho(e^{beta A+} e^{-beta A-}) < 1, is
@@ -33,8 +41,8 @@ Pipeline of `fit_recordings`
    objective (it starts just inside the limit, so that the fit ends inside
    it).  The linear parameters (B, E, D, x0) are eliminated by least squares
    at every evaluation (variable projection).  Rate-independent starts race:
-   each gets `RACE_NFEV` evaluations, the best one continues to `MAX_NFEV` in
-   all; rate-dependent starts are each refined in full.
+   each gets `RACE_NFEV` evaluations, the `RACE_KEEP` best continue to
+   `MAX_NFEV` in all; rate-dependent starts are each refined in full.
    Rate-dependent fits of order >= 3 add a global stage: seeded perturbed
    restarts of the best fit (`_global_stage`), since they have local minima.
    Evaluations run on the compiled modal scan (`FIT_OPTIONS`, `COMPILED_MAX_SAMPLES`).  Items 3-5 are
@@ -83,6 +91,7 @@ from fitter.identification.fit_data import (
     monotone_input,
     prepare_for_fit,
     rate_levels,
+    start_groups,
 )
 from fitter.identification.effects_fit import check_effects, check_held, effects_bic, race_effects, screen_effects
 from fitter.identification.exported import (
@@ -91,8 +100,10 @@ from fitter.identification.exported import (
     X0_POLICIES,
     described,
     fitted_range,
+    SHARED_START_RSS,
     initial_state,
     raw_input_rho,
+    same_start,
 )
 from fitter.identification import fit_summary
 from fitter.identification.refine import Options, RefineResult, jacobian
@@ -246,6 +257,13 @@ def fit_recordings(
                 _best(cands, data, recordings), data, recordings
             ):
                 data, cands = free, others
+        if retry_unsettled and _apart(_best(cands, data, recordings), data, recordings):
+            progress("one stored initial state does not suit the recordings that start alike: fitting them so", None)
+            shared = replace(data, starts=start_groups(data.recs))
+            others = order_search(shared, kind, orders, q, levels, progress, faithful_minor_loops, options)
+            joint, _ = _start_rss(_best(others, shared, recordings), shared, recordings)
+            if joint <= SHARED_START_RSS * _start_rss(_best(cands, data, recordings), data, recordings)[1]:
+                data, cands = shared, others
         eligible = [c for c in cands if _meets_barrier(c, data, recordings)] or cands
         best = _harder_if_misfit(min(eligible, key=lambda c: c.bic), data, recordings, progress, options)
         cands = [best if c.param is best.param else c for c in cands]
@@ -279,6 +297,35 @@ def _raw_bic(cand: Candidate, data: FitData, recordings) -> float:
     n = sum(len(r.y) for r in recordings)
     rss = sum((m["nrmse_x0_fitted"] * np.ptp(r.y)) ** 2 * len(r.y) for m, r in zip(rows, recordings))
     return float(n * np.log(max(rss, 1e-300) / n) + cand.param.size * np.log(n))
+
+
+def _start_rss(cand: Candidate, data: FitData, recordings) -> tuple[float, float]:
+    """(RSS from the stored x0, RSS from each recording's own start) of the candidate's physical model over the
+    raw samples of the recordings that start where the first starts (`exported.same_start`: those the stored x0
+    is for); (inf, inf) when one diverges."""
+    alike = same_start(recordings)
+    rows = score(_stored(cand, data, recordings), alike)
+    if any(m.get("nrmse") is None or m.get("nrmse_x0_fitted") is None for m in rows):
+        return float("inf"), float("inf")
+    stored = sum((m["nrmse"] * np.ptp(r.y)) ** 2 * len(r.y) for m, r in zip(rows, alike))
+    own = sum((m["nrmse_x0_fitted"] * np.ptp(r.y)) ** 2 * len(r.y) for m, r in zip(rows, alike))
+    return stored, own
+
+
+def _apart(cand: Candidate, data: FitData, recordings) -> bool:
+    """Whether recordings fitted each from its own initial state, several of which start where the first starts,
+    are missed from the one x0 stored for them: its RSS over them above `SHARED_START_RSS` times that from each
+    one's own start (`_start_rss`)."""
+    if data.x0_mode != "fit" or data.starts is not None or len(same_start(recordings)) < 2:
+        return False
+    stored, own = _start_rss(cand, data, recordings)
+    return np.isfinite(stored) and stored > SHARED_START_RSS * own
+
+
+def _stored(cand: Candidate, data: FitData, recordings):
+    """The candidate's physical model with its stored x0 (`exported.initial_state`, "fitted")."""
+    model = _base_model(cand, data, recordings)
+    return model.replace(x0=initial_state(model, recordings))
 
 
 def _harder_if_misfit(best: Candidate, data: FitData, recordings, progress: Progress, options: Options) -> Candidate:
@@ -409,7 +456,7 @@ def _result(
     r0 = recordings[0]
     if extended is None:
         model = _base_model(best, data, recordings)
-        model = model.replace(x0=initial_state(model, r0, x0_policy))
+        model = model.replace(x0=initial_state(model, recordings, x0_policy))
     else:
         model = extended.model
     scores = fit_summary.per_recording(model, None if extended else res, data, recordings)

@@ -66,7 +66,8 @@ Decimation
 Recordings longer than ``Options.max_samples`` (M) are decimated for the
 optimisation: every turning point of the input (the last sample before its
 direction changes; of an input that turns every few samples, a noisy one,
-those of reversals above its noise, `significant_turns`) is kept, and every j-th sample, j = ceil(N / M); only the
+those of reversals above its noise: `fitter.identification.decimation`) is
+kept, and every j-th sample, j = ceil(N / M); only the
 every-j-th samples are scored (the turning points get weight 0).  Between
 kept samples the input is monotone, so a rate-independent model's state at
 the kept samples is exact (Proposition 1: its output depends on the path of
@@ -90,13 +91,12 @@ import numpy as np
 
 from fitter.core.effects import fresh_state, offset_position, run_with_effects, settled_state, shifted, stored_start
 from fitter.core.errors import DuhemError, KernelError
-from fitter.core.flow import branches
 from fitter.core.kernel import flows, simulate
 from fitter.core.periodic import affine_blocks, fixed_point
 from fitter.core.scans import modal_pass
-from fitter.data.noise import noise_or_zero
 from fitter.data.preparation import prepare
 from fitter.data.recordings import Recording
+from fitter.identification.decimation import keep_indices
 from fitter.identification.parametrisation import Parametrisation
 from fitter.identification.projection import (
     LinearPart,
@@ -107,7 +107,7 @@ from fitter.identification.projection import (
     split_solution,
 )
 
-__all__ = ["Recordings", "simulate_from", "fitted_initial_state", "X0_MODES", "FAIL"]
+__all__ = ["Recordings", "simulate_from", "fitted_initial_state", "shared_initial_state", "X0_MODES", "FAIL"]
 
 X0_MODES = ("model", "fit", "periodic")
 FAIL = 1e3
@@ -167,6 +167,19 @@ def fitted_initial_state(
     start = effect_state if effect_state is not None else stored_start(model)
     start = fresh_state(model, t, u, x0, flows(model) if cache is None else cache) if start is None else start
     return x0, base + G @ z, shifted(start, position, float(z[n]))
+
+
+def shared_initial_state(model, runs: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> np.ndarray:
+    """One initial state for several runs (t, u, y) of a model without effects: x_0 = argmin sum over the runs
+    and their samples of ||y - yhat(x_0)||^2, yhat = base + G x_0 on each (`_affine_output`, the runs stacked).
+    Raises `KernelError` when a simulation overflows."""
+    cache = flows(model)
+    parts = [_affine_output(model, t, u, cache) for t, u, _ in runs]
+    G = np.vstack([g for _, g in parts])
+    r = np.concatenate([y - base for (base, _), (_, _, y) in zip(parts, runs)])
+    if not (np.all(np.isfinite(G)) and np.all(np.isfinite(r))):
+        raise KernelError("simulation overflowed")
+    return lstsq_scaled(G, r)
 
 
 def _affine_output(model, t, u, cache: dict | None) -> tuple[np.ndarray, np.ndarray]:
@@ -311,62 +324,6 @@ def simulate_from(
 
 
 # ----------------------------------------------------------------------------- the recordings problem
-def _turning_points(u: np.ndarray) -> np.ndarray:
-    """Indices where the input turns: the samples where the kernel's branch changes (`fitter.core.flow.branches`),
-    so the input is monotone between consecutive turning points."""
-    branch = branches(np.diff(u))
-    return np.flatnonzero(branch[1:] != branch[:-1]) + 1
-
-
-REVERSAL_NOISE = 4.0
-"""On an input that turns every few samples (`DENSE_TURNS`), a reversal smaller than this many times the input's
-white-noise RMS (`fitter.data.noise`) is the noise's, not the drive's: the decimation does not keep it
-(`significant_turns`)."""
-DENSE_TURNS = 8
-"""An input with a turning point every this many samples or more often is taken as noisy: the decimation keeps
-its `significant_turns` only.  A sparser input keeps every turning point (a drive of short runs has a noise
-estimate inflated by its corners, and its small reversals are the drive's)."""
-
-
-def significant_turns(u: np.ndarray, h: float) -> np.ndarray:
-    """The turning points of u (`_turning_points`) at which the input then moves back by more than `h`
-    (the running extremes of a threshold-h peak detector), and the last candidate extreme.
-
-    With h = 0 every turning point.  Between consecutive kept points the input is monotone to within h, so a
-    rate-independent model's state on the kept samples differs from the one on every sample by the state's
-    response to reversals of at most h (the input noise's own, for h a few times its RMS)."""
-    turns = _turning_points(u)
-    if h <= 0 or len(turns) < 2:
-        return turns
-    values = u[turns].tolist()
-    up, c, kept = values[0] >= u[0], 0, []
-    for k in range(1, len(values)):
-        v = values[k]
-        if (v > values[c]) if up else (v < values[c]):
-            c = k
-        elif (values[c] - v if up else v - values[c]) > h:
-            kept.append(c)
-            up, c = not up, k
-    kept.append(c)
-    return turns[np.asarray(kept, dtype=int)]
-
-
-def _keep_indices(u: np.ndarray, max_samples: int | None, cycle) -> tuple[np.ndarray, np.ndarray]:
-    """Decimation (module docstring): the kept samples (every turning point, or of a densely turning input its
-    `significant_turns` above `REVERSAL_NOISE` times its noise, the cycle's ends, every j-th sample and the
-    last) and, of them, those scored (a boolean mask: the every-j-th samples and the last)."""
-    n = len(u)
-    if max_samples is None or n <= max_samples:
-        return np.arange(n), np.ones(n, dtype=bool)
-    ends = [] if cycle is None else [cycle[0], cycle[1]]
-    scored = np.r_[np.arange(0, n, int(np.ceil(n / max_samples))), n - 1]
-    turns = _turning_points(u)
-    if len(turns) > n / DENSE_TURNS:
-        turns = significant_turns(u, REVERSAL_NOISE * noise_or_zero(u))
-    keep = np.unique(np.r_[scored, turns, ends]).astype(int)
-    return keep, np.isin(keep, scored)
-
-
 def _first_cycle(rec: Recording) -> tuple[int, int]:
     """(s0, s1) of the first settled cycle of `rec`, in its own sample index."""
     prep = prepare(rec, min_cycles=0)
@@ -387,6 +344,9 @@ class Recordings:
     references: with ``"fit"``, every recording but the first (`_reference_owner`) has its own output
     reference (the zero of the instrument that wrote it, a constant added to its output) fitted with its x0
     even when no effect of the model carries one (`fitted_initial_state`'s ``constant``); default False.
+    starts: with ``"fit"``, a group index per recording: the recordings of one group share one initial state,
+    fitted by least squares over all their samples (`shared_initial_state`; runs of a device reset to one state
+    that start at one input), for a model without effects; default None (each recording its own).
 
     With ``"fit"``, the output's reference of an effect that has one (`fitted_initial_state`) is fitted for
     every recording but the first, whose reference is the model's own: the base carries a constant output
@@ -401,6 +361,7 @@ class Recordings:
     cycles: Sequence[tuple[int, int] | None] | None = None
     settle: Sequence[bool] | None = None
     references: bool = False
+    starts: Sequence[int] | None = None
 
     def __post_init__(self):
         if self.x0 not in X0_MODES:
@@ -419,15 +380,15 @@ class Recordings:
         self._memos = [{} for _ in self.recordings]
 
     def _kept(self, max_samples: int | None) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Per recording, `_keep_indices`; a recording whose effect chain starts settled on it keeps every
+        """Per recording, `keep_indices`; a recording whose effect chain starts settled on it keeps every
         sample (its settled state is that of the whole recording taken as one cycle)."""
         return [
-            _keep_indices(r.u, None if settle else max_samples, c)
+            keep_indices(r.u, None if settle else max_samples, c)
             for r, c, settle in zip(self.recordings, self.cycles, self._settle)
         ]
 
     def decimated(self, max_samples: int | None) -> "Recordings":
-        """The problem on the kept samples of `_keep_indices` (self when nothing is dropped; `_kept`)."""
+        """The problem on the kept samples of `keep_indices` (self when nothing is dropped; `_kept`)."""
         kept = self._kept(max_samples)
         if all(len(k) == len(r.u) for (k, _), r in zip(kept, self.recordings)):
             return self
@@ -440,7 +401,9 @@ class Recordings:
         cycles = [
             None if c is None else tuple(int(i) for i in np.searchsorted(k, c)) for c, k in zip(self.cycles, keeps)
         ]
-        return Recordings(recs, self.x0, weights, cycles, settle=self._settle, references=self.references)
+        return Recordings(
+            recs, self.x0, weights, cycles, settle=self._settle, references=self.references, starts=self.starts
+        )
 
     def rows(self, max_samples: int | None) -> list[np.ndarray]:
         """Per recording, the indices of its samples that are the rows of ``decimated(max_samples).residuals``
@@ -460,8 +423,10 @@ class Recordings:
             model = None
         parts, info = [], []
         owner = self._reference_owner()
+        shared = self._shared_starts(model)
         for i, (rec, w, cyc, settle) in enumerate(zip(self.recordings, self._w, self.cycles, self._settle)):
-            one = self._one(model, rec, cyc, settle, reference=i != owner, memo=self._memos[i])
+            x0 = None if shared is None else shared.get(self.starts[i])
+            one = self._one(model, rec, cyc, settle, reference=i != owner, memo=self._memos[i], x0=x0)
             parts.append(_weighted(one[2], w[one[0] :]))
             info.append(one)
         return (parts[0] if len(parts) == 1 else np.concatenate(parts)), model, info
@@ -478,11 +443,12 @@ class Recordings:
             with np.errstate(all="ignore"):
                 fl = flows(model)
                 parts = self._linear_parts(model, lin, fl)
-            solution = solve_shared(parts, [r.y for r in self.recordings], self._w)
+            groups = self._groups(model)
+            solution = solve_shared(parts, [r.y for r in self.recordings], self._w, groups)
         except (DuhemError, ValueError, np.linalg.LinAlgError, FloatingPointError):
             info = [self._one(None, rec, cyc) for rec, cyc in zip(self.recordings, self.cycles)]
             return np.concatenate([_weighted(i[2], w[i[0] :]) for i, w in zip(info, self._w)]), np.array(theta)
-        theta_l, own = split_solution(parts, solution)
+        theta_l, own = split_solution(parts, solution, groups)
         theta = np.array(theta, dtype=float)
         theta[list(lin)] = theta_l
         weighted = [
@@ -524,21 +490,48 @@ class Recordings:
             own = np.column_stack([own, np.ones(len(terms))])
         return replace(part, base=part.base + terms, Own=own)
 
+    def _groups(self, model) -> Sequence[int] | None:
+        """The recordings' start groups (``starts``) where they apply: x0 ``"fit"``, a model without effects."""
+        if self.starts is None or self.x0 != "fit" or model is None or getattr(model, "effects", None):
+            return None
+        return self.starts
+
+    def _shared_starts(self, model) -> dict[int, np.ndarray] | None:
+        """The initial state of each start group of more than one recording (`_groups`, `shared_initial_state`
+        over all their samples, as `fitted_initial_state` fits one recording's)."""
+        groups = self._groups(model)
+        if groups is None:
+            return None
+        out = {}
+        for g in set(groups):
+            members = [r for r, k in zip(self.recordings, groups) if k == g]
+            if len(members) > 1:
+                try:
+                    with np.errstate(all="ignore"):
+                        out[g] = shared_initial_state(model, [(r.t, r.u, r.y) for r in members])
+                except (KernelError, np.linalg.LinAlgError):
+                    pass
+        return out
+
     def _reference_owner(self) -> int:
         """The recording whose output reference is the model's own: the first with a sample of positive weight
         (a recording held out of the fit, all weights 0, has its reference fitted like the others', so that
         it is predicted as every recording is scored)."""
         return next((i for i, w in enumerate(self._w) if np.any(w > 0)), 0)
 
-    def _one(self, model, rec: Recording, cyc, settle: bool = False, reference: bool = True, memo=None):
+    def _one(self, model, rec: Recording, cyc, settle: bool = False, reference: bool = True, memo=None, x0=None):
+        """(start, x0, residual from start, rho, effect state) of one recording (`simulate_from`); with `x0`
+        (a shared start, `_shared_starts`) simulated from it; failures give `FAIL` residuals."""
         start = cyc[0] if (self.x0 == "periodic" and cyc is not None) else 0
         fail = FAIL * max(float(np.ptp(rec.y)), 1e-300)
         try:
             if model is None:
                 raise KernelError("model could not be built")
             with np.errstate(all="ignore"):
+                mode = self.x0 if x0 is None else "model"
+                mod = model if x0 is None else model.replace(x0=x0)
                 s, x0, yhat, rho, state = simulate_from(
-                    model, rec.t, rec.u, rec.y, self.x0, cyc, settle, reference, self.references, memo
+                    mod, rec.t, rec.u, rec.y, mode, cyc, settle, reference, self.references, memo
                 )
             r = rec.y[s:] - yhat
             if not np.all(np.abs(r) < fail * 1e3):

@@ -50,21 +50,41 @@ def lstsq_scaled(M: np.ndarray, b: np.ndarray) -> np.ndarray:
     return z / norms
 
 
-def solve_shared(parts: Sequence[LinearPart], ys: Sequence[np.ndarray], weights: Sequence[np.ndarray]) -> np.ndarray:
-    """Weighted least squares for [theta_L, z_1, z_2, ...] (z_i for the parts with own columns, in order):
-    min sum_i sum_k w_ik (y_ik - yhat_ik)^2 over the samples of positive weight.  Raises `KernelError` when a
-    column overflowed."""
+def _own_slots(parts: Sequence[LinearPart], groups: Sequence[int] | None) -> tuple[list[int], int]:
+    """Where each part's own unknowns start in [theta_L, z...] and the total width: one slot per part with own
+    columns, or, with `groups`, one per group (the parts of a group share their unknowns: one initial state for
+    runs that start alike; their own columns have one width)."""
+    at = parts[0].Psi.shape[1]
+    slots, seen = [], {}
+    for i, p in enumerate(parts):
+        k = 0 if p.Own is None else p.Own.shape[1]
+        g = i if groups is None else groups[i]
+        if g not in seen:
+            seen[g] = at
+            at += k
+        slots.append(seen[g])
+    return slots, at
+
+
+def solve_shared(
+    parts: Sequence[LinearPart],
+    ys: Sequence[np.ndarray],
+    weights: Sequence[np.ndarray],
+    groups: Sequence[int] | None = None,
+) -> np.ndarray:
+    """Weighted least squares for [theta_L, z_1, z_2, ...] (z_i for the parts with own columns, in order; with
+    `groups`, one z per group, `_own_slots`): min sum_i sum_k w_ik (y_ik - yhat_ik)^2 over the samples of
+    positive weight.  Raises `KernelError` when a column overflowed."""
     n_lin = parts[0].Psi.shape[1]
-    widths = [0 if p.Own is None else p.Own.shape[1] for p in parts]
-    rows, rhs, at = [], [], n_lin
-    for p, y, w, k in zip(parts, ys, weights, widths):
+    slots, width = _own_slots(parts, groups)
+    rows, rhs = [], []
+    for p, y, w, at in zip(parts, ys, weights, slots):
         sw = np.sqrt(w[p.start :])
         keep = sw > 0
-        M = np.zeros((len(p.base), n_lin + sum(widths)))
+        M = np.zeros((len(p.base), width))
         M[:, :n_lin] = p.Psi
         if p.Own is not None:
-            M[:, at : at + k] = p.Own
-        at += k
+            M[:, at : at + p.Own.shape[1]] = p.Own
         rows.append((M * sw[:, None])[keep])
         rhs.append(((y[p.start :] - p.base) * sw)[keep])
     M, b = np.concatenate(rows), np.concatenate(rhs)
@@ -73,16 +93,14 @@ def solve_shared(parts: Sequence[LinearPart], ys: Sequence[np.ndarray], weights:
     return lstsq_scaled(M, b)
 
 
-def split_solution(parts: Sequence[LinearPart], solution: np.ndarray) -> tuple[np.ndarray, list]:
+def split_solution(
+    parts: Sequence[LinearPart], solution: np.ndarray, groups: Sequence[int] | None = None
+) -> tuple[np.ndarray, list]:
     """theta_L and each part's own unknowns (None for a part without own columns) from `solve_shared`'s
-    solution."""
-    n_lin = parts[0].Psi.shape[1]
-    own, at = [], n_lin
-    for p in parts:
-        k = 0 if p.Own is None else p.Own.shape[1]
-        own.append(solution[at : at + k] if p.Own is not None else None)
-        at += k
-    return solution[:n_lin], own
+    solution (the same `groups`)."""
+    slots, _ = _own_slots(parts, groups)
+    own = [None if p.Own is None else solution[at : at + p.Own.shape[1]] for p, at in zip(parts, slots)]
+    return solution[: parts[0].Psi.shape[1]], own
 
 
 def _forcing_fields(model) -> dict[float, tuple[str, str]]:
