@@ -1,6 +1,5 @@
-"""Several runs of one device: one stored initial state for the runs that start at one input level, the fit
-from one shared start where the runs' own starts hide that one does not suit them all, and the rate levels of
-inputs whose rate varies at one input level (sines of two amplitudes)."""
+"""Several runs of one device: one stored initial state for the runs that start at one input level, and the fit
+from one shared start where the runs' own starts hide that one does not suit them all."""
 
 from __future__ import annotations
 
@@ -9,7 +8,7 @@ import numpy as np
 from fitter.core.kernel import simulate
 from fitter.core.models import RateIndependentModel
 from fitter.data.recordings import Recording
-from fitter.identification.fit_data import rate_levels, rate_spread, start_groups
+from fitter.identification.fit_data import start_groups
 from fitter.identification.output_error import shared_initial_state
 from fitter.identification.projection import LinearPart, solve_shared, split_solution
 
@@ -67,14 +66,3 @@ def test_grouped_own_unknowns_share_one_solution():
     # without groups each part has its own unknowns (9 of them), and the same exact data are fitted exactly too
     alone = solve_shared(parts, ys, weights)
     assert alone.shape == (2 + 9,)
-
-
-def test_the_rate_at_one_input_level_decides_the_rate_levels():
-    """One sine: the rate is a function of the input (spread about 1, one level).  Sines of two amplitudes at
-    one median rate: the rate at one input level differs by the amplitude ratio (spread > 1.5, two levels, so
-    that rate-dependent candidates are tried)."""
-    one = [_recording(*_sine(1.0, 3, 600))]
-    t2, u2 = _sine(0.5, 6, 600)
-    two = [one[0], Recording(0.5 * t2, u2, simulate(MODEL, 0.5 * t2, u2).y, "r2")]  # one median rate
-    assert rate_spread(one) < 1.2 and rate_levels(one).levels == 1
-    assert rate_spread(two) > 1.5 and rate_levels(two).levels == 2

@@ -35,10 +35,7 @@
 5. Rate levels: the distinct input rates (median |du/dt| per recording,
    grouped so that no level spans more than a factor 1.5: five rates spread
    over 1.9x are two levels, not one chain), the reference rate and the knots
-   of g.  Recordings of one median rate count as two levels when the rate at
-   one input level varies by more than `RATE_SPREAD` (`rate_spread`: sines of
-   two amplitudes, a broadband input): the data then tell a rate-dependent
-   model from a rate-independent one.
+   of g.
 """
 
 from __future__ import annotations
@@ -312,13 +309,6 @@ def averaged_loop(loops: list[list[Recording]], points: int = GRID_POINTS):
     return grid, np.mean(rising, axis=0), np.mean(falling, axis=0)
 
 
-RATE_SPREAD = 1.5
-"""`rate_spread` above which recordings of one median rate still count as several rate levels (the factor that
-`_rate_groups` lets one level span)."""
-RATE_WINDOW = 4
-"""Sample periods over which `rate_spread` takes each rate."""
-
-
 @dataclass(frozen=True)
 class RateLevels:
     """Input rates of the data (normalised units): reference rate, log-rate knots of g, the
@@ -361,33 +351,9 @@ def rate_levels(norm: Sequence[Recording]) -> RateLevels:
         if not inner.any() or np.std(v[inner]) > 0.15 * np.median(v):
             triangle = False
     groups = _rate_groups(np.sort(meds))
-    count = len(groups) if len(groups) >= 2 or rate_spread(norm) <= RATE_SPREAD else 2
     levels = np.array([np.exp(np.mean(np.log(g))) for g in groups])
     if not triangle:
         v = np.concatenate(pooled)
         levels = np.exp(np.unique(np.quantile(np.log(v), np.linspace(0.02, 0.99, 7))))
     v_ref = float(levels[len(levels) // 2])
-    return RateLevels(v_ref, np.log(levels / v_ref), count, triangle)
-
-
-def rate_spread(norm: Sequence[Recording], bins: int = 8) -> float:
-    """How much the input rate varies at one input level: the median, over `bins` equal bins of the input range
-    with at least 20 samples, of the ratio of the 90 % to the 10 % quantile of |du/dt| in the bin (the rate
-    over `RATE_WINDOW` sample periods, so that the input's noise weighs less; all recordings pooled; samples
-    slower than a fifth of their recording's median rate, the slow-down at a reversal, left out).  About 1 for
-    one periodic input of one amplitude (the rate is a function of the input there), the ratio of the rates for
-    triangles at several rates, large for broadband inputs."""
-    us, vs = [], []
-    for r in norm:
-        w = min(RATE_WINDOW, len(r.u) - 1)
-        v = np.abs(r.u[w:] - r.u[:-w]) / (r.t[w:] - r.t[:-w])
-        keep = v > 0.2 * np.median(v[v > 0]) if np.any(v > 0) else v > 0
-        us.append(0.5 * (r.u[w:] + r.u[:-w])[keep])
-        vs.append(v[keep])
-    u, v = np.concatenate(us), np.concatenate(vs)
-    if len(u) == 0 or np.ptp(u) == 0:
-        return 1.0
-    idx = np.minimum((bins * (u - u.min()) / np.ptp(u)).astype(int), bins - 1)
-    full = [v[idx == b] for b in range(bins) if np.sum(idx == b) >= 20]
-    ratios = [np.quantile(x, 0.9) / np.quantile(x, 0.1) for x in full]
-    return float(np.median(ratios)) if ratios else 1.0
+    return RateLevels(v_ref, np.log(levels / v_ref), len(groups), triangle)
