@@ -53,20 +53,8 @@ FIT_DRAWS = [
     pytest.param(DrawSpec(301, "ri", 2, "sine", 2, 300, 0.002), id="ri2-sine-2files"),
     pytest.param(DrawSpec(301, "rd", 1, "triangles", 2, 300, 0.003), id="rd1-triangles-2files"),
     pytest.param(DrawSpec(302, "rd", 1, "sine", 2, 300, 0.002), id="rd1-sine-2files"),
-    pytest.param(
-        DrawSpec(302, "ri", 2, "turning_points", 1, 400, 0.003),
-        id="ri2-turning-points-b",
-        marks=_xfail(
-            "one file of the model class: the ri2 candidate (the truth's order) stops at normalised RSS 0.259 (a "
-            "local minimum), ri4 is chosen at 0.169: residual 2.86 x the bound (3.4 x the noise); a race of 10 "
-            "evaluations per start reaches 0.83 x, but moves the piezo triangles' rd3 into its worse minimum"
-        ),
-    ),
-    pytest.param(
-        DrawSpec(302, "ri", 3, "triangles", 1, 400, 0.004),
-        id="ri3-triangles-b",
-        marks=_xfail("one file of the model class: ri4 chosen, residual 1.70 x the bound (a race of 10: 0.84 x)"),
-    ),
+    pytest.param(DrawSpec(302, "ri", 2, "turning_points", 1, 400, 0.003), id="ri2-turning-points-b"),
+    pytest.param(DrawSpec(302, "ri", 3, "triangles", 1, 400, 0.004), id="ri3-triangles-b"),
     pytest.param(DrawSpec(300, "ri", 2, "sine", 2, 300, 0.002), id="ri2-sine-2files-b"),
     pytest.param(
         DrawSpec(300, "rd", 1, "sine", 2, 300, 0.002),
@@ -90,14 +78,7 @@ DIAGNOSIS_DRAWS = [
         id="ri4-multisine",
         marks=_xfail("verdict unexplained with no finding: the base is ri1 and leaves 5.58 x the noise"),
     ),
-    pytest.param(
-        DrawSpec(401, "ri", 2, "turning_points", 1, 400, 0.0),
-        id="ri2-turning-points-small-second-reversal",
-        marks=_xfail(
-            "DiagnoseError 'the input (u) reverses fewer than twice': it reverses at -1 and at 0.97, the second "
-            "reversal 8.5 % of the input range (the diagnosis counts reversals of 10 % and more); the fit takes it"
-        ),
-    ),
+    pytest.param(DrawSpec(401, "ri", 2, "turning_points", 1, 400, 0.0), id="ri2-turning-points-small-second-reversal"),
 ]
 """The diagnosis' fixed clean draws (rate-independent: the diagnosis' base class)."""
 

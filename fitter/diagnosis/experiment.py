@@ -118,7 +118,7 @@ def join_recordings(recordings: Sequence[Recording], separate: bool | None = Non
             f"diagnose (at least {MIN_SAMPLES} needed)"
         )
     u = np.concatenate([r.u for r in recs])
-    if count_reversals(u, threshold=0.1 * np.ptp(u)) < 2 and not any(
+    if count_reversals(u) < 2 and not any(
         single_loop(r.u, find_reversals(r.u)) for r in recs
     ):  # one closed loop from one tip to the other and back is a loop too
         raise DiagnoseError(
