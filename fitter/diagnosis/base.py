@@ -42,6 +42,7 @@ from fitter.diagnosis.held_out import held_out_residual
 from fitter.diagnosis.rounds import bic, candidate_round
 from fitter.diagnosis.statistics import NOISE_MARGIN, remainder_report
 from fitter.identification.fit import FitResult
+from fitter.identification.fit_data import PERIODIC_SPREAD, extremes_spread
 
 __all__ = ["adequate_base", "below_order"]
 
@@ -145,9 +146,14 @@ def _unsettled_rms(fit: Fit, ex: JoinedExperiment) -> float:
     from that cycle's periodic state (the fixed point of its period map); inf when the cycle's map does not
     converge, 0 without a full cycle.  A rate-independent base that fits a change in time
     (a drift of the output) does so with a loop that never settles: large here although its residual is
-    at the noise."""
+    at the noise.  An input that does not repeat one cycle (a general input, as `duhem fit` reads it:
+    `fitter.identification.fit_data.extremes_spread` above `PERIODIC_SPREAD`) has no settled loop to be far
+    from: 0 (its last "cycle" between two reversals is not a period, and the fixed point of its map is not a
+    state the experiment was heading for)."""
     model, run = fit.model, ex.runs()[-1]
     t, u = ex.t[run], ex.u[run]
+    if extremes_spread(u) > PERIODIC_SPREAD:
+        return 0.0
     try:
         cycle, tc, uc = closed_last_cycle(t, u)
     except DuhemError:

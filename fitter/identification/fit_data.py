@@ -35,7 +35,9 @@
 5. Rate levels: the distinct input rates (median |du/dt| per recording,
    grouped so that no level spans more than a factor 1.5: five rates spread
    over 1.9x are two levels, not one chain), the reference rate and the knots
-   of g.
+   of g.  The number of levels is at least that of the legs' mean rates
+   (`leg_rates`, grouped the same way): one recording whose legs are driven at
+   several speeds has several rate levels too.
 """
 
 from __future__ import annotations
@@ -333,6 +335,21 @@ def _rate_groups(meds: np.ndarray, factor: float = 1.5) -> list[np.ndarray]:
     return [np.array(g) for g in groups]
 
 
+LEG_SPAN = 0.1
+"""`leg_rates` counts the legs that span at least this fraction of the recording's input range."""
+
+
+def leg_rates(rec: Recording) -> np.ndarray:
+    """The mean input rate |u(end) - u(start)| / (t(end) - t(start)) of each leg of `rec` (its stretches between
+    consecutive reversals, `fitter.data.cycles.find_reversals`, and the ends) that spans at least `LEG_SPAN` of its
+    input range: legs driven at several speeds within one recording show as several rates."""
+    ends = np.r_[0, find_reversals(rec.u), len(rec.u) - 1].astype(int)
+    du = np.abs(np.diff(rec.u[ends]))
+    dt = np.diff(rec.t[ends])
+    keep = (du >= LEG_SPAN * max(float(np.ptp(rec.u)), 1e-300)) & (dt > 0)
+    return du[keep] / dt[keep]
+
+
 def rate_levels(norm: Sequence[Recording]) -> RateLevels:
     """Step 5 of the module docstring."""
     meds, pooled, triangle = [], [], True
@@ -351,9 +368,11 @@ def rate_levels(norm: Sequence[Recording]) -> RateLevels:
         if not inner.any() or np.std(v[inner]) > 0.15 * np.median(v):
             triangle = False
     groups = _rate_groups(np.sort(meds))
+    legs = np.concatenate([leg_rates(r) for r in norm])
+    count = max(len(groups), len(_rate_groups(np.sort(legs))) if len(legs) else 1)
     levels = np.array([np.exp(np.mean(np.log(g))) for g in groups])
     if not triangle:
         v = np.concatenate(pooled)
         levels = np.exp(np.unique(np.quantile(np.log(v), np.linspace(0.02, 0.99, 7))))
     v_ref = float(levels[len(levels) // 2])
-    return RateLevels(v_ref, np.log(levels / v_ref), len(groups), triangle)
+    return RateLevels(v_ref, np.log(levels / v_ref), count, triangle)
