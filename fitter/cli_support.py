@@ -252,7 +252,12 @@ class GuardedGroup(click.Group):
         return name, command, rest
 
     def invoke(self, ctx: click.Context):
+        """The subcommand, after the environment's settings are read (`fitter.workers.workers`: a bad
+        ``DUHEM_WORKERS`` is one line here, not a failure of every fit's processes later)."""
+        from fitter.workers import workers
+
         with one_line_errors():
+            workers()
             return super().invoke(ctx)
 
 

@@ -996,3 +996,13 @@ def test_a_fit_stopped_by_its_budget_says_so(work, monkeypatch):
     assert summary["summary"]["optimiser"]["budget_hit"] is True
     text = ok(invoke("fit", work["rec"], "-o", out, "--kind", "ri", "--order", 1)).stdout
     assert "note: the refinement of the chosen base stopped at its evaluation budget (1 in its last stage)" in text
+
+
+def test_a_bad_worker_count_is_one_line_before_any_fit(work):
+    """``DUHEM_WORKERS=abc``: one line naming the variable and the fix, exit 1, nothing written; it used to reach
+    every start's refinement and read "every start failed to simulate"."""
+    d = work["dir"]
+    before = listing(d)
+    result = invoke("fit", work["rec"], "-o", d / "workers.json", env={"DUHEM_WORKERS": "abc"})
+    line = assert_clean_failure(result, d, before, "DUHEM_WORKERS='abc'", "whole number of processes")
+    assert "every start failed" not in line
