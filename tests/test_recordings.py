@@ -276,3 +276,25 @@ def test_save_columns_writes_the_text_of_savetxt(tmp_path):
     assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
     rec = load_recording(tmp_path / "b.csv", output="u")
     assert np.array_equal(rec.u, cols[1])
+
+
+def test_a_glitch_row_is_named_and_an_ordinary_column_has_none(tmp_path):
+    """One input row of 1e6 in a +-1 sine (a wrong row that a fit would follow): `load_recording`'s `warn` gets one
+    line naming the file, the line as numbered in the file, the column and the value; the clean file gives none,
+    and neither does a noisy input or a step (a step is many samples, not one far from its neighbours)."""
+    from fitter.data.recordings import spikes
+
+    t = np.linspace(0.0, 10.0, 500)
+    u = np.sin(t)
+    u_glitch = u.copy()
+    u_glitch[123] = 1e6
+    path = tmp_path / "g.csv"
+    rows = "\n".join(f"{a},{b},{c}" for a, b, c in zip(t, u_glitch, np.tanh(u)))
+    path.write_text("time,u,y\n" + rows + "\n")
+    said = []
+    load_recording(path, warn=said.append)
+    assert len(said) == 1 and "line 125, column 'u': value 1000000.0" in said[0] and str(path) in said[0]
+    rng = np.random.default_rng(0)
+    assert spikes(u).size == 0 and spikes(u + 0.05 * rng.standard_normal(500)).size == 0
+    assert spikes(np.r_[np.zeros(250), np.ones(250)]).size == 0
+    assert list(spikes(u_glitch)) == [123]

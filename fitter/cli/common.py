@@ -258,6 +258,11 @@ def held_values(value: str | None) -> dict[str, float]:
     return out
 
 
+def warning(text: str) -> None:
+    """One line ``warning: text`` on stderr."""
+    click.echo(f"warning: {text}", err=True)
+
+
 def warn_minor_loops(model) -> None:
     """`minor_loop_warning` on stderr, when the model's fit recorded unfaithful minor loops."""
     text = minor_loop_warning(model)

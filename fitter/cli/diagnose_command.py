@@ -7,6 +7,7 @@ import contextlib
 import click
 
 from fitter.cli.common import (
+    warning,
     check_backend,
     check_fmu_name,
     column_options,
@@ -98,7 +99,7 @@ def diagnose(
     if fmu:
         check_backend(backend)
     base = load_model_json(model_path) if model_path else None
-    recs = load_recordings(list(recordings), time_column(time_col), input_col, output_col)
+    recs = load_recordings(list(recordings), time_column(time_col), input_col, output_col, warn=warning)
     with contextlib.ExitStack() as outputs:
         json_tmp = (
             outputs.enter_context(atomic_file(json_out, suffix=".json")) if json_out and json_out != "-" else None

@@ -8,6 +8,7 @@ import click
 
 from fitter.baselines import comparison
 from fitter.cli.common import (
+    warning,
     allow_unstable_option,
     check_backend,
     check_fmu_name,
@@ -130,7 +131,7 @@ def fit(
     check_fmu_name(fmu)
     if fmu:
         check_backend(backend)
-    recs = load_recordings(list(recordings), time_column(time_col), input_col, output_col)
+    recs = load_recordings(list(recordings), time_column(time_col), input_col, output_col, warn=warning)
     with stderr_progress("duhem fit") as say, contextlib.ExitStack() as outputs:
         if fmu:
             model_tmp, fmu_tmp = outputs.enter_context(atomic_pair(out, fmu, recorded_fmu_digest))

@@ -19,6 +19,7 @@ import click
 import numpy as np
 
 from fitter.cli.common import (
+    warning,
     allow_unstable_option,
     check_fmu_name,
     checked,
@@ -337,7 +338,7 @@ def validate(fmu, recordings, threshold, plot, x0_rule, allow_unstable, time_col
     if plot and Path(plot).suffix.lower() != ".png":
         raise CliError(f"{plot}: the plot file name must end in .png")
     model = open_fmu(fmu)
-    recs = load_recordings(list(recordings), time_column(time_col), input_col, output_col)
+    recs = load_recordings(list(recordings), time_column(time_col), input_col, output_col, warn=warning)
     checked(model, f"{fmu} (its resources/model.json)", allow_unstable, *[rec.u for rec in recs])
     rows, outputs = [], []
     with stderr_progress("duhem validate") as say:

@@ -8,9 +8,10 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
+from scipy.ndimage import median_filter
 
 from fitter.data.csv_table import RecordingError, read_table, split_unit
 from fitter.core.models import Signal
@@ -164,6 +165,36 @@ class Recording:
         return Recording(self.t[s], self.u[s], self.y[s], name or self.name, self.input, self.output, self.source)
 
 
+SPIKE = 10.0
+"""`spikes`: a sample this many times its column's central range from its neighbours is a glitch."""
+
+
+def spikes(a: np.ndarray) -> np.ndarray:
+    """Indices of the isolated glitches of a column: samples farther than `SPIKE` times the column's central range
+    (the span of its 1-99 % quantiles) from the median of the five samples around them (a wrong row, such as
+    1e6 in an input of +-1, which a fit would follow)."""
+    a = np.asarray(a, dtype=float)
+    if a.size < 5 or not np.all(np.isfinite(a)):
+        return np.zeros(0, dtype=int)
+    span = float(np.quantile(a, 0.99) - np.quantile(a, 0.01))
+    if not span > 0:
+        return np.zeros(0, dtype=int)
+    return np.flatnonzero(np.abs(a - median_filter(a, size=5, mode="nearest")) > SPIKE * span)
+
+
+def _spike_warning(path: str, column: str, a: np.ndarray, lines: Sequence[int]) -> str | None:
+    """One line naming the first glitch (`spikes`) of a column: file, line, column, value, how many, the fix."""
+    idx = spikes(a)
+    if not idx.size:
+        return None
+    k = int(idx[0])
+    return (
+        f"{path}: line {lines[k]}, column {column!r}: value {float(a[k])!r} lies far outside the rest of the column "
+        f"(more than {SPIKE:g} times its central range from its neighbours; {idx.size} such row(s)): a glitch? "
+        "fix or remove the row(s): one wrong sample can spoil a fit"
+    )
+
+
 def load_recording(
     path: str | os.PathLike,
     time: str | int | None = "time",
@@ -172,6 +203,7 @@ def load_recording(
     *,
     name: str | None = None,
     min_samples: int = MIN_SAMPLES,
+    warn: Callable[[str], None] | None = None,
 ) -> Recording:
     """Load one experiment from a CSV file.
 
@@ -185,6 +217,7 @@ def load_recording(
         to simulate.
     name : label of the recording; defaults to the file stem.
     min_samples : fewest data rows accepted.
+    warn : called with one line per input or output column that holds glitches (`spikes`); default: none.
 
     Raises
     ------
@@ -211,6 +244,10 @@ def load_recording(
             base, unit = split_unit(header[cols[role]])
             signals[role] = Signal(base, unit, f"{role} column {header[cols[role]]!r} of {Path(path).name}")
     y = values["output"] if "output" in values else np.full(n, np.nan)
+    for role in ("input", "output") if warn is not None else ():
+        message = _spike_warning(path, header[cols[role]], values[role], numbers) if role in values else None
+        if message is not None:
+            warn(message)
     return Recording(
         t,
         values["input"],
@@ -229,8 +266,9 @@ def load_recordings(
     output: str | int = "y",
     *,
     min_samples: int = MIN_SAMPLES,
+    warn: Callable[[str], None] | None = None,
 ) -> list[Recording]:
-    """Load several experiments (one file each) with the same column choice.
+    """Load several experiments (one file each) with the same column choice (`warn`: `load_recording`'s).
 
     Raises `RecordingError` for the first bad file, and when the files' input
     or output columns carry different names or units (they must be the same
@@ -238,7 +276,7 @@ def load_recordings(
     """
     if not paths:
         raise RecordingError("no recording files given")
-    recs = [load_recording(p, time, input, output, min_samples=min_samples) for p in paths]
+    recs = [load_recording(p, time, input, output, min_samples=min_samples, warn=warn) for p in paths]
     first = recs[0]
     for r in recs[1:]:
         for role in ("input", "output"):
