@@ -209,3 +209,16 @@ def test_the_noise_is_capped_at_what_a_model_per_recording_leaves():
     assert gap["gain_explains"] and floor["rms"] == 5e-8
     gap = {"per_file_rms": 9e-8, "gap": True, "gain_rms": 9e-8}
     assert capped_noise(floor, gap) == floor and not gap["gain_explains"]
+
+
+def test_the_diagnosis_of_an_output_that_is_noise_refuses_to_call_it_complete():
+    """An output of seeded white noise beside a sine input: the base explains none of it, and the diagnosis says
+    so (one line naming the recording and R^2) instead of "nothing missing: the residual is consistent with the
+    noise level"."""
+    from fitter.diagnosis import diagnose
+    from fitter.diagnosis.experiment import DiagnoseError
+
+    t = np.linspace(0.0, 40.0, 2000)
+    rec = Recording(t, np.sin(t), np.random.default_rng(5).standard_normal(2000), "noise", source="noise.csv")
+    with pytest.raises(DiagnoseError, match=r"noise.csv: the base model explains 0\.0\d* of the output's variance"):
+        diagnose([rec])

@@ -36,15 +36,16 @@ from fitter.core.kernel import simulate
 from fitter.core.periodic import fixed_point
 from fitter.data.cycles import closed_last_cycle
 from fitter.data.metrics import rms
-from fitter.diagnosis.experiment import JoinedExperiment
+from fitter.diagnosis.experiment import DiagnoseError, JoinedExperiment
 from fitter.diagnosis.fitting import Fit, duhem_fit, fit_family
 from fitter.diagnosis.held_out import held_out_residual
 from fitter.diagnosis.rounds import bic, candidate_round
 from fitter.diagnosis.statistics import NOISE_MARGIN, remainder_report
+from fitter.identification.explained import EXPLAINED_MIN
 from fitter.identification.fit import FitResult
 from fitter.identification.fit_data import PERIODIC_SPREAD, extremes_spread
 
-__all__ = ["adequate_base", "below_order"]
+__all__ = ["adequate_base", "below_order", "check_explains"]
 
 
 def adequate_base(
@@ -182,3 +183,21 @@ def _held_out_rms(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> float:
     train[ex.part(last)] = False
     again = fit_family(fam.base.template, fam.effects, fit.theta[: fam.n_base], ex, train, ex.y - fit.residual)
     return rms(again.residual[~train])
+
+
+def check_explains(ex: JoinedExperiment, base: Fit) -> None:
+    """Refuse an experiment whose output the base does not relate to its input: a recording where the base explains
+    less than `EXPLAINED_MIN` of the output's variance (R^2 = 1 - SSE / SST on its samples,
+    `fitter.identification.explained`, the test by which `duhem fit` refuses to save a model of noise).  Its
+    output looks like noise: there is no model to say anything is missing from, and "nothing missing" would read as
+    a model that fits."""
+    for i, rec in enumerate(ex.recordings):
+        y, r = ex.y[ex.part(i)], base.residual[ex.part(i)]
+        sst = float(np.sum((y - np.mean(y)) ** 2))
+        r2 = 1.0 - float(np.sum(r**2)) / sst if sst > 0 else 1.0
+        if not r2 >= EXPLAINED_MIN:
+            raise DiagnoseError(
+                f"{rec.label}: the base model explains {max(r2, 0.0):.3g} of the output's variance (R^2; at least "
+                f"{EXPLAINED_MIN:g} for a model that relates the output to the input): the output looks like noise, "
+                "with nothing the input drives to diagnose; check the --input and --output columns"
+            )

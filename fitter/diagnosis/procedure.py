@@ -141,7 +141,7 @@ import numpy as np
 from fitter.core.effects import ORIGINS, REGISTRY, with_start
 from fitter.data.metrics import nrmse, rms
 from fitter.data.recordings import Recording
-from fitter.diagnosis.base import adequate_base, below_order
+from fitter.diagnosis.base import adequate_base, below_order, check_explains
 from fitter.diagnosis.experiment import DiagnoseError, JoinedExperiment, join_recordings
 from fitter.diagnosis.file_gap import GAP, capped_noise, file_gap
 from fitter.diagnosis.fitting import (
@@ -230,7 +230,8 @@ def diagnose(
     Raises
     ------
     DiagnoseError : too few samples, an input that never reverses, recordings of different columns,
-        overlapping clocks, non-finite values.
+        overlapping clocks, non-finite values, an output the base does not relate to its input
+        (`fitter.diagnosis.base.check_explains`).
     """
     unknown = [c for c in candidates if c not in REGISTRY]
     if unknown:
@@ -257,6 +258,7 @@ def diagnose(
         else:
             base = first if model is None else fit_base(ex, model, mask)
         first_round = None
+    check_explains(ex, base)
     tick("refitting the base on each recording alone")
     gap = file_gap(ex, base, mask)
     floor = capped_noise(floor, gap)
