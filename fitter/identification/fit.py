@@ -41,8 +41,9 @@ Pipeline of `fit_recordings`
    objective (it starts just inside the limit, so that the fit ends inside
    it).  The linear parameters (B, E, D, x0) are eliminated by least squares
    at every evaluation (variable projection).  Rate-independent starts race:
-   each gets `RACE_NFEV` evaluations, the `RACE_KEEP` best continue to
-   `MAX_NFEV` in all; rate-dependent starts are each refined in full.
+   each gets `RACE_NFEV` evaluations (`RACE_NFEV_GENERIC` for the generic
+   starts of a general input), the `RACE_KEEP` best continue to `MAX_NFEV`
+   in all; rate-dependent starts are each refined in full.
    Rate-dependent fits of order >= 3 add a global stage: seeded perturbed
    restarts of the best fit (`_global_stage`), since they have local minima.
    Evaluations run on the compiled modal scan (`FIT_OPTIONS`, `COMPILED_MAX_SAMPLES`).  Items 3-5 are
