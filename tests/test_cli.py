@@ -1006,3 +1006,27 @@ def test_a_bad_worker_count_is_one_line_before_any_fit(work):
     result = invoke("fit", work["rec"], "-o", d / "workers.json", env={"DUHEM_WORKERS": "abc"})
     line = assert_clean_failure(result, d, before, "DUHEM_WORKERS='abc'", "whole number of processes")
     assert "every start failed" not in line
+
+
+def test_a_column_in_another_unit_than_the_model_was_fitted_in_is_refused(work):
+    """A model fitted on ``u_V``, driven by a file whose input column is ``u_kV``: `simulate` and `validate` stop
+    with one line naming the file, the column, both units and the fix, and write nothing; the same data in volts,
+    or without a unit in the header, run."""
+    d = work["dir"]
+    t = np.linspace(0.0, 4 * np.pi, 400)
+    u, y = 1.0 + np.sin(t), np.tanh(np.sin(t))
+    volts = write_csv(d / "volts.csv", t, u, y, header="time_s,u_V,y")
+    ok(invoke("fit", volts, "-o", d / "volts.json", "--kind", "ri", "--order", 1))
+    ok(invoke("export", d / "volts.json", "-o", d / "volts.fmu"))
+    kilo = write_csv(d / "kilo.csv", t, u / 1000, y, header="time_s,u_kV,y")
+    for args in (
+        ("simulate", d / "volts.json", kilo, "-o", d / "kilo_out.csv"),
+        ("simulate", d / "volts.fmu", kilo, "-o", d / "kilo_out.csv"),
+        ("validate", d / "volts.fmu", kilo),
+    ):
+        before = listing(d)
+        line = assert_clean_failure(invoke(*args), d, before, "kilo.csv", "'u'", "is in kV", "fitted in V")
+        assert "convert the column to V" in line
+    bare = write_csv(d / "bare.csv", t, u, y, header="time,u,y")
+    ok(invoke("simulate", d / "volts.json", bare, "-o", d / "bare_out.csv"))
+    ok(invoke("simulate", d / "volts.json", volts, "-o", d / "volts_out.csv"))

@@ -258,6 +258,19 @@ def held_values(value: str | None) -> dict[str, float]:
     return out
 
 
+def check_units(model, recs, what: str) -> None:
+    """One line when a recording's input or output column names a unit (its header, ``u_kV``) other than the one
+    the model was fitted in (its signals'); nothing when either is not named."""
+    for rec in recs:
+        for role in ("input", "output"):
+            mine, theirs = getattr(model.signals, role).unit, getattr(rec, role).unit
+            if mine and theirs and mine != theirs:
+                raise CliError(
+                    f"{rec.source}: the {role} column {getattr(rec, role).name!r} is in {theirs} but {what} was "
+                    f"fitted in {mine}: convert the column to {mine} (a model's parameters hold its units)"
+                )
+
+
 def warning(text: str) -> None:
     """One line ``warning: text`` on stderr."""
     click.echo(f"warning: {text}", err=True)

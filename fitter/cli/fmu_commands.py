@@ -19,6 +19,7 @@ import click
 import numpy as np
 
 from fitter.cli.common import (
+    check_units,
     warning,
     allow_unstable_option,
     check_fmu_name,
@@ -339,6 +340,7 @@ def validate(fmu, recordings, threshold, plot, x0_rule, allow_unstable, time_col
         raise CliError(f"{plot}: the plot file name must end in .png")
     model = open_fmu(fmu)
     recs = load_recordings(list(recordings), time_column(time_col), input_col, output_col, warn=warning)
+    check_units(model, recs, fmu)
     checked(model, f"{fmu} (its resources/model.json)", allow_unstable, *[rec.u for rec in recs])
     rows, outputs = [], []
     with stderr_progress("duhem validate") as say:

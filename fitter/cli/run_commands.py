@@ -9,6 +9,7 @@ import click
 import numpy as np
 
 from fitter.cli.common import (
+    check_units,
     checked,
     emit_json,
     finite_output,
@@ -53,11 +54,13 @@ def simulate(model, input_csv, out, time_col, input_col, allow_unstable, as_json
         say(f"simulating {len(rec)} samples", None)
         if is_zip(model):
             stored = open_fmu(model)
+            check_units(stored, [rec], model)
             checked(stored, f"{model} (its resources/model.json)", allow_unstable, rec.u)
             y = simulate_fmu(model, rec.t, rec.u)
             engine = "fmu"
         else:
             stored = load_model_json(model)
+            check_units(stored, [rec], model)
             checked(stored, model, allow_unstable, rec.u)
             y = simulate_model(stored, rec.t, rec.u).y
             engine = "in-process"
