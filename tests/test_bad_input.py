@@ -64,6 +64,20 @@ def _model_json(d: Path, name: str, edit: Callable[[dict], None]) -> None:
     (d / name).write_text(json.dumps(data))
 
 
+def _crashing_library(d: Path) -> bytes:
+    """A shared library for this machine whose loading crashes (a constructor that writes to address 0): a binary
+    damaged so that the loader faults rather than refuses it.  Compiled by zig (package ``ziglang``, the native
+    backend's compiler)."""
+    import subprocess
+    import sys
+
+    (d / "crash.c").write_text("__attribute__((constructor)) static void boom(void) { *(volatile int *)0 = 0; }\n")
+    out = d / f"crash{fmpy.sharedLibraryExtension}"
+    cmd = [sys.executable, "-m", "ziglang", "cc", "-shared", "-fPIC", "-O0", "-o", str(out), str(d / "crash.c")]
+    subprocess.run(cmd, check=True, capture_output=True)
+    return out.read_bytes()
+
+
 def _fmus(d: Path, fmu: Path) -> None:
     """The broken FMUs, each from the real `fmu`."""
     with zipfile.ZipFile(fmu) as z:
@@ -76,6 +90,7 @@ def _fmus(d: Path, fmu: Path) -> None:
     _variant(fmu, d / "schema.fmu", _edited_xml(b' guid="', b' gxid="'))
     _variant(fmu, d / "no_binary.fmu", _member(BINARY, None))
     _variant(fmu, d / "bad_binary.fmu", _member(BINARY, b"\x7fELF" + bytes(range(256)) * 4))
+    _variant(fmu, d / "crashing_binary.fmu", _member(BINARY, _crashing_library(d)))
     _variant(fmu, d / "no_model.fmu", _member("resources/model.json", None))
     _variant(fmu, d / "corrupt_model.fmu", _member("resources/model.json", b'{"schema": "duhem-model",\n "kind": '))
     _variant(fmu, d / "schema_model.fmu", _member("resources/model.json", json.dumps(broken_json).encode()))
@@ -190,6 +205,10 @@ CASES = {
     "no binary for this platform": validate("no_binary.fmu", f"no binary for this platform ({BINARY} is missing"),
     "garbage binary": validate("bad_binary.fmu", f"the binary {BINARY} cannot be loaded on this machine"),
     "garbage binary, simulate": simulate_with("bad_binary.fmu", f"the binary {BINARY} cannot be loaded"),
+    "binary that crashes the loader": validate(
+        "crashing_binary.fmu", f"the binary {BINARY} crashed the loader (signal 11)", "export the FMU again"
+    ),
+    "binary that crashes the loader, simulate": simulate_with("crashing_binary.fmu", "crashed the loader"),
     "no resources/model.json": validate("no_model.fmu", "no resources/model.json: not an FMU exported by duhem"),
     "corrupt resources/model.json": validate(
         "corrupt_model.fmu", "resources/model.json: not a JSON model file (invalid JSON at line 2, column 10"

@@ -15,11 +15,13 @@ from __future__ import annotations
 import os
 import re
 import shutil
+import subprocess
+import sys
 import tempfile
 import zipfile
 import zlib
 from collections import deque
-from ctypes import CDLL, byref
+from ctypes import byref
 from pathlib import Path
 from typing import Mapping, MutableSequence
 from xml.etree import ElementTree
@@ -135,19 +137,33 @@ def _binary(path: str, names: set[str], version: str, identifier: str) -> str:
     return member
 
 
-def _check_loadable(path: str, z: zipfile.ZipFile, member: str) -> None:
-    """Load the binary `member` (unpacked to a private directory) and unload it; the error names the member."""
-    from fmpy import freeLibrary
+_LOAD_PROBE = "import ctypes, sys\ntry:\n    ctypes.CDLL(sys.argv[1])\nexcept OSError as exc:\n    sys.exit(str(exc))"
+"""What `_check_loadable`'s child process runs: load the library; an OSError's text on stderr, exit 1."""
 
+
+def _check_loadable(path: str, z: zipfile.ZipFile, member: str) -> None:
+    """Load the binary `member` (unpacked to a private directory) in a child process; the error names the member.
+    A damaged binary can crash the loader (SIGSEGV, SIGBUS) rather than raise: in the child it ends the child
+    only, and the message says so, where loaded here it ended the duhem process without a word."""
     with tempfile.TemporaryDirectory(prefix="duhem_fmu_check.") as tmp:
         library = Path(tmp) / Path(member).name
         library.write_bytes(_read(path, z, member))
         try:
-            handle = CDLL(str(library))
-        except OSError as exc:
-            reason = str(exc).replace(str(library), "").strip(": ") or "the loader gives no reason"
-            raise FmuFileError(f"{path}: the binary {member} cannot be loaded on this machine ({reason})") from None
-        freeLibrary(handle._handle)
+            done = subprocess.run(
+                [sys.executable, "-c", _LOAD_PROBE, str(library)], capture_output=True, text=True, timeout=120
+            )
+        except subprocess.TimeoutExpired:
+            raise FmuFileError(
+                f"{path}: loading the binary {member} did not end in 120 s: export the FMU again"
+            ) from None
+    if done.returncode < 0:
+        raise FmuFileError(
+            f"{path}: the binary {member} crashed the loader (signal {-done.returncode}): the file is damaged; "
+            "export the FMU again"
+        )
+    if done.returncode != 0:
+        reason = done.stderr.strip().replace(str(library), "").strip(": ") or "the loader gives no reason"
+        raise FmuFileError(f"{path}: the binary {member} cannot be loaded on this machine ({reason})")
 
 
 def _stored_model(path: str, z: zipfile.ZipFile, names: set[str]) -> Model:
