@@ -412,3 +412,21 @@ def test_worker_killed_during_batch(tmp_path, client):
         assert all((out / d / rel).stat().st_size == size for rel, size in done["files"].items())
     assert no_temporaries(out)
     assert set(os.listdir(out)) == {"dev1", "dev2", "summary.csv", "summary.json", "index.html"}
+
+
+def test_device_task_refuses_an_output_that_is_noise(tmp_path):
+    """The worker's function alone: a device whose output is seeded white noise beside its input is ``failed``
+    with the fit's own reason (R^2 of the model below 0.5), and no model, FMU or report comes back; `duhem
+    batch` used to save such a model and call the device "ok"."""
+    manifest = make_batch(tmp_path, rates=(3.0,), bad=False)
+    (d,) = read_manifest(manifest)
+    t = np.linspace(0.0, 20.0, 801)
+    noise = np.random.default_rng(9).standard_normal(len(t))
+    noise[400] += 8.0  # one spike, as in the audit's file
+    np.savetxt(d.paths[0], np.column_stack([t, np.sin(t), noise]), delimiter=",", header="time,u,y", comments="")
+    data = [Path(p).read_bytes() for p in d.paths]
+    options = BatchOptions(kind="auto", backend="python")
+    result = process_device(DeviceTask(d, data, options, input_hash(d, data, options)))
+    assert result["status"] == "failed"
+    assert "of the output's variance" in result["reason"] and "no model written" in result["reason"]
+    assert not {"model.json", "model.fmu"} & set(result.get("files") or {})

@@ -22,6 +22,7 @@ from fitter.diagnosis import diagnose
 from fitter.fmu.build import build_fmu
 from fitter.fmu.host import simulate_fmu
 from fitter.identification.exported import range_warnings
+from fitter.identification.explained import check_explained, explained_variance
 from fitter.identification.fit import fit_recordings
 from fitter.reports.diagnosis_report import fill_diagnosis_report
 from fitter.reports.fit_report import fill_fit_report
@@ -156,6 +157,8 @@ def process_device(task: DeviceTask) -> dict:
             )
             lap("fit")
             model = result.model
+            result.summary["explained"] = jsonable(explained := explained_variance(model, recs))
+            check_explained(explained)  # as `duhem fit`: a model of noise is refused, not saved
             save_model(model, out / "model.json")
             (out / "fit.json").write_text(json_text(result.summary), encoding="utf-8")
             build_fmu(model, out / "model.fmu", backend=opts.backend)
