@@ -1030,3 +1030,16 @@ def test_a_column_in_another_unit_than_the_model_was_fitted_in_is_refused(work):
     bare = write_csv(d / "bare.csv", t, u, y, header="time,u,y")
     ok(invoke("simulate", d / "volts.json", bare, "-o", d / "bare_out.csv"))
     ok(invoke("simulate", d / "volts.json", volts, "-o", d / "volts_out.csv"))
+
+
+def test_a_compensator_fmu_given_to_simulate_or_validate_is_named_as_such(work):
+    """`validate` and `simulate` drive model FMUs: a compensator (input y_ref, output u) is refused in one line
+    that names the file and what it is (it read "the FMU has no variable(s) y: not a duhem FMU", no file)."""
+    d = work["dir"]
+    ok(invoke("export", d / "model.json", "--inverse", "-o", d / "comp.fmu"))
+    for args in (
+        ("validate", d / "comp.fmu", work["rec"]),
+        ("simulate", d / "comp.fmu", work["rec"], "-o", d / "c.csv"),
+    ):
+        before = listing(d)
+        assert_clean_failure(invoke(*args), d, before, "comp.fmu: a compensator FMU (input y_ref, output u)")

@@ -197,11 +197,19 @@ def _check_input(t, u, fmu_path) -> tuple[np.ndarray, np.ndarray]:
     return t, u
 
 
-def _value_references(md) -> tuple[int, int]:
+def _value_references(md, fmu_path) -> tuple[int, int]:
+    """The value references of the model FMU's input u and output y; `FmuRunError` naming the file otherwise (a
+    compensator, input y_ref and output u, said as such)."""
     refs = {v.name: v.valueReference for v in md.modelVariables}
+    if "y_ref" in refs and "y" not in refs:
+        raise FmuRunError(
+            f"{fmu_path}: a compensator FMU (input y_ref, output u): this host drives model FMUs (input u, output "
+            "y); simulate or validate the model's FMU (duhem export MODEL.json), and check the compensator in the "
+            "simulator that runs it"
+        )
     missing = [n for n in ("u", "y") if n not in refs]
     if missing:
-        raise FmuRunError(f"the FMU has no variable(s) {', '.join(missing)}: not a duhem FMU")
+        raise FmuRunError(f"{fmu_path}: the FMU has no variable(s) {', '.join(missing)}: not a duhem model FMU")
     return refs["u"], refs["y"]
 
 
@@ -298,7 +306,7 @@ def simulate_fmu(fmu_path: str | os.PathLike, t, u, start: Mapping[str, float] |
         )
     if md.coSimulation is None:
         raise FmuRunError(f"{fmu_path}: not a Co-Simulation FMU")
-    vr_u, vr_y = _value_references(md)
+    vr_u, vr_y = _value_references(md, fmu_path)
     vr_start = _parameter_references(md, start or {}, fmu_path)
     unzipdir = extract(str(fmu_path))
     fmu = FMU2Slave(
