@@ -53,7 +53,13 @@ from fitter.reports.fit_report import fill_fit_report
 @backend_option
 @click.option("--report", type=FilePath(directory=True), help="write a fit report (HTML, PNG) here")
 @click.option("--order", type=Number(int, low=1, high=max(ORDERS)), help="state dimension n (default: chosen by BIC)")
-@click.option("--q", type=Number(low=0, open_low=True), help="bound on sigma_max(A+-) of the Section III least squares")
+@click.option(
+    "--q",
+    type=Number(low=0, open_low=True),
+    help="bound on sigma_max(A+-) of the Section III least squares, which gives one starting value of the "
+    "rate-independent refinement (odd orders, periodic inputs; unused otherwise): the refined model is not bound "
+    "by it, and another start may win",
+)
 @click.option(
     "--x0",
     "x0_policy",
