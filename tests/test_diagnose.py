@@ -839,7 +839,7 @@ def test_domains_poled_at_the_start_of_a_one_cycle_run_still_switch_both_ways():
     """A run of one cycle (middle, top tip, bottom tip, middle) whose fitted domains start switched up (q1 = 1,
     a poled device): from that start they only fall, at the bottom tip, but the input drives them both ways,
     so they reverse.  The piezo records are such runs; started from the fitted state, the answer turned on
-    the last digits of the data (docs/results.md, "Does the diagnosis rest on rounding?")."""
+    the last digits of the data."""
     t = np.linspace(0.0, 8.0, 401)
     u = np.interp(t, [0, 2, 6, 8], [0.0, 1.0, -1.0, 0.0])
     ex = join_recordings([_rec(t, u, u)])

@@ -59,7 +59,7 @@ reverses when min(V+, V-) >= `REVERSAL_MIN` max(V+, V-).  Domains that switch ov
 the other give a ratio near 1, a drift 0.  The extreme starts, not the fitted one, make the answer a property
 of the input's drive: a device poled at a run's start (the fitted state already at the first tip's side)
 shows only its fall from there, though the input would switch it back (a piezo record of one cycle did, so
-the answer turned on the last digits of the data: docs/results.md, "Does the diagnosis rest on rounding?").
+the answer turned on the last digits of the data).
 
 Is the residual left explained (`remainder_report`)?  Under "explained" it is
 the white measurement noise the noise level assumes; a remainder that a

@@ -124,7 +124,7 @@ Broyden's secant formula between (`Options.jacobian_refresh`).  Measured on piez
 level (as recorded and seeds 1-11 of `bench/fit_rounding.py`'s perturbation, one after the other, 6 Dec 2026):
 median 33.6 s against 44.1 s with differences at every request, 9 of 12 draws within issue 35's bound against 10
 of 12.  Two of the three draws outside are the two outside with differences at every request, whose base (the
-order and kind search, which keeps `FIT_OPTIONS`' differences) is the same (docs/results.md)."""
+order and kind search, which keeps `FIT_OPTIONS`' differences) is the same."""
 
 
 def check_effects(effects: Sequence[str]) -> list[str]:

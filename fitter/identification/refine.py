@@ -91,14 +91,14 @@ class Options:
     triangles' rate-independent order-3 fit its Jacobian columns were 10-100 % off those of 1e-6 with
     variable projection (0.5-2 % without); 1e-6 and 1e-5 agree to 0.1-2.6 %.  Every fit keeps the default for
     now: with 1e-6 the piezo effect fit ended in a worse minimum (0.64/0.80/0.85 % against 0.40/0.55/0.68 %)
-    and the base search moved the piezo diagnosis (see `compiled`); open, docs/results.md."""
+    and the base search moved the piezo diagnosis (see `compiled`); open."""
     compiled: bool = False
     """Run the evaluations on the kernel's compiled modal scan (`fitter.core.scans.compiled_scans`, numba): the
     order and kind search does (`fitter.identification.search.FIT_OPTIONS`), and so do the effect fits
     (`fitter.identification.effects_fit.OPTIONS`).  Its rounding differs from the numpy sums' by about 1e-15, and
     a fit whose minimum turns on rounding (piezo.best's rate-independent base, which leads a short race of starts)
     may end in another one: such a choice is judged on draws at rounding level (`bench/fit_rounding.py`), not on
-    one run (docs/results.md)."""
+    one run."""
     jacobian_refresh: int = 1
     """Forward differences at every `jacobian_refresh`-th Jacobian the solver asks for, Broyden's secant
     update at the others (module docstring, `SecantJacobian`); 1: differences every time (scipy's own).  The

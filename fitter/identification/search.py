@@ -71,7 +71,7 @@ HARDER_NFEV = 4 * MAX_NFEV
 FIT_OPTIONS = Options(ftol=1e-9, xtol=1e-10, max_nfev=MAX_NFEV, max_samples=3000, eliminate=True, compiled=True)
 """Evaluations on the compiled modal scan (`Options.compiled`, numba): on the three piezo rates the search took
 23.4 s instead of 30.8 s on one process, and piezo.best's twelve draws at rounding level were all within issue 35's
-bound against 9 of 12 on numpy's sums (median 28.6 s against 31.1 s; docs/results.md, thirty-fourth session)."""
+bound against 9 of 12 on numpy's sums (median 28.6 s against 31.1 s)."""
 
 
 @dataclass

@@ -89,7 +89,7 @@ WORKER_NICENESS = 19
 """How much lower the pool's processes run than this one: the lowest priority.  This process's Example 1 (with
 cvxpy's import) is the longest chain, so the seeds queued in the pool take the cores it leaves.  At 5 it still
 had about four fifths of a core while the two pool processes ran (its CPU over its wall time, measured), at 19 it
-keeps nearly a whole one (docs/results.md, thirty-fifth session)."""
+keeps nearly a whole one."""
 
 
 def _behind_this_process() -> None:
