@@ -223,7 +223,8 @@ def fit_recordings(
         (decimated beyond, every input reversal kept: `fitter.identification.output_error`); default
         `FIT_OPTIONS`'s.  `duhem diagnose` passes its own budget (`fitter.diagnosis.fitting.SAMPLES`).
     retry_unsettled : refit single cycles that do not close with their initial state free when the settled fit
-        leaves over `MISFIT` times the noise (module docstring, item 4).  `duhem diagnose` turns it off for its base:
+        leaves over `MISFIT` times the noise, and runs that start alike from one initial state when the one stored
+        x0 does not suit them (module docstring, item 4).  `duhem diagnose` turns it off for its base:
         what keeps a cycle from closing (a drift, creep) is for its effects to name, not for the base's start.
 
     Returns
