@@ -44,8 +44,6 @@ CI_MAX_SAMPLES = 5000
 
 FIT_DRAWS = [
     pytest.param(DrawSpec(301, "ri", 1, "sine", 1, 400, 0.005), id="ri1-sine"),
-    pytest.param(DrawSpec(301, "ri", 2, "turning_points", 1, 400, 0.003), id="ri2-turning-points"),
-    pytest.param(DrawSpec(300, "ri", 3, "triangles", 1, 400, 0.004), id="ri3-triangles"),
     pytest.param(DrawSpec(300, "ri", 4, "steps", 1, 400, 0.008), id="ri4-steps"),
     pytest.param(DrawSpec(301, "ri", 2, "multisine", 1, 400, 0.0), id="ri2-multisine-noise-free"),
     pytest.param(DrawSpec(301, "ri", 2, "sine", 2, 300, 0.002), id="ri2-sine-2files"),
