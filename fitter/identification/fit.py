@@ -28,7 +28,7 @@ Pipeline of `fit_recordings`
    those when it suits them (`fitter.identification.exported`).  Where the
    stored x0 leaves more than `SHARED_START_RSS` times the RSS of their own
    starts (`_apart`), the search is run again with one initial state per
-   start group, and kept if its RSS is within that factor of the first
+   start group (orders up to the first search's choice), and kept if its RSS is within that factor of the first
    search's from the own starts (the runs do start from one state; else they
    were made after other histories, and the first search is kept).
    The convergence condition is enforced: for the rate-dependent model with g >= 0 the period map is e^{A sum g dt}, so
@@ -259,10 +259,12 @@ def fit_recordings(
                 _best(cands, data, recordings), data, recordings
             ):
                 data, cands = free, others
-        if retry_unsettled and _apart(_best(cands, data, recordings), data, recordings):
+        first = _best(cands, data, recordings)
+        if retry_unsettled and _apart(first, data, recordings):
             progress("one stored initial state does not suit the recordings that start alike: fitting them so", None)
             shared = replace(data, starts=start_groups(data.recs))
-            others = order_search(shared, kind, orders, q, levels, progress, faithful_minor_loops, options)
+            upto = tuple(n for n in orders if n <= first.param.n)  # runs that share a state need no more states
+            others = order_search(shared, kind, upto, q, levels, progress, faithful_minor_loops, options)
             joint, _ = _start_rss(_best(others, shared, recordings), shared, recordings)
             if joint <= SHARED_START_RSS * _start_rss(_best(cands, data, recordings), data, recordings)[1]:
                 data, cands = shared, others
