@@ -350,8 +350,8 @@ def leg_rates(rec: Recording) -> np.ndarray:
     return du[keep] / dt[keep]
 
 
-def rate_levels(norm: Sequence[Recording]) -> RateLevels:
-    """Step 5 of the module docstring."""
+def rate_levels(norm: Sequence[Recording], legs: bool = True) -> RateLevels:
+    """Step 5 of the module docstring; `legs` False: the levels of the recordings' median rates alone."""
     meds, pooled, triangle = [], [], True
     for r in norm:
         v = np.abs(np.diff(r.u) / np.diff(r.t))
@@ -368,8 +368,8 @@ def rate_levels(norm: Sequence[Recording]) -> RateLevels:
         if not inner.any() or np.std(v[inner]) > 0.15 * np.median(v):
             triangle = False
     groups = _rate_groups(np.sort(meds))
-    legs = np.concatenate([leg_rates(r) for r in norm])
-    count = max(len(groups), len(_rate_groups(np.sort(legs))) if len(legs) else 1)
+    speeds = np.concatenate([leg_rates(r) for r in norm]) if legs else np.zeros(0)
+    count = max(len(groups), len(_rate_groups(np.sort(speeds))) if len(speeds) else 1)
     levels = np.array([np.exp(np.mean(np.log(g))) for g in groups])
     if not triangle:
         v = np.concatenate(pooled)
