@@ -156,8 +156,7 @@ def _shared_start(model, alike: Sequence[Recording]) -> np.ndarray | None:
     start from one state; else None: runs made after other histories, the first's own start is stored)."""
     with np.errstate(all="ignore"):
         try:
-            x0 = shared_initial_state(model, [(r.t, r.u, r.y) for r in alike])
-            joint = sum(float(np.sum((r.y - simulate(model.replace(x0=x0), r.t, r.u).y) ** 2)) for r in alike)
+            x0, joint = shared_initial_state(model, [(r.t, r.u, r.y) for r in alike])
         except (KernelError, np.linalg.LinAlgError):
             return None
     starts = [own_start(model, r) for r in alike]

@@ -298,13 +298,17 @@ def _raw_bic(cand: Candidate, data: FitData, recordings) -> float:
     """N ln(RSS / N) + p ln N of the candidate's physical model on every raw sample, each recording from its own
     fitted initial state (`exported.score`'s ``nrmse_x0_fitted``): the score on which fits of the two initial-state
     modes are compared; inf when one diverges."""
-    model = _base_model(cand, data, recordings)
-    rows = score(model, recordings)
-    if any(m.get("nrmse_x0_fitted") is None for m in rows):
-        return float("inf")
+    rss = _rss(score(_base_model(cand, data, recordings), recordings), recordings, "nrmse_x0_fitted")
     n = sum(len(r.y) for r in recordings)
-    rss = sum((m["nrmse_x0_fitted"] * np.ptp(r.y)) ** 2 * len(r.y) for m, r in zip(rows, recordings))
     return float(n * np.log(max(rss, 1e-300) / n) + cand.param.size * np.log(n))
+
+
+def _rss(rows: Sequence[dict], recordings, key: str) -> float:
+    """Sum of squared residuals over the recordings' samples from `exported.score`'s rows' NRMSE `key` (RMS over
+    output range); inf when a row has none (a simulation diverged)."""
+    if any(m.get(key) is None for m in rows):
+        return float("inf")
+    return float(sum((m[key] * np.ptp(r.y)) ** 2 * len(r.y) for m, r in zip(rows, recordings)))
 
 
 def _start_rss(cand: Candidate, data: FitData, recordings) -> tuple[float, float]:
@@ -313,11 +317,8 @@ def _start_rss(cand: Candidate, data: FitData, recordings) -> tuple[float, float
     is for); (inf, inf) when one diverges."""
     alike = same_start(recordings)
     rows = score(_stored(cand, data, recordings), alike)
-    if any(m.get("nrmse") is None or m.get("nrmse_x0_fitted") is None for m in rows):
-        return float("inf"), float("inf")
-    stored = sum((m["nrmse"] * np.ptp(r.y)) ** 2 * len(r.y) for m, r in zip(rows, alike))
-    own = sum((m["nrmse_x0_fitted"] * np.ptp(r.y)) ** 2 * len(r.y) for m, r in zip(rows, alike))
-    return stored, own
+    stored, own = _rss(rows, alike, "nrmse"), _rss(rows, alike, "nrmse_x0_fitted")
+    return (stored, own) if np.isfinite(stored) and np.isfinite(own) else (float("inf"), float("inf"))
 
 
 def _alike(data: FitData, recordings) -> bool:

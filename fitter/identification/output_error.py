@@ -169,17 +169,18 @@ def fitted_initial_state(
     return x0, base + G @ z, shifted(start, position, float(z[n]))
 
 
-def shared_initial_state(model, runs: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> np.ndarray:
+def shared_initial_state(model, runs: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple[np.ndarray, float]:
     """One initial state for several runs (t, u, y) of a model without effects: x_0 = argmin sum over the runs
-    and their samples of ||y - yhat(x_0)||^2, yhat = base + G x_0 on each (`_affine_output`, the runs stacked).
-    Raises `KernelError` when a simulation overflows."""
+    and their samples of ||y - yhat(x_0)||^2, yhat = base + G x_0 on each (`_affine_output`, the runs stacked),
+    and that sum at x_0.  Raises `KernelError` when a simulation overflows."""
     cache = flows(model)
     parts = [_affine_output(model, t, u, cache) for t, u, _ in runs]
     G = np.vstack([g for _, g in parts])
     r = np.concatenate([y - base for (base, _), (_, _, y) in zip(parts, runs)])
     if not (np.all(np.isfinite(G)) and np.all(np.isfinite(r))):
         raise KernelError("simulation overflowed")
-    return lstsq_scaled(G, r)
+    x0 = lstsq_scaled(G, r)
+    return x0, float(np.sum((r - G @ x0) ** 2))
 
 
 def _affine_output(model, t, u, cache: dict | None) -> tuple[np.ndarray, np.ndarray]:
@@ -508,7 +509,7 @@ class Recordings:
             if len(members) > 1:
                 try:
                     with np.errstate(all="ignore"):
-                        out[g] = shared_initial_state(model, [(r.t, r.u, r.y) for r in members])
+                        out[g] = shared_initial_state(model, [(r.t, r.u, r.y) for r in members])[0]
                 except (KernelError, np.linalg.LinAlgError):
                     pass
         return out
