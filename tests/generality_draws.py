@@ -63,9 +63,8 @@ Each file is a separate run from t = 0 (its own clock) of the device from its x0
 range (the range of the noise-free device output y_s (C x + D s) over all files, offsets excluded); 0, or in
 [1e-3, 1e-2].  ``offsets="common"``: every file has the same output offset (drawn as N(0, 3) output ranges);
 ``"per_file"`` (two or more files): each file's offset differs from the first's by U(-0.5, 0.5) output ranges,
-an instrument zeroed anew for each run.  The latter is not a model of the class for `duhem fit`, which fits
-one model with one stored x0 and no per-file reference (docs/user-guide.md, "duhem fit does not fit
-references"); `duhem diagnose` fits a reference per separate run.
+an instrument zeroed anew for each run.  Both are models of the class: `duhem fit` fits an output reference per
+file where the files' zeros differ (the summary's ``references``, which `FitResult.simulate` adds).
 
 Properties (`check_fit`, `check_diagnosis`)
 -------------------------------------------
@@ -143,11 +142,6 @@ class DrawSpec:
         return (
             f"{self.kind}{self.order}/{self.inputs}/{self.files}x{self.samples}/noise{self.noise:.4f}{off}/s{self.seed}"
         )
-
-    @property
-    def in_class(self) -> bool:
-        """Whether the draw is a model of the fit's class (one model, one x0; module docstring)."""
-        return self.offsets == "common"
 
 
 def spec_from_seed(seed: int, min_samples: int = MIN_SAMPLES, max_samples: int = 5000) -> DrawSpec:

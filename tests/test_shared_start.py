@@ -46,7 +46,7 @@ def test_one_state_fitted_to_runs_from_one_start_is_exact():
     """Two runs of other amplitudes from the same state at one input: the shared least-squares start is that
     state (noise-free data: to rounding), though each run alone also fits it."""
     runs = [_recording(*_sine(a, p, n)) for a, p, n in ((1.0, 2, 300), (0.4, 3, 250))]
-    x0, rss = shared_initial_state(MODEL.replace(x0=[0.0, 0.0]), [(r.t, r.u, r.y) for r in runs])
+    x0, rss, _ = shared_initial_state(MODEL.replace(x0=[0.0, 0.0]), [(r.t, r.u, r.y) for r in runs])
     assert np.allclose(x0, MODEL.x0, atol=1e-9) and rss < 1e-18 * sum(len(r.y) for r in runs)
 
 

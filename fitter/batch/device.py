@@ -21,7 +21,7 @@ from fitter.data.recordings import Recording, load_recordings
 from fitter.diagnosis import diagnose
 from fitter.fmu.build import build_fmu
 from fitter.fmu.host import simulate_fmu
-from fitter.identification.exported import range_warnings
+from fitter.identification.exported import levelled, range_warnings
 from fitter.identification.explained import check_explained, explained_variance
 from fitter.identification.fit import fit_recordings
 from fitter.reports.diagnosis_report import fill_diagnosis_report
@@ -76,9 +76,10 @@ def _load(task: DeviceTask, scratch: Path) -> list[Recording]:
 
 
 def _validate(fmu: Path, recs: list[Recording], model, threshold: float) -> tuple[list[dict], list[np.ndarray]]:
-    """Per recording, what ``duhem validate`` reports: the FMU (fmpy) against the data, all samples."""
+    """Per recording, what ``duhem validate`` reports: the FMU (fmpy) against the data `levelled` by the output
+    reference the fit found for it, all samples."""
     rows, outputs = [], []
-    for rec in recs:
+    for rec in [levelled(model, r) for r in recs]:
         y = simulate_fmu(fmu, rec.t, rec.u)
         m = compare(rec, y)
         m.update(

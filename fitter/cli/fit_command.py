@@ -197,6 +197,7 @@ def fit(
     if summary.get("why"):
         click.echo(f"chosen: {summary['why']}")
     _budget_lines(summary)
+    _reference_line(summary.get("references"))
     effects = summary.get("effects") or {}
     held = effects.get("held") or {}
     for e in effects.get("fitted", []):
@@ -250,6 +251,16 @@ def fit(
     _own_start_note(recs)
     if "comparison" in summary:
         _comparison_tables(summary["comparison"])
+
+
+def _reference_line(refs: dict | None) -> None:
+    """The output references the fit found (the summary's ``references``), in one line."""
+    if refs:
+        values = ", ".join(f"{k} {v:+.6g}" for k, v in refs["values"].items())
+        click.echo(
+            f"output references (each file's zero relative to {refs['relative_to']}'s, a property of the files, "
+            f"not of the device; every score adds them): {values}"
+        )
 
 
 def _own_start_note(recs: list[dict]) -> None:

@@ -322,15 +322,16 @@ def duhem_fit(ex: JoinedExperiment, mask: np.ndarray, order: int | None = None) 
     samples as `duhem fit`): on the four creep trapezoids (4 x 5000 samples) the two searches at `duhem fit`'s 3000
     samples per run took 504 s of a 937 s diagnosis."""
     share = _share(ex)
-    first = fit_recordings(ex.recordings, kind="ri", order=order, max_samples=share, retry_unsettled=False)
+    base = {"kind": "ri", "max_samples": share, "retry_unsettled": False, "references": False}
+    first = fit_recordings(ex.recordings, order=order, **base)
     refined = fit_base(ex, first.model, mask)
     refs = output_references(refined, ex)
     if refs is None:
         return first, refined
     level = [Recording(r.t, r.u, r.y - refs[r.name], r.name, r.input, r.output, r.source) for r in ex.recordings]
-    levelled = fit_recordings(level, kind="ri", order=order, max_samples=share, retry_unsettled=False)
+    levelled = fit_recordings(level, order=order, **base)
     if levelled.model.order < first.model.order:
-        levelled = fit_recordings(level, kind="ri", order=first.model.order, max_samples=share, retry_unsettled=False)
+        levelled = fit_recordings(level, order=first.model.order, **base)
     again = fit_base(ex, levelled.model, mask)
     return (levelled, again) if again.rss <= refined.rss else (first, refined)
 

@@ -257,18 +257,22 @@ def screen_effects(
     penalty: Callable[[object], np.ndarray] | None = None,
     progress: Progress = silent,
     held: dict[str, float] | None = None,
+    references: bool = False,
 ) -> ScreenedEffects:
     """Step 1 of the module docstring for `model` and `effects` on `recordings`, its first round: every
     combination of the effects' starts refined for `SCREEN_FIRST_NFEV` iterations with the base's A held.
 
     `penalty` maps a candidate model to barrier residuals (zero where it is acceptable); `held`, effect
-    parameters held at known values (`check_held`).
+    parameters held at known values (`check_held`); `references`: every recording but the first has its own
+    output reference, fitted with its initial state (`Recordings`' ``references``; files of different zeros).
     """
     names = [e for e in check_effects(effects) if e not in {x.effect for x in model.effects}]
     template = model.replace(fit_info={})
     fam = WithEffects(StateSpace(template), names, _context(template, recordings), held=check_held(held, names))
     settle = [closed_loop(r) for r in recordings]
-    problem = Recordings(list(recordings), x0="fit", settle=settle, weights=_balanced(recordings))
+    problem = Recordings(
+        list(recordings), x0="fit", settle=settle, weights=_balanced(recordings), references=references
+    )
     kinds = [n.split("[")[0] for n in fam.base.names()] + [""] * (fam.size - fam.n_base)
     free = np.array([k != "x0" for k in kinds])
     screen_free = free & np.array([not k.startswith("A") for k in kinds])

@@ -30,7 +30,7 @@ from fitter.core.errors import DuhemError, KernelError
 from fitter.core.kernel import simulate
 from fitter.data.noise import noise_or_zero
 from fitter.data.recordings import Recording
-from fitter.identification.exported import own_start
+from fitter.identification.exported import levelled, own_start
 
 __all__ = [
     "EXPLAINED_MIN",
@@ -68,7 +68,7 @@ def explained_variance(model, recordings: Sequence[Recording]) -> list[dict]:
     ``output_std`` (the recorded output's standard deviation), ``noise_rms`` (its white-noise estimate) and
     ``threshold`` = `EXPLAINED_MIN`."""
     rows = []
-    for rec in recordings:
+    for rec in [levelled(model, r) for r in recordings]:
         y_hat = _best_output(model, rec)
         sst, sse = float(np.sum((rec.y - np.mean(rec.y)) ** 2)), float(np.sum((rec.y - y_hat) ** 2))
         r2 = 1.0 - sse / sst if sst > 0 and np.isfinite(sse) else (1.0 if sst == 0 and sse == 0 else -np.inf)

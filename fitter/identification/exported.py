@@ -87,6 +87,9 @@ __all__ = [
     "X0_POLICIES",
     "NRMSE_CONVENTION",
     "initial_state",
+    "file_reference",
+    "file_references",
+    "levelled",
     "own_start",
     "same_start",
     "SHARED_START_RSS",
@@ -131,10 +134,13 @@ def _periodic_x0(model, rec: Recording) -> np.ndarray:
     return x0
 
 
-def initial_state(model, recordings: Sequence[Recording], policy: str = "fitted") -> np.ndarray:
+def initial_state(
+    model, recordings: Sequence[Recording], policy: str = "fitted", references: bool = False
+) -> np.ndarray:
     """The model's stored x0, the state at the first sample of the first recording, under `policy` (module
     docstring): the periodic start of the first recording, or the state fitted to the recordings that start
-    where it starts (the first alone when it is the only one or the model has effects)."""
+    where it starts (the first alone when it is the only one or the model has effects).  With `references`,
+    every recording but the first has its own output reference, fitted with the state (`file_references`)."""
     if policy not in X0_POLICIES:
         raise DuhemError(f"x0 policy must be one of {X0_POLICIES}, not {policy!r}")
     rec = recordings[0]
@@ -144,26 +150,65 @@ def initial_state(model, recordings: Sequence[Recording], policy: str = "fitted"
     start = own_start(model, rec)
     alike = same_start(recordings)
     if len(alike) > 1 and start is not None and not getattr(model, "effects", None):
-        x0 = _shared_start(model, alike)
+        x0 = _shared_start(model, alike, references)
         if x0 is not None:
             return x0
     return np.array(model.x0, dtype=float) if start is None else start[0]
 
 
-def _shared_start(model, alike: Sequence[Recording]) -> np.ndarray | None:
-    """The x0 fitted to all of `alike` (`shared_initial_state`) when it is consistent with them: its RSS over
-    their samples at most `SHARED_START_RSS` times the sum of each one's RSS from its own start (runs that did
-    start from one state; else None: runs made after other histories, the first's own start is stored)."""
+def _shared_start(model, alike: Sequence[Recording], references: bool = False) -> np.ndarray | None:
+    """The x0 fitted to all of `alike` (`shared_initial_state`; with `references`, a reference for each but the
+    first) when it is consistent with them: its RSS over their samples at most `SHARED_START_RSS` times the sum
+    of each one's RSS from its own start (runs that did start from one state; else None: runs made after other
+    histories, the first's own start is stored)."""
+    refs = [references and i > 0 for i in range(len(alike))]
     with np.errstate(all="ignore"):
         try:
-            x0, joint = shared_initial_state(model, [(r.t, r.u, r.y) for r in alike])
+            x0, joint, _ = shared_initial_state(model, [(r.t, r.u, r.y) for r in alike], refs)
+            starts = [fitted_initial_state(model, r.t, r.u, r.y, constant=ref) for r, ref in zip(alike, refs)]
         except (KernelError, np.linalg.LinAlgError):
             return None
-    starts = [own_start(model, r) for r in alike]
-    if any(s is None for s in starts) or not np.isfinite(joint):
-        return None
     own = sum(float(np.sum((r.y - s[1]) ** 2)) for r, s in zip(alike, starts))
-    return x0 if joint <= SHARED_START_RSS * own else None
+    return x0 if np.isfinite(joint) and np.isfinite(own) and joint <= SHARED_START_RSS * own else None
+
+
+def file_reference(model, rec: Recording) -> float:
+    """The output reference `duhem fit` fitted to the recording of this name (``fit_info["references"]``,
+    `file_references`: the zero of the instrument that wrote it, relative to the first recording's, which is
+    the model's own); 0 for any other recording.  The model's output plus it is what the recording is compared
+    with."""
+    refs = getattr(model, "fit_info", {}).get("references") or {}
+    return float(refs.get(rec.name, 0.0))
+
+
+def levelled(model, rec: Recording) -> Recording:
+    """`rec` with its `file_reference` taken off its output: the recording as the model itself draws it."""
+    ref = file_reference(model, rec)
+    if ref == 0.0:
+        return rec
+    return Recording(rec.t, rec.u, rec.y - ref, rec.name, rec.input, rec.output, rec.source)
+
+
+def file_references(model, recordings: Sequence[Recording]) -> dict[str, float]:
+    """The output reference of every recording but the first, for the model with its stored x0 (recordings of
+    several separate runs, each written by an instrument zeroed anew): the constant r_i that minimises
+    ||y_i - yhat_i - r_i||, yhat_i the model's output from the stored x0 for a recording that starts where the
+    first starts (`same_start`: the state is the one stored for them), else from the recording's own start,
+    fitted with r_i (`fitted_initial_state`).  The first recording's reference is the model's own (0).
+    Raises `KernelError` when a simulation overflows."""
+    alike = {id(r) for r in same_start(recordings)}
+    out = {}
+    with np.errstate(all="ignore"):
+        for rec in recordings[1:]:
+            if id(rec) in alike:
+                y_hat = simulate(model, rec.t, rec.u).y
+                out[rec.name] = float(np.mean(rec.y - y_hat))
+            else:
+                x0, y_ref, _ = fitted_initial_state(model, rec.t, rec.u, rec.y, constant=True)
+                out[rec.name] = float(np.mean(y_ref - simulate(model, rec.t, rec.u, x0=x0).y))
+    if not all(np.isfinite(v) for v in out.values()):
+        raise KernelError("simulation overflowed")
+    return out
 
 
 def same_start(recordings: Sequence[Recording]) -> list[Recording]:
@@ -173,9 +218,9 @@ def same_start(recordings: Sequence[Recording]) -> list[Recording]:
 
 
 def score(model, recordings: Sequence[Recording]) -> list[dict]:
-    """`fitter.data.metrics.compare` of the saved model on each raw recording, from its stored x0, with the
-    recording's own fitted start beside it (``x0_fitted``, ``effect_start_fitted``, ``nrmse_x0_fitted``; module
-    docstring).
+    """`fitter.data.metrics.compare` of the saved model on each raw recording, from its stored x0 (the recording
+    `levelled` by the reference the fit found for it), with the recording's own fitted start beside it
+    (``x0_fitted``, ``effect_start_fitted``, ``nrmse_x0_fitted``; module docstring).
 
     A simulation that overflows scores None (and ``"diverged": True``).
     """
@@ -189,6 +234,7 @@ def score(model, recordings: Sequence[Recording]) -> list[dict]:
         if not np.all(np.isfinite(y_hat)):
             out.append({"recording": rec.name, "nrmse": None, "nrmse_last_cycle": None, "diverged": True})
             continue
+        rec = levelled(model, rec)
         m = compare(rec, y_hat)
         m.update(recording=rec.name, diverged=False, **_own_start(model, rec))
         out.append(m)

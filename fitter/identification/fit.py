@@ -22,15 +22,23 @@ Pipeline of `fit_recordings`
    rest, a creep trapezoid) and the settled fit leaves more than `MISFIT`
    times the noise: the search is then run with the initial state fitted
    too, and the mode whose best candidate has the lower BIC on every raw
-   sample (each recording from its own fitted start, `_raw_bic`) is kept.
+   sample (each recording from its own fitted start, `raw_bic`) is kept.
    Several recordings fitted each from its own initial state, of which some
    start at one input level (`start_groups`), are stored with one x0 for
    those when it suits them (`fitter.identification.exported`).  Where the
    stored x0 leaves more than `SHARED_START_RSS` times the RSS of their own
-   starts (`_apart`), the search is run again with one initial state per
+   starts (`apart`), the search is run again with one initial state per
    start group (orders up to the first search's choice), and kept if its RSS is within that factor of the first
    search's from the own starts (the runs do start from one state; else they
    were made after other histories, and the first search is kept).
+   Several recordings fitted each from its own initial state whose outputs have different zeros (separate runs,
+   an instrument zeroed anew for each: `zeros_apart`, the best candidate's RSS over `SHARED_START_RSS` times that
+   with a constant fitted per recording) are searched again with an output reference per recording but the first,
+   fitted with its initial state (`Recordings`' ``references``), and that search is kept where its BIC, the
+   references counted, is lower.  The references are a property of the files, not of the device: the model is
+   the first recording's (its reference is the model's own); the others' are in the summary's ``references``
+   and the model's ``fit_info``, and every score of a recording adds its reference to the model's output
+   (`exported.file_reference`).
    The convergence condition is enforced: for the rate-dependent model with g >= 0 the period map is e^{A sum g dt}, so
    rho < 1 iff A is Hurwitz, which the parametrisation guarantees; for the
    rate-independent model condition (5), rho(e^{beta A+} e^{-beta A-}) < 1, is
@@ -81,7 +89,6 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from fitter.core.effects import Effect
 from fitter.core.errors import KernelError
 from fitter.core.files import jsonable
 from fitter.core.kernel import simulate
@@ -101,17 +108,24 @@ from fitter.identification.fit_data import (
 from fitter.identification.effects_fit import check_effects, check_held, effects_bic, race_effects, screen_effects
 from fitter.identification.exported import (
     NRMSE_CONVENTION,
-    score,
     X0_POLICIES,
-    described,
     fitted_range,
     SHARED_START_RSS,
-    initial_state,
+    file_reference,
     raw_input_rho,
-    same_start,
 )
 from fitter.identification import fit_summary
 from fitter.identification.refine import Options, RefineResult, jacobian
+from fitter.identification.run_starts import (
+    alike,
+    apart,
+    base_model,
+    raw_bic,
+    referenced,
+    start_rss,
+    stored_with,
+    zeros_apart,
+)
 from fitter.identification.parametrisation import Parametrisation, Physical, RDCanonical, RICanonical, WithEffects
 from fitter.identification.search import (
     FIT_OPTIONS,
@@ -166,8 +180,9 @@ class FitResult:
         return model.replace(x0=self.model.x0, effects=model.effects or self.model.effects)
 
     def simulate(self, rec: Recording) -> np.ndarray:
-        """The saved model's output on every sample of `rec`, from its stored x0."""
-        return simulate(self.model, rec.t, rec.u).y
+        """The saved model's output on every sample of `rec`, from its stored x0, plus the output reference the
+        fit found for a recording of its name (`exported.file_reference`; 0 for any other)."""
+        return simulate(self.model, rec.t, rec.u).y + file_reference(self.model, rec)
 
     def predict(self, rec: Recording) -> np.ndarray:
         """Output from the periodic state of the first settled cycle of `rec` (NaN before it)."""
@@ -200,6 +215,7 @@ def fit_recordings(
     progress: Progress = silent,
     max_samples: int | None = None,
     retry_unsettled: bool = True,
+    references: bool = True,
 ) -> FitResult:
     """Fit a semilinear Duhem model to one or more recordings (see the module docstring).
 
@@ -254,30 +270,75 @@ def fit_recordings(
         options = replace(
             FIT_OPTIONS, compiled=not long, max_samples=FIT_OPTIONS.max_samples if max_samples is None else max_samples
         )
-        cands = order_search(data, kind, orders, q, levels, progress, faithful_minor_loops, options)
-        if retry_unsettled and _unsettled(cands, data, recordings):
-            progress("the recordings do not close: fitting their initial states instead", None)
-            free = prepare_for_fit(recordings, settled=False)
-            others = order_search(free, kind, orders, q, levels, progress, faithful_minor_loops, options)
-            if _raw_bic(_best(others, free, recordings), free, recordings) < _raw_bic(
-                _best(cands, data, recordings), data, recordings
-            ):
-                data, cands = free, others
-        first = _best(cands, data, recordings) if retry_unsettled and _alike(data, recordings) else None
-        if first is not None and _apart(first, data, recordings):
-            progress("one stored initial state does not suit the recordings that start alike: fitting them so", None)
-            shared = replace(data, starts=start_groups(data.recs))
-            upto = tuple(n for n in orders if n <= first.param.n)  # runs that share a state need no more states
-            others = order_search(shared, kind, upto, q, levels, progress, faithful_minor_loops, options)
-            joint, _ = _start_rss(_best(others, shared, recordings), shared, recordings)
-            if joint <= SHARED_START_RSS * _start_rss(_best(cands, data, recordings), data, recordings)[1]:
-                data, cands = shared, others
+
+        def search(d: FitData, ords: tuple[int, ...] = orders) -> list[Candidate]:
+            return order_search(d, kind, ords, q, levels, progress, faithful_minor_loops, options)
+
+        data, cands = _closed_or_free(data, search(data), recordings, search, progress, retry_unsettled)
+        if references:
+            data, cands = _levelled(data, cands, recordings, search, progress)
+        if retry_unsettled:
+            data, cands = _shared(data, cands, recordings, search, progress, orders, references)
         eligible = [c for c in cands if _meets_barrier(c, data, recordings)] or cands
         best = _harder_if_misfit(min(eligible, key=lambda c: c.bic), data, recordings, progress, options)
         cands = [best if c.param is best.param else c for c in cands]
         eligible = [best if c.param is best.param else c for c in eligible]
         extended = _with_effects(eligible, data, recordings, effects, held, progress) if effects else None
         return _result(best, cands, data, recordings, kind, q, levels, x0, options, extended)
+
+
+Search = Callable[..., list[Candidate]]
+"""`order_search` with the fit's options: (prepared data, orders) -> candidates."""
+
+
+def _closed_or_free(data: FitData, cands, recordings, search: Search, progress: Progress, retry: bool):
+    """(data, candidates) of the search, or, when single cycles do not close (`_unsettled`, with `retry`), of the
+    search with their initial states fitted where its best candidate has the lower BIC on every raw sample
+    (`raw_bic`; module docstring, item 4)."""
+    if not (retry and _unsettled(cands, data, recordings)):
+        return data, cands
+    progress("the recordings do not close: fitting their initial states instead", None)
+    free = prepare_for_fit(recordings, settled=False)
+    others = search(free)
+    if raw_bic(_best(others, free, recordings), free, recordings) < raw_bic(
+        _best(cands, data, recordings), data, recordings
+    ):
+        return free, others
+    return data, cands
+
+
+def _levelled(data: FitData, cands, recordings, search: Search, progress: Progress):
+    """(data, candidates), or, where the recordings' outputs have different zeros from their own starts
+    (`zeros_apart`), those of the search with an output reference per recording when its BIC, the references
+    counted, is lower (module docstring, item 4)."""
+    if not zeros_apart(_best(cands, data, recordings), data, recordings):
+        return data, cands
+    progress("the recordings' outputs have different zeros: fitting a reference per recording", None)
+    levelled = replace(data, references=True)
+    others = search(levelled)
+    extra = (len(recordings) - 1) * np.log(len(_best(others, levelled, recordings).res.weighted))
+    if _best(others, levelled, recordings).bic + extra < _best(cands, data, recordings).bic:
+        return levelled, others
+    return data, cands
+
+
+def _shared(data: FitData, cands, recordings, search: Search, progress: Progress, orders, references: bool):
+    """(data, candidates), or, where the one x0 stored for runs that start alike does not suit them (`apart`),
+    those of the search with one initial state per start group (orders up to the first's choice; with an output
+    reference per recording where their zeros differ under the groups, `zeros_apart`) when it fits them within
+    `SHARED_START_RSS` times the first search's RSS from their own starts (module docstring, item 4)."""
+    first = _best(cands, data, recordings) if alike(data, recordings) else None
+    if first is None or not apart(first, data, recordings):
+        return data, cands
+    progress("one stored initial state does not suit the recordings that start alike: fitting them so", None)
+    groups = start_groups(data.recs)
+    levelled = references and zeros_apart(first, data, recordings, groups)
+    shared = replace(data, starts=groups, references=data.references or levelled)
+    others = search(shared, tuple(n for n in orders if n <= first.param.n))  # runs that share a state: no more
+    joint, _ = start_rss(_best(others, shared, recordings), shared, recordings)
+    if joint <= SHARED_START_RSS * start_rss(first, data, recordings)[1]:
+        return shared, others
+    return data, cands
 
 
 def _best(cands: Sequence[Candidate], data: FitData, recordings) -> Candidate:
@@ -292,55 +353,6 @@ def _unsettled(cands: Sequence[Candidate], data: FitData, recordings) -> bool:
     if data.x0_mode != "periodic" or all(closed_loop(r) for r in recordings):
         return False
     return misfit_ratio(_best(cands, data, recordings), data) > MISFIT
-
-
-def _raw_bic(cand: Candidate, data: FitData, recordings) -> float:
-    """N ln(RSS / N) + p ln N of the candidate's physical model on every raw sample, each recording from its own
-    fitted initial state (`exported.score`'s ``nrmse_x0_fitted``): the score on which fits of the two initial-state
-    modes are compared; inf when one diverges."""
-    rss = _rss(score(_base_model(cand, data, recordings), recordings), recordings, "nrmse_x0_fitted")
-    n = sum(len(r.y) for r in recordings)
-    return float(n * np.log(max(rss, 1e-300) / n) + cand.param.size * np.log(n))
-
-
-def _rss(rows: Sequence[dict], recordings, key: str) -> float:
-    """Sum of squared residuals over the recordings' samples from `exported.score`'s rows' NRMSE `key` (RMS over
-    output range); inf when a row has none (a simulation diverged)."""
-    if any(m.get(key) is None for m in rows):
-        return float("inf")
-    return float(sum((m[key] * np.ptp(r.y)) ** 2 * len(r.y) for m, r in zip(rows, recordings)))
-
-
-def _start_rss(cand: Candidate, data: FitData, recordings) -> tuple[float, float]:
-    """(RSS from the stored x0, RSS from each recording's own start) of the candidate's physical model over the
-    raw samples of the recordings that start where the first starts (`exported.same_start`: those the stored x0
-    is for); (inf, inf) when one diverges."""
-    alike = same_start(recordings)
-    rows = score(_stored(cand, data, recordings), alike)
-    stored, own = _rss(rows, alike, "nrmse"), _rss(rows, alike, "nrmse_x0_fitted")
-    return (stored, own) if np.isfinite(stored) and np.isfinite(own) else (float("inf"), float("inf"))
-
-
-def _alike(data: FitData, recordings) -> bool:
-    """Whether the recordings were fitted each from its own initial state and several start where the first starts
-    (the case `_apart` judges)."""
-    return data.x0_mode == "fit" and data.starts is None and len(same_start(recordings)) >= 2
-
-
-def _apart(cand: Candidate, data: FitData, recordings) -> bool:
-    """Whether recordings fitted each from its own initial state, several of which start where the first starts
-    (`_alike`), are missed from the one x0 stored for them: its RSS over them above `SHARED_START_RSS` times that
-    from each one's own start (`_start_rss`)."""
-    if not _alike(data, recordings):
-        return False
-    stored, own = _start_rss(cand, data, recordings)
-    return np.isfinite(stored) and stored > SHARED_START_RSS * own
-
-
-def _stored(cand: Candidate, data: FitData, recordings):
-    """The candidate's physical model with its stored x0 (`exported.initial_state`, "fitted")."""
-    model = _base_model(cand, data, recordings)
-    return model.replace(x0=initial_state(model, recordings))
 
 
 def _harder_if_misfit(best: Candidate, data: FitData, recordings, progress: Progress, options: Options) -> Candidate:
@@ -366,14 +378,6 @@ class _Extended:
     tried: list
 
 
-def _base_model(cand: Candidate, data: FitData, recordings):
-    """The candidate in physical units with the preparation's dead band, signals, experiment and input range."""
-    bare = Physical(cand.param, data.scaling).build(cand.res.theta)
-    if data.deadband > 0:
-        bare = bare.replace(effects=[Effect("backlash", {"b": data.deadband})])
-    return described(bare, recordings)
-
-
 def _with_effects(
     eligible: Sequence[Candidate],
     data: FitData,
@@ -395,10 +399,10 @@ def _with_effects(
             continue
         cand = min(of_kind, key=lambda c: c.bic)
         progress(f"{kind}{cand.param.n} with {', '.join(effects)}", None)
-        base = _base_model(cand, data, recordings)
+        base = base_model(cand, data, recordings)
         barrier = _physical_barrier(cand.param, data, recordings)
         cands.append(cand)
-        screened.append(screen_effects(base, recordings, effects, barrier, progress, held))
+        screened.append(screen_effects(base, recordings, effects, barrier, progress, held, data.references))
     sizes = [c.param.size for c in cands]
     raced = race_effects(screened, lambda i, res: effects_bic(sizes[i], res, screened[i].fam), progress)
     chosen = min(
@@ -444,7 +448,7 @@ def _meets_barrier(cand: Candidate, data: FitData, recordings) -> bool:
             model = cand.param.build(cand.res.theta)
             if not all(e <= 1e-9 for e in cand.param.excesses(model, *data.input_range())):
                 return False
-            return all(r is None or r < 1 for r in raw_input_rho(_base_model(cand, data, recordings), recordings))
+            return all(r is None or r < 1 for r in raw_input_rho(base_model(cand, data, recordings), recordings))
         except (ValueError, np.linalg.LinAlgError, KernelError):
             return False
 
@@ -470,10 +474,9 @@ def _result(
     stderr = res.stderr()
     r0 = recordings[0]
     if extended is None:
-        model = _base_model(best, data, recordings)
-        model = model.replace(x0=initial_state(model, recordings, x0_policy))
+        model = stored_with(base_model(best, data, recordings), data, recordings, x0_policy)
     else:
-        model = extended.model
+        model = referenced(extended.model, data, recordings)
     scores = fit_summary.per_recording(model, None if extended else res, data, recordings)
     bad = next((m["recording"] for m in scores if not np.isfinite(m["nrmse"])), None)
     if bad is not None:
@@ -533,9 +536,11 @@ def _result(
             f"; extended by {names} on the {summary['effects']['base']} base (the lower BIC with "
             f"the effects, {summary['effects']['bic']:.1f})"
         )
+    summary["references"] = fit_summary.references(model, recordings)
     model = model.replace(
         fit_info=jsonable(
             {k: summary[k] for k in ("kind", "order", "why", "convergence", "fitted_range", "x0", "nrmse_convention")}
+            | {"references": model.fit_info.get("references") or {}}
         )
     )
     summary["minor_loops"] = fit_summary.minor_loops(model, recordings, getattr(param, "faithful_minor_loops", False))

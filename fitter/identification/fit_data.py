@@ -102,6 +102,10 @@ class FitData:
     starts: list[int] | None = None
     """With x0 "fit": the recordings' start groups (`start_groups`), each group fitted from one initial state
     (`fitter.identification.output_error.Recordings`' ``starts``); None: each recording from its own."""
+    references: bool = False
+    """With x0 "fit": every recording but the first has its own output reference, fitted with its initial state
+    (`fitter.identification.output_error.Recordings`' ``references``: separate runs, each written by an
+    instrument zeroed anew)."""
 
     def input_range(self) -> tuple[float, float]:
         """Smallest and largest normalised input over all recordings."""

@@ -56,6 +56,25 @@ def per_recording(model, res: RefineResult | None, data: FitData, recordings) ->
     return out
 
 
+def references(model, recordings) -> dict | None:
+    """The summary's ``references``: the output reference the fit found for each recording but the first
+    (``fit_info["references"]``, `fitter.identification.exported.file_references`), in the output's unit and in
+    output ranges; None when the fit has none."""
+    refs = model.fit_info.get("references") or {}
+    if not refs:
+        return None
+    span = max(float(np.ptp(np.concatenate([r.y for r in recordings]))), 1e-300)
+    return {
+        "relative_to": recordings[0].name,
+        "values": refs,
+        "in_output_ranges": {k: v / span for k, v in refs.items()},
+        "unit": recordings[0].output.unit,
+        "why": "the recordings' outputs have different zeros (separate runs, each written by an instrument zeroed "
+        "anew): each recording's output is compared with the model's plus its reference; the model is the first "
+        "recording's, and an FMU runs it so (duhem validate adds the reference of a recording of the same name)",
+    }
+
+
 def misfit(scores: list[dict], limit: float, refined_further: bool, budget_hit: bool) -> dict:
     """The summary's ``misfit``: per recording, the saved model's residual RMS from the recording's own fitted start
     in times the output's white noise (`_own_start_ratio` of `per_recording`'s rows), the worst, and whether it is

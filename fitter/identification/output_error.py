@@ -105,6 +105,7 @@ from fitter.identification.projection import (
     response_columns_all,
     solve_shared,
     split_solution,
+    with_reference,
 )
 
 __all__ = ["Recordings", "simulate_from", "fitted_initial_state", "shared_initial_state", "X0_MODES", "FAIL"]
@@ -169,18 +170,32 @@ def fitted_initial_state(
     return x0, base + G @ z, shifted(start, position, float(z[n]))
 
 
-def shared_initial_state(model, runs: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple[np.ndarray, float]:
+def shared_initial_state(
+    model, runs: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], references: Sequence[bool] | None = None
+) -> tuple[np.ndarray, float, list[float]]:
     """One initial state for several runs (t, u, y) of a model without effects: x_0 = argmin sum over the runs
-    and their samples of ||y - yhat(x_0)||^2, yhat = base + G x_0 on each (`_affine_output`, the runs stacked),
-    and that sum at x_0.  Raises `KernelError` when a simulation overflows."""
+    and their samples of ||y - yhat(x_0) - r||^2, yhat = base + G x_0 on each (`_affine_output`, the runs
+    stacked), r a constant of each run whose `references` entry is true (the zero of the instrument that wrote
+    it; 0 for the others), fitted with x_0.  Returns x_0, that sum at the solution and the runs' r.  Raises
+    `KernelError` when a simulation overflows."""
     cache = flows(model)
     parts = [_affine_output(model, t, u, cache) for t, u, _ in runs]
-    G = np.vstack([g for _, g in parts])
+    refs = [bool(r) for r in (references or [False] * len(runs))]
+    n, k = model.order, sum(refs)
+    G = np.zeros((sum(len(y) for _, _, y in runs), n + k))
+    at, col = 0, n
+    for (_, g), ref in zip(parts, refs):
+        G[at : at + len(g), :n] = g
+        if ref:
+            G[at : at + len(g), col] = 1.0
+            col += 1
+        at += len(g)
     r = np.concatenate([y - base for (base, _), (_, _, y) in zip(parts, runs)])
     if not (np.all(np.isfinite(G)) and np.all(np.isfinite(r))):
         raise KernelError("simulation overflowed")
-    x0 = lstsq_scaled(G, r)
-    return x0, float(np.sum((r - G @ x0) ** 2))
+    z = lstsq_scaled(G, r)
+    offsets = iter(z[n:].tolist())
+    return z[:n], float(np.sum((r - G @ z) ** 2)), [next(offsets) if ref else 0.0 for ref in refs]
 
 
 def _affine_output(model, t, u, cache: dict | None) -> tuple[np.ndarray, np.ndarray]:
@@ -426,8 +441,8 @@ class Recordings:
         owner = self._reference_owner()
         shared = self._shared_starts(model)
         for i, (rec, w, cyc, settle) in enumerate(zip(self.recordings, self._w, self.cycles, self._settle)):
-            x0 = None if shared is None else shared.get(self.starts[i])
-            one = self._one(model, rec, cyc, settle, reference=i != owner, memo=self._memos[i], x0=x0)
+            start = None if shared is None else shared.get(i)
+            one = self._one(model, rec, cyc, settle, reference=i != owner, memo=self._memos[i], shared=start)
             parts.append(_weighted(one[2], w[one[0] :]))
             info.append(one)
         return (parts[0] if len(parts) == 1 else np.concatenate(parts)), model, info
@@ -436,20 +451,20 @@ class Recordings:
         """Variable projection (module docstring): the weighted residuals of `residuals` with the linear entries
         of theta (and x0 for ``"fit"``, and the output's references of a model whose additive effects carry one)
         at their weighted least-squares values, and theta with those values."""
-        if self.references:
-            raise ValueError("variable projection does not fit per-recording references: refine without eliminate")
         lin = param.linear_entries()
         try:
             model = param.build(theta)
             with np.errstate(all="ignore"):
                 fl = flows(model)
                 parts = self._linear_parts(model, lin, fl)
-            groups = self._groups(model)
-            solution = solve_shared(parts, [r.y for r in self.recordings], self._w, groups)
+            groups, refs = self._groups(model), self._reference_columns(model)
+            solution = solve_shared(parts, [r.y for r in self.recordings], self._w, groups, refs)
         except (DuhemError, ValueError, np.linalg.LinAlgError, FloatingPointError):
             info = [self._one(None, rec, cyc) for rec, cyc in zip(self.recordings, self.cycles)]
             return np.concatenate([_weighted(i[2], w[i[0] :]) for i, w in zip(info, self._w)]), np.array(theta)
-        theta_l, own = split_solution(parts, solution, groups)
+        theta_l, own = split_solution(parts, solution, groups, refs)
+        if refs:
+            parts = [with_reference(p) if r else p for p, r in zip(parts, refs)]
         theta = np.array(theta, dtype=float)
         theta[list(lin)] = theta_l
         weighted = [
@@ -487,7 +502,7 @@ class Recordings:
         state = _settled(model, rec.t, rec.u, fl, memo) if self._settle[i] else None
         terms = _terms(model, rec.t, rec.u, state, memo)
         own = part.Own
-        if i != self._reference_owner() and offset_position(model) is not None:
+        if i != self._reference_owner() and (self.references or offset_position(model) is not None):
             own = np.column_stack([own, np.ones(len(terms))])
         return replace(part, base=part.base + terms, Own=own)
 
@@ -497,21 +512,34 @@ class Recordings:
             return None
         return self.starts
 
-    def _shared_starts(self, model) -> dict[int, np.ndarray] | None:
-        """The initial state of each start group of more than one recording (`_groups`, `shared_initial_state`
-        over all their samples, as `fitted_initial_state` fits one recording's)."""
+    def _reference_columns(self, model) -> list[bool] | None:
+        """Per recording, whether its output reference is a column of `solve_shared` (``references``, x0
+        ``"fit"``, a model without effects; not the reference's owner); None: none is (a model with effects has
+        its references among its own columns, `_linear_part`)."""
+        if not self.references or self.x0 != "fit" or model is None or getattr(model, "effects", None):
+            return None
+        owner = self._reference_owner()
+        return [i != owner for i in range(len(self.recordings))]
+
+    def _shared_starts(self, model) -> dict[int, tuple[np.ndarray, float]] | None:
+        """Per recording of a start group of more than one (`_groups`), its group's initial state and its own
+        output reference (0 without ``references``): `shared_initial_state` over all the group's samples, as
+        `fitted_initial_state` fits one recording's."""
         groups = self._groups(model)
         if groups is None:
             return None
+        refs = self._reference_columns(model) or [False] * len(groups)
         out = {}
         for g in set(groups):
-            members = [r for r, k in zip(self.recordings, groups) if k == g]
+            members = [i for i, k in enumerate(groups) if k == g]
             if len(members) > 1:
+                runs = [(self.recordings[i].t, self.recordings[i].u, self.recordings[i].y) for i in members]
                 try:
                     with np.errstate(all="ignore"):
-                        out[g] = shared_initial_state(model, [(r.t, r.u, r.y) for r in members])[0]
+                        x0, _, offsets = shared_initial_state(model, runs, [refs[i] for i in members])
                 except (KernelError, np.linalg.LinAlgError):
-                    pass
+                    continue
+                out.update({i: (x0, r) for i, r in zip(members, offsets)})
         return out
 
     def _reference_owner(self) -> int:
@@ -520,9 +548,11 @@ class Recordings:
         it is predicted as every recording is scored)."""
         return next((i for i, w in enumerate(self._w) if np.any(w > 0)), 0)
 
-    def _one(self, model, rec: Recording, cyc, settle: bool = False, reference: bool = True, memo=None, x0=None):
-        """(start, x0, residual from start, rho, effect state) of one recording (`simulate_from`); with `x0`
-        (a shared start, `_shared_starts`) simulated from it; failures give `FAIL` residuals."""
+    def _one(self, model, rec: Recording, cyc, settle: bool = False, reference: bool = True, memo=None, shared=None):
+        """(start, x0, residual from start, rho, effect state) of one recording (`simulate_from`); with `shared`
+        (a shared start and the recording's reference, `_shared_starts`) simulated from it, the reference
+        added; failures give `FAIL` residuals."""
+        x0, offset = (None, 0.0) if shared is None else shared
         start = cyc[0] if (self.x0 == "periodic" and cyc is not None) else 0
         fail = FAIL * max(float(np.ptp(rec.y)), 1e-300)
         try:
@@ -534,7 +564,7 @@ class Recordings:
                 s, x0, yhat, rho, state = simulate_from(
                     mod, rec.t, rec.u, rec.y, mode, cyc, settle, reference, self.references, memo
                 )
-            r = rec.y[s:] - yhat
+            r = rec.y[s:] - yhat - offset
             if not np.all(np.abs(r) < fail * 1e3):
                 raise KernelError("simulation diverged")
             return s, x0, r, rho, state

@@ -7,9 +7,9 @@ in D (`fitter.identification.output_error`, "Variable projection"): on recording
 
 b_i the response to the forcing left when theta_L = 0, Psi_i the responses to the unit linear entries (shared
 by the recordings), Own_i the columns of recording i's own unknowns z_i (its initial state for ``"fit"``, and
-the output's reference where one is fitted).  `response_columns` computes b, Psi and the initial-state columns
-in one pass of the kernel (`response_columns_all`: those of every recording, in one call of the compiled scan);
-`solve_shared` solves for [theta_L, z_1, z_2, ...] by weighted least squares.
+the output's reference where one is fitted: a column of ones, `with_reference`).  `response_columns` computes b,
+Psi and the initial-state columns in one pass of the kernel (`response_columns_all`: those of every recording, in
+one call of the compiled scan); `solve_shared` solves for [theta_L, z_1, z_2, ...] by weighted least squares.
 """
 
 from __future__ import annotations
@@ -22,7 +22,15 @@ import numpy as np
 from fitter.core.errors import KernelError
 from fitter.core.kernel import state_responses
 
-__all__ = ["LinearPart", "response_columns", "response_columns_all", "solve_shared", "split_solution", "lstsq_scaled"]
+__all__ = [
+    "LinearPart",
+    "response_columns",
+    "response_columns_all",
+    "solve_shared",
+    "split_solution",
+    "lstsq_scaled",
+    "with_reference",
+]
 
 
 @dataclass
@@ -50,10 +58,20 @@ def lstsq_scaled(M: np.ndarray, b: np.ndarray) -> np.ndarray:
     return z / norms
 
 
-def _own_slots(parts: Sequence[LinearPart], groups: Sequence[int] | None) -> tuple[list[int], int]:
-    """Where each part's own unknowns start in [theta_L, z...] and the total width: one slot per part with own
-    columns, or, with `groups`, one per group (the parts of a group share their unknowns: one initial state for
-    runs that start alike; their own columns have one width)."""
+def with_reference(part: LinearPart) -> LinearPart:
+    """`part` with a column of ones appended to its own columns: the output's reference of its recording (the
+    zero of the instrument that wrote it), fitted as its last own unknown."""
+    ones = np.ones((len(part.base), 1))
+    return LinearPart(part.start, part.base, part.Psi, ones if part.Own is None else np.hstack([part.Own, ones]))
+
+
+def _own_slots(
+    parts: Sequence[LinearPart], groups: Sequence[int] | None, references: Sequence[bool] | None = None
+) -> tuple[list[int], list[int | None], int]:
+    """Where each part's own unknowns start in [theta_L, z...], where its reference is (None: it has none) and
+    the total width: one slot per part with own columns, or, with `groups`, one per group (the parts of a group
+    share their unknowns: one initial state for runs that start alike; their own columns have one width); then
+    one slot per part whose `references` entry is true (a reference is never shared: each file has its own)."""
     at = parts[0].Psi.shape[1]
     slots, seen = [], {}
     for i, p in enumerate(parts):
@@ -63,7 +81,11 @@ def _own_slots(parts: Sequence[LinearPart], groups: Sequence[int] | None) -> tup
             seen[g] = at
             at += k
         slots.append(seen[g])
-    return slots, at
+    refs: list[int | None] = []
+    for r in references or [False] * len(parts):
+        refs.append(at if r else None)
+        at += bool(r)
+    return slots, refs, at
 
 
 def solve_shared(
@@ -71,20 +93,24 @@ def solve_shared(
     ys: Sequence[np.ndarray],
     weights: Sequence[np.ndarray],
     groups: Sequence[int] | None = None,
+    references: Sequence[bool] | None = None,
 ) -> np.ndarray:
-    """Weighted least squares for [theta_L, z_1, z_2, ...] (z_i for the parts with own columns, in order; with
-    `groups`, one z per group, `_own_slots`): min sum_i sum_k w_ik (y_ik - yhat_ik)^2 over the samples of
-    positive weight.  Raises `KernelError` when a column overflowed."""
+    """Weighted least squares for [theta_L, z_1, z_2, ..., r_1, r_2, ...] (z_i for the parts with own columns,
+    in order; with `groups`, one z per group; r_i the reference of each part whose `references` entry is true:
+    `_own_slots`): min sum_i sum_k w_ik (y_ik - yhat_ik)^2 over the samples of positive weight.  Raises
+    `KernelError` when a column overflowed."""
     n_lin = parts[0].Psi.shape[1]
-    slots, width = _own_slots(parts, groups)
+    slots, refs, width = _own_slots(parts, groups, references)
     rows, rhs = [], []
-    for p, y, w, at in zip(parts, ys, weights, slots):
+    for p, y, w, at, ref in zip(parts, ys, weights, slots, refs):
         sw = np.sqrt(w[p.start :])
         keep = sw > 0
         M = np.zeros((len(p.base), width))
         M[:, :n_lin] = p.Psi
         if p.Own is not None:
             M[:, at : at + p.Own.shape[1]] = p.Own
+        if ref is not None:
+            M[:, ref] = 1.0
         rows.append((M * sw[:, None])[keep])
         rhs.append(((y[p.start :] - p.base) * sw)[keep])
     M, b = np.concatenate(rows), np.concatenate(rhs)
@@ -94,12 +120,21 @@ def solve_shared(
 
 
 def split_solution(
-    parts: Sequence[LinearPart], solution: np.ndarray, groups: Sequence[int] | None = None
+    parts: Sequence[LinearPart],
+    solution: np.ndarray,
+    groups: Sequence[int] | None = None,
+    references: Sequence[bool] | None = None,
 ) -> tuple[np.ndarray, list]:
     """theta_L and each part's own unknowns (None for a part without own columns) from `solve_shared`'s
-    solution (the same `groups`)."""
-    slots, _ = _own_slots(parts, groups)
-    own = [None if p.Own is None else solution[at : at + p.Own.shape[1]] for p, at in zip(parts, slots)]
+    solution (the same `groups` and `references`); a part with a reference has it last, as the unknown of
+    `with_reference`'s column."""
+    slots, refs, _ = _own_slots(parts, groups, references)
+    own = []
+    for p, at, ref in zip(parts, slots, refs):
+        z = None if p.Own is None else solution[at : at + p.Own.shape[1]]
+        if ref is not None:
+            z = np.r_[np.empty(0) if z is None else z, solution[ref]]
+        own.append(z)
     return solution[: parts[0].Psi.shape[1]], own
 
 

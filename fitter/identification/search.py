@@ -94,8 +94,9 @@ class Candidate:
 
 
 def _problem(data: FitData) -> Recordings:
-    """The output-error problem of every candidate: the prepared recordings, normalised, with the fit's x0 mode."""
-    return Recordings(data.norm, x0=data.x0_mode, cycles=data.cycles, starts=data.starts)
+    """The output-error problem of every candidate: the prepared recordings, normalised, with the fit's x0 mode,
+    start groups and references."""
+    return Recordings(data.norm, x0=data.x0_mode, cycles=data.cycles, starts=data.starts, references=data.references)
 
 
 def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.ndarray], np.ndarray]:
