@@ -137,8 +137,8 @@ def _rec(t, u, y, name="r", out="y"):
 
 
 def test_bad_input_is_a_clear_error():
-    t = np.linspace(0, 1, 100)
-    with pytest.raises(DiagnoseError, match="100 samples in all.*too short"):
+    t = np.linspace(0, 1, 99)
+    with pytest.raises(DiagnoseError, match="99 samples in all.*too short"):
         diagnose([_rec(t, np.sin(20 * t), np.sin(20 * t))])
     t = np.linspace(0, 10, 2000)
     with pytest.raises(DiagnoseError, match="reverses fewer than twice"):

@@ -32,7 +32,10 @@ from fitter.data.recordings import Recording, check_scale
 
 __all__ = ["DiagnoseError", "JoinedExperiment", "MIN_SAMPLES", "join_recordings", "chain_recordings", "own_clocks"]
 
-MIN_SAMPLES = 200
+MIN_SAMPLES = 100
+"""Fewest samples a diagnosis takes in all: the base's seven parameters and an effect's few keep about ten samples
+per parameter (a random clean order-1 device of 197 samples was diagnosed "nothing_missing" at 0.84 times the
+noise once 200 were no longer asked for)."""
 
 
 class DiagnoseError(DuhemError):

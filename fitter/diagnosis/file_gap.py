@@ -10,7 +10,8 @@ fitted to each recording alone.  Such a gap is a finding about the data, never n
 over the fitted samples, where each recording's residual is the smaller of `fitter.diagnosis.fitting.refit` of the
 joint fit on that recording alone (the same free entries, from the joint values) and of the rate-independent model
 `duhem fit` makes of that recording alone (its order by BIC, from its own fitted start: a first-order base refitted
-per file cannot show what a file's own loop needs).  A ratio above `GAP` is a gap.
+per file cannot show what a file's own loop needs).  A ratio above `GAP` is a gap, where the joint residual is
+above `RESOLUTION` of the output range (below it, no instrument tells the files apart).
 The per-recording residual also bounds the noise: a model of the recording cannot leave less than its noise (its
 few parameters fit a negligible part of it), so a noise estimate above it was inflated (an input's quantisation
 carried through a steep model, say) and is capped there (`capped_noise`).
@@ -31,7 +32,7 @@ from fitter.core.errors import DuhemError, KernelError
 from fitter.core.kernel import simulate
 from fitter.diagnosis.fitting import Fit, _share, refit
 from fitter.identification.fit import fit_recordings
-from fitter.diagnosis.statistics import NOISE_MARGIN
+from fitter.diagnosis.statistics import NOISE_MARGIN, RESOLUTION
 
 __all__ = ["GAP", "capped_noise", "file_gap", "gain_per_file"]
 
@@ -98,7 +99,7 @@ def file_gap(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> dict | None:
         "joint_rms": joint,
         "per_file_rms": mine,
         "ratio": ratio,
-        "gap": bool(ratio > GAP),
+        "gap": bool(ratio > GAP and joint > RESOLUTION * float(np.ptp(ex.y[mask]))),
         "per_recording": per,
         "gains": gains,
         "gain_rms": rms(gained[mask]),

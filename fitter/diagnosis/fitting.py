@@ -322,18 +322,25 @@ def duhem_fit(ex: JoinedExperiment, mask: np.ndarray, order: int | None = None) 
     samples as `duhem fit`): on the four creep trapezoids (4 x 5000 samples) the two searches at `duhem fit`'s 3000
     samples per run took 504 s of a 937 s diagnosis."""
     share = _share(ex)
-    base = {"kind": "ri", "max_samples": share, "retry_unsettled": False, "references": False}
-    first = fit_recordings(ex.recordings, order=order, **base)
+    base = {"kind": "ri", "max_samples": share, "retry_unsettled": False}
+    first = _unreferenced(fit_recordings(ex.recordings, order=order, **base))
     refined = fit_base(ex, first.model, mask)
     refs = output_references(refined, ex)
     if refs is None:
         return first, refined
     level = [Recording(r.t, r.u, r.y - refs[r.name], r.name, r.input, r.output, r.source) for r in ex.recordings]
-    levelled = fit_recordings(level, order=order, **base)
+    levelled = fit_recordings(level, order=order, references=False, **base)
     if levelled.model.order < first.model.order:
-        levelled = fit_recordings(level, order=first.model.order, **base)
+        levelled = fit_recordings(level, order=first.model.order, references=False, **base)
     again = fit_base(ex, levelled.model, mask)
     return (levelled, again) if again.rss <= refined.rss else (first, refined)
+
+
+def _unreferenced(fit: FitResult) -> FitResult:
+    """`fit` without the output references `duhem fit` found (its model's ``fit_info["references"]``): the
+    diagnosis fits each recording's reference with its own models (`fit_base`)."""
+    info = {k: v for k, v in fit.model.fit_info.items() if k != "references"}
+    return replace(fit, model=fit.model.replace(fit_info=info))
 
 
 def _grid_basis(ex: JoinedExperiment, a: float) -> np.ndarray:

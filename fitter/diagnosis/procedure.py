@@ -121,7 +121,8 @@ not explained.
 
 The verdict: "effects_found" (findings, and the remainder explained),
 "nothing_missing" (no finding and the base residual within `NOISE_MARGIN`
-of the noise) or "unexplained": the residual is not explained, either with
+of the noise, or of `RESOLUTION` of the output range where the noise is
+below it: a noise-free recording) or "unexplained": the residual is not explained, either with
 no finding (above the noise, no candidate significant) or with findings
 that leave a structured remainder or one above `NOISE_MARGIN` times the
 noise.  Findings of an "unexplained" diagnosis are *partial* (``partial``
@@ -157,7 +158,7 @@ from fitter.diagnosis.locate import locate_mismatch, where_differs
 from fitter.diagnosis.noise_floor import noise_floor
 from fitter.diagnosis.result import Diagnosis
 from fitter.diagnosis.held_out import held_out_nrmse, prediction_error
-from fitter.diagnosis.statistics import ALPHA, NOISE_MARGIN, consistency_report, remainder_report
+from fitter.diagnosis.statistics import ALPHA, NOISE_MARGIN, RESOLUTION, consistency_report, remainder_report
 from fitter.diagnosis.rounds import bic, candidate_round
 from fitter.diagnosis.text import comparison_text, summary_paragraph
 from fitter.identification.exported import described, fitted_range
@@ -322,7 +323,7 @@ def diagnose(
     diag = Diagnosis(
         noise_rms=noise,
         noise=floor,
-        verdict=_verdict(findings, baseline, remainder, noise, gap),
+        verdict=_verdict(findings, baseline, remainder, max(noise, RESOLUTION * float(np.ptp(ex.y[mask]))), gap),
         baseline=baseline,
         mismatch=mismatch,
         candidates=tested,
@@ -496,7 +497,8 @@ def _remainder(ex: JoinedExperiment, fit: Fit, mask: np.ndarray, noise: float, a
 
 def _verdict(findings: list, baseline: dict, remainder: dict, noise: float, gap: dict | None) -> str:
     """The verdict (module docstring): "effects_found" when the findings leave an explained remainder,
-    "nothing_missing" when there are none and the base residual is within `NOISE_MARGIN` of the noise, or
+    "nothing_missing" when there are none and the base residual is within `NOISE_MARGIN` of the noise (at least
+    `RESOLUTION` of the output range: `noise` as given), or
     when the only difference between the recordings is a gain and an offset per file (`file_gap`'s
     ``gain_explains``: a property of each file), else "unexplained" (a gap between the joint base and the
     per-recording fits is never noise)."""

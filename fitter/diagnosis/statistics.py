@@ -102,11 +102,17 @@ __all__ = [
     "remainder_report",
     "reversal_report",
     "swing",
+    "RESOLUTION",
 ]
 
 ALPHA = 0.01
 MIN_EXPLAINED = 0.02
 NOISE_MARGIN = 1.2
+RESOLUTION = 1e-3
+"""A residual RMS below this fraction of the output range is below what an instrument resolves (0.1 % of full
+scale, a good sensor's accuracy): the diagnosis declares no gap between files and nothing unexplained below it
+(`fitter.diagnosis.file_gap`, the verdict), as the fit's generality property takes 1e-3 of the range for a
+noise-free recording followed.  Effects found above the noise are still reported."""
 REVERSAL_MIN = 0.25
 """Least ratio of the smaller to the larger one-way travel of a reversing effect's output (`reversal_report`)."""
 COVERAGE = 2.0

@@ -32,10 +32,11 @@ Pipeline of `fit_recordings`
    search's from the own starts (the runs do start from one state; else they
    were made after other histories, and the first search is kept).
    Several recordings fitted each from its own initial state whose outputs have different zeros (separate runs,
-   an instrument zeroed anew for each: `zeros_apart`, the best candidate's RSS over `SHARED_START_RSS` times that
-   with a constant fitted per recording) are searched again with an output reference per recording but the first,
+   an instrument zeroed anew for each: `zeros_apart`, a constant fitted per recording lowers the best candidate's
+   RSS by more than BIC allows) are searched again with an output reference per recording but the first,
    fitted with its initial state (`Recordings`' ``references``), and that search is kept where its BIC, the
-   references counted, is lower.  The references are a property of the files, not of the device: the model is
+   references counted, is lower; for runs that start alike the same test under their one start decides whether
+   their shared-start search has references.  The references are a property of the files, not of the device: the model is
    the first recording's (its reference is the model's own); the others' are in the summary's ``references``
    and the model's ``fit_info``, and every score of a recording adds its reference to the model's output
    (`exported.file_reference`).
@@ -244,8 +245,9 @@ def fit_recordings(
         `FIT_OPTIONS`'s.  `duhem diagnose` passes its own budget (`fitter.diagnosis.fitting.SAMPLES`).
     retry_unsettled : refit single cycles that do not close with their initial state free when the settled fit
         leaves over `MISFIT` times the noise, and runs that start alike from one initial state when the one stored
-        x0 does not suit them (module docstring, item 4).  `duhem diagnose` turns it off for its base:
-        what keeps a cycle from closing (a drift, creep) is for its effects to name, not for the base's start.
+        x0 does not suit them (module docstring, item 4; with `references`, the latter is done where their zeros
+        differ).  `duhem diagnose` turns it off for its base: what keeps a cycle from closing (a drift, creep) is
+        for its effects to name, not for the base's start.
 
     Returns
     -------
@@ -277,8 +279,8 @@ def fit_recordings(
         data, cands = _closed_or_free(data, search(data), recordings, search, progress, retry_unsettled)
         if references:
             data, cands = _levelled(data, cands, recordings, search, progress)
-        if retry_unsettled:
-            data, cands = _shared(data, cands, recordings, search, progress, orders, references)
+        if retry_unsettled or references:
+            data, cands = _shared(data, cands, recordings, search, progress, orders, references, retry_unsettled)
         eligible = [c for c in cands if _meets_barrier(c, data, recordings)] or cands
         best = _harder_if_misfit(min(eligible, key=lambda c: c.bic), data, recordings, progress, options)
         cands = [best if c.param is best.param else c for c in cands]
@@ -322,17 +324,22 @@ def _levelled(data: FitData, cands, recordings, search: Search, progress: Progre
     return data, cands
 
 
-def _shared(data: FitData, cands, recordings, search: Search, progress: Progress, orders, references: bool):
+def _shared(
+    data: FitData, cands, recordings, search: Search, progress: Progress, orders, references: bool, retry: bool
+):
     """(data, candidates), or, where the one x0 stored for runs that start alike does not suit them (`apart`),
     those of the search with one initial state per start group (orders up to the first's choice; with an output
     reference per recording where their zeros differ under the groups, `zeros_apart`) when it fits them within
-    `SHARED_START_RSS` times the first search's RSS from their own starts (module docstring, item 4)."""
+    `SHARED_START_RSS` times the first search's RSS from their own starts (module docstring, item 4).  Without
+    `retry` (`fit_recordings`' ``retry_unsettled``) only where the zeros differ."""
     first = _best(cands, data, recordings) if alike(data, recordings) else None
     if first is None or not apart(first, data, recordings):
         return data, cands
-    progress("one stored initial state does not suit the recordings that start alike: fitting them so", None)
     groups = start_groups(data.recs)
     levelled = references and zeros_apart(first, data, recordings, groups)
+    if not (retry or levelled):
+        return data, cands
+    progress("one stored initial state does not suit the recordings that start alike: fitting them so", None)
     shared = replace(data, starts=groups, references=data.references or levelled)
     others = search(shared, tuple(n for n in orders if n <= first.param.n))  # runs that share a state: no more
     joint, _ = start_rss(_best(others, shared, recordings), shared, recordings)

@@ -76,11 +76,14 @@ def start_rss(cand: Candidate, data: FitData, recordings) -> tuple[float, float]
 def zeros_apart(cand: Candidate, data: FitData, recordings, groups: Sequence[int] | None = None) -> bool:
     """Whether recordings fitted from fitted initial states (x0 "fit"; several, of distinct names) have outputs of
     different zeros: the candidate, each recording from its own initial state or, with `groups`, one per start
-    group (`start_groups`), leaves more than `SHARED_START_RSS` times the RSS on the prepared samples that it
-    leaves with an output reference fitted for each recording but the first (`Recordings`' ``references``):
-    separate runs, each written by an instrument zeroed anew (`fit_recordings` then searches with the
-    references).  The groups matter for a model whose state forgets slowly: from its own start each recording
-    carries its offset in its initial state, which one state stored for runs that start alike cannot."""
+    group (`start_groups`), leaves an RSS on the N prepared samples that an output reference fitted for each
+    recording but the first (`Recordings`' ``references``) lowers by more than BIC allows for R - 1 parameters:
+    N ln(RSS / RSS_ref) > (R - 1) ln N (each RSS at least N (1e-9)^2, rounding in normalised units).  Separate
+    runs, each written by an instrument zeroed anew: `fit_recordings` then searches with the references and keeps
+    them by its own test.  The groups matter for a model whose state forgets slowly: from its own start each
+    recording carries its offset in its initial state, which one state stored for runs that start alike cannot
+    (a random order-1 device of two noise-free runs: the order-4 fit from own starts left 1.4 times the RSS
+    without references as with them, under one start; its shared search with references fitted them to 1e-13)."""
     names = [r.name for r in recordings]
     if data.x0_mode != "fit" or data.references or len(names) < 2 or len(set(names)) < len(names):
         return False
@@ -90,7 +93,9 @@ def zeros_apart(cand: Candidate, data: FitData, recordings, groups: Sequence[int
         with np.errstate(all="ignore"):
             r = problem.residuals(cand.param, cand.res.theta)[0]
         rss.append(float(r @ r))
-    return bool(np.isfinite(rss[1]) and SHARED_START_RSS * rss[1] < rss[0])
+    n = len(r)
+    without, with_refs = (x + n * 1e-18 for x in rss)
+    return bool(np.isfinite(with_refs) and n * np.log(without / with_refs) > (len(names) - 1) * np.log(n))
 
 
 def alike(data: FitData, recordings) -> bool:
