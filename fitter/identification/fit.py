@@ -186,14 +186,15 @@ class FitResult:
         return simulate(self.model, rec.t, rec.u).y + file_reference(self.model, rec)
 
     def predict(self, rec: Recording) -> np.ndarray:
-        """Output from the periodic state of the first settled cycle of `rec` (NaN before it)."""
+        """Output from the periodic state of the first settled cycle of `rec` (NaN before it), plus the file's
+        output reference as in `simulate`."""
         prep = prepare(rec, min_cycles=0)
         s0, s1 = prep.first_cycle()
         a = prep.transient_end + s0
         x0, _ = fixed_point(self.model, rec.t[a : prep.transient_end + s1 + 1], rec.u[a : prep.transient_end + s1 + 1])
         y = np.full(len(rec.u), np.nan)
         y[a:] = simulate(self.model, rec.t[a:], rec.u[a:], x0=self.model.x0 if x0 is None else x0).y
-        return y
+        return y + file_reference(self.model, rec)
 
     def band(self, rec: Recording, level: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
         """`simulate(rec)` -+ level * sd, sd^2 = diag(J cov J^T) (linearised, J by differences)."""
