@@ -319,3 +319,19 @@ def test_two_outputs_at_one_path_or_one_inside_the_report_are_refused(tmp_path):
     with pytest.raises(CliError, match=r"m.json: is inside the directory .*rep, which is written as a whole"):
         refuse_overwrite(["rec.csv"], str(tmp_path / "rep" / "m.json"), None, rep)
     refuse_overwrite(["rec.csv"], str(tmp_path / "m.json"), str(tmp_path / "m.fmu"), rep)
+
+
+def test_a_killed_writers_lock_file_goes_with_the_next_write_a_live_ones_stays(tmp_path, holder):
+    """kill -9 leaves the holder's ``.lock-`` file (its lock died with it); the next write into the directory
+    removes it, as it removes a killed writer's temporaries, and keeps a lock a live process holds."""
+    import signal
+
+    dead, live = tmp_path / "dead.csv", tmp_path / "live.csv"
+    pid = holder(dead)
+    holder(live)
+    os.kill(pid, signal.SIGKILL)
+    os.waitpid(pid, 0)
+    assert names(tmp_path) == [".lock-dead.csv", ".lock-live.csv"]
+    with atomic_file(tmp_path / "other.csv") as tmp:
+        tmp.write_text("x")
+    assert names(tmp_path) == [".lock-live.csv", "other.csv"]

@@ -24,7 +24,8 @@ A second writer of the same path waits up to `LOCK_WAIT` seconds (the
 environment variable ``DUHEM_LOCK_WAIT`` overrides it), then fails with
 `OutputBusyError` naming the path and the holder (its pid and command line,
 which the holder writes into the lock file).  The lock file is removed when
-released; one a killed writer left is taken over (its lock died with it).
+released; one a killed writer left is taken over (its lock died with it), and removed by the next write into
+its directory (`sweep_leftovers`, which removes only lock files no process holds).
 
 Two outputs of one command that belong together (a model JSON and the FMU
 built from it) are published by `atomic_pair`: the companion (FMU) is
@@ -303,11 +304,12 @@ def _abandoned(name: str) -> bool:
 
 
 def sweep_leftovers(path: str | os.PathLike) -> list[Path]:
-    """Remove the temporaries (``.tmp-``, ``.old-``) that killed writers left in the directory of `path`.
+    """Remove the temporaries (``.tmp-``, ``.old-``) and the lock files (``.lock-``) that killed writers left in
+    the directory of `path`.
 
     Any target's, nested ones (``.tmp-.tmp-...``, from before a temporary was written in place)
     included; only entries of processes that no longer run are removed (a concurrent writer's
-    temporaries stay).  Returns the removed paths.
+    temporaries stay), and only lock files that no process holds (`_unheld_lock`).  Returns the removed paths.
     """
     parent = Path(path).parent
     removed = []
@@ -317,7 +319,31 @@ def sweep_leftovers(path: str | os.PathLike) -> list[Path]:
         else:
             entry.unlink(missing_ok=True)
         removed.append(entry)
-    return removed
+    locks = [e for e in parent.iterdir() if e.name.startswith(".lock-")] if parent.is_dir() else []
+    return removed + [e for e in locks if _unheld_lock(e)]
+
+
+def _unheld_lock(lock: Path) -> bool:
+    """Remove `lock` when no process holds it (a writer killed before it could remove its lock file); True when
+    removed.  Removed under its own lock, as `output_lock` removes it on release, so that a writer that opened it
+    meanwhile finds it gone and opens a new one (`_acquire`).  A lock held by this process through another open
+    file is held too (flock)."""
+    import fcntl  # POSIX only, as in `_acquire`
+
+    try:
+        fd = os.open(lock, os.O_RDWR)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        if not os.path.samestat(os.fstat(fd), os.stat(lock)):
+            return False
+        os.unlink(lock)
+        return True
+    except OSError:  # BlockingIOError: held; FileNotFoundError: removed meanwhile
+        return False
+    finally:
+        os.close(fd)
 
 
 @contextlib.contextmanager
