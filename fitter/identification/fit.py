@@ -36,9 +36,9 @@ Pipeline of `fit_recordings`
    RSS by more than BIC allows) are searched again with an output reference per recording but the first,
    fitted with its initial state (`Recordings`' ``references``), and that search is kept where its BIC, the
    references counted, is lower; for runs that start alike the same test under their one start decides whether
-   their shared-start search has references.  The references are a property of the files, not of the device: the model is
-   the first recording's (its reference is the model's own); the others' are in the summary's ``references``
-   and the model's ``fit_info``, and every score of a recording adds its reference to the model's output
+   their shared-start search has references.  The references are a property of the files, not of the device: the
+   model is the first recording's (its reference is the model's own); the others' are in the summary's
+   ``references`` and the model's ``fit_info``, and every score of a recording adds its reference to the model's output
    (`exported.file_reference`).
    The convergence condition is enforced: for the rate-dependent model with g >= 0 the period map is e^{A sum g dt}, so
    rho < 1 iff A is Hurwitz, which the parametrisation guarantees; for the
