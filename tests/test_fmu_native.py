@@ -1077,3 +1077,42 @@ def test_stored_effect_start_and_its_parameters_run_as_in_python(make, tmp_path)
     moved = simulate(other, t, u).y
     assert np.abs(moved - ref).max() > 1e-3
     assert np.abs(simulate_fmu(path, t, u, start=start_state_values(other)) - moved).max() <= 1e-10 * scale
+
+
+_FREED_TWICE = """
+import sys
+from ctypes import c_double, c_uint
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import FMU2Slave
+
+path = sys.argv[1]
+md = read_model_description(path)
+fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(path), modelIdentifier=md.coSimulation.modelIdentifier,
+                instanceName="twice")
+fmu.instantiate()
+c = fmu.component
+fmu.fmi2FreeInstance(c)
+fmu.fmi2FreeInstance(c)
+try:
+    status = fmu.fmi2GetReal(c, (c_uint * 1)(1), 1, (c_double * 1)())
+except FMICallException as exc:
+    status = exc.status
+print("status", status, flush=True)
+"""
+
+
+def test_a_freed_instance_is_refused_not_read(tmp_path):
+    """fmi2FreeInstance twice, then fmi2GetReal on the freed component (a careless host): the native FMU refuses
+    both (fmi2Error) without reading freed memory (the live instances are a list the component is looked up in;
+    a check of the instance's own magic number read the freed block).  Under AddressSanitizer, which reports any
+    read of freed memory; in a subprocess, so that a crash fails the test, not pytest."""
+    runtime = subprocess.run(["cc", "-print-file-name=libasan.so"], capture_output=True, text=True).stdout.strip()
+    assert os.path.isabs(runtime), "the C compiler ships no AddressSanitizer runtime"
+    env = {**os.environ, "LD_PRELOAD": runtime, "ASAN_OPTIONS": "detect_leaks=0:abort_on_error=1"}
+    path = build_native_fmu(MODELS["ri"](), tmp_path / "ri.fmu", sanitize=True)
+    result = subprocess.run(
+        [sys.executable, "-c", _FREED_TWICE, str(path)], capture_output=True, text=True, timeout=120, env=env
+    )
+    assert result.returncode == 0 and "AddressSanitizer" not in result.stderr, result.stderr[-2000:]
+    assert result.stdout.strip().endswith("status 3")

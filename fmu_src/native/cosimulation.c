@@ -106,8 +106,9 @@ enum { LOG_ERROR = 1, LOG_DISCARD = 2, LOG_CALLS = 4, LOG_ALL = 7 };
 
 static const char *const CATEGORY_NAMES[] = {"logStatusError", "logStatusDiscard", "logCalls"};
 
-typedef struct {
+typedef struct Instance {
     unsigned magic;
+    struct Instance *next_live;  /* the list of live instances (`is_live`) */
     Logger logger;
     Environment environment;
 #if FMI_VERSION == 2
@@ -118,6 +119,52 @@ typedef struct {
     int state;
     ModelData *model;
 } Instance;
+
+/* The live instances: a component the host passes is read only when it is one of them, so a call after
+   FreeInstance (freed twice, a stale pointer) is refused without touching freed memory.  A list under a spin
+   lock (instances may live in several threads); only live instances are ever read while walking it. */
+static Instance *live_instances;
+static volatile char live_lock;
+
+static void lock_live(void)
+{
+    while (__atomic_test_and_set(&live_lock, __ATOMIC_ACQUIRE)) {
+    }
+}
+
+static void unlock_live(void) { __atomic_clear(&live_lock, __ATOMIC_RELEASE); }
+
+static int is_live(const void *c)
+{
+    const Instance *in;
+    lock_live();
+    for (in = live_instances; in && (const void *)in != c; in = in->next_live) {
+    }
+    unlock_live();
+    return in != NULL;
+}
+
+static void add_live(Instance *in)
+{
+    lock_live();
+    in->next_live = live_instances;
+    live_instances = in;
+    unlock_live();
+}
+
+/* Take `in` off the live list; 0 when it was not on it (freed already). */
+static int remove_live(const Instance *in)
+{
+    Instance **at;
+    int found;
+    lock_live();
+    for (at = &live_instances; *at && *at != in; at = &(*at)->next_live) {
+    }
+    found = *at != NULL;
+    if (found) *at = in->next_live;
+    unlock_live();
+    return found;
+}
 
 typedef struct {
     unsigned magic;
@@ -211,7 +258,7 @@ static void trace(const Instance *in, const char *fmt, ...)
 static Instance *enter(Component c, const char *function, int allowed)
 {
     Instance *in = (Instance *)c;
-    if (!in || in->magic != INSTANCE_MAGIC) return NULL;
+    if (!in || !is_live(in) || in->magic != INSTANCE_MAGIC) return NULL;
     if (!(in->state & allowed)) {
         fail(in, "%s: not allowed in state %s (illegal call sequence)", function, state_name(in->state));
         return NULL;
@@ -270,6 +317,7 @@ static Instance *new_instance(const Instance *probe, const char *function, int l
     in->state = S_INSTANTIATED;
     model_defaults(in->model, 0.0);
     in->magic = INSTANCE_MAGIC;
+    add_live(in);
     trace(in, "%s", function);
     return in;
 }
@@ -312,7 +360,7 @@ Status FMI_API(SetDebugLogging)(Component c, Boolean loggingOn, size_t nCategori
 void FMI_API(FreeInstance)(Component c)
 {
     Instance *in = enter(c, FMI_NAME(FreeInstance), S_ANY);
-    if (!in) return;
+    if (!in || !remove_live(in)) return;  /* freed already (by another thread meanwhile, too) */
     in->magic = 0;
     free_instance(in);
 }
