@@ -219,6 +219,23 @@ def test_batch_cli_names_an_unknown_effect(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_scheduler_where_nothing_listens_is_one_line(tmp_path):
+    """A TCP address that takes no connection (a port nothing listens on) is refused by the probe, naming the
+    address and what to do, before the Dask client's own 20 s handshake wait; nothing is written."""
+    import socket
+
+    with socket.socket() as s:  # a free port, closed again: nothing listens there
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    manifest = make_batch(tmp_path, rates=(3.0,), bad=False)
+    address = f"tcp://127.0.0.1:{port}"
+    result = CliRunner().invoke(main, ["batch", str(manifest), "-o", str(tmp_path / "out"), "--scheduler", address])
+    assert result.exit_code == 1, result.output
+    assert result.stderr.startswith(f"error: cannot connect to the Dask scheduler {address}: ")
+    assert "leave out --scheduler" in result.stderr and len(result.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_second_batch_into_the_same_outdir_fails_naming_the_first(tmp_path, holder):
     """The batch holds `output_lock(OUTDIR)`, the one lock of every output: a second writer gives one line naming
     OUTDIR and the holder's pid, exit 1, and writes nothing."""

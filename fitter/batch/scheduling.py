@@ -84,6 +84,30 @@ def _require_dask():
     return distributed
 
 
+SCHEDULER_PROBE = 3.0
+"""Seconds a TCP connection to a ``tcp://`` scheduler address may take before the batch gives up on it (the
+Dask client itself waits 20 s for its handshake: an address where nothing listens took 21 s to fail)."""
+
+
+def _reachable(scheduler: str) -> None:
+    """`BatchError` (one line) when the ``tcp://host:port`` of `scheduler` takes no TCP connection within
+    `SCHEDULER_PROBE` seconds (refused at once where nothing listens); other protocols are left to the client."""
+    import socket
+    from urllib.parse import urlsplit
+
+    address = urlsplit(scheduler if "://" in scheduler else f"tcp://{scheduler}")
+    if address.scheme != "tcp" or not address.hostname:
+        return
+    try:
+        port = address.port or 8786
+        socket.create_connection((address.hostname, port), timeout=SCHEDULER_PROBE).close()
+    except (OSError, ValueError) as exc:
+        raise BatchError(
+            f"cannot connect to the Dask scheduler {scheduler}: {one_line(exc) or type(exc).__name__}; start it "
+            "(dask scheduler) or check the address, or leave out --scheduler to run on a local cluster"
+        ) from None
+
+
 @contextlib.contextmanager
 def _client(client, scheduler: str | None, workers: int | None) -> Iterator[tuple[object, str | None]]:
     """A ``distributed.Client``: the one given, one connected to `scheduler`, or a new LocalCluster's."""
@@ -169,6 +193,8 @@ def run_batch(
     devices = read_manifest(manifest)
     if client is None:
         _require_dask()
+        if scheduler:
+            _reachable(scheduler)  # before anything is written
     outdir = Path(outdir)
     if outdir.exists() and not outdir.is_dir():
         raise BatchError(f"{outdir}: exists and is not a directory")
