@@ -47,10 +47,12 @@ FIT_DRAWS = [
     pytest.param(DrawSpec(302, "ri", 2, "turning_points", 1, 400, 0.003), id="ri2-turning-points-b"),
     pytest.param(DrawSpec(300, "ri", 2, "sine", 2, 300, 0.002), id="ri2-sine-2files-b"),
     pytest.param(DrawSpec(300, "rd", 1, "sine", 2, 300, 0.002), id="rd1-sine-2files-b"),
+    pytest.param(DrawSpec(3, "ri", 1, "turning_points", 3, 250, 0.004, "per_file"), id="ri1-per-file-offsets"),
 ]
 """The fit's fixed draws, one per failure mode once seen (at most 800 samples in all per draw; the rest of the space,
-per-file offsets and the slower orders among it, is `bench/generality_property.py`'s): one stored x0 for two runs
-from one start, a generic start's local minimum, a shared-start search, legs at two speeds (rate-dependent)."""
+the slower orders among it, is `bench/generality_property.py`'s): one stored x0 for two runs from one start, a
+generic start's local minimum, a shared-start search, legs at two speeds (rate-dependent), files whose outputs have
+different zeros (three runs from one start: 42x the bound without output references)."""
 
 DIAGNOSIS_DRAWS = [
     pytest.param(DrawSpec(400, "ri", 1, "triangles", 2, 300, 0.005, "per_file"), id="ri1-triangles-per-file-offsets"),
