@@ -29,7 +29,7 @@ from fitter.diagnosis.synthetic import cell_base
 
 
 def two_rate_triangles(model, seed: int, noise: float = 0.005) -> list[Recording]:
-    """Two triangle runs of `model` (tests/test_diagnose.py `_two_rate_triangles`, tests/conftest.py
+    """Two triangle runs of `model` (tests/test_diagnose.py `_two_rate_triangles`, tests/samples.py
     `noisy_recording` with relative noise)."""
     t = np.r_[np.linspace(0, 40, 300), 40.5 + np.linspace(0, 8, 300)]
     period = np.where(t < 40.25, 20.0, 4.0)

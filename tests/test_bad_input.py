@@ -28,7 +28,7 @@ from typing import Callable
 import fmpy
 import numpy as np
 import pytest
-from conftest import ri_model, sine_input
+from samples import ri_model, sine_input
 from test_cli import assert_clean_failure, invoke, listing, write_csv
 
 from fitter.core import save_model, simulate

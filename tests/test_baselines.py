@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import noisy_recording, sampled_input, sine_input
+from samples import noisy_recording, sampled_input, sine_input
 from scipy.integrate import solve_ivp
 
 from fitter.baselines import BASELINES, BaselineError, BoucWen, Preisach, PrandtlIshlinskii, compare_baselines

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import rd_model, ri_model, sine_input
+from samples import rd_model, ri_model, sine_input
 from test_cli import assert_clean_failure, invoke, listing, ok, write_csv
 
 from fitter.core import load_model, save_model, simulate

@@ -28,7 +28,7 @@ import pytest
 from click.testing import CliRunner
 
 import build_fmu
-from conftest import ri_model, sine_input
+from samples import ri_model, sine_input
 import fitter.cli.diagnose_command
 import fitter.core.files
 import fitter.identification.exported

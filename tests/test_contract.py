@@ -25,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 import pytest
-from conftest import rd_model, ri_model, sampled_input
+from samples import rd_model, ri_model, sampled_input
 from fmu_host import FmuCache, Host, Instance
 
 from fitter.core import Stepper, simulate

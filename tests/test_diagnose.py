@@ -304,7 +304,7 @@ def test_a_delay_outside_the_catalogue_is_fitted_by_creep_only_approximately():
 def test_clean_second_order_data_with_a_bic_base_has_nothing_missing():
     """Effect-free data of an order-2 model: with the base order chosen by BIC the base residual is at the noise,
     and no candidate is added even where one is formally significant (it would fit noise)."""
-    from conftest import noisy_recording, ri_model, sine_input
+    from samples import noisy_recording, ri_model, sine_input
 
     t, u = sine_input(1.0, 4, 150)
     rec = noisy_recording(ri_model(2), t, u, noise=0.01, seed=3)
@@ -317,7 +317,7 @@ def test_clean_second_order_data_with_a_bic_base_has_nothing_missing():
 def _two_rate_triangles(model, seed: int, noise: float = 0.005) -> list[Recording]:
     """Two triangle runs of `model` on one clock (periods 20 s and 4 s, 300 samples each, the second starting
     where the first ends), seeded output noise `noise` x the output range."""
-    from conftest import noisy_recording
+    from samples import noisy_recording
 
     t = np.r_[np.linspace(0, 40, 300), 40.5 + np.linspace(0, 8, 300)]
     period = np.where(t < 40.25, 20.0, 4.0)

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from conftest import noisy_recording, ri_model, sine_input
+from samples import noisy_recording, ri_model, sine_input
 
 from fitter import DuhemEstimator, fit_recordings, load_model
 from fitter.estimator import NotFittedError

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import noisy_recording, ri_model, sine_input
+from samples import noisy_recording, ri_model, sine_input
 
 from fitter import build_fmu, fit_recordings, load_recording
 from fitter.core import periodic_response
@@ -124,7 +124,7 @@ def test_no_rate_warning_on_a_recording_the_model_was_fitted_on():
     """Two recordings ten times apart in rate: each one's own 5-95 % rate range lies inside the stored
     one (pooled percentiles put the slow recording's 5 % below the pool's by a factor 2, and warned), and an
     input ten times faster than both is named."""
-    from conftest import rd_model
+    from samples import rd_model
     from fitter.identification.exported import fitted_range
 
     slow, fast = (Recording(*sine_input(w, 3, 200), np.zeros(601)) for w in (1.0, 10.0))

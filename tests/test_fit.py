@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import noisy_recording, rd_model, ri_model, sine_input
+from samples import noisy_recording, rd_model, ri_model, sine_input
 
 from fitter.core import model_from_dict, periodic_response, simulate
 from fitter.identification.fit import FitError, fit_recordings, monotone_input

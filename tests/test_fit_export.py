@@ -7,7 +7,7 @@ kernel to 1e-9 and match the data within the fit's own error.
 
 import numpy as np
 import pytest
-from conftest import noisy_recording, ri_model, sine_input
+from samples import noisy_recording, ri_model, sine_input
 
 from fitter.core import limiting_loop, periodic_response, simulate
 from fitter.identification.fit import fit_recordings

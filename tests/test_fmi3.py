@@ -38,7 +38,7 @@ from fitter.core import load_model, simulate  # noqa: E402
 from fitter.fmu.host import simulate_fmu as simulate_fmu2  # noqa: E402
 from fitter.fmu.native import build_gain_fmu, build_native_fmu  # noqa: E402
 from fitter.fmu.native_sources import GAIN_FILE, c_sources, model_data_header, source_files  # noqa: E402
-from conftest import sampled_input  # noqa: E402
+from samples import sampled_input  # noqa: E402
 from test_fmu_native import ALL_EFFECTS, rd_model, ri_model  # noqa: E402
 
 U, Y = 0, 1

@@ -93,7 +93,7 @@ def run_input(n: int = RUN) -> tuple[np.ndarray, np.ndarray]:
 
 def _models() -> dict:
     """The models of the table (built lazily: the driver subprocess needs them only by name)."""
-    from conftest import rd_model, ri_model
+    from samples import rd_model, ri_model
     from test_inverse import ri2
 
     effects = [
@@ -118,7 +118,7 @@ def _models() -> dict:
 
 
 def _rate_nodes():
-    from conftest import rd_model
+    from samples import rd_model
 
     return [float(v) for v in rd_model(2).g.v[:2]]
 

@@ -58,7 +58,7 @@ from fitter.fmu.host import collecting_callbacks, simulate_fmu, validate_fmu_fil
 from fitter.fmu.variables import model_variables  # noqa: E402
 from fitter.fmu.native import NativeBuildError, build_native_fmu  # noqa: E402
 from fitter.fmu.native_sources import NATIVE_EFFECTS  # noqa: E402
-from conftest import sampled_input  # noqa: E402
+from samples import sampled_input  # noqa: E402
 
 ALL_EFFECTS = [
     {"effect": "backlash", "parameters": {"b": 0.15}},

@@ -13,7 +13,7 @@ from xml.etree import ElementTree as ET
 
 import numpy as np
 import pytest
-from conftest import noisy_recording, rd_model, ri_model
+from samples import noisy_recording, rd_model, ri_model
 from fmu_host import Instance  # logging on: pythonfmu logs only then
 from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException

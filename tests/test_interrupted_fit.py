@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import noisy_recording, ri_model, sine_input
+from samples import noisy_recording, ri_model, sine_input
 from fitter.core import load_model
 from fitter.core.files import file_digest
 from fitter.fmu.pair import check_fmu_pair

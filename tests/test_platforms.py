@@ -38,7 +38,7 @@ import pytest
 from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
-from conftest import sampled_input
+from samples import sampled_input
 from fitter.core import Compensator, load_model, save_model, simulate
 from fitter.data.recordings import load_recording
 from fitter.fmu.build import build_fmu

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import noisy_recording, ri_model
+from samples import noisy_recording, ri_model
 from fitter.core.kernel import simulate
 from fitter.data.recordings import Recording
 from fitter.identification.fit import fit_recordings

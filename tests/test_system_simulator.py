@@ -29,7 +29,7 @@ from fitter.core import simulate
 from fitter.fmu.build import build_fmu
 from fitter.identification.fit import fit_recordings
 
-from conftest import noisy_recording
+from samples import noisy_recording
 from test_inverse import reversals, ri2
 
 cosim = pytest.importorskip("libcosimpy", reason="libcosimpy (the test dependency) did not install")

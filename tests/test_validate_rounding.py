@@ -17,7 +17,7 @@ Two models that amplify rounding, each on a recording of its output (`MODELS`):
   The kernel runs it in the eigenbasis of A- (cond(V) = 3e5), the binary by block exponentials: 1.19e-5 of
   the range apart, which the kernel's own dense path reproduces (s = 1.19e-5) and parameters moved by a
   few units in the last place do not (2.5e-9).
-* ``realisation``: the suite's order-2 rate-independent model (``conftest.ri_model(2)``, D = 0.5, input
+* ``realisation``: the suite's order-2 rate-independent model (``samples.ri_model(2)``, D = 0.5, input
   range [-2, 2]) in the state coordinates x' = T x, T = [[1, 1], [1, 1 + 1e-4]] (cond(T) = 4e8): the same
   input-output map, with A' = T A T^-1 (entries near 2.5e4 that cancel) and y = C' x' + D u,
   C' = C T^-1 = [5001, -5000] (two states 5000 times larger than their difference), on
@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import ri_model
+from samples import ri_model
 from test_cli import assert_clean_failure, invoke, listing, ok, write_csv
 
 from fitter.core import RateIndependentModel, save_model, simulate
