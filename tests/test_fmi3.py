@@ -451,6 +451,31 @@ def test_cli_exports_fmi3_and_refuses_it_for_the_python_backend(tmp_path):
     assert not (tmp_path / "p.fmu").exists()
 
 
+def test_fit_and_diagnose_write_fmi3_when_asked(tmp_path):
+    """`--fmi-version` wherever an FMU is written: `duhem fit --fmu` and `duhem diagnose --fmu` write FMI 3.0 with
+    it, and refuse it for the python backend before fitting (nothing written)."""
+    from click.testing import CliRunner
+
+    from fitter.cli import main
+
+    demo = str(REPO / "examples" / "demo.csv")
+    runner = CliRunner()
+    fit = ["fit", demo, "-o", str(tmp_path / "m.json"), "--kind", "ri", "--order", "1", "--fmi-version", "3"]
+    result = runner.invoke(main, [*fit, "--fmu", str(tmp_path / "m.fmu")])
+    assert result.exit_code == 0, result.output
+    assert read_model_description(str(tmp_path / "m.fmu")).fmiVersion == "3.0"
+    result = runner.invoke(main, [*fit, "--fmu", str(tmp_path / "p.fmu"), "--backend", "python"])
+    assert result.exit_code == 1 and "FMI 3.0 export needs --backend native" in result.output
+    result = runner.invoke(
+        main,
+        ["diagnose", demo, "--base-order", "1", "--candidates", "viscous", "--fmu", str(tmp_path / "d.fmu")]
+        + ["--fmi-version", "3"],
+    )
+    assert result.exit_code == 0, result.output
+    assert read_model_description(str(tmp_path / "d.fmu")).fmiVersion == "3.0"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.fmu", "m.fmu", "m.json"]
+
+
 def test_build_fmu_script_and_api_take_the_fmi_version(tmp_path):
     import build_fmu
 

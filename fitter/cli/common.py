@@ -155,8 +155,11 @@ def check_fmu_name(path: str | None) -> None:
         raise CliError(f"{path}: an FMU file name must end in .fmu")
 
 
-def check_backend(backend: str) -> None:
-    """Fail before any long work when the native backend has no compiler (zig; message names --backend python)."""
+def check_backend(backend: str, fmi_version: int = 2) -> None:
+    """Fail before any long work when the native backend has no compiler (zig; message names --backend python),
+    or FMI 3.0 is asked of another backend."""
+    if fmi_version == 3 and backend != "native":
+        raise CliError("FMI 3.0 export needs --backend native")
     if backend == "native":
         check_toolchain()
 

@@ -19,7 +19,7 @@ from fitter.cli.common import (
     table,
     time_column,
 )
-from fitter.cli_support import CliError, FilePath, backend_option
+from fitter.cli_support import CliError, FilePath, backend_option, fmi_version_option
 from fitter.core.files import atomic_directory, atomic_file, json_text, jsonable
 from fitter.data.recordings import load_recordings
 from fitter.diagnosis import diagnose as run_diagnosis
@@ -46,6 +46,7 @@ from fitter.reports.diagnosis_report import fill_diagnosis_report
 )
 @click.option("--fmu", type=FilePath(), help="export the extended model as this FMU")
 @backend_option
+@fmi_version_option
 @click.option(
     "--base-order",
     type=click.Choice(["auto", "1", "2", "3", "4"]),
@@ -78,6 +79,7 @@ def diagnose(
     json_out,
     fmu,
     backend,
+    fmi_version,
     base_order,
     separate,
     candidates,
@@ -97,7 +99,7 @@ def diagnose(
     if model_path and base_order != "auto":
         raise CliError("--base-order applies only without --model (the given model sets the base)")
     if fmu:
-        check_backend(backend)
+        check_backend(backend, fmi_version)
     base = load_model_json(model_path) if model_path else None
     recs = load_recordings(list(recordings), time_column(time_col), input_col, output_col, warn=warning)
     with contextlib.ExitStack() as outputs:
@@ -119,7 +121,7 @@ def diagnose(
         if report_tmp:
             fill_diagnosis_report(result, recs, report_tmp)
         if fmu_tmp:
-            build_fmu(result.extended_model, fmu_tmp, backend=backend)
+            build_fmu(result.extended_model, fmu_tmp, backend=backend, fmi_version=fmi_version)
         if json_tmp:
             json_tmp.write_text(json_text(data), encoding="utf-8")
     python_host_note(fmu, backend)

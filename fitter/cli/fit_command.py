@@ -24,7 +24,7 @@ from fitter.cli.common import (
     time_column,
     warn_minor_loops,
 )
-from fitter.cli_support import FilePath, Number, backend_option
+from fitter.cli_support import FilePath, Number, backend_option, fmi_version_option
 from fitter.core.effects import REGISTRY
 from fitter.core.files import atomic_directory, atomic_file, atomic_pair, jsonable
 from fitter.core.models import save_model
@@ -51,6 +51,7 @@ from fitter.reports.fit_report import fill_fit_report
 @click.option("-o", "--out", "out", required=True, type=FilePath(), help="model JSON file to write")
 @click.option("--fmu", type=FilePath(), help="also export the model as this FMU")
 @backend_option
+@fmi_version_option
 @click.option("--report", type=FilePath(directory=True), help="write a fit report (HTML, PNG) here")
 @click.option("--order", type=Number(int, low=1, high=max(ORDERS)), help="state dimension n (default: chosen by BIC)")
 @click.option(
@@ -114,6 +115,7 @@ def fit(
     out,
     fmu,
     backend,
+    fmi_version,
     report,
     order,
     q,
@@ -136,7 +138,7 @@ def fit(
     refuse_overwrite(recordings, out, fmu, report)
     check_fmu_name(fmu)
     if fmu:
-        check_backend(backend)
+        check_backend(backend, fmi_version)
     recs = load_recordings(list(recordings), time_column(time_col), input_col, output_col, warn=warning)
     with stderr_progress("duhem fit") as say, contextlib.ExitStack() as outputs:
         if fmu:
@@ -168,7 +170,7 @@ def fit(
             fill_fit_report(result, recs, report_tmp)
         if fmu_tmp:
             say(f"building the {backend} FMU", None)
-            build_fmu(model, fmu_tmp, backend=backend, allow_unstable=allow_unstable)
+            build_fmu(model, fmu_tmp, backend=backend, allow_unstable=allow_unstable, fmi_version=fmi_version)
             model = with_fmu_record(model, fmu, fmu_tmp, out)
         save_model(model, model_tmp)
     python_host_note(fmu, backend)
