@@ -120,6 +120,26 @@ def test_inputs_beyond_the_fitted_range_are_named(transient_fit):
     assert "the model was fitted on" in warning and "holds the input at the edge" in warning
 
 
+def test_an_output_far_beyond_the_fitted_one_is_named(transient_fit, tmp_path):
+    """A parameter edited to an absurd value (D x 1e90) drives the output 1e90 output ranges beyond the fitted
+    output range: `range_warnings` and `duhem simulate` name it; the fitted model on its own recording is silent."""
+    from test_cli import invoke, ok, write_csv
+
+    from fitter.core.files import json_text
+
+    rec, fit = transient_fit
+    y = fit.simulate(rec)
+    assert range_warnings(fit.model, rec.t, rec.u, y) == []
+    edited = fit.model.replace(D=fit.model.D * 1e90)
+    (warning,) = range_warnings(edited, rec.t, rec.u, simulate(edited, rec.t, rec.u).y)
+    assert "output ranges beyond the range the model was fitted on" in warning and "an edited value" in warning
+    model = tmp_path / "edited.json"
+    model.write_text(json_text(edited.to_dict()), encoding="utf-8")
+    csv = write_csv(tmp_path / "in.csv", rec.t, rec.u, rec.y)
+    result = ok(invoke("simulate", model, csv, "-o", tmp_path / "out.csv"))
+    assert "output ranges beyond the range the model was fitted on" in result.stderr
+
+
 def test_no_rate_warning_on_a_recording_the_model_was_fitted_on():
     """Two recordings ten times apart in rate: each one's own 5-95 % rate range lies inside the stored
     one (pooled percentiles put the slow recording's 5 % below the pool's by a factor 2, and warned), and an

@@ -88,7 +88,7 @@ def _validate(fmu: Path, recs: list[Recording], model, threshold: float) -> tupl
             passed=bool(m["nrmse"] <= threshold),
             judged_on="all samples",
             fmu_vs_in_process_max_abs=float(np.max(np.abs(y - simulate_model(model, rec.t, rec.u).y))),
-            warnings=range_warnings(model, rec.t, rec.u),
+            warnings=range_warnings(model, rec.t, rec.u, y),
         )
         rows.append(m)
         outputs.append(y)

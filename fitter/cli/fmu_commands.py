@@ -188,7 +188,7 @@ def _validation_row(rec, y_fmu: np.ndarray, model, threshold: float, x0_rule: st
         judged_on="all samples",
         x0=x0_rule,
         x0_value=np.asarray(model.x0, dtype=float).tolist(),
-        warnings=range_warnings(model, rec.t, rec.u),
+        warnings=range_warnings(model, rec.t, rec.u, y_fmu),
     )
     return m
 

@@ -65,7 +65,7 @@ def simulate(model, input_csv, out, time_col, input_col, allow_unstable, as_json
             y = simulate_model(stored, rec.t, rec.u).y
             engine = "in-process"
         finite_output(y, rec, "the simulated output")
-        warnings = range_warnings(stored, rec.t, rec.u)
+        warnings = range_warnings(stored, rec.t, rec.u, y)
         save_columns(tmp, ["time", "u", "y"], [rec.t, rec.u, y])
     info = {
         "model": model,

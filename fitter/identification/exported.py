@@ -315,13 +315,20 @@ def _moving_rates(t: np.ndarray, u: np.ndarray) -> np.ndarray:
 
 
 def fitted_range(recordings: Sequence[Recording]) -> dict:
-    """Input range over all recordings, and the range of |du/dt| they cover: from the lowest of their 5 %
-    percentiles to the highest of their 95 % percentiles (each recording's own 5-95 % range inside it, so
+    """Input and output ranges over all recordings, and the range of |du/dt| they cover: from the lowest of their
+    5 % percentiles to the highest of their 95 % percentiles (each recording's own 5-95 % range inside it, so
     that `range_warnings` is silent on a recording the model was fitted on)."""
     u = np.concatenate([r.u for r in recordings])
+    y = np.concatenate([r.y for r in recordings])
     spans = [np.percentile(v, [5, 95]) for v in (_moving_rates(r.t, r.u) for r in recordings) if v.size]
     rates = [float(min(s[0] for s in spans)), float(max(s[1] for s in spans))] if spans else None
-    return {"input": [float(u.min()), float(u.max())], "rate": rates}
+    return {"input": [float(u.min()), float(u.max())], "rate": rates, "output": [float(y.min()), float(y.max())]}
+
+
+OUTPUT_WARNING = 10.0
+"""Output ranges beyond the fitted output range (`fitted_range`) at which a simulated output is warned about
+(`range_warnings`): no input inside the fitted range takes a model fitted there so far; an edited or corrupted
+parameter (an effect's 1e90, say) does."""
 
 
 MINOR_LOOP_WARNING = 1.0
@@ -408,11 +415,12 @@ def described(model, recordings: Sequence[Recording]):
     )
 
 
-def range_warnings(model, t: np.ndarray, u: np.ndarray) -> list[str]:
+def range_warnings(model, t: np.ndarray, u: np.ndarray, y: np.ndarray | None = None) -> list[str]:
     """Sentences naming where an input leaves the model's fitted range (`fitted_range`, stored in
     ``fit_info``): its amplitude beyond `INPUT_MARGIN` of the fitted span (where the model's
     ``input_range`` holds the input), and for a rate-dependent model its rates (5-95 %) beyond a
-    factor 1.5.  Empty when inside, or when the model has no fitted range."""
+    factor 1.5; and where the model's simulated output `y` (when given) leaves the fitted output range by more
+    than `OUTPUT_WARNING` of its span.  Empty when inside, or when the model has no fitted range."""
     rng = model.fit_info.get("fitted_range") if isinstance(model.fit_info, dict) else None
     if not isinstance(rng, dict) or not rng.get("input"):
         return []
@@ -438,4 +446,19 @@ def range_warnings(model, t: np.ndarray, u: np.ndarray) -> list[str]:
                 f"the input's rates |du/dt| span [{v_lo:.4g}, {v_hi:.4g}] (5-95 %) but the model was "
                 f"fitted on [{f_lo:.4g}, {f_hi:.4g}]: its rate function g is extrapolated"
             )
-    return out
+    return out + _output_warning(rng.get("output"), y)
+
+
+def _output_warning(fitted, y: np.ndarray | None) -> list[str]:
+    """`range_warnings`' sentence on the simulated output `y` against the fitted output range."""
+    if not fitted or y is None or not np.all(np.isfinite(y)):
+        return []
+    lo, hi = fitted
+    span = max(hi - lo, 1e-300)
+    beyond = max(lo - float(np.min(y)), float(np.max(y)) - hi, 0.0) / span
+    if beyond <= OUTPUT_WARNING:
+        return []
+    return [
+        f"the output reaches [{np.min(y):.6g}, {np.max(y):.6g}], {beyond:.3g} output ranges beyond the range the "
+        f"model was fitted on, [{lo:.6g}, {hi:.6g}]: check the model's parameters (an edited value?)"
+    ]
