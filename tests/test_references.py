@@ -105,3 +105,20 @@ def test_validate_applies_the_reference_of_a_fitted_file(tmp_path):
     assert [r["reference"] for r in rows] == [0.0, found["run1"], found["run2"]]
     for row, score in zip(rows, fit["summary"]["recordings"]):
         assert row["passed"] and row["nrmse"] == pytest.approx(score["nrmse"], rel=1e-6)
+
+
+def test_each_reference_is_the_one_the_stored_start_needs():
+    """`file_references`: each recording's reference minimises its residual from the stored x0 (what the FMU
+    runs), also for a recording that starts elsewhere; moved either way by 1 % of the range it leaves more."""
+    from fitter.identification.exported import file_references
+
+    recs, _ = _runs()
+    shifted = Recording(recs[2].t[50:] - recs[2].t[50], recs[2].u[50:], recs[2].y[50:], "later")
+    runs = [recs[0], recs[1], shifted]
+    refs = file_references(ri_model(1), runs)
+    assert set(refs) == {"run1", "later"}
+    for rec in runs[1:]:
+        y = simulate(ri_model(1), rec.t, rec.u).y
+        span = float(np.ptp(rec.y))
+        rms = [np.sqrt(np.mean((rec.y - y - refs[rec.name] - d) ** 2)) for d in (0.0, 0.01 * span, -0.01 * span)]
+        assert rms[0] < min(rms[1:])
