@@ -307,7 +307,9 @@ def fit_base(ex: JoinedExperiment, model, mask: np.ndarray) -> Fit:
 def duhem_fit(ex: JoinedExperiment, mask: np.ndarray, order: int | None = None) -> tuple[FitResult, Fit]:
     """The rate-independent model `duhem fit` makes of the experiment's recordings (`fit_recordings`, kind "ri", the
     order by BIC or `order`): its `FitResult` and its base refined on the experiment (`fit_base`). Separate runs
-    each carry their instrument's zero, which `duhem fit` does not fit: the fit is made again on the recordings less
+    each carry their instrument's zero, which `duhem fit` fits where its test finds the zeros apart (its references
+    are dropped here: `fit_base` fits them again); where it does not (single cycles taken as settled, zeros too
+    close for its test), the fit is made again on the recordings less
     the references (`output_references`) that its first model, refined here (`fit_base`), finds (one alternation; a
     control of order 3 whose files' zeros differ by 15 % of the range got order 2 at 2.8 times the noise, then order
     3 at the noise). The levelled fit is taken when, refined on the recordings with their references (`fit_base`),
@@ -323,10 +325,11 @@ def duhem_fit(ex: JoinedExperiment, mask: np.ndarray, order: int | None = None) 
     samples per run took 504 s of a 937 s diagnosis."""
     share = _share(ex)
     base = {"kind": "ri", "max_samples": share, "retry_unsettled": False}
-    first = _unreferenced(fit_recordings(ex.recordings, order=order, **base))
+    fitted = fit_recordings(ex.recordings, order=order, **base)
+    first = _unreferenced(fitted)
     refined = fit_base(ex, first.model, mask)
-    refs = output_references(refined, ex)
-    if refs is None:
+    refs = None if fitted.summary.get("references") else output_references(refined, ex)
+    if refs is None:  # one recording, or `duhem fit` levelled the files itself
         return first, refined
     level = [Recording(r.t, r.u, r.y - refs[r.name], r.name, r.input, r.output, r.source) for r in ex.recordings]
     levelled = fit_recordings(level, order=order, references=False, **base)
