@@ -45,17 +45,7 @@ NO_CC = {"CC": "no-such-c-compiler-xyz"}
 
 
 def true_model() -> RateIndependentModel:
-    return RateIndependentModel(
-        A_plus=[[-3.0]],
-        A_minus=[[2.0]],
-        B_plus=[3.0],
-        B_minus=[2.0],
-        C=[4.0],
-        E_plus=[1.0],
-        E_minus=[-1.0],
-        D=0.5,
-        x0=[2.0],
-    )
+    return ri_model(1)
 
 
 def write_csv(path: Path, t, u, y, header: str = "time,u,y") -> Path:

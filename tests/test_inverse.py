@@ -17,6 +17,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from samples import ri_model
+
 from fitter.baselines import PrandtlIshlinskii
 from fitter.cli import main
 from fitter.core import (
@@ -266,18 +268,7 @@ def test_steps_are_solved_exactly_or_clamped():
 
 def test_non_monotone_branch_is_clamped_never_nan():
     # this model's output falls for a while after some reversals (dy/du < 0 on part of its branches)
-    model = RateIndependentModel(
-        A_plus=[[-3.0]],
-        A_minus=[[2.0]],
-        B_plus=[3.0],
-        B_minus=[2.0],
-        C=[4.0],
-        E_plus=[1.0],
-        E_minus=[-1.0],
-        D=0.5,
-        x0=[2.0],
-        input_range=(-3.0, 5.0),
-    )
+    model = ri_model(1).replace(input_range=(-3.0, 5.0))
     t = np.linspace(0.0, 10.0, 1001)
     y_ref = start_output(model, 0.0, 1.0) + 4.0 * np.sin(2 * np.pi * 0.4 * t) + 10.0 * np.sin(2 * np.pi * 0.05 * t)
     res = compensate(model, t, y_ref, u0=1.0)
@@ -356,18 +347,7 @@ def test_which_root_the_held_input_is_kept_and_the_nearest_root_taken():
 
     # dy/du = 4 (-3 x + 3 u + 1) + 0.5 = -103.5 rising, 4 (2 x + 2 u - 1) + 0.5 = 84.5 falling at x = 10, u = 1:
     # y_ref a little below the held output has a root on both sides, the rising one nearer
-    model = RateIndependentModel(
-        A_plus=[[-3.0]],
-        A_minus=[[2.0]],
-        B_plus=[3.0],
-        B_minus=[2.0],
-        C=[4.0],
-        E_plus=[1.0],
-        E_minus=[-1.0],
-        D=0.5,
-        x0=[2.0],
-        input_range=(-3.0, 5.0),
-    )
+    model = ri_model(1).replace(input_range=(-3.0, 5.0))
     comp = Compensator(model, t0=0.0, u0=1.0, x0=[10.0])
     y_held = start_output(model.replace(x0=[10.0]), 0.0, 1.0)
     assert comp.step(0.0, y_held) == 1.0
