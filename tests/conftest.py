@@ -4,6 +4,9 @@ Test modules request the session fixture `fmu_cache`,
 which builds each (model, backend) FMU once per session, and `holder`, another process holding an
 output's lock (`fitter.core.files.output_lock`).  The diagnosis' fits run in the test's own process
 (``DUHEM_WORKERS=1``, `fitter.workers`); one test runs it on two processes and compares.
+The modules of the longest tests (whole diagnoses and fits, 10-50 s each) are collected first
+(`pytest_collection_modifyitems`), so that pytest-xdist's two workers end on short tests, not one on a long test
+while the other waits.
 Native FMUs carry this machine's binary alone (``DUHEM_PLATFORMS=host``, `fitter.fmu.toolchain.PLATFORMS_ENV`)
 unless a test asks for others: `tests/test_platforms.py` builds and checks every platform's.
 """
@@ -20,6 +23,15 @@ from fmu_host import FmuCache
 
 os.environ.setdefault("DUHEM_WORKERS", "1")  # the suite runs on pytest-xdist's workers already (one per core)
 os.environ.setdefault("DUHEM_PLATFORMS", "host")  # native FMUs: this machine's binary; tests/test_platforms.py: all
+
+
+LONG_MODULES = ("test_diagnose.py", "test_diagnose_joint.py", "test_generality.py", "test_file_gains.py")
+"""The modules whose tests take longest (module docstring)."""
+
+
+def pytest_collection_modifyitems(items: list) -> None:
+    """The tests of `LONG_MODULES` first, every module's order kept (module docstring)."""
+    items.sort(key=lambda item: item.path.name not in LONG_MODULES)
 
 
 @pytest.fixture(scope="session")

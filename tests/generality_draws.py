@@ -63,8 +63,10 @@ Each file is a separate run from t = 0 (its own clock) of the device from its x0
 range (the range of the noise-free device output y_s (C x + D s) over all files, offsets excluded); 0, or in
 [1e-3, 1e-2].  ``offsets="common"``: every file has the same output offset (drawn as N(0, 3) output ranges);
 ``"per_file"`` (two or more files): each file's offset differs from the first's by U(-0.5, 0.5) output ranges,
-an instrument zeroed anew for each run.  Both are models of the class: `duhem fit` fits an output reference per
-file where the files' zeros differ (the summary's ``references``, which `FitResult.simulate` adds).
+an instrument zeroed anew for each run; ``"calibrated"``: the same, and each file's output also scaled by a gain
+(the first's 1, the others' log-uniform in [0.5, 2]), an instrument calibrated anew.  All are models of the class:
+`duhem fit` fits an output reference per file where the files' zeros differ (the summary's ``references``) and a
+gain per file where their scales differ (``gains``), which `FitResult.simulate` applies.
 
 Properties (`check_fit`, `check_diagnosis`)
 -------------------------------------------
@@ -88,7 +90,7 @@ from __future__ import annotations
 
 import time
 import traceback
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -98,7 +100,8 @@ from fitter.data.recordings import Recording
 KINDS = ("ri", "rd")
 ORDERS = (1, 2, 3, 4)
 INPUTS = ("turning_points", "sine", "multisine", "triangles", "steps")
-OFFSETS = ("common", "per_file")
+OFFSETS = ("common", "per_file", "calibrated")
+GAIN_RANGE = (0.5, 2.0)
 MIN_SAMPLES = 100
 NOISE_RANGE = (1e-3, 1e-2)
 """Nonzero noise levels (sigma / output range) are drawn log-uniform in this range (module docstring)."""
@@ -133,7 +136,7 @@ class DrawSpec:
     def __post_init__(self):
         if self.kind not in KINDS or self.order not in ORDERS or self.inputs not in INPUTS:
             raise ValueError(f"not a draw: {self}")
-        if self.offsets not in OFFSETS or (self.offsets == "per_file" and self.files < 2):
+        if self.offsets not in OFFSETS or (self.offsets != "common" and self.files < 2):
             raise ValueError(f"offsets {self.offsets!r} with {self.files} file(s)")
         if self.samples < MIN_SAMPLES or self.files < 1:
             raise ValueError(f"at least one file of {MIN_SAMPLES} samples: {self}")
@@ -142,7 +145,7 @@ class DrawSpec:
 
     @property
     def label(self) -> str:
-        off = "/per-file-offsets" if self.offsets == "per_file" else ""
+        off = {"common": "", "per_file": "/per-file-offsets", "calibrated": "/per-file-offsets-and-gains"}[self.offsets]
         return (
             f"{self.kind}{self.order}/{self.inputs}/{self.files}x{self.samples}/noise{self.noise:.4f}{off}/s{self.seed}"
         )
@@ -151,12 +154,12 @@ class DrawSpec:
 def spec_from_seed(seed: int, min_samples: int = MIN_SAMPLES, max_samples: int = 5000) -> DrawSpec:
     """A random `DrawSpec` from `seed` (numpy only): kind, order, input, 1-3 files, samples per file log-uniform
     in [min_samples, max_samples], noise 0 (one draw in five) or log-uniform in `NOISE_RANGE`, offsets per file
-    in half of the draws with several files."""
+    in half of the draws with several files, and in half of those a gain per file too."""
     rng = np.random.default_rng([seed, 0])
     files = int(rng.integers(1, 4))
     samples = int(round(np.exp(rng.uniform(np.log(min_samples), np.log(max_samples)))))
     noise = 0.0 if rng.random() < 0.2 else float(np.exp(rng.uniform(*np.log(NOISE_RANGE))))
-    return DrawSpec(
+    spec = DrawSpec(
         seed=seed,
         kind=str(rng.choice(KINDS)),
         order=int(rng.integers(1, 5)),
@@ -166,6 +169,9 @@ def spec_from_seed(seed: int, min_samples: int = MIN_SAMPLES, max_samples: int =
         noise=round(noise, 5),
         offsets="per_file" if files > 1 and rng.random() < 0.5 else "common",
     )
+    if spec.offsets == "per_file" and rng.random() < 0.5:  # drawn last: the other choices stay those of the seed
+        spec = replace(spec, offsets="calibrated")
+    return spec
 
 
 def draw_specs(
@@ -424,12 +430,15 @@ def build_draw(spec: DrawSpec) -> Draw:
     off_rng = _rng(spec, "offsets")
     base = float(off_rng.normal(0.0, 3.0)) * output_range
     offsets = [base] * spec.files
-    if spec.offsets == "per_file":
+    if spec.offsets != "common":
         offsets = [base] + [base + float(off_rng.uniform(-0.5, 0.5)) * output_range for _ in range(spec.files - 1)]
+    gains = [1.0] * spec.files
+    if spec.offsets == "calibrated":
+        gains[1:] = np.exp(off_rng.uniform(*np.log(GAIN_RANGE), spec.files - 1)).tolist()
     noise_rng = _rng(spec, "noise")
     recs, clean = [], []
-    for i, ((t, s, y), off) in enumerate(zip(runs, offsets)):
-        y_clean = y + off
+    for i, ((t, s, y), off, gain) in enumerate(zip(runs, offsets, gains)):
+        y_clean = gain * y + off
         y_meas = y_clean + sigma * noise_rng.standard_normal(len(y))
         name = f"file{i + 1}"
         recs.append(Recording(t, c + a * s, y_meas, name=name, source=f"{name}.csv"))

@@ -150,14 +150,15 @@ def diagnose(
 
 def _per_recording_table(data: dict) -> None:
     """Per recording: NRMSE of the base and of the extended model, the extended model's held-out NRMSE (fitted
-    without that recording) and, for separate runs, the output reference fitted to it."""
+    without that recording) and, for separate runs, the output reference fitted to it (in the model's frame: the
+    output divided by the file's gain, where the files' gains differ, ``file_gains``) and that gain."""
     base, ext = data["baseline"], data["extended"]
     held, refs = ext.get("heldout_nrmse_per_recording") or {}, ext.get("references") or {}
-    table(
-        "per recording",
-        ["recording", "base NRMSE", "extended NRMSE", "held out", "reference"],
-        [
-            [name, value, ext["nrmse_per_recording"].get(name), held.get(name), refs.get(name)]
-            for name, value in base["nrmse_per_recording"].items()
-        ],
-    )
+    gains = data.get("file_gains")
+    rows = [
+        [name, value, ext["nrmse_per_recording"].get(name), held.get(name), refs.get(name)]
+        + ([gains.get(name, 1.0)] if gains else [])
+        for name, value in base["nrmse_per_recording"].items()
+    ]
+    heads = ["recording", "base NRMSE", "extended NRMSE", "held out", "reference"] + (["gain"] if gains else [])
+    table("per recording", heads, rows)

@@ -200,6 +200,7 @@ def fit(
         click.echo(f"chosen: {summary['why']}")
     _budget_lines(summary)
     _reference_line(summary.get("references"))
+    _gain_line(summary.get("gains"))
     effects = summary.get("effects") or {}
     held = effects.get("held") or {}
     for e in effects.get("fitted", []):
@@ -262,6 +263,16 @@ def _reference_line(refs: dict | None) -> None:
         click.echo(
             f"output references (each file's zero relative to {refs['relative_to']}'s, a property of the files, "
             f"not of the device; every score adds them): {values}"
+        )
+
+
+def _gain_line(gains: dict | None) -> None:
+    """The output gains the fit found (the summary's ``gains``), in one line."""
+    if gains:
+        values = ", ".join(f"{k} x{v:.6g}" for k, v in gains["values"].items())
+        click.echo(
+            f"output gains (each file's scale relative to {gains['relative_to']}'s, a property of the files: an "
+            f"instrument's calibration or an operating condition, not the device; every score applies them): {values}"
         )
 
 

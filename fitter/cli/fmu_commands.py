@@ -56,7 +56,7 @@ from fitter.fmu.build import build_fmu
 from fitter.fmu.host import collecting_callbacks, simulate_fmu
 from fitter.fmu.toolchain import PLATFORMS, parse_platforms
 from fitter.fmu.variables import model_variables, start_state_values
-from fitter.identification.exported import file_reference, levelled, own_start, range_warnings, started
+from fitter.identification.exported import file_gain, file_reference, levelled, own_start, range_warnings, started
 from fitter.progress import stderr_progress
 from fitter.reports.validation_plot import write_validation_plot
 
@@ -180,7 +180,7 @@ def _validation_row(rec, y_fmu: np.ndarray, model, threshold: float, x0_rule: st
     m["fmu_vs_in_process_max_abs"] = float(np.max(np.abs(y_fmu - y_model)))
     m["fmu_vs_in_process_limit"] = agreement_limit(s) * (scale if scale > 0 else 1.0)
     m["rounding_sensitivity"] = s
-    m["reference"] = file_reference(model, rec)
+    m["reference"], m["gain"] = file_reference(model, rec), file_gain(model, rec)
     m.update(
         recording=rec.name,
         source=rec.source,
@@ -327,9 +327,10 @@ def validate(fmu, recordings, threshold, plot, x0_rule, allow_unstable, time_col
     NRMSE and max error over the last full input cycle, the
     loop-area error, and the largest difference between the FMU and the
     in-process simulation of the model stored in the FMU.  A recording of
-    the name of one that `duhem fit` fitted with an output reference of its
-    own (files whose outputs have different zeros) is compared with the
-    FMU's output plus that reference (``reference`` in the JSON).
+    the name of one that `duhem fit` fitted with an output reference and gain
+    of its own (files whose outputs have different zeros or gains) is compared
+    in the model's frame: its output less that reference, divided by that gain
+    (``reference`` and ``gain`` in the JSON; the NRMSE is the same in both frames).
 
     The FMU must run the model it carries (exit code 1 otherwise): its
     binary's output within max(1e-6, 100 s) of the output range of the
@@ -389,11 +390,15 @@ def validate(fmu, recordings, threshold, plot, x0_rule, allow_unstable, time_col
                 for r in rows
             ],
         )
-    refs = [f"{r['recording']} {r['reference']:+.6g}" for r in rows if r["reference"] != 0.0]
+    refs = [
+        f"{r['recording']} {r['reference']:+.6g}" + (f" x{r['gain']:.6g}" if r["gain"] != 1.0 else "")
+        for r in rows
+        if r["reference"] != 0.0 or r["gain"] != 1.0
+    ]
     if refs and not as_json:
         click.echo(
-            "compared with the FMU's output plus the output reference `duhem fit` found for the recording of that "
-            "name (its instrument's zero relative to the model's): " + ", ".join(refs)
+            "compared with the FMU's output times the gain and plus the output reference `duhem fit` found for the "
+            "recording of that name (its instrument's zero and gain relative to the model's): " + ", ".join(refs)
         )
     for r in rows:
         for w in r["warnings"]:

@@ -325,7 +325,7 @@ def duhem_fit(ex: JoinedExperiment, mask: np.ndarray, order: int | None = None) 
     samples per run took 504 s of a 937 s diagnosis."""
     share = _share(ex)
     base = {"kind": "ri", "max_samples": share, "retry_unsettled": False}
-    fitted = fit_recordings(ex.recordings, order=order, **base)
+    fitted = remembered_fit(ex.recordings, order=order, **base)
     first = _unreferenced(fitted)
     refined = fit_base(ex, first.model, mask)
     refs = None if fitted.summary.get("references") else output_references(refined, ex)
@@ -339,10 +339,37 @@ def duhem_fit(ex: JoinedExperiment, mask: np.ndarray, order: int | None = None) 
     return (levelled, again) if again.rss <= refined.rss else (first, refined)
 
 
+_FITS: dict[bytes, FitResult] = {}
+"""The last `remembered_fit`, by its arguments' key."""
+
+
+def remembered_fit(recordings: Sequence[Recording], **kwargs) -> FitResult:
+    """`fit_recordings(recordings, **kwargs)`, the last call's result again when the recordings (names and samples)
+    and arguments are the same: `fitter.diagnosis.calibration` fits the experiment before its base does."""
+    key = _key(recordings, kwargs)
+    if key not in _FITS:
+        remember(recordings, fit_recordings(recordings, **kwargs), **kwargs)
+    return _FITS[key]
+
+
+def remember(recordings: Sequence[Recording], result: FitResult, **kwargs) -> None:
+    """Keep `result` as `remembered_fit`'s for these recordings and arguments (the last one only)."""
+    _FITS.clear()
+    _FITS[_key(recordings, kwargs)] = result
+
+
+def _key(recordings: Sequence[Recording], kwargs: dict) -> bytes:
+    """`remembered_fit`'s key: the arguments, the recordings' names and samples."""
+    return repr(sorted(kwargs.items())).encode() + b"".join(
+        r.name.encode() + r.t.tobytes() + r.u.tobytes() + r.y.tobytes() for r in recordings
+    )
+
+
 def _unreferenced(fit: FitResult) -> FitResult:
-    """`fit` without the output references `duhem fit` found (its model's ``fit_info["references"]``): the
-    diagnosis fits each recording's reference with its own models (`fit_base`)."""
-    info = {k: v for k, v in fit.model.fit_info.items() if k != "references"}
+    """`fit` without the output references and gains `duhem fit` found (its model's ``fit_info["references"]``,
+    ``["gains"]``): the diagnosis fits each recording's reference with its own models (`fit_base`), on recordings
+    already put in the model's frame by their gains (`fitter.diagnosis.calibration`)."""
+    info = {k: v for k, v in fit.model.fit_info.items() if k not in ("references", "gains")}
     return replace(fit, model=fit.model.replace(fit_info=info))
 
 

@@ -143,6 +143,7 @@ from fitter.core.effects import ORIGINS, REGISTRY, with_start
 from fitter.data.metrics import nrmse, rms
 from fitter.data.recordings import Recording
 from fitter.diagnosis.base import adequate_base, below_order, check_explains
+from fitter.diagnosis.calibration import calibrated_base
 from fitter.diagnosis.experiment import DiagnoseError, JoinedExperiment, join_recordings
 from fitter.diagnosis.file_gap import GAP, capped_noise, file_gap
 from fitter.diagnosis.fitting import (
@@ -155,7 +156,6 @@ from fitter.diagnosis.fitting import (
     with_refinements,
 )
 from fitter.diagnosis.locate import locate_mismatch, where_differs
-from fitter.diagnosis.noise_floor import noise_floor
 from fitter.diagnosis.result import Diagnosis
 from fitter.diagnosis.held_out import held_out_nrmse, prediction_error
 from fitter.diagnosis.statistics import ALPHA, NOISE_MARGIN, RESOLUTION, consistency_report, remainder_report
@@ -237,11 +237,8 @@ def diagnose(
     unknown = [c for c in candidates if c not in REGISTRY]
     if unknown:
         raise DiagnoseError(f"unknown candidate effect {unknown[0]!r} (known: {', '.join(REGISTRY)})")
-    ex = join_recordings(recordings, separate)
-    mask = np.ones(len(ex.t), bool)
     progress("fitting the base model", 0.0)
-    first = fit_base(ex, None, mask)
-    floor = noise_floor(ex, first.model)
+    ex, mask, first, floor, gains = calibrated_base(join_recordings(recordings, separate), model is None, base_order)
     noise = floor["rms"]
     n_steps = len(candidates) * (3 if model is None and base_order is None else 2) + 5
     done = [1]
@@ -338,6 +335,7 @@ def diagnose(
         extended_output=ex.y - current.residual,
         separate=ex.separate,
         file_gap=gap,
+        file_gains=gains,
     )
     diag.paragraph = summary_paragraph(diag)
     return diag

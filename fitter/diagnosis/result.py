@@ -30,6 +30,7 @@ class Diagnosis:
     separate: bool = False  # the recordings were separate runs (`fitter.diagnosis.experiment`)
     noise: dict | None = None  # how noise_rms was estimated (`fitter.diagnosis.noise_floor.noise_floor`)
     file_gap: dict | None = None  # the base against its refits per recording (`fitter.diagnosis.file_gap`)
+    file_gains: dict | None = None  # each recording's output gain, taken off first (`fitter.diagnosis.calibration`)
 
     def to_json(self) -> dict:
         """The JSON-able form (without the model outputs): the keys of `JSON_KEYS` in that order, the paragraph
@@ -40,6 +41,7 @@ class Diagnosis:
         return out
 
 
-JSON_KEYS = ("verdict", "separate", "noise_rms", "noise", "baseline", "file_gap", "mismatch", "findings", "candidates")
+JSON_KEYS = ("verdict", "separate", "noise_rms", "noise", "baseline", "file_gap", "file_gains", "mismatch", "findings")
+JSON_KEYS += ("candidates",)
 JSON_KEYS += ("extended", "validation", "comparison", "paragraph")
 """The fields of `Diagnosis` in ``--json``, in order (then ``base_model``, ``extended_model``)."""

@@ -54,6 +54,7 @@ def summary_paragraph(d: Diagnosis) -> str:
             f" The repeated run {rep['repeat']} differs from {rep['original']} by {rep['data_difference_rms']:.3g}"
             f" RMS (noise alone: {rep['expected_from_noise']:.3g})."
         )
+    text += _gains_text(d.file_gains)
     text += _gap_text(d.file_gap)
     if not d.findings and d.verdict == "nothing_missing":
         return text + " No candidate effect explains a significant part of it: nothing is missing."
@@ -109,6 +110,18 @@ def summary_paragraph(d: Diagnosis) -> str:
     if d.verdict == "unexplained":
         text += " " + _remainder_text(e["remainder"], len(d.findings))
     return text
+
+
+def _gains_text(gains: dict | None) -> str:
+    """The recordings' output gains taken off before the diagnosis (`fitter.diagnosis.calibration`): "" without."""
+    if not gains:
+        return ""
+    values = ", ".join(f"{k} x{v:.3g}" for k, v in gains.items())
+    return (
+        f" The recordings' outputs differ by a gain per file ({values}, relative to the first recording): a "
+        "property of each file (an instrument's calibration, or an operating condition that scales the output), "
+        "not of the device; each output was divided by its gain before the diagnosis."
+    )
 
 
 def _gap_text(gap: dict | None) -> str:

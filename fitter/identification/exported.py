@@ -87,6 +87,8 @@ __all__ = [
     "X0_POLICIES",
     "NRMSE_CONVENTION",
     "initial_state",
+    "calibrated",
+    "file_gain",
     "file_reference",
     "file_references",
     "levelled",
@@ -181,12 +183,27 @@ def file_reference(model, rec: Recording) -> float:
     return float(refs.get(rec.name, 0.0))
 
 
+def file_gain(model, rec: Recording) -> float:
+    """The output gain `duhem fit` fitted to the recording of this name (``fit_info["gains"]``,
+    `fitter.identification.file_gains`: the recording's output is g times the model's, the first recording's
+    scale being the model's own); 1 for any other recording."""
+    gains = getattr(model, "fit_info", {}).get("gains") or {}
+    return float(gains.get(rec.name, 1.0))
+
+
+def calibrated(model, rec: Recording, y_model: np.ndarray) -> np.ndarray:
+    """The model's output `y_model` on `rec` as the recording's instrument writes it: g y + r, with the file's
+    `file_gain` g and `file_reference` r (y itself for a recording the fit gave neither)."""
+    return file_gain(model, rec) * y_model + file_reference(model, rec)
+
+
 def levelled(model, rec: Recording) -> Recording:
-    """`rec` with its `file_reference` taken off its output: the recording as the model itself draws it."""
-    ref = file_reference(model, rec)
-    if ref == 0.0:
+    """`rec` in the model's own frame, (y - r) / g with its `file_reference` r and `file_gain` g: the recording as
+    the model itself draws it (NRMSE, RMS over range, is the same in both frames)."""
+    ref, gain = file_reference(model, rec), file_gain(model, rec)
+    if ref == 0.0 and gain == 1.0:
         return rec
-    return Recording(rec.t, rec.u, rec.y - ref, rec.name, rec.input, rec.output, rec.source)
+    return Recording(rec.t, rec.u, (rec.y - ref) / gain, rec.name, rec.input, rec.output, rec.source)
 
 
 def file_references(model, recordings: Sequence[Recording]) -> dict[str, float]:

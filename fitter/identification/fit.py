@@ -39,7 +39,11 @@ Pipeline of `fit_recordings`
    their shared-start search has references.  The references are a property of the files, not of the device: the
    model is the first recording's (its reference is the model's own); the others' are in the summary's
    ``references`` and the model's ``fit_info``, and every score of a recording adds its reference to the model's output
-   (`exported.file_reference`).
+   (`exported.file_reference`).  Several recordings whose outputs have different gains (an instrument calibrated
+   anew, an operating condition that scales the output) are searched again in the first one's frame, each divided
+   by its gain, the gains refined jointly with the model (`fitter.identification.file_gains`), and kept where their
+   BIC on the raw outputs is lower; the gains are in the summary's ``gains`` and the model's ``fit_info``, and every
+   score applies them (`exported.calibrated`, `exported.levelled`).
    The convergence condition is enforced: for the rate-dependent model with g >= 0 the period map is e^{A sum g dt}, so
    rho < 1 iff A is Hurwitz, which the parametrisation guarantees; for the
    rate-independent model condition (5), rho(e^{beta A+} e^{-beta A-}) < 1, is
@@ -112,10 +116,11 @@ from fitter.identification.exported import (
     X0_POLICIES,
     fitted_range,
     SHARED_START_RSS,
-    file_reference,
+    calibrated,
     raw_input_rho,
 )
 from fitter.identification import fit_summary
+from fitter.identification.file_gains import calibrated_search
 from fitter.identification.refine import Options, RefineResult, jacobian
 from fitter.identification.run_starts import (
     alike,
@@ -182,19 +187,19 @@ class FitResult:
 
     def simulate(self, rec: Recording) -> np.ndarray:
         """The saved model's output on every sample of `rec`, from its stored x0, plus the output reference the
-        fit found for a recording of its name (`exported.file_reference`; 0 for any other)."""
-        return simulate(self.model, rec.t, rec.u).y + file_reference(self.model, rec)
+        fit found for a recording of its name, times its gain (`exported.calibrated`; none for any other)."""
+        return calibrated(self.model, rec, simulate(self.model, rec.t, rec.u).y)
 
     def predict(self, rec: Recording) -> np.ndarray:
         """Output from the periodic state of the first settled cycle of `rec` (NaN before it), plus the file's
-        output reference as in `simulate`."""
+        output reference and gain as in `simulate`."""
         prep = prepare(rec, min_cycles=0)
         s0, s1 = prep.first_cycle()
         a = prep.transient_end + s0
         x0, _ = fixed_point(self.model, rec.t[a : prep.transient_end + s1 + 1], rec.u[a : prep.transient_end + s1 + 1])
         y = np.full(len(rec.u), np.nan)
         y[a:] = simulate(self.model, rec.t[a:], rec.u[a:], x0=self.model.x0 if x0 is None else x0).y
-        return y + file_reference(self.model, rec)
+        return calibrated(self.model, rec, y)
 
     def band(self, rec: Recording, level: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
         """`simulate(rec)` -+ level * sd, sd^2 = diag(J cov J^T) (linearised, J by differences)."""
@@ -278,16 +283,32 @@ def fit_recordings(
             return order_search(d, kind, ords, q, levels, progress, faithful_minor_loops, options)
 
         data, cands = _closed_or_free(data, search(data), recordings, search, progress, retry_unsettled)
+        frame, gains = list(recordings), None  # the recordings in the model's frame (`file_gains`)
         if references:
-            data, cands = _levelled(data, cands, recordings, search, progress)
+            data, cands = _levelled(data, cands, frame, search, progress)
         if retry_unsettled or references:
-            data, cands = _shared(data, cands, recordings, search, progress, orders, references, retry_unsettled)
-        eligible = [c for c in cands if _meets_barrier(c, data, recordings)] or cands
-        best = _harder_if_misfit(min(eligible, key=lambda c: c.bic), data, recordings, progress, options)
+            data, cands = _shared(data, cands, frame, search, progress, orders, references, retry_unsettled)
+        if references:
+            data, cands, frame, gains = calibrated_search(data, cands, frame, search, _best, options, progress)
+        eligible = [c for c in cands if _meets_barrier(c, data, frame)] or cands
+        best = _harder_if_misfit(min(eligible, key=lambda c: c.bic), data, frame, progress, options)
         cands = [best if c.param is best.param else c for c in cands]
         eligible = [best if c.param is best.param else c for c in eligible]
-        extended = _with_effects(eligible, data, recordings, effects, held, progress) if effects else None
-        return _result(best, cands, data, recordings, kind, q, levels, x0, options, extended)
+        extended = _with_effects(eligible, data, frame, effects, held, progress) if effects else None
+        result = _result(best, cands, data, frame, kind, q, levels, x0, options, extended)
+        return result if gains is None else _with_gains(result, gains, recordings)
+
+
+def _with_gains(result: FitResult, gains: np.ndarray, recordings) -> FitResult:
+    """`result`, fitted on the recordings in the first one's frame (`file_gains`), with the recordings' gains and
+    their references in the recordings' own units (the frame's times the gain) in its model's ``fit_info`` and
+    its summary (``gains``, ``references``)."""
+    g = {r.name: float(k) for r, k in zip(recordings[1:], gains[1:])}
+    refs = {k: v * g[k] for k, v in (result.model.fit_info.get("references") or {}).items()}
+    model = result.model.replace(fit_info=dict(result.model.fit_info, gains=g, references=refs))
+    summary = dict(result.summary, references=fit_summary.references(model, recordings))
+    summary["gains"] = fit_summary.gains(model, recordings)
+    return replace(result, model=model, summary=jsonable(summary))
 
 
 Search = Callable[..., list[Candidate]]

@@ -75,6 +75,22 @@ def references(model, recordings) -> dict | None:
     }
 
 
+def gains(model, recordings) -> dict | None:
+    """The summary's ``gains``: the output gain the fit found for each recording but the first
+    (``fit_info["gains"]``, `fitter.identification.file_gains`); None when the fit has none."""
+    found = model.fit_info.get("gains") or {}
+    if not found:
+        return None
+    return {
+        "relative_to": recordings[0].name,
+        "values": found,
+        "why": "the recordings' outputs have different gains (separate runs, each written by an instrument "
+        "calibrated anew, or made under an operating condition that scales the output): each recording's output is "
+        "compared with the model's times its gain plus its reference; the model is the first recording's, and an "
+        "FMU runs it so (duhem validate applies the gain of a recording of the same name)",
+    }
+
+
 def misfit(scores: list[dict], limit: float, refined_further: bool, budget_hit: bool) -> dict:
     """The summary's ``misfit``: per recording, the saved model's residual RMS from the recording's own fitted start
     in times the output's white noise (`_own_start_ratio` of `per_recording`'s rows), the worst, and whether it is

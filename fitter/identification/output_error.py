@@ -103,6 +103,7 @@ from fitter.identification.projection import (
     lstsq_scaled,
     response_columns,
     response_columns_all,
+    scaled,
     solve_shared,
     split_solution,
     with_reference,
@@ -439,12 +440,14 @@ class Recordings:
             model = None
         parts, info = [], []
         owner = self._reference_owner()
-        shared = self._shared_starts(model)
-        for i, (rec, w, cyc, settle) in enumerate(zip(self.recordings, self._w, self.cycles, self._settle)):
+        gains = self._gains(model)
+        frame = [_divided(r, g) for r, g in zip(self.recordings, gains)]
+        shared = self._shared_starts(model, frame)
+        for i, (rec, w, cyc, settle) in enumerate(zip(frame, self._w, self.cycles, self._settle)):
             start = None if shared is None else shared.get(i)
-            one = self._one(model, rec, cyc, settle, reference=i != owner, memo=self._memos[i], shared=start)
-            parts.append(_weighted(one[2], w[one[0] :]))
-            info.append(one)
+            s, x0, r, rho, state = self._one(model, rec, cyc, settle, i != owner, self._memos[i], start)
+            parts.append(_weighted(gains[i] * r, w[s:]))
+            info.append((s, x0, gains[i] * r, rho, state))
         return (parts[0] if len(parts) == 1 else np.concatenate(parts)), model, info
 
     def projected(self, param: Parametrisation, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -457,6 +460,7 @@ class Recordings:
             with np.errstate(all="ignore"):
                 fl = flows(model)
                 parts = self._linear_parts(model, lin, fl)
+            parts = [scaled(p, g) for p, g in zip(parts, self._gains(model))]
             groups, refs = self._groups(model), self._reference_columns(model)
             solution = solve_shared(parts, [r.y for r in self.recordings], self._w, groups, refs)
         except (DuhemError, ValueError, np.linalg.LinAlgError, FloatingPointError):
@@ -521,10 +525,17 @@ class Recordings:
         owner = self._reference_owner()
         return [i != owner for i in range(len(self.recordings))]
 
-    def _shared_starts(self, model) -> dict[int, tuple[np.ndarray, float]] | None:
+    def _gains(self, model) -> list[float]:
+        """Per recording, the output gain of a model without effects that carries one for its name
+        (``fit_info["gains"]``, `fitter.identification.file_gains`: its output is g times the model's); 1 for
+        the others."""
+        found = {} if model is None or getattr(model, "effects", None) else (model.fit_info.get("gains") or {})
+        return [float(found.get(r.name, 1.0)) for r in self.recordings]
+
+    def _shared_starts(self, model, recordings) -> dict[int, tuple[np.ndarray, float]] | None:
         """Per recording of a start group of more than one (`_groups`), its group's initial state and its own
-        output reference (0 without ``references``): `shared_initial_state` over all the group's samples, as
-        `fitted_initial_state` fits one recording's."""
+        output reference (0 without ``references``): `shared_initial_state` over all the group's samples of
+        `recordings` (the recordings in the model's frame), as `fitted_initial_state` fits one recording's."""
         groups = self._groups(model)
         if groups is None:
             return None
@@ -533,7 +544,7 @@ class Recordings:
         for g in set(groups):
             members = [i for i, k in enumerate(groups) if k == g]
             if len(members) > 1:
-                runs = [(self.recordings[i].t, self.recordings[i].u, self.recordings[i].y) for i in members]
+                runs = [(recordings[i].t, recordings[i].u, recordings[i].y) for i in members]
                 try:
                     with np.errstate(all="ignore"):
                         x0, _, offsets = shared_initial_state(model, runs, [refs[i] for i in members])
@@ -570,6 +581,11 @@ class Recordings:
             return s, x0, r, rho, state
         except (KernelError, ValueError, np.linalg.LinAlgError):
             return start, None, np.full(len(rec.y) - start, fail), np.nan, None
+
+
+def _divided(rec: Recording, gain: float) -> Recording:
+    """`rec` in the model's frame: its output divided by its `gain` (itself for 1)."""
+    return rec if gain == 1.0 else Recording(rec.t, rec.u, rec.y / gain, rec.name, rec.input, rec.output, rec.source)
 
 
 def _weighted(r: np.ndarray, w: np.ndarray) -> np.ndarray:

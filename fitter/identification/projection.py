@@ -29,6 +29,7 @@ __all__ = [
     "solve_shared",
     "split_solution",
     "lstsq_scaled",
+    "scaled",
     "with_reference",
 ]
 
@@ -63,6 +64,14 @@ def with_reference(part: LinearPart) -> LinearPart:
     zero of the instrument that wrote it), fitted as its last own unknown."""
     ones = np.ones((len(part.base), 1))
     return LinearPart(part.start, part.base, part.Psi, ones if part.Own is None else np.hstack([part.Own, ones]))
+
+
+def scaled(part: LinearPart, gain: float) -> LinearPart:
+    """`part` of a recording whose output is `gain` times the model's (an instrument's gain,
+    `fitter.identification.file_gains`; its reference column, added by `solve_shared`, is not scaled)."""
+    if gain == 1.0:
+        return part
+    return LinearPart(part.start, gain * part.base, gain * part.Psi, None if part.Own is None else gain * part.Own)
 
 
 def _own_slots(

@@ -1,0 +1,200 @@
+"""Several runs of one device written by instruments of different gains: one output gain per recording.
+
+Separate runs are often written by instruments calibrated anew (a charge amplifier's range, a load cell's
+sensitivity) or made under an operating condition that scales the output (the normal force of a friction
+contact).  Each recording's output is then g_i times the device's plus its reference r_i:
+
+    y_i = g_i yhat_i + r_i,   g_0 = 1, r_0 = 0 (the first recording's frame is the model's own).
+
+The gains are a property of the files, like the references (`fitter.identification.run_starts.zeros_apart`), not
+physics of the device.  `fit_recordings` finds them so:
+
+1. **Detection** (`gains_apart`): the best candidate of the search (with its references), each recording from
+   its own fitted initial state; each recording's output regressed on the candidate's, y_i ~ a_i yhat_i + b_i
+   (linear least squares).  The gains are apart when that lowers the RSS on the N prepared samples below
+   1 / `SHARED_START_RSS` of it and by more than BIC allows for the R gains and the first reference:
+   N ln(RSS / RSS_g) > R ln N, every a_i positive.
+2. **Rounds** (`calibrated_search`): the recordings are put in the first one's frame, y_i / g_i with
+   g_i = a_i / a_0, and searched again with references (orders up to the first search's choice; runs that share
+   an initial state in the first search share it here, `fitter.identification.fit_data.start_groups`).  That
+   search's best candidate is refined jointly with the gains (`refined_gains`, `WithGains`: the regression's gains
+   are biased by the joint model's compromise between the files, where a flexible model gives a file's loops of
+   another input span another size: an ri2 device of three files at gains 1 / 0.7 / 1.35 regressed to
+   1 / 0.73 / 1.13 after three rounds), which rescale the recordings for the next round, until every gain moves
+   by less than `GAIN_TOLERANCE` or after `ROUNDS` rounds.
+3. **Kept** where its BIC on the raw outputs is lower, the R - 1 gains counted: N ln(RSS_raw / N) + p ln N, with
+   RSS_raw = sum_i g_i^2 RSS_i of each recording's residual in the model's frame (`raw_rss`).
+
+The model is the first recording's; the gains are in its ``fit_info["gains"]`` and the summary's ``gains``, and
+every score of a recording compares it in the model's frame (`fitter.identification.exported.levelled`: the
+NRMSE, RMS over range, is the same in both).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Callable, Sequence
+
+import numpy as np
+
+from fitter.core.errors import DuhemError
+from fitter.data.recordings import Recording
+from fitter.identification.exported import SHARED_START_RSS
+from fitter.identification.fit_data import FitData, prepare_for_fit
+from fitter.identification.output_error import Recordings
+from fitter.identification.parametrisation import Parametrisation
+from fitter.identification.refine import Options, refine
+from fitter.identification.search import Candidate
+
+__all__ = [
+    "GAIN_TOLERANCE",
+    "ROUNDS",
+    "WithGains",
+    "calibrated_search",
+    "gains_apart",
+    "in_frame",
+    "raw_rss",
+    "refined_gains",
+]
+
+GAIN_TOLERANCE = 1e-3
+"""The rounds stop when every recording's gain moves by less than this fraction (module docstring, item 2)."""
+ROUNDS = 2
+"""At most this many searches on the rescaled recordings (module docstring, item 2)."""
+GAIN_BOUND = 100.0
+"""A recording's gain is fitted within [1 / GAIN_BOUND, GAIN_BOUND] of the first's."""
+
+Best = Callable[[Sequence[Candidate], FitData, Sequence[Recording]], Candidate]
+Search = Callable[..., list[Candidate]]
+
+
+def _own_residuals(cand: Candidate, data: FitData) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per prepared recording (normalised), (y, yhat) from its own fitted initial state (and its start group's
+    and reference, as the data has them)."""
+    problem = Recordings(data.norm, x0="fit", cycles=data.cycles, starts=data.starts, references=data.references)
+    with np.errstate(all="ignore"):
+        info = problem.residuals(cand.param, cand.res.theta)[2]
+    return [(rec.y[s:], rec.y[s:] - r) for rec, (s, _, r, _, _) in zip(data.norm, info)]
+
+
+def _regressed(pairs: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, float, float]:
+    """(a_i per recording, RSS of y - yhat, RSS of y_i - a_i yhat_i - b_i) over the recordings (linear least
+    squares per recording); a NaN gain where a recording's model output is constant or not finite."""
+    gains, before, after = [], 0.0, 0.0
+    for y, yhat in pairs:
+        if not (np.all(np.isfinite(yhat)) and np.ptp(yhat) > 0):
+            return np.full(len(pairs), np.nan), np.inf, np.inf
+        X = np.column_stack([yhat, np.ones(len(yhat))])
+        coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+        gains.append(float(coef[0]))
+        before += float(np.sum((y - yhat) ** 2))
+        after += float(np.sum((y - X @ coef) ** 2))
+    return np.array(gains), before, after
+
+
+def gains_apart(cand: Candidate, data: FitData, recordings: Sequence[Recording]) -> np.ndarray | None:
+    """The gains g_i = a_i / a_0 of the recordings relative to the first where they are apart (module docstring,
+    item 1); None where they are not, or the recordings are not several of distinct names fitted each from a
+    fitted initial state (x0 "fit")."""
+    names = [r.name for r in recordings]
+    if data.x0_mode != "fit" or len(names) < 2 or len(set(names)) < len(names):
+        return None
+    pairs = _own_residuals(cand, data)
+    a, before, after = _regressed(pairs)
+    n = sum(len(y) for y, _ in pairs)
+    before, after = before + n * 1e-18, after + n * 1e-18  # rounding in normalised units
+    if not (np.all(np.isfinite(a)) and np.all(a > 0) and np.isfinite(after)):
+        return None
+    if SHARED_START_RSS * after < before and n * np.log(before / after) > len(names) * np.log(n):
+        return a / a[0]
+    return None
+
+
+class WithGains(Parametrisation):
+    """A base parametrisation plus the log output gains of the recordings but the first: theta = [base...,
+    ln g_1, ..., ln g_{R-1}]; the model built carries them in ``fit_info["gains"]``, which `Recordings` applies
+    (each recording's output g times the model's).  The gains are not linear entries: the base's are."""
+
+    def __init__(self, base: Parametrisation, names: Sequence[str]):
+        self.base, self.gained = base, list(names[1:])
+        self.size = base.size + len(self.gained)
+
+    def names(self) -> list[str]:
+        return self.base.names() + [f"ln gain {n}" for n in self.gained]
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = self.base.bounds()
+        k = len(self.gained)
+        return np.r_[lo, [-np.log(GAIN_BOUND)] * k], np.r_[hi, [np.log(GAIN_BOUND)] * k]
+
+    def build(self, theta: np.ndarray):
+        model = self.base.build(theta[: self.base.size])
+        gains = dict(zip(self.gained, np.exp(theta[self.base.size :]).tolist()))
+        return model.replace(fit_info=dict(model.fit_info, gains=gains))
+
+    def linear_entries(self) -> dict[int, tuple[str, int]]:
+        return self.base.linear_entries()
+
+
+def refined_gains(cand: Candidate, data: FitData, options: Options) -> np.ndarray | None:
+    """The gains of the recordings relative to the first (1 for the first) that the candidate refined jointly with
+    them finds on `data` (`WithGains`; output error with variable projection, each recording from its own start or
+    its start group's, with its reference), from gains 1; None where the refinement fails."""
+    param = WithGains(cand.param, [r.name for r in data.norm])
+    problem = Recordings(data.norm, x0="fit", cycles=data.cycles, starts=data.starts, references=True)
+    theta0 = np.r_[cand.res.theta, np.zeros(len(param.gained))]
+    try:
+        res = refine(param, theta0, problem, options)
+    except (DuhemError, ValueError, np.linalg.LinAlgError):
+        return None
+    gains = np.r_[1.0, np.exp(res.theta[cand.param.size :])]
+    return gains if np.all(np.isfinite(gains)) else None
+
+
+def in_frame(recordings: Sequence[Recording], gains: Sequence[float]) -> list[Recording]:
+    """The recordings in the first one's frame: each output divided by its gain (module docstring)."""
+    return [
+        r if g == 1.0 else Recording(r.t, r.u, r.y / g, r.name, r.input, r.output, r.source)
+        for r, g in zip(recordings, gains)
+    ]
+
+
+def raw_rss(cand: Candidate, data: FitData, gains: Sequence[float]) -> tuple[float, int]:
+    """(RSS on the raw outputs, samples): each prepared recording's residual from its own start in the model's
+    frame, times the normalisation's output scale and the recording's gain (module docstring, item 3)."""
+    pairs = _own_residuals(cand, data)
+    rss = sum(float(np.sum(((y - yhat) * data.scaling.y_s * g) ** 2)) for (y, yhat), g in zip(pairs, gains))
+    return rss, sum(len(y) for y, _ in pairs)
+
+
+def _bic(cand: Candidate, data: FitData, gains: Sequence[float]) -> float:
+    """N ln(RSS_raw / N) + p ln N, p the candidate's parameters and the gains other than the first's."""
+    rss, n = raw_rss(cand, data, gains)
+    p = cand.param.size + sum(g != 1.0 for g in gains[1:]) + (len(gains) - 1) * bool(data.references)
+    return float(n * np.log(max(rss, 1e-300) / n) + p * np.log(n))
+
+
+def calibrated_search(
+    data: FitData, cands, recordings: Sequence[Recording], search: Search, best: Best, options: Options, progress
+) -> tuple[FitData, list[Candidate], list[Recording], np.ndarray | None]:
+    """(data, candidates, recordings in the model's frame, gains or None): the search's, or, where the gains are
+    apart (`gains_apart`), the last round's on the recordings rescaled by them, when its BIC on the raw outputs is
+    lower (module docstring)."""
+    first = best(cands, data, recordings)
+    gains = gains_apart(first, data, recordings)
+    if gains is None:
+        return data, cands, list(recordings), None
+    progress("the recordings' outputs have different gains: fitting each in the first one's scale", None)
+    total = gains
+    orders = tuple(range(1, first.param.n + 1))
+    for _ in range(ROUNDS):
+        frame = in_frame(recordings, total)
+        scaled = replace(prepare_for_fit(frame, settled=False), references=True, starts=data.starts)
+        found, used = search(scaled, orders), total
+        step = refined_gains(best(found, scaled, frame), scaled, options)
+        if step is None or np.max(np.abs(step - 1.0)) < GAIN_TOLERANCE:
+            break
+        total = total * step
+    if _bic(best(found, scaled, frame), scaled, used) < _bic(first, data, np.ones(len(recordings))):
+        return scaled, found, frame, used
+    return data, cands, list(recordings), None
