@@ -477,6 +477,7 @@ class FitOutcome:
     own_x0_ratio: float | None = None
     """The residual from each recording's own fitted start (the summary's ``nrmse_x0_fitted``) over the bound."""
     per_file_ratio: list | None = None
+    gains: dict | None = None  # the output gains the fit found (the summary's ``gains``), None: none
     """Each file's residual RMS (stored x0) over the bound."""
     cpu_seconds: float | None = None
 
@@ -532,6 +533,7 @@ def check_fit(draw: Draw, **fit_kwargs) -> FitOutcome:
         nrmse_mismatch=mismatch,
         own_x0_ratio=own_rms / draw.bound,
         per_file_ratio=[float(np.sqrt(np.mean((r.y - y) ** 2))) / draw.bound for r, y in zip(draw.recordings, sims)],
+        gains=(res.summary.get("gains") or {}).get("values"),
         cpu_seconds=cpu,
     )
 

@@ -58,12 +58,6 @@ def test_without_the_gains_the_same_files_are_missed(noisy_fit):
         assert np.sqrt(np.mean((e - e.mean()) ** 2)) > 10 * 0.01
 
 
-def test_files_of_one_gain_get_none():
-    """The same runs with their zeros apart but one gain: no gains in the summary or the model."""
-    res = fit_recordings(_runs([1.0, 1.0, 1.0], [0.0, 2.0, -1.5], noise=0.01), kind="ri")
-    assert res.summary.get("gains") is None and "gains" not in res.model.fit_info
-
-
 def test_the_diagnosis_takes_the_gains_off_and_finds_nothing_missing(noisy_fit):
     """Files that differ only by an instrument's gain and zero are a clean experiment: the diagnosis reports the
     gains as the files' (within 1 %) and finds nothing missing (it had refused them: 'the base model explains 0.415

@@ -112,6 +112,8 @@ def test_fit_on_a_fixed_draw(spec):
         f"{spec.label}: residual RMS {out.residual_rms:.4g} is {out.ratio:.3f} x the bound {out.bound:.4g} "
         f"(noise ratio {out.noise_ratio}, chosen {out.chosen}; from each file's own x0: {out.own_x0_ratio:.3f})"
     )
+    if spec.offsets != "calibrated":  # files of one gain: none found (`fitter.identification.file_gains`)
+        assert out.gains is None, f"{spec.label}: gains {out.gains} found where the files have one"
 
 
 @pytest.mark.parametrize("spec", DIAGNOSIS_DRAWS)
