@@ -17,7 +17,10 @@ physics of the device.  `fit_recordings` finds them so:
    start, the same test under their start groups (`fitter.identification.fit_data.start_groups`), with references:
    a flexible model's own start per run can mimic the run's gain (an ri4 fitted to three 190-sample runs of an ri1
    device at gains 1 / 0.57 / 1.02 regressed to 1 / 0.98 / 1.00 from its own starts, and missed the later runs by
-   59 and 37 % from the stored x0), one state for the runs that start alike cannot.
+   59 and 37 % from the stored x0), one state for the runs that start alike cannot.  Where the one stored x0 does
+   not suit those runs (`fitter.identification.run_starts.apart`) and the regression shows no gains, the candidate
+   is refined under their start groups with and without the gains (`_refined_apart`), and the gains are apart
+   when that leaves below 1 / `SHARED_START_RSS` of the RSS and passes BIC's test.
 2. **Rounds** (`calibrated_search`): the recordings are put in the first one's frame, y_i / g_i with
    g_i = a_i / a_0, and searched again with references (orders up to the first search's choice; runs that share
    an initial state in the first search share it here, `fitter.identification.fit_data.start_groups`).  That
@@ -48,6 +51,7 @@ from fitter.identification.fit_data import FitData, prepare_for_fit, start_group
 from fitter.identification.output_error import Recordings
 from fitter.identification.parametrisation import Parametrisation
 from fitter.identification.refine import Options, refine
+from fitter.identification.run_starts import apart
 from fitter.identification.search import Candidate
 
 __all__ = [
@@ -164,7 +168,7 @@ def in_frame(recordings: Sequence[Recording], gains: Sequence[float]) -> list[Re
 
 
 def _apart(
-    cand: Candidate, data: FitData, recordings: Sequence[Recording]
+    cand: Candidate, data: FitData, recordings: Sequence[Recording], options: Options
 ) -> tuple[list[int] | None, np.ndarray | None]:
     """(start groups, gains) of `gains_apart` on `data`, or, where they are not apart there and several runs start
     alike each from its own start, under their start groups with references (module docstring, item 1: each run's
@@ -175,7 +179,35 @@ def _apart(
     groups = start_groups(data.recs)
     if len(set(groups)) == len(groups):
         return None, None
-    return groups, gains_apart(cand, replace(data, starts=groups, references=True), recordings)
+    grouped = replace(data, starts=groups, references=True)
+    gains = gains_apart(cand, grouped, recordings)
+    if gains is None and apart(cand, data, recordings):
+        gains = _refined_apart(cand, grouped, options)
+    return groups, gains
+
+
+def _refined_apart(cand: Candidate, data: FitData, options: Options) -> np.ndarray | None:
+    """The gains where the candidate refined with them on `data` (`WithGains`) leaves below 1 / `SHARED_START_RSS`
+    of the RSS it leaves refined without them, and less by more than BIC allows for the R - 1 gains; None where it
+    does not (module docstring, item 1: a model fitted from each run's own start can be too far from one that fits
+    the runs from their one start for a regression to show the gains: an ri4 of two noise-free runs of an rd4 device
+    at gains 1 / 1.79 regressed to 1 / 1.08 under their one start)."""
+    problem = Recordings(data.norm, x0="fit", cycles=data.cycles, starts=data.starts, references=True)
+    try:
+        plain = refine(cand.param, cand.res.theta, problem, options)
+    except (DuhemError, ValueError, np.linalg.LinAlgError):
+        return None
+    gains = refined_gains(replace(cand, res=plain), data, options)
+    if gains is None:
+        return None
+    param = WithGains(cand.param, [r.name for r in data.norm])
+    with np.errstate(all="ignore"):
+        without = problem.projected(cand.param, plain.theta)[0]
+        gained = problem.projected(param, np.r_[plain.theta, np.log(gains[1:])])[0]
+    n = len(gained)  # every sample, both (the refinements optimise on `options`' decimated ones)
+    before, after = float(without @ without) + n * 1e-18, float(gained @ gained) + n * 1e-18
+    bic = n * np.log(before / after) > (len(gains) - 1) * np.log(n)
+    return gains if SHARED_START_RSS * after < before and bic else None
 
 
 def raw_rss(cand: Candidate, data: FitData, gains: Sequence[float]) -> tuple[float, int]:
@@ -200,7 +232,7 @@ def calibrated_search(
     apart (`gains_apart`), the last round's on the recordings rescaled by them, when its BIC on the raw outputs is
     lower (module docstring)."""
     first = best(cands, data, recordings)
-    starts, gains = _apart(first, data, recordings)
+    starts, gains = _apart(first, data, recordings, options)
     if gains is None:
         return data, cands, list(recordings), None
     progress("the recordings' outputs have different gains: fitting each in the first one's scale", None)
