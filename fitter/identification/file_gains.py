@@ -29,8 +29,12 @@ physics of the device.  `fit_recordings` finds them so:
    another input span another size: an ri2 device of three files at gains 1 / 0.7 / 1.35 regressed to
    1 / 0.73 / 1.13 after three rounds), which rescale the recordings for the next round, until every gain moves
    by less than `GAIN_TOLERANCE` or after `ROUNDS` rounds.
-3. **Kept** where its BIC on the raw outputs is lower, the R - 1 gains counted: N ln(RSS_raw / N) + p ln N, with
-   RSS_raw = sum_i g_i^2 RSS_i of each recording's residual in the model's frame (`raw_rss`).
+3. **Kept** (`_kept`) where its BIC on the raw outputs is lower, the R - 1 gains counted: N ln(RSS_raw / N) +
+   p ln N, with RSS_raw = sum_i g_i^2 RSS_i of each recording's residual in the model's frame (`raw_rss`); for runs
+   that start alike searched under their start groups where the first search fitted each from its own start,
+   where its RSS_raw is within `SHARED_START_RSS` times the first's (the shared-start rule of `fit_recordings`:
+   three runs of an ri3 device at gains 1 / 1.15 / 1.05, searched from their own starts, ri4 at 0.83x the noise
+   from them and 66x and 20x from the stored x0 on the later runs, kept over the gained search by BIC).
 
 The model is the first recording's; the gains are in its ``fit_info["gains"]`` and the summary's ``gains``, and
 every score of a recording compares it in the model's frame (`fitter.identification.exported.levelled`: the
@@ -225,6 +229,18 @@ def _bic(cand: Candidate, data: FitData, gains: Sequence[float]) -> float:
     return float(n * np.log(max(rss, 1e-300) / n) + p * np.log(n))
 
 
+def _kept(found: Candidate, scaled: FitData, gains: np.ndarray, first: Candidate, data: FitData) -> bool:
+    """Whether the gained search's best candidate (`found` on `scaled`) is kept over the first search's (module
+    docstring, item 3): for runs that start alike fitted under their start groups where the first search fitted
+    each from its own start, its raw RSS within `SHARED_START_RSS` times the first's (the shared-start rule of
+    `fitter.identification.fit`: the own starts have parameters BIC does not count, and mimic the gains); else
+    the lower BIC on the raw outputs, the gains counted."""
+    ones = np.ones(len(gains))
+    if scaled.starts is not None and data.starts is None:
+        return raw_rss(found, scaled, gains)[0] <= SHARED_START_RSS * raw_rss(first, data, ones)[0]
+    return _bic(found, scaled, gains) < _bic(first, data, ones)
+
+
 def calibrated_search(
     data: FitData, cands, recordings: Sequence[Recording], search: Search, best: Best, options: Options, progress
 ) -> tuple[FitData, list[Candidate], list[Recording], np.ndarray | None]:
@@ -246,6 +262,6 @@ def calibrated_search(
         if step is None or np.max(np.abs(step - 1.0)) < GAIN_TOLERANCE:
             break
         total = total * step
-    if _bic(best(found, scaled, frame), scaled, used) < _bic(first, data, np.ones(len(recordings))):
+    if _kept(best(found, scaled, frame), scaled, used, first, data):
         return scaled, found, frame, used
     return data, cands, list(recordings), None
