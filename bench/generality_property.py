@@ -4,11 +4,13 @@
     python bench/generality_property.py --draws 200 --seed 1000
     python bench/generality_property.py --max-samples 5000 --no-diagnose --json out/generality.json
     python bench/generality_property.py --only ri --draws 20  # rate-independent draws only
+    python bench/generality_property.py --offsets calibrated --draws 6 --max-samples 1500  # a gain per file
 
 Draw k is `tests/generality_draws.spec_from_seed(seed + k)`: a random stable device (rate-independent or
 rate-dependent, order 1-4), a random input (turning points, sine, multisine, triangle train, steps with holds),
 1-3 files of 1e2-1e6 samples (log-uniform; `--min-samples`, `--max-samples`), noise 0 or 0.1-1 % of the output
-range, one output offset for all files or one per file (the generators and the properties are described in
+range, one output offset for all files, one per file, or one offset and one gain per file (`--offsets` runs only the
+draws of one of these; the generators and the properties are described in
 tests/generality_draws.py; tests/test_generality.py runs a fixed set of them in the test suite).  Per draw:
 
 * ``fit``: `fit_recordings(recs)`, "ok" or the exception (type: message, and the innermost frame in `fitter`);
