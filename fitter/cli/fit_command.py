@@ -199,8 +199,7 @@ def fit(
     if summary.get("why"):
         click.echo(f"chosen: {summary['why']}")
     _budget_lines(summary)
-    _reference_line(summary.get("references"))
-    _gain_line(summary.get("gains"))
+    _file_property_lines(summary)
     effects = summary.get("effects") or {}
     held = effects.get("held") or {}
     for e in effects.get("fitted", []):
@@ -256,24 +255,30 @@ def fit(
         _comparison_tables(summary["comparison"])
 
 
-def _reference_line(refs: dict | None) -> None:
-    """The output references the fit found (the summary's ``references``), in one line."""
-    if refs:
-        values = ", ".join(f"{k} {v:+.6g}" for k, v in refs["values"].items())
-        click.echo(
-            f"output references (each file's zero relative to {refs['relative_to']}'s, a property of the files, "
-            f"not of the device; every score adds them): {values}"
-        )
+_FILE_PROPERTIES = (
+    (
+        "references",
+        "{:+.6g}",
+        "output references (each file's zero relative to {first}'s, a property of the files, not of the device; "
+        "every score adds them)",
+    ),
+    (
+        "gains",
+        "x{:.6g}",
+        "output gains (each file's scale relative to {first}'s, a property of the files: an instrument's calibration "
+        "or an operating condition, not the device; every score applies them)",
+    ),
+)
+"""(summary key, value format, line) of what the fit found per file (`_file_property_lines`)."""
 
 
-def _gain_line(gains: dict | None) -> None:
-    """The output gains the fit found (the summary's ``gains``), in one line."""
-    if gains:
-        values = ", ".join(f"{k} x{v:.6g}" for k, v in gains["values"].items())
-        click.echo(
-            f"output gains (each file's scale relative to {gains['relative_to']}'s, a property of the files: an "
-            f"instrument's calibration or an operating condition, not the device; every score applies them): {values}"
-        )
+def _file_property_lines(summary: dict) -> None:
+    """The output references and gains the fit found (the summary's ``references``, ``gains``), one line each."""
+    for key, form, text in _FILE_PROPERTIES:
+        found = summary.get(key)
+        if found:
+            values = ", ".join(f"{k} {form.format(v)}" for k, v in found["values"].items())
+            click.echo(f"{text.format(first=found['relative_to'])}: {values}")
 
 
 def _own_start_note(recs: list[dict]) -> None:
