@@ -14,7 +14,7 @@ $(BIN)/duhem: pyproject.toml constraints.txt
 	$(BIN)/uv pip install -q --python $(BIN)/python -c constraints.txt ".[test]"
 	touch $(BIN)/duhem
 
-.PHONY: install demo test test-newest bench
+.PHONY: install demo test test-slow test-newest bench
 install: $(BIN)/duhem
 
 demo: install
@@ -26,7 +26,10 @@ demo: install
 test: install
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	$(BIN)/python -m pytest -q -n 2 --dist worksteal --durations=20
+	$(BIN)/python -m pytest -q -n 2 --dist worksteal --durations=20 -m "not slow"
+
+test-slow: install
+	$(BIN)/python -m pytest -q -n 2 --dist worksteal -m slow
 
 test-newest:
 	rm -rf .venv-newest
