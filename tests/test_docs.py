@@ -13,7 +13,7 @@ DOCS = sorted((ROOT / "docs").glob("*.md"))
 
 OPENING = """```sh
 make demo    # fresh venv + install; fit examples/demo.csv, export an FMU, validate it with fmpy, diagnose examples/diagnose/
-make test    # fresh venv + install; the whole test suite (pytest, two workers: pytest-xdist)
+make test    # fresh venv + install; the test suite but its 8 longest tests (pytest-xdist, two workers; make test-slow: those)
 ```"""
 
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
