@@ -52,7 +52,7 @@ from fitter.core.errors import DuhemError
 from fitter.data.recordings import Recording
 from fitter.identification.exported import SHARED_START_RSS
 from fitter.identification.fit_data import FitData, prepare_for_fit, start_groups
-from fitter.identification.output_error import Recordings
+from fitter.identification.output_error import Recordings, divided
 from fitter.identification.parametrisation import Parametrisation
 from fitter.identification.refine import Options, refine
 from fitter.identification.run_starts import apart
@@ -83,7 +83,7 @@ Search = Callable[..., list[Candidate]]
 def _own_residuals(cand: Candidate, data: FitData) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per prepared recording (normalised), (y, yhat) from its own fitted initial state (and its start group's
     and reference, as the data has them)."""
-    problem = Recordings(data.norm, x0="fit", cycles=data.cycles, starts=data.starts, references=data.references)
+    problem = _problem(data, data.references)
     with np.errstate(all="ignore"):
         info = problem.residuals(cand.param, cand.res.theta)[2]
     return [(rec.y[s:], rec.y[s:] - r) for rec, (s, _, r, _, _) in zip(data.norm, info)]
@@ -153,7 +153,7 @@ def refined_gains(cand: Candidate, data: FitData, options: Options) -> np.ndarra
     them finds on `data` (`WithGains`; output error with variable projection, each recording from its own start or
     its start group's, with its reference), from gains 1; None where the refinement fails."""
     param = WithGains(cand.param, [r.name for r in data.norm])
-    problem = Recordings(data.norm, x0="fit", cycles=data.cycles, starts=data.starts, references=True)
+    problem = _problem(data, True)
     theta0 = np.r_[cand.res.theta, np.zeros(len(param.gained))]
     try:
         res = refine(param, theta0, problem, options)
@@ -165,10 +165,13 @@ def refined_gains(cand: Candidate, data: FitData, options: Options) -> np.ndarra
 
 def in_frame(recordings: Sequence[Recording], gains: Sequence[float]) -> list[Recording]:
     """The recordings in the first one's frame: each output divided by its gain (module docstring)."""
-    return [
-        r if g == 1.0 else Recording(r.t, r.u, r.y / g, r.name, r.input, r.output, r.source)
-        for r, g in zip(recordings, gains)
-    ]
+    return [divided(r, g) for r, g in zip(recordings, gains)]
+
+
+def _problem(data: FitData, references: bool) -> Recordings:
+    """The output-error problem of the prepared recordings (normalised), each from its own fitted start or its
+    start group's, with `references`."""
+    return Recordings(data.norm, x0="fit", cycles=data.cycles, starts=data.starts, references=references)
 
 
 def _apart(
@@ -196,7 +199,7 @@ def _refined_apart(cand: Candidate, data: FitData, options: Options) -> np.ndarr
     does not (module docstring, item 1: a model fitted from each run's own start can be too far from one that fits
     the runs from their one start for a regression to show the gains: an ri4 of two noise-free runs of an rd4 device
     at gains 1 / 1.79 regressed to 1 / 1.08 under their one start)."""
-    problem = Recordings(data.norm, x0="fit", cycles=data.cycles, starts=data.starts, references=True)
+    problem = _problem(data, True)
     try:
         plain = refine(cand.param, cand.res.theta, problem, options)
     except (DuhemError, ValueError, np.linalg.LinAlgError):

@@ -109,7 +109,7 @@ from fitter.identification.projection import (
     with_reference,
 )
 
-__all__ = ["Recordings", "simulate_from", "fitted_initial_state", "shared_initial_state", "X0_MODES", "FAIL"]
+__all__ = ["Recordings", "divided", "simulate_from", "fitted_initial_state", "shared_initial_state", "X0_MODES", "FAIL"]
 
 X0_MODES = ("model", "fit", "periodic")
 FAIL = 1e3
@@ -441,7 +441,7 @@ class Recordings:
         parts, info = [], []
         owner = self._reference_owner()
         gains = self._gains(model)
-        frame = [_divided(r, g) for r, g in zip(self.recordings, gains)]
+        frame = [divided(r, g) for r, g in zip(self.recordings, gains)]
         shared = self._shared_starts(model, frame)
         for i, (rec, w, cyc, settle) in enumerate(zip(frame, self._w, self.cycles, self._settle)):
             start = None if shared is None else shared.get(i)
@@ -583,7 +583,7 @@ class Recordings:
             return start, None, np.full(len(rec.y) - start, fail), np.nan, None
 
 
-def _divided(rec: Recording, gain: float) -> Recording:
+def divided(rec: Recording, gain: float) -> Recording:
     """`rec` in the model's frame: its output divided by its `gain` (itself for 1)."""
     return rec if gain == 1.0 else Recording(rec.t, rec.u, rec.y / gain, rec.name, rec.input, rec.output, rec.source)
 
