@@ -24,6 +24,12 @@ the times between, Broyden's rank-one secant update of the last one from the ste
 which costs no evaluation and makes J+ s = df exact (Dennis & Schnabel, Numerical Methods for Unconstrained
 Optimization, 1983, Section 8.3).  The covariance below always rests on forward differences at the optimum.
 
+The penalty's rows (a barrier: zero where the model is acceptable) are differenced only where the penalty is
+active at the point: where it is zero there, their forward differences are taken as zero and the penalty is not
+evaluated at the shifted points (`_Objective.penalty_held`; not with MINPACK's method, which differences itself; the barrier's eigenvalue problems were a third of an
+order search's time).  That is the penalty's derivative everywhere but on its kink, where a difference across the
+barrier's edge gave a one-sided slope instead.
+
 Compiled kernel
 ---------------
 With `Options.compiled` the solver's evaluations run the kernel's modal pass compiled
@@ -55,9 +61,10 @@ value of `effective_samples` for autocorrelated residuals).
 
 from __future__ import annotations
 
-from contextlib import nullcontext
+import multiprocessing
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -240,10 +247,10 @@ def refine(
             def jac_moving(z: np.ndarray) -> np.ndarray:
                 return jac(obj.full_theta(z))[:, obj.moving] / obj.scale
 
-        elif options.jacobian_refresh > 1:
-            jac_moving = secant = SecantJacobian(obj, options.jacobian_refresh, options.diff_step, bounds, mapper)
+        elif options.method == "lm" and options.jacobian_refresh == 1:
+            jac_moving = "2-point"  # MINPACK's own forward differences (lmdif)
         else:
-            jac_moving = "2-point"
+            jac_moving = secant = SecantJacobian(obj, options.jacobian_refresh, options.diff_step, bounds, mapper)
         sol = least_squares(
             obj,
             obj.theta0[obj.moving],
@@ -335,10 +342,12 @@ class SecantJacobian:
         self._last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def differences(self, z: np.ndarray, r: np.ndarray, workers=None) -> np.ndarray:
-        """Forward differences of the objective at z, where its value is r (the columns mapped by `workers`)."""
-        return approx_derivative(
-            self.objective, z, method="2-point", rel_step=self.diff_step, f0=r, bounds=self.bounds, workers=workers
-        )
+        """Forward differences of the objective at z, where its value is r (the columns mapped by `workers`); the
+        penalty's rows zero where it is zero at z (`_Objective.penalty_held`)."""
+        with self.objective.penalty_held(r):
+            return approx_derivative(
+                self.objective, z, method="2-point", rel_step=self.diff_step, f0=r, bounds=self.bounds, workers=workers
+            )
 
     def __call__(self, z: np.ndarray) -> np.ndarray:
         r = self.objective.last(z)
@@ -351,7 +360,7 @@ class SecantJacobian:
             J = J0 + np.outer(r - r0 - J0 @ s, s / (s @ s)) if s.any() else J0
         self.calls += 1
         self._last = (z.copy(), r.copy(), J)
-        return J.copy()
+        return J.copy(order="K")  # the layout differences give (scipy's own path): the SVD rounds alike
 
 
 class _Objective:
@@ -374,6 +383,10 @@ class _Objective:
             self.lin &= bool(self.free[self.lin].all())
         self.moving = self.free & ~self.lin
         self._last: tuple[np.ndarray, np.ndarray] | None = None
+        self._rows = 0
+        self._held = multiprocessing.RawValue("b", 0) if penalty is not None else None
+        """Whether the penalty is held at zero (`penalty_held`): in memory shared with the processes that
+        `fitter.workers.evaluation_map` forks later, so that every process evaluates the same function."""
 
     def full_theta(self, z: np.ndarray) -> np.ndarray:
         theta = self.theta0.copy()
@@ -387,9 +400,25 @@ class _Objective:
         else:
             r = self.coarse.residuals(self.param, theta)[0]
         r = r / self.scale
-        r = r if self.penalty is None else np.r_[r, self.penalty(theta)]
+        if self.penalty is not None:
+            extra = np.zeros(self._rows) if self._held.value else self.penalty(theta)
+            self._rows = len(extra)
+            r = np.r_[r, extra]
         self._last = (z.copy(), r)
         return r
+
+    @contextmanager
+    def penalty_held(self, r: np.ndarray) -> Iterator[None]:
+        """Within: the penalty's rows are zero without being evaluated, where they are all zero in the objective's
+        value r (the point a Jacobian is taken at); else the penalty as always."""
+        hold = self.penalty is not None and self._rows > 0 and not np.any(r[len(r) - self._rows :])
+        if hold:
+            self._held.value = 1
+        try:
+            yield
+        finally:
+            if hold:
+                self._held.value = 0
 
     def last(self, z: np.ndarray) -> np.ndarray:
         """The objective at z: its last evaluation when that was at z, else a new one."""
