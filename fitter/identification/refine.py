@@ -26,9 +26,9 @@ Optimization, 1983, Section 8.3).  The covariance below always rests on forward 
 
 The penalty's rows (a barrier: zero where the model is acceptable) are differenced only where the penalty is
 active at the point: where it is zero there, their forward differences are taken as zero and the penalty is not
-evaluated at the shifted points (`_Objective.penalty_held`; not with MINPACK's method, which differences itself; the barrier's eigenvalue problems were a third of an
+evaluated at the shifted points (`_Objective.penalty_held`; the barrier's eigenvalue problems were a third of an
 order search's time).  That is the penalty's derivative everywhere but on its kink, where a difference across the
-barrier's edge gave a one-sided slope instead.
+barrier's edge gave a one-sided slope instead.  MINPACK's method (``"lm"``) differences by itself, penalty and all.
 
 Compiled kernel
 ---------------
