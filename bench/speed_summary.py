@@ -9,6 +9,10 @@ Rows (each runs the other benches' own code, nothing is re-implemented here):
   wall time against the three classical models fitted to each record alone on the same records (Preisach,
   Prandtl-Ishlinskii, Bouc-Wen: `fitter.baselines`, the sum of their fits' times); target 30 s.  Skipped when
   ``../shared/data`` is absent.
+* **answers in seconds** (issue 71): ``duhem fit examples/demo.csv`` as a fresh process (start-up and imports
+  included), wall time against the Preisach model fitted to the same file (`fitter.baselines`); target 3 s or 10x
+  the Preisach fit, whichever is larger.  ``duhem diagnose`` of the three piezo triangles as a fresh process against
+  the three classical models fitted per record; target 60 s (skipped when ``../shared/data`` is absent).
 * **the piezo base search on two processes** against the same on one (``fit_recordings`` without effects, orders
   1-4 of both kinds: the Jacobians' columns on the cores, `fitter.workers.evaluation_map`); the bench stops
   unless both give the same theta to the last digit.  Skipped when ``../shared/data`` is absent.
@@ -50,6 +54,7 @@ import long_recordings  # noqa: E402
 import real_data  # noqa: E402
 
 from fitter.baselines import BASELINES  # noqa: E402
+from fitter.data.recordings import load_recording  # noqa: E402
 from fitter.identification.fit import fit_recordings  # noqa: E402
 from fitter.identification.rd_triangles import identify_rd_triangles  # noqa: E402
 from fitter.paper import example2, example3  # noqa: E402
@@ -75,6 +80,34 @@ def piezo_rows() -> list[Row]:
     )
     classical = sum(_timed(cls().fit, [rec]) for cls in BASELINES.values() for rec in recs.values())
     return [("piezo.best fit [s]", best, "Preisach + PI + Bouc-Wen per record [s]", classical, "<= 30 s")]
+
+
+def _command_seconds(*args: str) -> float:
+    """Wall seconds of ``duhem ARGS`` as a fresh process (start-up and imports included); its output discarded."""
+    duhem = Path(sys.executable).with_name("duhem")
+    t0 = time.perf_counter()
+    subprocess.run([str(duhem), *args], check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return time.perf_counter() - t0
+
+
+def interactive_rows() -> list[Row]:
+    """Issue 71's interactive figures: the demo's fit against a Preisach fit of the same file, the piezo diagnosis
+    against the classical models per record (that row only with the shared data)."""
+    demo = ROOT.parent / "examples" / "demo.csv"
+    preisach = _timed(BASELINES["preisach"]().fit, [load_recording(demo)])
+    with tempfile.TemporaryDirectory() as tmp:
+        fit = _command_seconds("fit", str(demo), "-o", str(Path(tmp) / "demo.json"))
+        rows = [("duhem fit demo.csv, a process [s]", fit, "Preisach fit [s]", preisach, "<= max(3 s, 10x)")]
+        if real_data.DATA.is_dir():
+            recs = real_data.piezo_recordings()
+            classical = sum(_timed(cls().fit, [rec]) for cls in BASELINES.values() for rec in recs.values())
+            files = [str(real_data.DATA / "piezo-pnzt" / f"{stem}.csv") for stem in real_data.PIEZO.values()]
+            columns = ["--time", "time_s", "--input", "voltage_V", "--output", "polarization_uC_per_cm2"]
+            diagnose = _command_seconds("diagnose", *files, *columns, "--json", str(Path(tmp) / "d.json"))
+            rows.append(
+                ("duhem diagnose, piezo, a process [s]", diagnose, "classical per record [s]", classical, "<= 60 s")
+            )
+    return rows
 
 
 def base_search_rows() -> list[Row]:
@@ -171,7 +204,7 @@ def main() -> None:
     parser.add_argument("--skip-long", action="store_true", help="leave out the 1e6-sample recording")
     parser.add_argument("--steps", type=int, default=20000, help="co-simulation steps per FMU run")
     args = parser.parse_args()
-    rows = piezo_rows() + base_search_rows() + effect_fit_rows() + fmu_rows(args.steps)
+    rows = interactive_rows() + piezo_rows() + base_search_rows() + effect_fit_rows() + fmu_rows(args.steps)
     rows += ([] if args.skip_long else long_rows()) + paper_rows()
     text = table(rows)
     print(text)

@@ -170,3 +170,29 @@ def test_state_responses_are_each_recordings_state_response(inside):
         alone = [state_response(model, t, u, X0) for t, u in zip(ts, us)]
     assert all(np.array_equal(a, b) for a, b in zip(together, alone)) and len(together) == 3
     assert np.array_equal(together[2][0], X0) and together[2].shape == (len(us[2]), 3, 2)
+
+
+@pytest.mark.parametrize("inside", [True, False], ids=["compiled", "numpy sums"])
+def test_state_responses_outputs_are_c_times_the_states(inside):
+    """``outputs=True`` gives C x at every sample: with the canonical C = e1 the states' first entries to the last
+    bit (what the fit's projection reads), with a general C the product C x to 1e-13 of its size; the states of the
+    scan are then never formed (compiled) or reduced as they come (numpy sums)."""
+    from contextlib import nullcontext
+
+    from fitter.core.kernel import state_responses
+
+    rng = np.random.default_rng(3)
+    X0 = rng.standard_normal((3, 4))
+    for C in ([1.0, 0.0, 0.0], [1.0, 0.5, -0.2]):
+        model = _ri(True).replace(C=C)
+        ts, us = _runs(model, [5, 6])
+        with compiled_scans() if inside else nullcontext():
+            states = state_responses(model, ts, us, X0)
+            outputs = state_responses(model, ts, us, X0, outputs=True)
+        for X, Y in zip(states, outputs):
+            assert Y.shape == (len(X), 4)
+            if C[1] == 0.0:
+                assert np.array_equal(Y, X[:, 0])
+            else:
+                assert np.abs(Y - np.einsum("i,kim->km", C, X)).max() <= 1e-13 * np.abs(Y).max()
+                assert np.abs(Y - X[:, 0]).max() > 0.1 * np.abs(Y).max()  # C mixes the states

@@ -63,9 +63,13 @@ def _product(M, w, out):
 
 
 @njit(cache=True)
-def _scan(lam, V, Vinv, beta, eps, index, p, r, S, X0, series, starts):
+def _scan(lam, V, Vinv, beta, eps, index, p, r, S, X0, series, starts, rows):
+    """The states (N, n, m) after each interval; with `rows` (per branch the output row C V, complex (n,); empty
+    for none) the outputs C x (N, 1, m) instead: Re(sum_k (C V)_k w_k), ascending k, the rounding of the first
+    state's row of Re(V w) when C = e1."""
     N, n, m = len(S), X0.shape[0], X0.shape[1]
-    X = np.empty((N, n, m))
+    out_rows = len(rows) > 0
+    X = np.empty((N, 1 if out_rows else n, m))
     w = np.zeros((n, m), dtype=np.complex128)
     x0 = X0.astype(np.complex128)
     b = index[0]
@@ -88,18 +92,27 @@ def _scan(lam, V, Vinv, beta, eps, index, p, r, S, X0, series, starts):
             a = c1 * p[t] + s * s * p2 * r[t]
             for j in range(m):
                 w[i, j] = e * w[i, j] + a * beta[b, i, j] + c1 * eps[b, i, j]
-        _product(V[b], w, x)
-        X[t] = x.real
+        if out_rows:
+            for j in range(m):
+                acc = 0j
+                for k in range(n):
+                    acc += rows[b, k] * w[k, j]
+                X[t, 0, j] = acc.real
+        else:
+            _product(V[b], w, x)
+            X[t] = x.real
     return X
 
 
-def modal_scan(used: dict, force: dict, X0: np.ndarray, branch, p, r, S, starts=None) -> np.ndarray:
+def modal_scan(used: dict, force: dict, X0: np.ndarray, branch, p, r, S, starts=None, C=None) -> np.ndarray:
     """States after each interval (N, n) or (N, n, m), every flow in `used` modal:
     `fitter.core.scans.integrate_modal` by (M) interval after interval (module docstring).  `force`: per
     branch None (the flow's own B, E) or m forcing columns (B, E), each (n, m).  `starts`: the first interval
     of each of several runs laid end to end (ascending, from 0; default one run): each run starts from X0, in
     the modal coordinates of its first interval's branch, as a scan of that run alone would
-    (`fitter.core.flow.integrate_runs`)."""
+    (`fitter.core.flow.integrate_runs`).  `C` (n,): the outputs C x (N,) or (N, m) instead of the states, from
+    the modal states through the rows C V of each branch (n products an interval instead of n^2; for C = e1
+    the same numbers as the states' first entry)."""
     keys = list(used)
     flows = [used[b] for b in keys]
     cols = X0.reshape(X0.shape[0], -1).astype(float)
@@ -126,5 +139,6 @@ def modal_scan(used: dict, force: dict, X0: np.ndarray, branch, p, r, S, starts=
         cols,
         _PHI2_SERIES,
         np.zeros(1, np.int64) if starts is None else np.asarray(starts, dtype=np.int64),
+        np.zeros((0, 0), complex) if C is None else np.stack([np.asarray(C, float) @ fl.V for fl in flows]),
     )
-    return X.reshape((len(S),) + X0.shape)
+    return X.reshape((len(S),) + (X0.shape if C is None else X0.shape[1:]))

@@ -508,7 +508,9 @@ def integrate_blocks(
         yield X
 
 
-def integrate_runs(fl: dict, x0: np.ndarray, runs: list[tuple], forcing: dict | None = None) -> list[np.ndarray] | None:
+def integrate_runs(
+    fl: dict, x0: np.ndarray, runs: list[tuple], forcing: dict | None = None, C: np.ndarray | None = None
+) -> list[np.ndarray] | None:
     """`integrate_blocks` of several runs from the same x0 (each run its (branch, p, r, S)) in one call of the
     compiled scan: per run, its states x_1 ... x_N, the same numbers as its own `integrate_blocks` gives.
 
@@ -517,7 +519,8 @@ def integrate_runs(fl: dict, x0: np.ndarray, runs: list[tuple], forcing: dict | 
     What a recording's intervals cost in numpy calls besides the scan (the flows' modal forcing stacked, the
     branches indexed, the scan dispatched) is then paid once for all the recordings of an evaluation.  None
     where that is not so: outside `fitter.core.scans.compiled_scans`, with a flow used that is not modal, or
-    with a run that is empty or longer than one piece (the caller then integrates run by run)."""
+    with a run that is empty or longer than one piece (the caller then integrates run by run).  `C`: the outputs
+    C x per run instead of the states (`fitter.core.compiled.modal_scan`'s ``C``)."""
     scan = modal_pass()
     if scan is integrate_modal or not all(0 < len(S) <= _BLOCK for *_, S in runs):
         return None
@@ -529,5 +532,5 @@ def integrate_runs(fl: dict, x0: np.ndarray, runs: list[tuple], forcing: dict | 
     p, r, S = (np.concatenate([np.broadcast_to(run[k], run[3].shape) for run in runs]) for k in (1, 2, 3))
     ends = np.cumsum([len(run[3]) for run in runs])
     firsts = np.r_[0, ends[:-1]]
-    X = scan(used, force, np.asarray(x0, dtype=float), branch, p, r, S, firsts)
+    X = scan(used, force, np.asarray(x0, dtype=float), branch, p, r, S, firsts, C)
     return [X[a:b] for a, b in zip(firsts, ends)]

@@ -139,25 +139,32 @@ def state_blocks(model, t, u, X0, flow_cache: dict | None = None, forcing: dict 
     yield from pieces
 
 
-def state_responses(model, ts, us, X0, flow_cache: dict | None = None, forcing: dict | None = None) -> list[np.ndarray]:
+def state_responses(
+    model, ts, us, X0, flow_cache: dict | None = None, forcing: dict | None = None, outputs: bool = False
+) -> list[np.ndarray]:
     """`state_response` of a base model (no effects) on several recordings (t_i, u_i) from the same X0: the
     same numbers, with the recordings' intervals in one call of the compiled scan where it is in effect
-    (`flow.integrate_runs`), else recording by recording (`flow.integrate_blocks`)."""
+    (`flow.integrate_runs`), else recording by recording (`flow.integrate_blocks`).  `outputs`: C x (the
+    model's C; without D u) per sample instead of the states, (N,) or (N, m): inside the compiled scan from the
+    modal states directly (n products an interval instead of n^2; for C = e1 the states' first entries)."""
     X0 = np.asarray(X0, dtype=float)
     fl = flow_cache if flow_cache is not None else flows(model)
     if getattr(model, "effects", None):
-        return [state_response(model, t, u, X0, fl, forcing) for t, u in zip(ts, us)]
+        states = [state_response(model, t, u, X0, fl, forcing) for t, u in zip(ts, us)]
+        return [np.einsum("i,ki...->k...", model.C, X) for X in states] if outputs else states
+    C = np.asarray(model.C, dtype=float)
     runs = [_intervals(model, t, u) for t, u in zip(ts, us)]
-    together = integrate_runs(fl, X0, runs, forcing)
-    pieces = (
-        [[X] for X in together]
-        if together is not None
-        else [list(integrate_blocks(fl, X0, *run, forcing)) for run in runs]
-    )
+    together = integrate_runs(fl, X0, runs, forcing, C if outputs else None)
+    if together is not None:
+        pieces = [[X] for X in together]
+    else:
+        pieces = [list(integrate_blocks(fl, X0, *run, forcing)) for run in runs]
+        pieces = [[np.einsum("i,ki...->k...", C, X) for X in run] for run in pieces] if outputs else pieces
+    first = np.einsum("i,i...->...", C, X0) if outputs else X0
     out = []
     for run in pieces:
-        full = np.empty((1 + sum(len(X) for X in run),) + X0.shape)  # x_0 and one state per interval
-        full[0], k = X0, 1
+        full = np.empty((1 + sum(len(X) for X in run),) + first.shape)  # x_0 and one state per interval
+        full[0], k = first, 1
         for X in run:
             full[k : k + len(X)] = X
             k += len(X)

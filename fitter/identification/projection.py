@@ -175,8 +175,9 @@ def response_columns_all(
     starts = [cycle[0] if mode == "periodic" else 0 for cycle in cycles]
     ts = [None if t is None else t[k:] for t, k in zip(ts, starts)]
     us = [u[k:] for u, k in zip(us, starts)]
-    states = state_responses(model, ts, us, columns.X0, flow_cache=flow_cache, forcing=columns.forcing)
-    return [columns.part(X, u, k, cycle) for X, u, k, cycle in zip(states, us, starts, cycles)]
+    periodic = mode == "periodic"  # the fixed point needs the states; the other modes read only the outputs
+    responses = state_responses(model, ts, us, columns.X0, flow_cache, columns.forcing, outputs=not periodic)
+    return [columns.part(R, u, k, cycle) for R, u, k, cycle in zip(responses, us, starts, cycles)]
 
 
 class _Columns:
@@ -207,9 +208,10 @@ class _Columns:
         self.forcing = {b: (cols[fb], cols[fe]) for b, (fb, fe) in fields.items()}
 
     def part(self, X: np.ndarray, u: np.ndarray, start: int, cycle) -> LinearPart:
-        """The `LinearPart` of a recording from its states X (N, n, m) at its samples `start`.. (input u)."""
+        """The `LinearPart` of a recording from its states X (N, n, m), or for the modes but ``"periodic"`` its
+        outputs C x (N, m), at its samples `start`.. (input u)."""
         model, lin, n, m = self.model, self.lin, self.model.order, self.m
-        Y = np.einsum("i,kim->km", model.C, X)
+        Y = np.einsum("i,kim->km", model.C, X) if X.ndim == 3 else X
         d_linear = any(f == "D" for f, _ in lin.values())
         base = Y[:, 0] + (0.0 if d_linear else model.D * u)
         Psi = np.empty((len(u), len(lin)))
