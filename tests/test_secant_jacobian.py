@@ -6,7 +6,7 @@ from contextlib import nullcontext
 import numpy as np
 
 from fitter.identification import output_error
-from fitter.identification.refine import Options, SecantJacobian, refine
+from fitter.identification.refine import Barrier, Options, SecantJacobian, refine
 from test_output_error import START, TRUE, _Five, _recording
 
 
@@ -25,7 +25,7 @@ class _Curve:
     def last(self, z):
         return self.at[1] if self.at is not None and np.array_equal(self.at[0], z) else self(z)
 
-    def penalty_held(self, r):
+    def penalty_held(self, z):
         return nullcontext()  # no penalty
 
     @staticmethod
@@ -102,29 +102,33 @@ def test_secant_fits_on_two_processes_give_the_one_process_fit_and_leave_no_proc
     assert np.array_equal(one.jac, two.jac) and np.array_equal(one.weighted, two.weighted)
 
 
-class _Penalty:
-    """1e3 max(0, theta_0 - limit): a barrier on A+ of `_Five`, zero where theta_0 <= limit; counts its
-    evaluations."""
+class _Excess:
+    """theta_0 - limit: a barrier on A+ of `_Five` (<= 0 where theta_0 <= limit); counts its evaluations."""
 
     def __init__(self, limit: float):
         self.limit, self.evaluations = limit, 0
 
     def __call__(self, theta):
         self.evaluations += 1
-        return np.array([1e3 * max(0.0, theta[0] - self.limit)])
+        return [theta[0] - self.limit]
 
 
-def test_an_inactive_penalty_is_not_evaluated_at_the_differences_and_an_active_one_is():
-    """The fit of the first test under a barrier that the fit never reaches: evaluated only at the solver's own
-    points (one per evaluation, none per Jacobian column), the same fit as without it.  Under one that holds the
-    optimum back (A+ <= -3.3, the truth -3): evaluated at the differences too, and the fit ends at the barrier."""
+def test_a_barrier_far_inside_is_not_evaluated_at_the_differences_and_one_near_is():
+    """The fit of the first test under a barrier that the fit never comes near: evaluated at the solver's points
+    and once per Jacobian, a fraction of the evaluations of the same barrier differenced at every Jacobian
+    (margin inf), and the same fit to the last bit as without a barrier.  Under one that holds the optimum back
+    (A+ <= -3.3, the truth -3): differenced, and the fit ends at the barrier."""
     problem = output_error.Recordings([_recording(0.5)], x0="fit")
     free = refine(_Five(), START, problem)
-    far = _Penalty(10.0)
-    held = refine(_Five(), START, problem, penalty=far)
-    assert far.evaluations <= held.nfev + 1  # the solver's points (and the covariance's trim), no columns
-    assert held.theta.tobytes() == free.theta.tobytes()
-    near = _Penalty(-3.3)
-    bound = refine(_Five(), START, problem, penalty=near)
-    assert near.evaluations > bound.nfev + 3  # differenced: the columns' points too
+    runs = {}
+    for margin in (1e-3, np.inf):
+        excess = _Excess(10.0)
+        res = refine(_Five(), START, problem, penalty=Barrier(excess, inside=0.0, margin=margin))
+        runs[margin] = (res, excess.evaluations)
+    (held, held_count), (differenced, all_count) = runs.values()
+    assert held.theta.tobytes() == differenced.theta.tobytes() == free.theta.tobytes()
+    assert held_count < all_count / 3  # five columns a Jacobian, none of them evaluated
+    near = _Excess(-3.3)
+    bound = refine(_Five(), START, problem, penalty=Barrier(near, inside=0.0))
+    assert near.evaluations > 3 * bound.nfev  # differenced: the columns' points too
     assert -3.3 < bound.theta[0] < -3.3 + 0.05  # pressed against the barrier, beyond it by the penalty's give

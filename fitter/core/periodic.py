@@ -176,22 +176,18 @@ def minor_loop_rho(model, u_min: float, u_max: float, spans: int | None = None) 
     is the contraction per travel of one full span, so a single limit applies to every sub-span; at b = beta
     it is condition (5) itself, and as b -> 0 it tends to e^{beta alpha(A+ - A-)}, alpha the spectral abscissa
     (the first-order term of the product).  The exponentials of the sub-spans are powers of those of the
-    first, e^{k d A} = (e^{d A})^k (d = beta / spans), formed by doubling: the powers 1..k known, those of
-    k+1..2k are them times the k-th (one stacked product per doubling).  inf when an exponential overflows."""
+    first, e^{k d A} = (e^{d A})^k (d = beta / spans).  inf when an exponential overflows."""
     if model.kind != "ri":
         raise KernelError("condition (5) is for the rate-independent model")
     beta = u_max - u_min
     spans = _rho_spans(model, beta) if spans is None else spans
     d = beta / spans
     steps = expm(np.stack([d * model.A_plus, -d * model.A_minus]))
-    powers = np.empty((spans, *steps.shape))  # powers[k - 1] = (e^{k d A+}, e^{-k d A-})
-    powers[0] = steps
+    powers = np.empty((spans, *steps.shape))  # powers[k - 1] = (e^{k d A+}, e^{-k d A-}), one product per step
     with np.errstate(all="ignore"):
-        known = 1
-        while known < spans:
-            more = min(known, spans - known)
-            np.matmul(powers[:more], powers[known - 1], out=powers[known : known + more])
-            known += more
+        power = np.stack([np.eye(len(steps[0]))] * 2)
+        for k in range(spans):
+            power = np.matmul(power, steps, out=powers[k])
         maps = powers[:, 0] @ powers[:, 1]
         if not np.all(np.isfinite(maps)):
             return float("inf")

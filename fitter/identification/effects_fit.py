@@ -67,7 +67,7 @@ from fitter.core.kernel import flows, simulate
 from fitter.data.cycles import closed_loop
 from fitter.data.recordings import Recording
 from fitter.identification.output_error import Recordings
-from fitter.identification.refine import Options, RefineResult, refine, with_covariance
+from fitter.identification.refine import Barrier, Options, RefineResult, refine, with_covariance
 from fitter.identification.parametrisation import StateSpace, WithEffects
 from fitter.progress import Progress, silent
 from fitter.workers import parallel_map
@@ -254,7 +254,7 @@ def screen_effects(
     model,
     recordings: Sequence[Recording],
     effects: Sequence[str],
-    penalty: Callable[[object], np.ndarray] | None = None,
+    penalty: Barrier | None = None,
     progress: Progress = silent,
     held: dict[str, float] | None = None,
     references: bool = False,
@@ -262,7 +262,7 @@ def screen_effects(
     """Step 1 of the module docstring for `model` and `effects` on `recordings`, its first round: every
     combination of the effects' starts refined for `SCREEN_FIRST_NFEV` iterations with the base's A held.
 
-    `penalty` maps a candidate model to barrier residuals (zero where it is acceptable); `held`, effect
+    `penalty`: a `Barrier` on the candidate models (the fit's, `fit._physical_barrier`); `held`, effect
     parameters held at known values (`check_held`); `references`: every recording but the first has its own
     output reference, fitted with its initial state (`Recordings`' ``references``; files of different zeros).
     """
@@ -276,7 +276,7 @@ def screen_effects(
     kinds = [n.split("[")[0] for n in fam.base.names()] + [""] * (fam.size - fam.n_base)
     free = np.array([k != "x0" for k in kinds])
     screen_free = free & np.array([not k.startswith("A") for k in kinds])
-    pen = None if penalty is None else (lambda th: penalty(fam.build(th)))
+    pen = None if penalty is None else penalty.composed(fam.build)
     base = fam.base.theta(template)
     starts = fam.starts()
 

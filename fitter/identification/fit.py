@@ -121,7 +121,7 @@ from fitter.identification.exported import (
 )
 from fitter.identification import fit_summary
 from fitter.identification.file_gains import calibrated_search
-from fitter.identification.refine import Options, RefineResult, jacobian
+from fitter.identification.refine import Barrier, Options, RefineResult, jacobian
 from fitter.identification.run_starts import (
     alike,
     apart,
@@ -134,10 +134,11 @@ from fitter.identification.run_starts import (
 )
 from fitter.identification.parametrisation import Parametrisation, Physical, RDCanonical, RICanonical, WithEffects
 from fitter.identification.search import (
+    BARRIER_INSIDE,
     FIT_OPTIONS,
     MISFIT,
     Candidate,
-    barrier_residuals,
+    barrier_excesses,
     misfit_ratio,
     order_search,
     refined_further,
@@ -446,24 +447,24 @@ def _with_effects(
     return _Extended(cands[chosen], model, res, fam, tried)
 
 
-def _physical_barrier(param: RICanonical | RDCanonical, data: FitData, recordings) -> Callable[[object], np.ndarray]:
-    """The search's barrier residuals (`fitter.identification.search.barrier_residuals`) for a model in physical
-    units over the recordings' input range (condition (5), the branch amplification and the damping are invariant
-    under the normalisation of `scaling`; the settled minor loops of faithful minor loops are put on its output
-    scale).  They depend on the base alone (its effects left out), so they are computed once per base: the
+def _physical_barrier(param: RICanonical | RDCanonical, data: FitData, recordings) -> Barrier:
+    """The search's barrier (`fitter.identification.search.barrier_excesses`, `BARRIER_INSIDE`) on a model in
+    physical units over the recordings' input range (condition (5), the branch amplification and the damping are
+    invariant under the normalisation of `scaling`; the settled minor loops of faithful minor loops are put on its
+    output scale).  They depend on the base alone (its effects left out), so they are computed once per base: the
     effects' columns of a finite-difference Jacobian reuse them."""
     lo, hi = fit_summary.raw_range(recordings)
     output = (data.scaling.y_c, data.scaling.y_s)
-    cache: dict[bytes, np.ndarray] = {}
+    cache: dict[bytes, list[float]] = {}
 
-    def pen(model) -> np.ndarray:
+    def excesses(model) -> list[float]:
         key = b"".join(np.asarray(getattr(model, k), dtype=float).tobytes() for k in model.PARAMS if k != "x0")
         if key not in cache:
             cache.clear()
-            cache[key] = barrier_residuals(param, model, lo, hi, output)
+            cache[key] = barrier_excesses(param, model, lo, hi, output)
         return cache[key]
 
-    return pen
+    return Barrier(excesses, BARRIER_INSIDE)
 
 
 def _meets_barrier(cand: Candidate, data: FitData, recordings) -> bool:

@@ -24,11 +24,11 @@ the times between, Broyden's rank-one secant update of the last one from the ste
 which costs no evaluation and makes J+ s = df exact (Dennis & Schnabel, Numerical Methods for Unconstrained
 Optimization, 1983, Section 8.3).  The covariance below always rests on forward differences at the optimum.
 
-The penalty's rows (a barrier: zero where the model is acceptable) are differenced only where the penalty is
-active at the point: where it is zero there, their forward differences are taken as zero and the penalty is not
-evaluated at the shifted points (`_Objective.penalty_held`; the barrier's eigenvalue problems were a third of an
-order search's time).  That is the penalty's derivative everywhere but on its kink, where a difference across the
-barrier's edge gave a one-sided slope instead.  MINPACK's method (``"lm"``) differences by itself, penalty and all.
+A `Barrier` penalty's rows are differenced only near the barrier: where every excess is farther inside than
+`Barrier.margin` at the point, no forward difference can reach the barrier, their differences are zero, and the
+penalty is not evaluated at the shifted points (`_Objective.penalty_held`; the barrier's eigenvalue problems were a
+third of an order search's time).  The numbers are those of differencing it.  MINPACK's method (``"lm"``)
+differences by itself, penalty and all.
 
 Compiled kernel
 ---------------
@@ -64,7 +64,7 @@ from __future__ import annotations
 import multiprocessing
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -75,7 +75,7 @@ from fitter.identification.parametrisation import Parametrisation
 from fitter.progress import Progress, silent
 from fitter.workers import evaluation_map, one_blas_thread
 
-__all__ = ["Options", "RefineResult", "refine", "with_covariance", "jacobian", "effective_samples"]
+__all__ = ["Barrier", "Options", "RefineResult", "refine", "with_covariance", "jacobian", "effective_samples"]
 
 
 @dataclass(frozen=True)
@@ -118,6 +118,38 @@ class Options:
     eliminate: bool = False
     """Eliminate the parameters in which the model is linear (`Parametrisation.linear_entries`)
     by linear least squares at every evaluation (variable projection, module docstring)."""
+
+
+@dataclass(frozen=True)
+class Barrier:
+    """A penalty of `refine` that keeps theta inside a barrier: the rows weight max(0, e_k + inside) of the
+    excesses e(theta) (each <= 0 where the model is acceptable; one that cannot be evaluated, inf or nan, gives a
+    row of `weight`).  The penalty starts `inside` before each limit (a penalty of weight 1e3 lets the optimum
+    overshoot its zero by about gradient / 1e3)."""
+
+    excesses: Callable[[Any], Sequence[float]]
+    inside: float
+    weight: float = 1e3
+    margin: float = 1e-3
+    """`clear`'s distance from the penalty's start: a forward difference (a relative step of 1.5e-8) that moved an
+    excess this far would need a slope of some 1e5 per unit of theta."""
+
+    def __call__(self, theta) -> np.ndarray:
+        return self.rows(self.excesses(theta))
+
+    def rows(self, excesses: Sequence[float]) -> np.ndarray:
+        """weight max(0, e + inside) per excess, `weight` where e is not finite."""
+        e = np.asarray(excesses, dtype=float) + self.inside
+        return np.where(np.isfinite(e), self.weight * np.maximum(e, 0.0), self.weight)
+
+    def clear(self, theta) -> bool:
+        """Whether every excess at theta is finite and more than `margin` before the penalty's start."""
+        e = np.asarray(self.excesses(theta), dtype=float) + self.inside
+        return bool(np.all(np.isfinite(e)) and np.all(e < -self.margin))
+
+    def composed(self, to: Callable[[Any], Any]) -> "Barrier":
+        """The same barrier of to(theta) (e.g. of a parametrisation's model)."""
+        return replace(self, excesses=lambda theta: self.excesses(to(theta)))
 
 
 @dataclass
@@ -344,7 +376,7 @@ class SecantJacobian:
     def differences(self, z: np.ndarray, r: np.ndarray, workers=None) -> np.ndarray:
         """Forward differences of the objective at z, where its value is r (the columns mapped by `workers`); the
         penalty's rows zero where it is zero at z (`_Objective.penalty_held`)."""
-        with self.objective.penalty_held(r):
+        with self.objective.penalty_held(z):
             return approx_derivative(
                 self.objective, z, method="2-point", rel_step=self.diff_step, f0=r, bounds=self.bounds, workers=workers
             )
@@ -382,9 +414,9 @@ class _Objective:
             self.lin[list(param.linear_entries())] = True
             self.lin &= bool(self.free[self.lin].all())
         self.moving = self.free & ~self.lin
-        self._last: tuple[np.ndarray, np.ndarray] | None = None
+        self._last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._rows = 0
-        self._held = multiprocessing.RawValue("b", 0) if penalty is not None else None
+        self._held = multiprocessing.RawValue("b", 0) if isinstance(penalty, Barrier) else None
         """Whether the penalty is held at zero (`penalty_held`): in memory shared with the processes that
         `fitter.workers.evaluation_map` forks later, so that every process evaluates the same function."""
 
@@ -401,17 +433,18 @@ class _Objective:
             r = self.coarse.residuals(self.param, theta)[0]
         r = r / self.scale
         if self.penalty is not None:
-            extra = np.zeros(self._rows) if self._held.value else self.penalty(theta)
+            extra = np.zeros(self._rows) if self._held is not None and self._held.value else self.penalty(theta)
             self._rows = len(extra)
             r = np.r_[r, extra]
-        self._last = (z.copy(), r)
+        self._last = (z.copy(), r, theta)
         return r
 
     @contextmanager
-    def penalty_held(self, r: np.ndarray) -> Iterator[None]:
-        """Within: the penalty's rows are zero without being evaluated, where they are all zero in the objective's
-        value r (the point a Jacobian is taken at); else the penalty as always."""
-        hold = self.penalty is not None and self._rows > 0 and not np.any(r[len(r) - self._rows :])
+    def penalty_held(self, z: np.ndarray) -> Iterator[None]:
+        """Within: a `Barrier` penalty's rows are zero without being evaluated, where it is `Barrier.clear` at z
+        (the point a Jacobian is taken at, at the theta its penalty was evaluated with); else the penalty as
+        always."""
+        hold = self._held is not None and self._rows > 0 and self.penalty.clear(self._theta_at(z))
         if hold:
             self._held.value = 1
         try:
@@ -422,9 +455,14 @@ class _Objective:
 
     def last(self, z: np.ndarray) -> np.ndarray:
         """The objective at z: its last evaluation when that was at z, else a new one."""
-        if self._last is not None and np.array_equal(self._last[0], z):
-            return self._last[1]
-        return self(z)
+        if self._last is None or not np.array_equal(self._last[0], z):
+            self(z)
+        return self._last[1]
+
+    def _theta_at(self, z: np.ndarray) -> np.ndarray:
+        """The theta of the objective's evaluation at z (with elimination, its linear entries solved)."""
+        self.last(z)
+        return self._last[2]
 
 
 def _free_jacobian(problem, param: Parametrisation, theta: np.ndarray, free: np.ndarray) -> np.ndarray:

@@ -22,7 +22,7 @@ from fitter.data.noise import noise_or_zero
 from fitter.identification.fit_data import FitData, FitError, RateLevels, averaged_loop
 from fitter.identification.output_error import Recordings
 from fitter.identification.parametrisation import RDCanonical, RICanonical
-from fitter.identification.refine import Options, RefineResult, refine, with_covariance
+from fitter.identification.refine import Barrier, Options, RefineResult, refine, with_covariance
 from fitter.identification.starts import generic_ri_starts, rd_starts, ri_starts
 from fitter.progress import Progress, silent
 from fitter.workers import parallel_map, side_by_side
@@ -32,7 +32,7 @@ __all__ = [
     "FIT_OPTIONS",
     "BARRIER_INSIDE",
     "MISFIT",
-    "barrier_residuals",
+    "barrier_excesses",
     "misfit_ratio",
     "order_search",
     "refined_further",
@@ -99,10 +99,10 @@ def _problem(data: FitData) -> Recordings:
     return Recordings(data.norm, x0=data.x0_mode, cycles=data.cycles, starts=data.starts, references=data.references)
 
 
-def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.ndarray], np.ndarray]:
-    """1e3 max(0, excess + `BARRIER_INSIDE`) of the parametrisation's barrier quantities (`excesses`, `barriers` of
-    them; 1e3 where they cannot be evaluated): rate-independent, rho of condition (5) <= 0.99, the branch
-    amplification over the fitted span <= 1e6 (`RICanonical.amplification`: a branch that expands a state
+def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Barrier:
+    """The search's `Barrier` on theta: `barrier_excesses` of the parametrisation's model over the data's input
+    range, the penalty starting `BARRIER_INSIDE` before each limit; rate-independent, rho of condition (5) <= 0.99,
+    the branch amplification over the fitted span <= 1e6 (`RICanonical.amplification`: a branch that expands a state
     error by 1e15 while the other contracts converges, but makes the model's output depend on rounding) and,
     with faithful minor loops, every settled minor loop within half an output range of the data
     (`RICanonical.minor_loop_extent`);
@@ -111,28 +111,28 @@ def _barrier(param: RICanonical | RDCanonical, data: FitData) -> Callable[[np.nd
     oscillation fits the data by cancellation and blows up at rates it was not fitted on)."""
     lo, hi = data.input_range()
 
-    def pen(th):
+    def excesses(th: np.ndarray) -> list[float]:
         try:
             with np.errstate(all="ignore"):
                 model = param.build(th) if np.all(np.isfinite(th)) else None
         except (ValueError, np.linalg.LinAlgError):
             model = None
-        return barrier_residuals(param, model, lo, hi)
+        return barrier_excesses(param, model, lo, hi)
 
-    return pen
+    return Barrier(excesses, BARRIER_INSIDE)
 
 
-def barrier_residuals(
+def barrier_excesses(
     param: RICanonical | RDCanonical, model, lo: float, hi: float, output: tuple[float, float] = (0.0, 1.0)
-) -> np.ndarray:
-    """1e3 max(0, excess + `BARRIER_INSIDE`) of `param.excesses(model, lo, hi, output)`; 1e3 where an excess
-    cannot be evaluated (or `model` is None)."""
+) -> list[float]:
+    """`param.excesses(model, lo, hi, output)` (each <= 0 where met); inf where one cannot be evaluated (or `model`
+    is None)."""
     try:
         with np.errstate(all="ignore"):
             vals = [np.inf] * param.barriers if model is None else param.excesses(model, lo, hi, output)
     except (ValueError, np.linalg.LinAlgError):
         vals = [np.inf] * param.barriers
-    return np.array([1e3 * max(0.0, v + BARRIER_INSIDE) if np.isfinite(v) else 1e3 for v in vals])
+    return [float(v) if np.isfinite(v) else np.inf for v in vals]
 
 
 def _candidate(
