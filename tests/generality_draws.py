@@ -386,6 +386,8 @@ class Draw:
     output_range: float
     offsets: list[float]
     units: dict = field(default_factory=dict)
+    gains: list = field(default_factory=list)
+    """Each file's output gain (the first's 1; "calibrated" draws only differ from 1)."""
 
     @property
     def bound(self) -> float:
@@ -443,7 +445,8 @@ def build_draw(spec: DrawSpec) -> Draw:
         name = f"file{i + 1}"
         recs.append(Recording(t, c + a * s, y_meas, name=name, source=f"{name}.csv"))
         clean.append(y_clean)
-    return Draw(spec, truth, recs, clean, sigma, output_range, offsets, {"u_scale": a, "u_centre": c, "y_scale": y_s})
+    units = {"u_scale": a, "u_centre": c, "y_scale": y_s}
+    return Draw(spec, truth, recs, clean, sigma, output_range, offsets, units, gains)
 
 
 # ----------------------------------------------------------------------------------------------- properties

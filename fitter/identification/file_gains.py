@@ -20,7 +20,12 @@ physics of the device.  `fit_recordings` finds them so:
    59 and 37 % from the stored x0), one state for the runs that start alike cannot.  Where the one stored x0 does
    not suit those runs (`fitter.identification.run_starts.apart`) and the regression shows no gains, the candidate
    is refined under their start groups with and without the gains (`_refined_apart`), and the gains are apart
-   when that leaves below 1 / `SHARED_START_RSS` of the RSS and passes BIC's test.
+   when that leaves below 1 / `SHARED_START_RSS` of the RSS and passes BIC's test.  Where none of that shows
+   gains, the same refined test is made on the search's lowest order (under the start groups, if any): the least
+   flexible model has the fewest ways to mimic a gain (two noise-free runs of a first-order device from one start,
+   the second at gain 0.904: an ri4 fitted each to 1e-12 of the range without a gain, and regressed to gains
+   1.0009 / 0.9989 by the diagnosis' first-order base; the first-order candidate refined with the gain found it
+   to nine digits).
 2. **Rounds** (`calibrated_search`): the recordings are put in the first one's frame, y_i / g_i with
    g_i = a_i / a_0, and searched again with references (orders up to the first search's choice; runs that share
    an initial state in the first search share it here, `fitter.identification.fit_data.start_groups`).  That
@@ -109,7 +114,7 @@ def gains_apart(cand: Candidate, data: FitData, recordings: Sequence[Recording])
     item 1); None where they are not, or the recordings are not several of distinct names fitted each from a
     fitted initial state (x0 "fit")."""
     names = [r.name for r in recordings]
-    if data.x0_mode != "fit" or len(names) < 2 or len(set(names)) < len(names):
+    if not _several(data, recordings):
         return None
     pairs = _own_residuals(cand, data)
     a, before, after = _regressed(pairs)
@@ -175,22 +180,30 @@ def _problem(data: FitData, references: bool) -> Recordings:
 
 
 def _apart(
-    cand: Candidate, data: FitData, recordings: Sequence[Recording], options: Options
+    cand: Candidate, data: FitData, recordings: Sequence[Recording], options: Options, lowest: Candidate | None = None
 ) -> tuple[list[int] | None, np.ndarray | None]:
     """(start groups, gains) of `gains_apart` on `data`, or, where they are not apart there and several runs start
     alike each from its own start, under their start groups with references (module docstring, item 1: each run's
-    own start can mimic its gain, the one state of runs that start alike cannot)."""
+    own start can mimic its gain, the one state of runs that start alike cannot); where neither shows them, the
+    search's `lowest` order refined with and without the gains (`_refined_apart`, under those start groups)."""
     gains = gains_apart(cand, data, recordings)
-    if gains is not None or data.starts is not None:
-        return data.starts, gains
-    groups = start_groups(data.recs)
-    if len(set(groups)) == len(groups):
-        return None, None
-    grouped = replace(data, starts=groups, references=True)
-    gains = gains_apart(cand, grouped, recordings)
-    if gains is None and apart(cand, data, recordings):
-        gains = _refined_apart(cand, grouped, options)
-    return groups, gains
+    starts, at = data.starts, data
+    if gains is None and data.starts is None:
+        groups = start_groups(data.recs)
+        if len(set(groups)) < len(groups):
+            starts, at = groups, replace(data, starts=groups, references=True)
+            gains = gains_apart(cand, at, recordings)
+            if gains is None and apart(cand, data, recordings):
+                gains = _refined_apart(cand, at, options)
+    if gains is None and lowest is not None and lowest is not cand and _several(data, recordings):
+        gains = _refined_apart(lowest, replace(at, references=True), options)
+    return starts, gains
+
+
+def _several(data: FitData, recordings: Sequence[Recording]) -> bool:
+    """Whether the recordings are several, of distinct names, each fitted from a fitted initial state (x0 "fit")."""
+    names = [r.name for r in recordings]
+    return data.x0_mode == "fit" and len(names) >= 2 and len(set(names)) == len(names)
 
 
 def _refined_apart(cand: Candidate, data: FitData, options: Options) -> np.ndarray | None:
@@ -251,7 +264,8 @@ def calibrated_search(
     apart (`gains_apart`), the last round's on the recordings rescaled by them, when its BIC on the raw outputs is
     lower (module docstring)."""
     first = best(cands, data, recordings)
-    starts, gains = _apart(first, data, recordings, options)
+    lowest = min(cands, key=lambda c: (c.param.n, c.param.kind != "ri"))
+    starts, gains = _apart(first, data, recordings, options, lowest)
     if gains is None:
         return data, cands, list(recordings), None
     progress("the recordings' outputs have different gains: fitting each in the first one's scale", None)
