@@ -31,6 +31,7 @@ from fitter.diagnosis.experiment import JoinedExperiment
 from fitter.core.errors import DuhemError, KernelError
 from fitter.core.kernel import simulate
 from fitter.diagnosis.fitting import Fit, _share, refit
+from fitter.identification.file_gains import gain_and_zero
 from fitter.identification.fit import fit_recordings
 from fitter.diagnosis.statistics import NOISE_MARGIN, RESOLUTION
 
@@ -50,12 +51,11 @@ def gain_per_file(ex: JoinedExperiment, fit: Fit, mask: np.ndarray) -> tuple[dic
         part = np.zeros(len(ex.y), bool)
         part[ex.part(i)] = True
         rows = part & mask
-        if np.count_nonzero(rows) < 3 or np.ptp(yhat[rows]) == 0:
+        fitted = gain_and_zero(ex.y[rows], yhat[rows]) if np.count_nonzero(rows) >= 3 else None
+        if fitted is None:
             continue
-        X = np.column_stack([yhat[rows], np.ones(np.count_nonzero(rows))])
-        (g, c), *_ = np.linalg.lstsq(X, ex.y[rows], rcond=None)
-        gains[rec.name] = float(g)
-        residual[part] = ex.y[part] - (g * yhat[part] + c)
+        gains[rec.name], c = fitted
+        residual[part] = ex.y[part] - (fitted[0] * yhat[part] + c)
     return gains, residual
 
 

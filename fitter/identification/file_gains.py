@@ -68,6 +68,7 @@ __all__ = [
     "ROUNDS",
     "WithGains",
     "calibrated_search",
+    "gain_and_zero",
     "gains_apart",
     "in_frame",
     "raw_rss",
@@ -94,18 +95,26 @@ def _own_residuals(cand: Candidate, data: FitData) -> list[tuple[np.ndarray, np.
     return [(rec.y[s:], rec.y[s:] - r) for rec, (s, _, r, _, _) in zip(data.norm, info)]
 
 
+def gain_and_zero(y: np.ndarray, yhat: np.ndarray) -> tuple[float, float] | None:
+    """(g, c) of y ~ g yhat + c by linear least squares; None where yhat is constant or not finite."""
+    if not (np.all(np.isfinite(yhat)) and np.ptp(yhat) > 0):
+        return None
+    (g, c), *_ = np.linalg.lstsq(np.column_stack([yhat, np.ones(len(yhat))]), y, rcond=None)
+    return float(g), float(c)
+
+
 def _regressed(pairs: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, float, float]:
-    """(a_i per recording, RSS of y - yhat, RSS of y_i - a_i yhat_i - b_i) over the recordings (linear least
-    squares per recording); a NaN gain where a recording's model output is constant or not finite."""
+    """(a_i per recording, RSS of y - yhat, RSS of y_i - a_i yhat_i - b_i) over the recordings (`gain_and_zero`
+    per recording); NaN gains where a recording's model output is constant or not finite."""
     gains, before, after = [], 0.0, 0.0
     for y, yhat in pairs:
-        if not (np.all(np.isfinite(yhat)) and np.ptp(yhat) > 0):
+        fitted = gain_and_zero(y, yhat)
+        if fitted is None:
             return np.full(len(pairs), np.nan), np.inf, np.inf
-        X = np.column_stack([yhat, np.ones(len(yhat))])
-        coef, *_ = np.linalg.lstsq(X, y, rcond=None)
-        gains.append(float(coef[0]))
+        g, c = fitted
+        gains.append(g)
         before += float(np.sum((y - yhat) ** 2))
-        after += float(np.sum((y - X @ coef) ** 2))
+        after += float(np.sum((y - (g * yhat + c)) ** 2))
     return np.array(gains), before, after
 
 
