@@ -28,12 +28,13 @@ physics of the device.  `fit_recordings` finds them so:
    to nine digits).
 2. **Rounds** (`calibrated_search`): the recordings are put in the first one's frame, y_i / g_i with
    g_i = a_i / a_0, and searched again with references (orders up to the first search's choice; runs that share
-   an initial state in the first search share it here, `fitter.identification.fit_data.start_groups`).  That
-   search's best candidate is refined jointly with the gains (`refined_gains`, `WithGains`: the regression's gains
+   an initial state in the first search share it here, `fitter.identification.fit_data.start_groups`).  Every
+   candidate of that search is refined jointly with the gains (`refined_gains`, `WithGains`: the regression's gains
    are biased by the joint model's compromise between the files, where a flexible model gives a file's loops of
    another input span another size: an ri2 device of three files at gains 1 / 0.7 / 1.35 regressed to
-   1 / 0.73 / 1.13 after three rounds), which rescale the recordings for the next round, until every gain moves
-   by less than `GAIN_TOLERANCE` or after `ROUNDS` rounds.
+   1 / 0.73 / 1.13 after three rounds), and the gains of the one of lowest BIC (`_least_bic_gains`: a flexible
+   model refined with them can trade a gain for its own modes) rescale the recordings for the next round, until
+   every gain moves by less than `GAIN_TOLERANCE` or after `ROUNDS` rounds.
 3. **Kept** (`_kept`) where its BIC on the raw outputs is lower, the R - 1 gains counted: N ln(RSS_raw / N) +
    p ln N, with RSS_raw = sum_i g_i^2 RSS_i of each recording's residual in the model's frame (`raw_rss`); for runs
    that start alike searched under their start groups where the first search fitted each from its own start,
@@ -162,10 +163,11 @@ class WithGains(Parametrisation):
         return self.base.linear_entries()
 
 
-def refined_gains(cand: Candidate, data: FitData, options: Options) -> np.ndarray | None:
-    """The gains of the recordings relative to the first (1 for the first) that the candidate refined jointly with
-    them finds on `data` (`WithGains`; output error with variable projection, each recording from its own start or
-    its start group's, with its reference), from gains 1; None where the refinement fails."""
+def refined_gains(cand: Candidate, data: FitData, options: Options) -> tuple[np.ndarray, float] | None:
+    """(gains, BIC): the gains of the recordings relative to the first (1 for the first) that the candidate refined
+    jointly with them finds on `data` (`WithGains`; output error with variable projection, each recording from its
+    own start or its start group's, with its reference), from gains 1, and the refinement's N ln(RSS / N) + p ln N
+    (p its parameters and the gains, on the samples it optimised); None where the refinement fails."""
     param = WithGains(cand.param, [r.name for r in data.norm])
     problem = _problem(data, True)
     theta0 = np.r_[cand.res.theta, np.zeros(len(param.gained))]
@@ -174,7 +176,17 @@ def refined_gains(cand: Candidate, data: FitData, options: Options) -> np.ndarra
     except (DuhemError, ValueError, np.linalg.LinAlgError):
         return None
     gains = np.r_[1.0, np.exp(res.theta[cand.param.size :])]
-    return gains if np.all(np.isfinite(gains)) else None
+    n = len(res.weighted)
+    bic = n * np.log(max(res.rss, 1e-300) / n) + param.size * np.log(n)
+    return (gains, float(bic)) if np.all(np.isfinite(gains)) and np.isfinite(bic) else None
+
+
+def _least_bic_gains(cands: Sequence[Candidate], data: FitData, options: Options) -> np.ndarray | None:
+    """The gains of the candidate whose refinement with them (`refined_gains`) has the lowest BIC: a flexible
+    model's joint refinement can trade a gain for its own modes (three 155-sample runs of an rd1 device at gains
+    1 / 0.577 / 0.740: an rd3 refined with them to 1 / 0.676 / 0.819, the rd1 to 1 / 0.576 / 0.739)."""
+    refined = [g for g in (refined_gains(c, data, options) for c in cands) if g is not None]
+    return min(refined, key=lambda gb: gb[1])[0] if refined else None
 
 
 def in_frame(recordings: Sequence[Recording], gains: Sequence[float]) -> list[Recording]:
@@ -226,9 +238,10 @@ def _refined_apart(cand: Candidate, data: FitData, options: Options) -> np.ndarr
         plain = refine(cand.param, cand.res.theta, problem, options)
     except (DuhemError, ValueError, np.linalg.LinAlgError):
         return None
-    gains = refined_gains(replace(cand, res=plain), data, options)
-    if gains is None:
+    refined = refined_gains(replace(cand, res=plain), data, options)
+    if refined is None:
         return None
+    gains = refined[0]
     param = WithGains(cand.param, [r.name for r in data.norm])
     with np.errstate(all="ignore"):
         without = problem.projected(cand.param, plain.theta)[0]
@@ -284,7 +297,7 @@ def calibrated_search(
         frame = in_frame(recordings, total)
         scaled = replace(prepare_for_fit(frame, settled=False), references=True, starts=starts)
         found, used = search(scaled, orders), total
-        step = refined_gains(best(found, scaled, frame), scaled, options)
+        step = _least_bic_gains(found, scaled, options)
         if step is None or np.max(np.abs(step - 1.0)) < GAIN_TOLERANCE:
             break
         total = total * step
