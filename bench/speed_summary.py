@@ -1,6 +1,6 @@
 """Issue 35's speed figures in one table, each as a ratio to its peer measured in the same run.
 
-    python bench/speed_summary.py [--out out/bench/speed.md] [--skip-long] [--steps 20000]
+    python bench/speed_summary.py [--out out/bench/speed.md] [--skip-long] [--steps 20000] [--interactive]
 
 Rows (each runs the other benches' own code, nothing is re-implemented here):
 
@@ -203,9 +203,12 @@ def main() -> None:
     parser.add_argument("--out", default=None, help="also write the table to this Markdown file")
     parser.add_argument("--skip-long", action="store_true", help="leave out the 1e6-sample recording")
     parser.add_argument("--steps", type=int, default=20000, help="co-simulation steps per FMU run")
+    parser.add_argument("--interactive", action="store_true", help="only the rows of answers in seconds (issue 71)")
     args = parser.parse_args()
-    rows = interactive_rows() + piezo_rows() + base_search_rows() + effect_fit_rows() + fmu_rows(args.steps)
-    rows += ([] if args.skip_long else long_rows()) + paper_rows()
+    rows = interactive_rows()
+    if not args.interactive:
+        rows += piezo_rows() + base_search_rows() + effect_fit_rows() + fmu_rows(args.steps)
+        rows += ([] if args.skip_long else long_rows()) + paper_rows()
     text = table(rows)
     print(text)
     if args.out:
