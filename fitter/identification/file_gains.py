@@ -35,7 +35,10 @@ physics of the device.  `fit_recordings` finds them so:
    1 / 0.73 / 1.13 after three rounds), and the gains of the one of lowest BIC (`_least_bic_gains`: a flexible
    model refined with them can trade a gain for its own modes) rescale the recordings for the next round, until
    every gain moves by less than `GAIN_TOLERANCE` or after `ROUNDS` rounds.
-3. **Kept** (`_kept`) where its BIC on the raw outputs is lower, the R - 1 gains counted: N ln(RSS_raw / N) +
+3. **Kept** (`_kept`) where its BIC on the raw outputs is lower (and, for gains only the lowest order showed, its
+   raw RSS below 1 / `SHARED_START_RSS` of the first search's: a lowest order that misses the device's physics,
+   rate dependence say, lets gains absorb some of it, and three noisy runs of an rd1 device at three rates then
+   kept gains of 1.012 / 0.996 by BIC), the R - 1 gains counted: N ln(RSS_raw / N) +
    p ln N, with RSS_raw = sum_i g_i^2 RSS_i of each recording's residual in the model's frame (`raw_rss`); for runs
    that start alike searched under their start groups where the first search fitted each from its own start,
    where its RSS_raw is within `SHARED_START_RSS` times the first's (the shared-start rule of `fit_recordings`:
@@ -202,11 +205,12 @@ def _problem(data: FitData, references: bool) -> Recordings:
 
 def _apart(
     cand: Candidate, data: FitData, recordings: Sequence[Recording], options: Options, lowest: Candidate | None = None
-) -> tuple[list[int] | None, np.ndarray | None]:
-    """(start groups, gains) of `gains_apart` on `data`, or, where they are not apart there and several runs start
-    alike each from its own start, under their start groups with references (module docstring, item 1: each run's
-    own start can mimic its gain, the one state of runs that start alike cannot); where neither shows them, the
-    search's `lowest` order refined with and without the gains (`_refined_apart`, under those start groups)."""
+) -> tuple[list[int] | None, np.ndarray | None, bool]:
+    """(start groups, gains, whether `lowest` showed them) of `gains_apart` on `data`, or, where they are not apart
+    there and several runs start alike each from its own start, under their start groups with references (module
+    docstring, item 1: each run's own start can mimic its gain, the one state of runs that start alike cannot);
+    where neither shows them, the search's `lowest` order refined with and without the gains (`_refined_apart`,
+    under those start groups)."""
     gains = gains_apart(cand, data, recordings)
     starts, at = data.starts, data
     if gains is None and data.starts is None:
@@ -218,7 +222,8 @@ def _apart(
                 gains = _refined_apart(cand, at, options)
     if gains is None and lowest is not None and lowest is not cand and _several(data, recordings):
         gains = _refined_apart(lowest, replace(at, references=True), options)
-    return starts, gains
+        return starts, gains, gains is not None
+    return starts, gains, False
 
 
 def _several(data: FitData, recordings: Sequence[Recording]) -> bool:
@@ -285,9 +290,9 @@ def calibrated_search(
     """(data, candidates, recordings in the model's frame, gains or None): the search's, or, where the gains are
     apart (`gains_apart`), the last round's on the recordings rescaled by them, when its BIC on the raw outputs is
     lower (module docstring)."""
-    first = best(cands, data, recordings)
+    first, ones = best(cands, data, recordings), np.ones(len(recordings))
     lowest = min(cands, key=lambda c: (c.param.n, c.param.kind != "ri"))
-    starts, gains = _apart(first, data, recordings, options, lowest)
+    starts, gains, by_lowest = _apart(first, data, recordings, options, lowest)
     if gains is None:
         return data, cands, list(recordings), None
     progress("the recordings' outputs have different gains: fitting each in the first one's scale", None)
@@ -301,6 +306,8 @@ def calibrated_search(
         if step is None or np.max(np.abs(step - 1.0)) < GAIN_TOLERANCE:
             break
         total = total * step
-    if _kept(best(found, scaled, frame), scaled, used, first, data):
+    found_best = best(found, scaled, frame)
+    material = not by_lowest or SHARED_START_RSS * raw_rss(found_best, scaled, used)[0] < raw_rss(first, data, ones)[0]
+    if material and _kept(found_best, scaled, used, first, data):
         return scaled, found, frame, used
     return data, cands, list(recordings), None
