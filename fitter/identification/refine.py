@@ -374,8 +374,8 @@ class SecantJacobian:
         self._last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def differences(self, z: np.ndarray, r: np.ndarray, workers=None) -> np.ndarray:
-        """Forward differences of the objective at z, where its value is r (the columns mapped by `workers`); the
-        penalty's rows zero where it is zero at z (`_Objective.penalty_held`)."""
+        """Forward differences of the objective at z, where its value is r (the columns mapped by `workers`); a
+        `Barrier`'s rows zero where it is clear at z (`_Objective.penalty_held`)."""
         with self.objective.penalty_held(z):
             return approx_derivative(
                 self.objective, z, method="2-point", rel_step=self.diff_step, f0=r, bounds=self.bounds, workers=workers
@@ -392,7 +392,7 @@ class SecantJacobian:
             J = J0 + np.outer(r - r0 - J0 @ s, s / (s @ s)) if s.any() else J0
         self.calls += 1
         self._last = (z.copy(), r.copy(), J)
-        return J.copy(order="K")  # the layout differences give (scipy's own path): the SVD rounds alike
+        return J.copy(order="K")  # the differences' own layout, as scipy's "2-point" passes it: its SVD rounds alike
 
 
 class _Objective:
