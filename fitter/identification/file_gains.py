@@ -272,15 +272,21 @@ def _bic(cand: Candidate, data: FitData, gains: Sequence[float]) -> float:
     return float(n * np.log(max(rss, 1e-300) / n) + p * np.log(n))
 
 
-def _kept(found: Candidate, scaled: FitData, gains: np.ndarray, first: Candidate, data: FitData) -> bool:
+def _kept(
+    found: Candidate, scaled: FitData, gains: np.ndarray, first: Candidate, data: FitData, by_lowest: bool
+) -> bool:
     """Whether the gained search's best candidate (`found` on `scaled`) is kept over the first search's (module
     docstring, item 3): for runs that start alike fitted under their start groups where the first search fitted
     each from its own start, its raw RSS within `SHARED_START_RSS` times the first's (the shared-start rule of
     `fitter.identification.fit`: the own starts have parameters BIC does not count, and mimic the gains); else
-    the lower BIC on the raw outputs, the gains counted."""
+    the lower BIC on the raw outputs, the gains counted; for gains that only the lowest order showed (`by_lowest`),
+    also its raw RSS below 1 / `SHARED_START_RSS` of the first's."""
     ones = np.ones(len(gains))
+    rss, rss_first = raw_rss(found, scaled, gains)[0], raw_rss(first, data, ones)[0]
+    if by_lowest and not SHARED_START_RSS * rss < rss_first:
+        return False
     if scaled.starts is not None and data.starts is None:
-        return raw_rss(found, scaled, gains)[0] <= SHARED_START_RSS * raw_rss(first, data, ones)[0]
+        return rss <= SHARED_START_RSS * rss_first
     return _bic(found, scaled, gains) < _bic(first, data, ones)
 
 
@@ -290,7 +296,7 @@ def calibrated_search(
     """(data, candidates, recordings in the model's frame, gains or None): the search's, or, where the gains are
     apart (`gains_apart`), the last round's on the recordings rescaled by them, when its BIC on the raw outputs is
     lower (module docstring)."""
-    first, ones = best(cands, data, recordings), np.ones(len(recordings))
+    first = best(cands, data, recordings)
     lowest = min(cands, key=lambda c: (c.param.n, c.param.kind != "ri"))
     starts, gains, by_lowest = _apart(first, data, recordings, options, lowest)
     if gains is None:
@@ -306,8 +312,6 @@ def calibrated_search(
         if step is None or np.max(np.abs(step - 1.0)) < GAIN_TOLERANCE:
             break
         total = total * step
-    found_best = best(found, scaled, frame)
-    material = not by_lowest or SHARED_START_RSS * raw_rss(found_best, scaled, used)[0] < raw_rss(first, data, ones)[0]
-    if material and _kept(found_best, scaled, used, first, data):
+    if _kept(best(found, scaled, frame), scaled, used, first, data, by_lowest):
         return scaled, found, frame, used
     return data, cands, list(recordings), None
